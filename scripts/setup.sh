@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Installs what keyframer needs on Debian 12 (only what is missing) and fetches the public test
+# data (Debian's opencv-doc examples) into target/testdata/. Safe to run again.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "setup: installing ${missing[*]}" >&2
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
+
+if ! command -v cargo >/dev/null; then
+  echo "setup: cargo not found; install Rust from https://rustup.rs" >&2
+  exit 1
+fi
+
+# Public test data: Debian's opencv-doc examples (vtest.avi, Megamind_bugy.avi, blur images,
+# Middlebury pairs). Not committed; unpacked here once.
+data=target/testdata
+if [ ! -f "$data/opencv-doc/.complete" ]; then
+  echo "setup: fetching Debian's opencv-doc test data into $data" >&2
+  mkdir -p "$data/download"
+  (cd "$data/download" && rm -f opencv-doc_*.deb && apt-get download -q opencv-doc >/dev/null)
+  rm -rf "$data/opencv-doc.tmp"
+  dpkg -x "$data"/download/opencv-doc_*.deb "$data/opencv-doc.tmp"
+  rm -rf "$data/opencv-doc"
+  mkdir -p "$data/opencv-doc"
+  mv "$data/opencv-doc.tmp/usr/share/doc/opencv-doc/examples/data/"* "$data/opencv-doc/"
+  rm -rf "$data/opencv-doc.tmp" "$data/download"
+  touch "$data/opencv-doc/.complete"
+fi

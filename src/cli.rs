@@ -1,0 +1,268 @@
+//! Command-line flags (clap derive) and their conversion into validated settings, in one place.
+
+use crate::error::{Error, Result};
+use crate::export::{Crop, ExportSettings, Format, Resize};
+use crate::gpu::Backend;
+use crate::samplers::{Bound, Boundaries};
+use crate::select::{Rate, SelectSettings};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use std::path::PathBuf;
+
+/// Turns videos and image sequences into well-chosen keyframes for 3D reconstruction.
+///
+/// Exit codes: 0 success; 1 usage or input error (nothing partial is written); 2 partial failure
+/// (some frames or inputs could not be processed; the rest was written and the problems reported).
+#[derive(Debug, Parser)]
+#[command(name = "keyframer", version, about, long_about = None)]
+pub struct Cli {
+    /// No progress bars; only errors and warnings on stderr.
+    #[arg(short, long, global = true)]
+    pub quiet: bool,
+    /// The command.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// GPU adapter, OpenCV version and video backends, COLMAP availability.
+    Info(InfoArgs),
+    /// Frame count, fps, resolution, duration, codec and rotation of an input.
+    Probe(ProbeArgs),
+    /// Analyse an input and select keyframes into a project file.
+    Select(SelectArgs),
+    /// Write a project's keyframes as images with a manifest.
+    Export(ExportArgs),
+}
+
+/// Which kernels implementation to use.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum BackendArg {
+    /// WGSL compute shaders through wgpu (falls back to opencv without an adapter).
+    Gpu,
+    /// OpenCV on the CPU.
+    Opencv,
+}
+
+impl From<BackendArg> for Backend {
+    fn from(b: BackendArg) -> Self {
+        match b {
+            BackendArg::Gpu => Backend::Gpu,
+            BackendArg::Opencv => Backend::Opencv,
+        }
+    }
+}
+
+/// Flags of analysing commands.
+#[derive(Debug, Args)]
+pub struct AnalysisArgs {
+    /// Kernel backend.
+    #[arg(long, value_enum, default_value = "gpu")]
+    pub backend: BackendArg,
+    /// GPU adapter to use: a case-insensitive part of its name (default: hardware first, then
+    /// software; also KEYFRAMER_ADAPTER).
+    #[arg(long)]
+    pub adapter: Option<String>,
+}
+
+/// `info` flags.
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+    /// GPU adapter to report on (part of its name).
+    #[arg(long)]
+    pub adapter: Option<String>,
+}
+
+/// `probe` flags.
+#[derive(Debug, Args)]
+pub struct ProbeArgs {
+    /// Video file, image file or image folder.
+    pub input: PathBuf,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+    /// Count frames by decoding the whole input instead of trusting the container.
+    #[arg(long)]
+    pub exact: bool,
+    /// Frame rate to assume for an image folder.
+    #[arg(long, value_name = "FPS")]
+    pub images_fps: Option<f64>,
+}
+
+/// `select` flags.
+#[derive(Debug, Args)]
+pub struct SelectArgs {
+    /// Video file, image file or image folder.
+    pub input: PathBuf,
+    /// Project file to write (an existing one for the same, unchanged input is re-used as a cache
+    /// with --force, so re-selecting decodes nothing).
+    #[arg(short, long, value_name = "PROJECT.json")]
+    pub output: PathBuf,
+    /// Keep every Nth frame.
+    #[arg(long, value_name = "N", conflicts_with = "fps")]
+    pub every: Option<usize>,
+    /// Resample to F frames per second, by timestamps.
+    #[arg(long, value_name = "F")]
+    pub fps: Option<f64>,
+    /// First frame to consider: a frame index (`120`) or a time (`4.5s`).
+    #[arg(long, value_name = "FRAME|SECONDSs")]
+    pub start: Option<Bound>,
+    /// Last frame to consider, inclusive: a frame index or a time.
+    #[arg(long, value_name = "FRAME|SECONDSs")]
+    pub end: Option<Bound>,
+    /// Frames to add after sampling (comma-separated indices).
+    #[arg(long, value_delimiter = ',', value_name = "I,J,..")]
+    pub add: Vec<usize>,
+    /// Frames to remove after sampling (comma-separated indices).
+    #[arg(long, value_delimiter = ',', value_name = "I,J,..")]
+    pub remove: Vec<usize>,
+    /// Frame rate to assume for an image folder (needed for --fps and times).
+    #[arg(long, value_name = "FPS")]
+    pub images_fps: Option<f64>,
+    /// Replace an existing project file.
+    #[arg(long)]
+    pub force: bool,
+    /// Backend flags.
+    #[command(flatten)]
+    pub analysis: AnalysisArgs,
+}
+
+/// `export` flags.
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// Project file written by `select`.
+    pub project: PathBuf,
+    /// Output folder (must be empty or new unless --force).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Output size WxH (after the crop).
+    #[arg(long, value_name = "WxH", conflicts_with = "scale")]
+    pub resize: Option<String>,
+    /// Scale factor for the (cropped) frame, e.g. 0.5.
+    #[arg(long, value_name = "S")]
+    pub scale: Option<f64>,
+    /// Crop X,Y,W,H in source pixels, applied before the resize.
+    #[arg(long, value_name = "X,Y,W,H")]
+    pub crop: Option<String>,
+    /// Image format (default: jpg for video, the original files for image folders).
+    #[arg(long, value_enum)]
+    pub format: Option<FormatArg>,
+    /// JPEG quality, 1 to 100.
+    #[arg(long, default_value_t = 95)]
+    pub quality: u8,
+    /// Write into a non-empty folder, replacing an earlier export.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Export formats.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum FormatArg {
+    /// JPEG.
+    Jpg,
+    /// PNG.
+    Png,
+}
+
+fn positive(name: &str, v: Option<f64>) -> Result<Option<f64>> {
+    match v {
+        Some(x) if !(x.is_finite() && x > 0.0) => {
+            Err(Error::param(name, format!("must be a positive number, got {x}")))
+        }
+        other => Ok(other),
+    }
+}
+
+impl SelectArgs {
+    /// Validated settings.
+    pub fn settings(&self, quiet: bool) -> Result<SelectSettings> {
+        let rate = match (self.every, positive("--fps", self.fps)?) {
+            (Some(0), _) => return Err(Error::param("--every", "must be at least 1")),
+            (Some(n), _) => Some(Rate::Every(n)),
+            (None, Some(f)) => Some(Rate::Fps(f)),
+            (None, None) => None,
+        };
+        Ok(SelectSettings {
+            input: self.input.clone(),
+            output: self.output.clone(),
+            boundaries: Boundaries {
+                start: self.start,
+                end: self.end,
+            },
+            rate,
+            add: self.add.clone(),
+            remove: self.remove.clone(),
+            images_fps: positive("--images-fps", self.images_fps)?,
+            force: self.force,
+            quiet,
+        })
+    }
+}
+
+impl ExportArgs {
+    /// Validated settings (the crop is checked against the frame later, when its size is known).
+    pub fn settings(&self) -> Result<ExportSettings> {
+        let resize = match (&self.resize, positive("--scale", self.scale)?) {
+            (Some(s), _) => {
+                let (w, h) = parse_size(s)?;
+                Some(Resize::Size {
+                    width: w,
+                    height: h,
+                })
+            }
+            (None, Some(f)) => Some(Resize::Scale(f)),
+            (None, None) => None,
+        };
+        let crop = self.crop.as_deref().map(parse_crop).transpose()?;
+        if !(1..=100).contains(&self.quality) {
+            return Err(Error::param("--quality", "must be between 1 and 100"));
+        }
+        Ok(ExportSettings {
+            resize,
+            crop,
+            format: self.format.map(|f| match f {
+                FormatArg::Jpg => Format::Jpg,
+                FormatArg::Png => Format::Png,
+            }),
+            quality: self.quality,
+        })
+    }
+}
+
+/// Parses `WxH` with both positive.
+pub fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let bad = || Error::param("--resize", format!("`{s}` is not WIDTHxHEIGHT like 1280x720"));
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let w: u32 = w.trim().parse().map_err(|_| bad())?;
+    let h: u32 = h.trim().parse().map_err(|_| bad())?;
+    if w == 0 || h == 0 {
+        return Err(bad());
+    }
+    Ok((w, h))
+}
+
+/// Parses `X,Y,W,H`.
+pub fn parse_crop(s: &str) -> Result<Crop> {
+    let bad = || Error::param("--crop", format!("`{s}` is not X,Y,W,H like 0,40,1920,1000"));
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<u32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad())?;
+    let [x, y, width, height] = v[..] else {
+        return Err(bad());
+    };
+    if width == 0 || height == 0 {
+        return Err(Error::param("--crop", "width and height must be positive"));
+    }
+    Ok(Crop {
+        x,
+        y,
+        width,
+        height,
+    })
+}

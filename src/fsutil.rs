@@ -1,0 +1,218 @@
+//! File-system helpers that never leave a partial file behind: atomic writes, output-folder checks,
+//! relative paths and input fingerprints.
+
+use crate::error::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::fs;
+use std::io::{Read, Write};
+use std::path::{Component, Path, PathBuf};
+
+/// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so readers
+/// see either the old file or the whole new one. The temporary file is removed on failure.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = temp_sibling(path);
+    let result = (|| -> std::io::Result<()> {
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_data()?;
+        Ok(())
+    })();
+    finish_atomic(&tmp, path, result)
+}
+
+/// Copies `from` to `to` atomically (temporary file + rename), byte for byte.
+pub fn copy_atomic(from: &Path, to: &Path) -> Result<()> {
+    let tmp = temp_sibling(to);
+    let result = fs::copy(from, &tmp).map(|_| ());
+    finish_atomic(&tmp, to, result)
+}
+
+fn finish_atomic(tmp: &Path, path: &Path, result: std::io::Result<()>) -> Result<()> {
+    let result = result.and_then(|()| fs::rename(tmp, path));
+    if let Err(e) = result {
+        let _ = fs::remove_file(tmp);
+        return Err(Error::io(path, e));
+    }
+    Ok(())
+}
+
+fn temp_sibling(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+}
+
+/// Prepares `dir` as an output folder: creates it, refuses a non-empty one unless `force`, and
+/// checks that it is writable before any work starts.
+pub fn prepare_output_dir(dir: &Path, force: bool) -> Result<()> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(Error::Output {
+            path: dir.to_path_buf(),
+            msg: "exists and is not a folder".into(),
+        });
+    }
+    fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let non_empty = fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .next()
+        .is_some();
+    if non_empty && !force {
+        return Err(Error::Output {
+            path: dir.to_path_buf(),
+            msg: "output folder is not empty; pass --force to overwrite its results".into(),
+        });
+    }
+    let probe = dir.join(format!(".keyframer-write-test-{}", std::process::id()));
+    fs::write(&probe, b"ok").map_err(|e| Error::Output {
+        path: dir.to_path_buf(),
+        msg: format!("output folder is not writable: {e}"),
+    })?;
+    let _ = fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Refuses to replace an existing file unless `force`.
+pub fn check_overwrite(path: &Path, force: bool) -> Result<()> {
+    if path.exists() && !force {
+        return Err(Error::Output {
+            path: path.to_path_buf(),
+            msg: "exists; pass --force to overwrite it".into(),
+        });
+    }
+    Ok(())
+}
+
+/// `target` expressed relative to the folder `base`, when both are absolute paths on the same root;
+/// otherwise `target` made absolute.
+pub fn relative_to(target: &Path, base: &Path) -> PathBuf {
+    let target = absolute(target);
+    let base = absolute(base);
+    let t: Vec<Component> = target.components().collect();
+    let b: Vec<Component> = base.components().collect();
+    if t.first() != b.first() {
+        return target;
+    }
+    let common = t.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    let mut out = PathBuf::new();
+    for _ in common..b.len() {
+        out.push("..");
+    }
+    for c in &t[common..] {
+        out.push(c.as_os_str());
+    }
+    if out.as_os_str().is_empty() {
+        out.push(".");
+    }
+    out
+}
+
+/// `path` made absolute against the current directory, with `.` and `..` resolved lexically.
+pub fn absolute(path: &Path) -> PathBuf {
+    let joined = if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        std::env::current_dir()
+            .unwrap_or_else(|_| PathBuf::from("/"))
+            .join(path)
+    };
+    let mut out = PathBuf::new();
+    for c in joined.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            other => out.push(other.as_os_str()),
+        }
+    }
+    out
+}
+
+/// Identifies an input file or folder cheaply: size, modification time and a hash of its start.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Fingerprint {
+    /// Total size in bytes (sum over files for a folder).
+    pub size: u64,
+    /// Modification time, seconds since the Unix epoch (latest file for a folder).
+    pub mtime_s: u64,
+    /// FNV-1a 64 of the first 1 MiB (of the file, or of the sorted file names and sizes).
+    pub prefix_hash: String,
+}
+
+const PREFIX_BYTES: u64 = 1 << 20;
+
+/// Fingerprint of one file.
+pub fn fingerprint_file(path: &Path) -> Result<Fingerprint> {
+    let meta = fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    let mut buf = Vec::new();
+    fs::File::open(path)
+        .and_then(|f| f.take(PREFIX_BYTES).read_to_end(&mut buf))
+        .map_err(|e| Error::io(path, e))?;
+    Ok(Fingerprint {
+        size: meta.len(),
+        mtime_s: mtime_s(&meta),
+        prefix_hash: format!("{:016x}", fnv1a64(&buf)),
+    })
+}
+
+/// Fingerprint of a list of files (an image folder): names, sizes and newest mtime.
+pub fn fingerprint_files(files: &[PathBuf]) -> Result<Fingerprint> {
+    let mut size = 0;
+    let mut newest = 0;
+    let mut listing = Vec::new();
+    for f in files {
+        let meta = fs::metadata(f).map_err(|e| Error::io(f, e))?;
+        size += meta.len();
+        newest = newest.max(mtime_s(&meta));
+        let name = f.file_name().map(|n| n.to_string_lossy()).unwrap_or_default();
+        listing.extend_from_slice(format!("{name}\t{}\n", meta.len()).as_bytes());
+    }
+    Ok(Fingerprint {
+        size,
+        mtime_s: newest,
+        prefix_hash: format!("{:016x}", fnv1a64(&listing)),
+    })
+}
+
+fn mtime_s(meta: &fs::Metadata) -> u64 {
+    meta.modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_secs())
+        .unwrap_or(0)
+}
+
+/// FNV-1a, 64 bit: a small, stable, non-cryptographic hash for fingerprints.
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn relative_paths() {
+        assert_eq!(
+            relative_to(Path::new("/a/b/c.mp4"), Path::new("/a/d")),
+            PathBuf::from("../b/c.mp4")
+        );
+        assert_eq!(
+            relative_to(Path::new("/a/b/c.mp4"), Path::new("/a/b")),
+            PathBuf::from("c.mp4")
+        );
+    }
+
+    #[test]
+    fn fnv_known_value() {
+        // FNV-1a 64 of "a" is 0xaf63dc4c8601ec8c (published test vector).
+        assert_eq!(fnv1a64(b"a"), 0xaf63_dc4c_8601_ec8c);
+    }
+}

@@ -1,0 +1,276 @@
+//! GPU context: picks a wgpu adapter (hardware first, then a software one such as lavapipe, or the
+//! one named by `--adapter` / `KEYFRAMER_ADAPTER`), requests downlevel limits raised only where the
+//! adapter allows, caches compute pipelines by name, and uploads / reads back buffers.
+
+use crate::error::{Error, Result};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+/// Environment variable naming the adapter to use (case-insensitive substring of its name).
+pub const ADAPTER_ENV: &str = "KEYFRAMER_ADAPTER";
+
+/// Which implementation runs the per-frame kernels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// WGSL compute shaders through wgpu.
+    Gpu,
+    /// OpenCV's CPU functions (the reference).
+    Opencv,
+}
+
+impl std::fmt::Display for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Backend::Gpu => "gpu",
+            Backend::Opencv => "opencv",
+        })
+    }
+}
+
+/// A device and queue plus the adapter facts `keyframer info` reports.
+pub struct GpuContext {
+    /// The logical device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The adapter the device was made from.
+    pub info: wgpu::AdapterInfo,
+    /// The limits the device was created with.
+    pub limits: wgpu::Limits,
+    pipelines: Mutex<HashMap<String, Arc<wgpu::ComputePipeline>>>,
+}
+
+/// Facts about one adapter, for `keyframer info`.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct AdapterSummary {
+    /// Adapter name, e.g. `llvmpipe (LLVM 15.0.6, 256 bits)`.
+    pub name: String,
+    /// Graphics API backend (Vulkan, Metal, Dx12, Gl).
+    pub backend: String,
+    /// Discrete, integrated, virtual, CPU or other.
+    pub device_type: String,
+    /// True for software rasterisers (device type CPU).
+    pub software: bool,
+    /// Driver name and version.
+    pub driver: String,
+    /// Largest storage buffer binding in bytes.
+    pub max_storage_buffer_binding_size: u64,
+    /// Largest buffer in bytes.
+    pub max_buffer_size: u64,
+    /// Most invocations in one workgroup.
+    pub max_compute_invocations_per_workgroup: u32,
+    /// Most workgroups per dispatch dimension.
+    pub max_compute_workgroups_per_dimension: u32,
+    /// Workgroup shared memory in bytes.
+    pub max_compute_workgroup_storage_size: u32,
+}
+
+fn rank(t: wgpu::DeviceType) -> u8 {
+    match t {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Other => 3,
+        wgpu::DeviceType::Cpu => 4,
+    }
+}
+
+fn instance() -> wgpu::Instance {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::PRIMARY;
+    wgpu::Instance::new(desc)
+}
+
+/// All adapters wgpu finds, best first (hardware before software).
+pub fn adapters() -> Vec<wgpu::Adapter> {
+    let mut list = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+    list.sort_by_key(|a| rank(a.get_info().device_type));
+    list
+}
+
+/// Summary of an adapter's identity and relevant limits.
+pub fn summarize(info: &wgpu::AdapterInfo, limits: &wgpu::Limits) -> AdapterSummary {
+    AdapterSummary {
+        name: info.name.clone(),
+        backend: format!("{:?}", info.backend),
+        device_type: format!("{:?}", info.device_type),
+        software: info.device_type == wgpu::DeviceType::Cpu,
+        driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+        max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
+        max_buffer_size: limits.max_buffer_size,
+        max_compute_invocations_per_workgroup: limits.max_compute_invocations_per_workgroup,
+        max_compute_workgroups_per_dimension: limits.max_compute_workgroups_per_dimension,
+        max_compute_workgroup_storage_size: limits.max_compute_workgroup_storage_size,
+    }
+}
+
+impl GpuContext {
+    /// Creates a device on the preferred adapter. `wanted` (or `KEYFRAMER_ADAPTER`) selects an
+    /// adapter by a case-insensitive substring of its name.
+    pub fn new(wanted: Option<&str>) -> Result<GpuContext> {
+        let env = std::env::var(ADAPTER_ENV).ok();
+        let wanted = wanted.or(env.as_deref()).filter(|w| !w.is_empty());
+        let list = adapters();
+        if list.is_empty() {
+            return Err(Error::Gpu(
+                "no wgpu adapter found (install mesa-vulkan-drivers for the lavapipe software adapter)"
+                    .into(),
+            ));
+        }
+        let adapter = match wanted {
+            Some(w) => {
+                let lw = w.to_lowercase();
+                list.iter()
+                    .find(|a| a.get_info().name.to_lowercase().contains(&lw))
+                    .ok_or_else(|| {
+                        let names: Vec<String> =
+                            list.iter().map(|a| a.get_info().name).collect();
+                        Error::Gpu(format!(
+                            "no adapter matches `{w}`; available: {}",
+                            names.join(", ")
+                        ))
+                    })?
+            }
+            None => &list[0],
+        };
+        let info = adapter.get_info();
+        let have = adapter.limits();
+        let mut limits = wgpu::Limits::downlevel_defaults();
+        limits.max_storage_buffer_binding_size = have.max_storage_buffer_binding_size;
+        limits.max_buffer_size = have.max_buffer_size;
+        limits.max_storage_buffers_per_shader_stage = have.max_storage_buffers_per_shader_stage.min(8);
+        limits.max_compute_workgroup_storage_size = have.max_compute_workgroup_storage_size;
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("keyframer"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| Error::Gpu(format!("cannot create a device on {}: {e}", info.name)))?;
+        Ok(GpuContext {
+            device,
+            queue,
+            info,
+            limits,
+            pipelines: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// Summary of the adapter and the device limits.
+    pub fn summary(&self) -> AdapterSummary {
+        summarize(&self.info, &self.limits)
+    }
+
+    /// The compute pipeline for `entry` in shader `name` (WGSL `source`), compiled once.
+    pub fn pipeline(
+        &self,
+        name: &str,
+        source: &str,
+        entry: &str,
+    ) -> Result<Arc<wgpu::ComputePipeline>> {
+        let key = format!("{name}:{entry}");
+        let mut map = self
+            .pipelines
+            .lock()
+            .map_err(|_| Error::Gpu("pipeline cache lock poisoned".into()))?;
+        if let Some(p) = map.get(&key) {
+            return Ok(p.clone());
+        }
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+        let p = Arc::new(
+            self.device
+                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(&key),
+                    layout: None,
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    cache: None,
+                }),
+        );
+        map.insert(key, p.clone());
+        Ok(p)
+    }
+
+    /// A storage buffer of `size` bytes (rounded up to 4) usable as copy source and destination.
+    pub fn storage_buffer(&self, label: &str, size: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size.max(4).next_multiple_of(4),
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Copies the first `size` bytes of `buffer` to the host (submits and waits).
+    pub fn read_back(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
+        let size = size.next_multiple_of(4);
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("readback") });
+        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        self.queue.submit([enc.finish()]);
+        self.map_and_copy(&staging)
+    }
+
+    /// Maps a MAP_READ buffer whose copies were already submitted, and copies it out.
+    pub fn map_and_copy(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>> {
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("device poll failed: {e}")))?;
+        rx.recv()
+            .map_err(|_| Error::Gpu("readback callback dropped".into()))?
+            .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?;
+        let out = slice
+            .get_mapped_range()
+            .map_err(|e| Error::Gpu(format!("mapped range: {e}")))?
+            .to_vec();
+        staging.unmap();
+        Ok(out)
+    }
+}
+
+/// Resolves the requested backend: `gpu` without a usable adapter warns once and returns
+/// `opencv`. Returns the context when the gpu backend is used.
+pub fn resolve_backend(
+    requested: Backend,
+    adapter: Option<&str>,
+) -> (Backend, Option<Arc<GpuContext>>) {
+    match requested {
+        Backend::Opencv => (Backend::Opencv, None),
+        Backend::Gpu => match GpuContext::new(adapter) {
+            Ok(ctx) => {
+                log::info!(
+                    "gpu backend on {} ({:?}, {:?})",
+                    ctx.info.name,
+                    ctx.info.backend,
+                    ctx.info.device_type
+                );
+                (Backend::Gpu, Some(Arc::new(ctx)))
+            }
+            Err(e) => {
+                log::warn!("{e}; falling back to the opencv backend");
+                (Backend::Opencv, None)
+            }
+        },
+    }
+}

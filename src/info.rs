@@ -1,0 +1,93 @@
+//! `info`: what this machine offers keyframer: wgpu adapters and limits, OpenCV version and video
+//! I/O backends, and whether `colmap` is on PATH.
+
+use crate::gpu::{self, AdapterSummary};
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// Everything `keyframer info` reports.
+#[derive(Debug, Serialize)]
+pub struct Info {
+    /// keyframer version.
+    pub version: String,
+    /// Adapter the gpu backend would use (with the device limits requested), or why none.
+    pub selected_adapter: Result<AdapterSummary, String>,
+    /// All adapters found, best first.
+    pub adapters: Vec<AdapterSummary>,
+    /// OpenCV version string.
+    pub opencv_version: String,
+    /// OpenCV video I/O backends available for reading files.
+    pub opencv_video_backends: Vec<String>,
+    /// Path of `colmap`, if found on PATH.
+    pub colmap: Option<PathBuf>,
+}
+
+/// Gathers the facts; `adapter` is the `--adapter` choice.
+pub fn gather(adapter: Option<&str>) -> Info {
+    let adapters = gpu::adapters()
+        .iter()
+        .map(|a| gpu::summarize(&a.get_info(), &a.limits()))
+        .collect();
+    let selected_adapter = gpu::GpuContext::new(adapter)
+        .map(|c| c.summary())
+        .map_err(|e| e.to_string());
+    Info {
+        version: env!("CARGO_PKG_VERSION").into(),
+        selected_adapter,
+        adapters,
+        opencv_version: opencv::core::get_version_string().unwrap_or_default(),
+        opencv_video_backends: video_backends(),
+        colmap: find_on_path("colmap"),
+    }
+}
+
+fn video_backends() -> Vec<String> {
+    use opencv::videoio;
+    let Ok(list) = videoio::get_stream_backends() else {
+        return Vec::new();
+    };
+    list.iter()
+        .map(|b| videoio::get_backend_name(b).unwrap_or_else(|_| format!("{b:?}")))
+        .collect()
+}
+
+/// The first executable called `name` on PATH.
+pub fn find_on_path(name: &str) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|d| d.join(name))
+        .find(|p| p.is_file())
+}
+
+/// Human-readable form of [`Info`].
+pub fn render(info: &Info) -> String {
+    let mut s = format!("keyframer {}\n", info.version);
+    match &info.selected_adapter {
+        Ok(a) => {
+            s += &format!(
+                "gpu adapter: {} ({}, {}{})\n  driver: {}\n  limits: storage binding {} MiB, buffer {} MiB, {} invocations/workgroup, {} workgroups/dim, {} KiB workgroup storage\n",
+                a.name,
+                a.backend,
+                a.device_type,
+                if a.software { ", software" } else { "" },
+                a.driver,
+                a.max_storage_buffer_binding_size >> 20,
+                a.max_buffer_size >> 20,
+                a.max_compute_invocations_per_workgroup,
+                a.max_compute_workgroups_per_dimension,
+                a.max_compute_workgroup_storage_size >> 10
+            );
+        }
+        Err(e) => s += &format!("gpu adapter: none ({e}); analysis uses the opencv backend\n"),
+    }
+    for a in &info.adapters {
+        s += &format!("  found: {} ({}, {})\n", a.name, a.backend, a.device_type);
+    }
+    s += &format!("opencv: {}\n", info.opencv_version);
+    s += &format!("  video backends: {}\n", info.opencv_video_backends.join(", "));
+    s += &match &info.colmap {
+        Some(p) => format!("colmap: {}\n", p.display()),
+        None => "colmap: not found on PATH (Debian package `colmap`)\n".into(),
+    };
+    s
+}

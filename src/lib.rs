@@ -1,0 +1,17 @@
+//! keyframer: selects keyframes (and masks) from videos and image sequences for 3D reconstruction.
+//! Per-frame analysis runs as WGSL compute shaders through wgpu, checked against OpenCV's CPU
+//! implementation; OpenCV decodes, and exports.
+
+pub mod cli;
+pub mod error;
+pub mod export;
+pub mod fsutil;
+pub mod gpu;
+pub mod info;
+pub mod progress;
+pub mod project;
+pub mod samplers;
+pub mod select;
+pub mod source;
+
+pub use error::{Error, Result};

@@ -1,0 +1,157 @@
+//! The `keyframer` binary: parses flags, sets up logging, runs a command, maps the outcome to an
+//! exit code (0 ok, 1 usage or input error, 2 partial failure).
+
+use anyhow::Result;
+use clap::Parser;
+use keyframer::cli::{Cli, Command};
+use keyframer::{export, info, select, source};
+use std::process::ExitCode;
+
+/// How a command ended when it did not fail outright.
+enum Outcome {
+    Ok,
+    /// Some of the work could not be done; the rest was written.
+    Partial,
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            return if e.use_stderr() {
+                ExitCode::from(1)
+            } else {
+                ExitCode::SUCCESS
+            };
+        }
+    };
+    let default_level = if cli.quiet { "warn" } else { "info" };
+    env_logger::Builder::from_env(
+        env_logger::Env::default().default_filter_or(format!("warn,keyframer={default_level}")),
+    )
+    .format_timestamp(None)
+    .init();
+    match run(cli) {
+        Ok(Outcome::Ok) => ExitCode::SUCCESS,
+        Ok(Outcome::Partial) => ExitCode::from(2),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<Outcome> {
+    let quiet = cli.quiet;
+    match cli.command {
+        Command::Info(a) => {
+            let i = info::gather(a.adapter.as_deref());
+            if a.json {
+                println!("{}", serde_json::to_string_pretty(&i)?);
+            } else {
+                print!("{}", info::render(&i));
+            }
+            Ok(Outcome::Ok)
+        }
+        Command::Probe(a) => probe(&a, quiet),
+        Command::Select(a) => {
+            let settings = a.settings(quiet)?;
+            let r = select::select(&settings)?;
+            let p = &r.project;
+            eprintln!(
+                "{} keyframes of {} frames -> {}{}",
+                p.keyframes.len(),
+                p.metadata.frame_count,
+                settings.output.display(),
+                if r.decoded { "" } else { " (cached frame data, nothing decoded)" }
+            );
+            Ok(if p.decode_problems.is_empty() {
+                Outcome::Ok
+            } else {
+                for e in &p.decode_problems {
+                    eprintln!("warning: {}: {e}", settings.input.display());
+                }
+                Outcome::Partial
+            })
+        }
+        Command::Export(a) => {
+            let settings = a.settings()?;
+            let r = export::export(&a.project, &a.out, &settings, a.force, quiet)?;
+            let m = &r.manifest;
+            eprintln!(
+                "exported {} images ({}x{}) -> {}",
+                m.frames.len(),
+                m.width,
+                m.height,
+                a.out.display()
+            );
+            if m.missing.is_empty() {
+                Ok(Outcome::Ok)
+            } else {
+                for f in &m.missing {
+                    eprintln!("warning: frame {} not exported: {}", f.index, f.reason);
+                }
+                Ok(Outcome::Partial)
+            }
+        }
+    }
+}
+
+fn probe(a: &keyframer::cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
+    let mut src = source::open(
+        &a.input,
+        &source::OpenOptions {
+            images_fps: a.images_fps,
+        },
+    )?;
+    let mut meta = src.metadata().clone();
+    let mut problems = Vec::new();
+    if a.exact || (meta.frame_count == 0 && !meta.frame_count_exact) {
+        let bar = keyframer::progress::bar(meta.frame_count as u64, "count", quiet);
+        let scan = source::scan(src.as_mut(), |n| bar.set_position(n as u64))?;
+        bar.finish_and_clear();
+        meta.frame_count = scan.frame_count;
+        meta.frame_count_exact = true;
+        if let (Some(ts), Some(fps)) = (&scan.timestamps_s, meta.fps) {
+            if let (Some(f), Some(l)) = (ts.first(), ts.last()) {
+                meta.duration_s = Some(l - f + 1.0 / fps);
+            }
+        }
+        problems.extend(scan.failure.map(|(_, m)| m));
+    }
+    if a.json {
+        let mut v = serde_json::to_value(&meta)?;
+        v["path"] = serde_json::json!(a.input);
+        v["decode_problems"] = serde_json::json!(problems);
+        println!("{}", serde_json::to_string(&v)?);
+    } else {
+        println!("path:        {}", a.input.display());
+        println!("kind:        {:?}", meta.kind);
+        println!(
+            "frames:      {}{}",
+            meta.frame_count,
+            if meta.frame_count_exact { "" } else { " (declared by the container; --exact counts)" }
+        );
+        match meta.fps {
+            Some(f) => println!("fps:         {f:.3}"),
+            None => println!("fps:         unknown"),
+        }
+        println!("resolution:  {}x{}", meta.width, meta.height);
+        if let Some(d) = meta.duration_s {
+            println!("duration:    {d:.3} s");
+        }
+        if let Some(c) = &meta.codec {
+            println!("codec:       {c}");
+        }
+        println!("rotation:    {} deg", meta.rotation_deg);
+        for p in &problems {
+            println!("problem:     {p}");
+        }
+    }
+    Ok(if problems.is_empty() {
+        Outcome::Ok
+    } else {
+        Outcome::Partial
+    })
+}

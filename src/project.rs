@@ -1,0 +1,151 @@
+//! The project file (JSON): input reference and fingerprint, metadata, boundaries, keyframes, the
+//! per-frame cache (timestamps, scores) and the history of steps. Loading validates every field and
+//! names the offending one; saving is atomic.
+
+use crate::error::{Error, Result};
+use crate::fsutil::{self, Fingerprint};
+use crate::samplers::Boundaries;
+use crate::source::{Metadata, SourceKind};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Version of the project file layout this build reads and writes.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// A keyframe selection and everything needed to reproduce and export it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Project {
+    /// Layout version; see [`SCHEMA_VERSION`].
+    pub schema_version: u32,
+    /// keyframer version that wrote the file.
+    pub tool_version: String,
+    /// Which input the keyframes refer to.
+    pub input: InputRef,
+    /// Facts about the input (frame count established by decoding).
+    pub metadata: Metadata,
+    /// The part of the input that was sampled.
+    pub boundaries: Boundaries,
+    /// Selected frame indices, sorted and distinct.
+    pub keyframes: Vec<usize>,
+    /// The steps that produced `keyframes`, in order.
+    pub history: Vec<Step>,
+    /// Per-frame data computed from the pixels, reused by later selections.
+    pub cache: Cache,
+    /// Problems met while decoding the input (damaged streams).
+    #[serde(default)]
+    pub decode_problems: Vec<String>,
+}
+
+/// The input a project refers to.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InputRef {
+    /// Path, relative to the project file's folder when possible.
+    pub path: PathBuf,
+    /// Video, image folder or single image.
+    pub kind: SourceKind,
+    /// Detects a changed or replaced input.
+    pub fingerprint: Fingerprint,
+}
+
+/// One step of the selection history.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Step {
+    /// Stable plugin id (`boundaries`, `every-nth`, `fps`, `manual`, ...).
+    pub plugin: String,
+    /// The step's parameters as given.
+    pub params: serde_json::Value,
+    /// Number of frames the step kept.
+    pub kept: usize,
+}
+
+/// Per-frame numbers computed from the input.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Cache {
+    /// Presentation time of every frame in seconds (absent for image folders without a rate).
+    pub timestamps_s: Option<Vec<f64>>,
+}
+
+impl Project {
+    /// The input's path resolved against the folder of the project file at `project_path`.
+    pub fn input_path(&self, project_path: &Path) -> PathBuf {
+        if self.input.path.is_absolute() {
+            return self.input.path.clone();
+        }
+        let base = fsutil::absolute(project_path);
+        base.parent()
+            .map(|d| d.join(&self.input.path))
+            .unwrap_or_else(|| self.input.path.clone())
+    }
+
+    /// Reads and validates a project file.
+    pub fn load(path: &Path) -> Result<Project> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let bad = |field: String, msg: String| Error::File {
+            path: path.to_path_buf(),
+            what: "project file",
+            field,
+            msg,
+        };
+        let de = &mut serde_json::Deserializer::from_str(&text);
+        let project: Project = serde_path_to_error::deserialize(de).map_err(|e| {
+            let field = e.path().to_string();
+            let inner = e.into_inner();
+            bad(
+                field,
+                format!("{inner} (line {}, column {})", inner.line(), inner.column()),
+            )
+        })?;
+        project.validate().map_err(|(field, msg)| bad(field, msg))?;
+        Ok(project)
+    }
+
+    /// Checks the invariants serde cannot: version, ordering and ranges of indices.
+    pub fn validate(&self) -> std::result::Result<(), (String, String)> {
+        if self.schema_version != SCHEMA_VERSION {
+            return Err((
+                "schema_version".into(),
+                format!(
+                    "version {} is not supported by this build (expects {SCHEMA_VERSION})",
+                    self.schema_version
+                ),
+            ));
+        }
+        let n = self.metadata.frame_count;
+        for (i, w) in self.keyframes.windows(2).enumerate() {
+            if w[0] >= w[1] {
+                return Err((
+                    format!("keyframes[{}]", i + 1),
+                    format!("{} follows {}: keyframes must be sorted and distinct", w[1], w[0]),
+                ));
+            }
+        }
+        if let Some((i, k)) = self.keyframes.iter().enumerate().find(|(_, &k)| k >= n) {
+            return Err((
+                format!("keyframes[{i}]"),
+                format!("frame {k} is beyond the input's {n} frames"),
+            ));
+        }
+        if let Some(ts) = &self.cache.timestamps_s {
+            if ts.len() != n {
+                return Err((
+                    "cache.timestamps_s".into(),
+                    format!("{} timestamps for {n} frames", ts.len()),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the project file atomically, refusing to replace an existing one unless `force`.
+    pub fn save(&self, path: &Path, force: bool) -> Result<()> {
+        fsutil::check_overwrite(path, force)?;
+        let mut text = serde_json::to_string_pretty(self).map_err(|e| Error::File {
+            path: path.to_path_buf(),
+            what: "project file",
+            field: String::new(),
+            msg: e.to_string(),
+        })?;
+        text.push('\n');
+        fsutil::write_atomic(path, text.as_bytes())
+    }
+}

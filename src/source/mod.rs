@@ -1,0 +1,166 @@
+//! Frame sources: videos (OpenCV VideoCapture) and image folders behind one streaming interface.
+//! Frames are produced one at a time in index order, so memory stays bounded on any input length.
+
+mod images;
+mod natural;
+mod video;
+
+pub use images::{is_image_name, list_images, ImageSource};
+pub use natural::natural_cmp;
+pub use video::VideoSource;
+
+use crate::error::{Error, Result};
+use opencv::core::Mat;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// What kind of input a source reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SourceKind {
+    /// A video file decoded with OpenCV's FFmpeg backend.
+    Video,
+    /// A folder of image files in natural order.
+    Images,
+    /// A single image file.
+    Image,
+}
+
+/// Facts about an input, as `keyframer probe` reports them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Metadata {
+    /// Input kind.
+    pub kind: SourceKind,
+    /// Number of frames (decoded count when `frame_count_exact`, else the container's claim).
+    pub frame_count: usize,
+    /// Whether `frame_count` was established by decoding every frame.
+    pub frame_count_exact: bool,
+    /// Frames per second claimed by the container (average for variable frame rate); `None` for
+    /// image folders unless given by the user.
+    pub fps: Option<f64>,
+    /// Frame width in pixels, as decoded (after rotation metadata is applied).
+    pub width: u32,
+    /// Frame height in pixels, as decoded.
+    pub height: u32,
+    /// Duration in seconds (`None` without a frame rate).
+    pub duration_s: Option<f64>,
+    /// Codec four-character code for videos.
+    pub codec: Option<String>,
+    /// Rotation metadata in degrees (applied by the decoder).
+    pub rotation_deg: i32,
+}
+
+/// One decoded frame.
+pub struct Frame {
+    /// 0-based frame index in decode order.
+    pub index: usize,
+    /// Presentation time in seconds (from the stream; index / fps when the stream has none).
+    pub timestamp_s: Option<f64>,
+    /// The pixels, 8-bit BGR.
+    pub image: Mat,
+}
+
+/// A stream of frames in index order.
+pub trait FrameSource: Send {
+    /// The input's path.
+    fn path(&self) -> &Path;
+    /// Metadata known so far.
+    fn metadata(&self) -> &Metadata;
+    /// Decodes the next frame; `Ok(None)` at the end of the stream.
+    fn next_frame(&mut self) -> Result<Option<Frame>>;
+    /// Advances past the next frame without producing pixels (cheaper than `next_frame` when the
+    /// decoder allows); returns its index and timestamp, or `None` at the end.
+    fn skip_frame(&mut self) -> Result<Option<(usize, Option<f64>)>>;
+    /// For image folders, the file behind frame `index`.
+    fn file_of(&self, _index: usize) -> Option<&Path> {
+        None
+    }
+    /// Frames the decoder gave up on (damaged stream): the index where decoding stopped and why.
+    fn decode_failure(&self) -> Option<(usize, String)> {
+        None
+    }
+}
+
+/// Options for opening a source.
+#[derive(Debug, Clone, Default)]
+pub struct OpenOptions {
+    /// Frame rate to assume for image folders (they have none of their own).
+    pub images_fps: Option<f64>,
+}
+
+/// Opens a video file, an image file or a folder of images.
+pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
+    let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => Error::input(path, "no such file or folder"),
+        _ => Error::io(path, e),
+    })?;
+    if meta.is_dir() {
+        return Ok(Box::new(ImageSource::open_folder(path, opts.images_fps)?));
+    }
+    if is_image_name(path) {
+        return Ok(Box::new(ImageSource::open_single(path, opts.images_fps)?));
+    }
+    Ok(Box::new(VideoSource::open(path)?))
+}
+
+/// Reads the frames at the sorted, distinct `indices`, calling `f` for each, in one sequential
+/// pass: skipped frames are only grabbed, never seeked to. Returns the indices that could not be
+/// decoded because the stream ended early.
+pub fn read_indices(
+    source: &mut dyn FrameSource,
+    indices: &[usize],
+    mut f: impl FnMut(Frame) -> Result<()>,
+) -> Result<Vec<usize>> {
+    if indices.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(Error::param("frame indices", "must be sorted and distinct"));
+    }
+    let mut pos = 0usize;
+    for (k, &want) in indices.iter().enumerate() {
+        while pos < want {
+            if source.skip_frame()?.is_none() {
+                return Ok(indices[k..].to_vec());
+            }
+            pos += 1;
+        }
+        match source.next_frame()? {
+            Some(frame) => {
+                pos += 1;
+                f(frame)?;
+            }
+            None => return Ok(indices[k..].to_vec()),
+        }
+    }
+    Ok(Vec::new())
+}
+
+/// Result of one pass over every frame without decoding pixels beyond what the codec needs.
+#[derive(Debug, Clone)]
+pub struct Scan {
+    /// Timestamp of every frame, in seconds (`None` for image folders without a frame rate).
+    pub timestamps_s: Option<Vec<f64>>,
+    /// Number of frames that could be read.
+    pub frame_count: usize,
+    /// Where and why decoding stopped early, if it did.
+    pub failure: Option<(usize, String)>,
+}
+
+/// Walks the whole input once with `skip_frame`, collecting timestamps and the true frame count.
+pub fn scan(source: &mut dyn FrameSource, mut progress: impl FnMut(usize)) -> Result<Scan> {
+    let mut ts = Vec::new();
+    let mut have_ts = true;
+    let mut count = 0;
+    while let Some((_, t)) = source.skip_frame()? {
+        match t {
+            Some(t) => ts.push(t),
+            None => have_ts = false,
+        }
+        count += 1;
+        progress(count);
+    }
+    Ok(Scan {
+        timestamps_s: have_ts.then_some(ts),
+        frame_count: count,
+        failure: source.decode_failure(),
+    })
+}
+

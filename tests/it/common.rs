@@ -1,0 +1,112 @@
+//! Helpers: run the keyframer binary, make clips with ffmpeg, find the public test data.
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// Runs keyframer with `args`; returns the output (never panics on a non-zero exit).
+pub fn kf(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .expect("run keyframer")
+}
+
+/// Runs keyframer and asserts success; returns stdout.
+pub fn kf_ok(args: &[&str]) -> String {
+    let out = kf(args);
+    assert!(
+        out.status.success(),
+        "keyframer {args:?} failed ({:?}):\n{}",
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).expect("utf-8 stdout")
+}
+
+/// Exit code and stderr of a run.
+pub fn code_and_stderr(out: &Output) -> (i32, String) {
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Runs ffmpeg with `args` (quiet, overwrite), asserting success.
+pub fn ffmpeg(args: &[&str]) {
+    let out = Command::new("ffmpeg")
+        .args(["-y", "-loglevel", "error"])
+        .args(args)
+        .output()
+        .expect("ffmpeg is installed (scripts/setup.sh)");
+    assert!(
+        out.status.success(),
+        "ffmpeg {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// A testsrc2 clip: `secs` seconds at `rate` fps, `w`x`h`, H.264 in MP4.
+pub fn testsrc(dir: &Path, name: &str, w: u32, h: u32, rate: &str, secs: f64) -> PathBuf {
+    let p = dir.join(name);
+    ffmpeg(&[
+        "-f",
+        "lavfi",
+        "-i",
+        &format!("testsrc2=size={w}x{h}:rate={rate}:duration={secs}"),
+        "-c:v",
+        "libx264",
+        "-pix_fmt",
+        "yuv420p",
+        p.to_str().unwrap(),
+    ]);
+    p
+}
+
+/// A file of the public test data (Debian's opencv-doc examples, fetched by scripts/setup.sh).
+pub fn testdata(rel: &str) -> PathBuf {
+    let root = std::env::var_os("KEYFRAMER_TESTDATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("target/testdata"));
+    let p = root.join(rel);
+    assert!(
+        p.exists(),
+        "{} is missing: run scripts/setup.sh (it fetches Debian's opencv-doc test data)",
+        p.display()
+    );
+    p
+}
+
+/// Reads a JSON file.
+pub fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).expect("read json")).expect("parse json")
+}
+
+/// The `keyframes` array of a project file.
+pub fn keyframes(project: &Path) -> Vec<usize> {
+    json(project)["keyframes"]
+        .as_array()
+        .expect("keyframes array")
+        .iter()
+        .map(|v| v.as_u64().unwrap() as usize)
+        .collect()
+}
+
+/// Path as &str.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Names of the entries of a folder, sorted.
+pub fn listing(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|r| {
+            r.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
