@@ -170,9 +170,10 @@ pub enum FormatArg {
 
 fn positive(name: &str, v: Option<f64>) -> Result<Option<f64>> {
     match v {
-        Some(x) if !(x.is_finite() && x > 0.0) => {
-            Err(Error::param(name, format!("must be a positive number, got {x}")))
-        }
+        Some(x) if !(x.is_finite() && x > 0.0) => Err(Error::param(
+            name,
+            format!("must be a positive number, got {x}"),
+        )),
         other => Ok(other),
     }
 }
@@ -235,7 +236,12 @@ impl ExportArgs {
 
 /// Parses `WxH` with both positive.
 pub fn parse_size(s: &str) -> Result<(u32, u32)> {
-    let bad = || Error::param("--resize", format!("`{s}` is not WIDTHxHEIGHT like 1280x720"));
+    let bad = || {
+        Error::param(
+            "--resize",
+            format!("`{s}` is not WIDTHxHEIGHT like 1280x720"),
+        )
+    };
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let w: u32 = w.trim().parse().map_err(|_| bad())?;
     let h: u32 = h.trim().parse().map_err(|_| bad())?;
@@ -247,7 +253,12 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
 
 /// Parses `X,Y,W,H`.
 pub fn parse_crop(s: &str) -> Result<Crop> {
-    let bad = || Error::param("--crop", format!("`{s}` is not X,Y,W,H like 0,40,1920,1000"));
+    let bad = || {
+        Error::param(
+            "--crop",
+            format!("`{s}` is not X,Y,W,H like 0,40,1920,1000"),
+        )
+    };
     let v: Vec<u32> = s
         .split(',')
         .map(|p| p.trim().parse::<u32>())

@@ -225,7 +225,10 @@ pub fn export(
 
     let is_video = meta.kind == SourceKind::Video;
     let transforms = settings.crop.is_some() || settings.resize.is_some();
-    let digits = (project.metadata.frame_count.max(1) - 1).to_string().len().max(6);
+    let digits = (project.metadata.frame_count.max(1) - 1)
+        .to_string()
+        .len()
+        .max(6);
     let timestamps = project.cache.timestamps_s.as_deref();
     let bar = crate::progress::bar(project.keyframes.len() as u64, "export", quiet);
     let mut frames = Vec::new();
@@ -342,7 +345,10 @@ pub fn export(
 }
 
 fn file_name(p: &Path) -> String {
-    p.file_name().unwrap_or_default().to_string_lossy().into_owned()
+    p.file_name()
+        .unwrap_or_default()
+        .to_string_lossy()
+        .into_owned()
 }
 
 /// Refuses to export when the input is no longer the one the project was made from.

@@ -166,7 +166,10 @@ pub fn fingerprint_files(files: &[PathBuf]) -> Result<Fingerprint> {
         let meta = fs::metadata(f).map_err(|e| Error::io(f, e))?;
         size += meta.len();
         newest = newest.max(mtime_s(&meta));
-        let name = f.file_name().map(|n| n.to_string_lossy()).unwrap_or_default();
+        let name = f
+            .file_name()
+            .map(|n| n.to_string_lossy())
+            .unwrap_or_default();
         listing.extend_from_slice(format!("{name}\t{}\n", meta.len()).as_bytes());
     }
     Ok(Fingerprint {

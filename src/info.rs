@@ -84,7 +84,10 @@ pub fn render(info: &Info) -> String {
         s += &format!("  found: {} ({}, {})\n", a.name, a.backend, a.device_type);
     }
     s += &format!("opencv: {}\n", info.opencv_version);
-    s += &format!("  video backends: {}\n", info.opencv_video_backends.join(", "));
+    s += &format!(
+        "  video backends: {}\n",
+        info.opencv_video_backends.join(", ")
+    );
     s += &match &info.colmap {
         Some(p) => format!("colmap: {}\n", p.display()),
         None => "colmap: not found on PATH (Debian package `colmap`)\n".into(),

@@ -15,6 +15,7 @@ enum Outcome {
 }
 
 fn main() -> ExitCode {
+    quiet_native_logs();
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {
@@ -42,6 +43,20 @@ fn main() -> ExitCode {
     }
 }
 
+/// FFmpeg and OpenCV print their own diagnostics to stderr; keyframer reports problems itself in
+/// one line each, so theirs are silenced unless the user configured them.
+fn quiet_native_logs() {
+    for (var, value) in [
+        ("OPENCV_FFMPEG_LOGLEVEL", "-8"),
+        ("OPENCV_LOG_LEVEL", "ERROR"),
+    ] {
+        if std::env::var_os(var).is_none() {
+            // Runs first thing in main, before any other thread exists.
+            std::env::set_var(var, value);
+        }
+    }
+}
+
 fn run(cli: Cli) -> Result<Outcome> {
     let quiet = cli.quiet;
     match cli.command {
@@ -64,7 +79,11 @@ fn run(cli: Cli) -> Result<Outcome> {
                 p.keyframes.len(),
                 p.metadata.frame_count,
                 settings.output.display(),
-                if r.decoded { "" } else { " (cached frame data, nothing decoded)" }
+                if r.decoded {
+                    ""
+                } else {
+                    " (cached frame data, nothing decoded)"
+                }
             );
             Ok(if p.decode_problems.is_empty() {
                 Outcome::Ok
@@ -131,7 +150,11 @@ fn probe(a: &keyframer::cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
         println!(
             "frames:      {}{}",
             meta.frame_count,
-            if meta.frame_count_exact { "" } else { " (declared by the container; --exact counts)" }
+            if meta.frame_count_exact {
+                ""
+            } else {
+                " (declared by the container; --exact counts)"
+            }
         );
         match meta.fps {
             Some(f) => println!("fps:         {f:.3}"),

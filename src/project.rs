@@ -115,7 +115,10 @@ impl Project {
             if w[0] >= w[1] {
                 return Err((
                     format!("keyframes[{}]", i + 1),
-                    format!("{} follows {}: keyframes must be sorted and distinct", w[1], w[0]),
+                    format!(
+                        "{} follows {}: keyframes must be sorted and distinct",
+                        w[1], w[0]
+                    ),
                 ));
             }
         }

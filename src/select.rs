@@ -129,8 +129,9 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         Some(Rate::Fps(f)) => {
             let ts = ts.ok_or_else(|| Error::Plugin {
                 plugin: "fps",
-                msg: "the input has no timestamps (an image folder: give its rate with --images-fps)"
-                    .into(),
+                msg:
+                    "the input has no timestamps (an image folder: give its rate with --images-fps)"
+                        .into(),
             })?;
             keys = samplers::fps(&keys, ts, f)?;
             history.push(Step {

@@ -96,7 +96,9 @@ pub fn summarize(info: &wgpu::AdapterInfo, limits: &wgpu::Limits) -> AdapterSumm
         backend: format!("{:?}", info.backend),
         device_type: format!("{:?}", info.device_type),
         software: info.device_type == wgpu::DeviceType::Cpu,
-        driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+        driver: format!("{} {}", info.driver, info.driver_info)
+            .trim()
+            .to_string(),
         max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
         max_buffer_size: limits.max_buffer_size,
         max_compute_invocations_per_workgroup: limits.max_compute_invocations_per_workgroup,
@@ -124,8 +126,7 @@ impl GpuContext {
                 list.iter()
                     .find(|a| a.get_info().name.to_lowercase().contains(&lw))
                     .ok_or_else(|| {
-                        let names: Vec<String> =
-                            list.iter().map(|a| a.get_info().name).collect();
+                        let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
                         Error::Gpu(format!(
                             "no adapter matches `{w}`; available: {}",
                             names.join(", ")
@@ -139,7 +140,8 @@ impl GpuContext {
         let mut limits = wgpu::Limits::downlevel_defaults();
         limits.max_storage_buffer_binding_size = have.max_storage_buffer_binding_size;
         limits.max_buffer_size = have.max_buffer_size;
-        limits.max_storage_buffers_per_shader_stage = have.max_storage_buffers_per_shader_stage.min(8);
+        limits.max_storage_buffers_per_shader_stage =
+            have.max_storage_buffers_per_shader_stage.min(8);
         limits.max_compute_workgroup_storage_size = have.max_compute_workgroup_storage_size;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("keyframer"),
@@ -221,7 +223,9 @@ impl GpuContext {
         });
         let mut enc = self
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("readback") });
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("readback"),
+            });
         enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
         self.queue.submit([enc.finish()]);
         self.map_and_copy(&staging)

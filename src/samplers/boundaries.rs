@@ -58,7 +58,11 @@ pub struct Boundaries {
 impl Boundaries {
     /// The candidate frames `start..=end` among `frame_count` frames. Times are resolved through
     /// `timestamps_s` (relative to frame 0's timestamp).
-    pub fn candidates(&self, frame_count: usize, timestamps_s: Option<&[f64]>) -> Result<Vec<usize>> {
+    pub fn candidates(
+        &self,
+        frame_count: usize,
+        timestamps_s: Option<&[f64]>,
+    ) -> Result<Vec<usize>> {
         if frame_count == 0 {
             return Err(Error::Plugin {
                 plugin: "boundaries",
@@ -80,18 +84,26 @@ impl Boundaries {
                         // Last frame at or before the time (none: before frame 0).
                         match ts.iter().rposition(|&t| t - t0 <= s + eps) {
                             Some(i) => i,
-                            None => return Err(Error::Plugin {
-                                plugin: "boundaries",
-                                msg: format!("end {b} lies before the first frame"),
-                            }),
+                            None => {
+                                return Err(Error::Plugin {
+                                    plugin: "boundaries",
+                                    msg: format!("end {b} lies before the first frame"),
+                                })
+                            }
                         }
                     } else {
-                        ts.iter().position(|&t| t - t0 >= s - eps).unwrap_or(frame_count)
+                        ts.iter()
+                            .position(|&t| t - t0 >= s - eps)
+                            .unwrap_or(frame_count)
                     })
                 }
             }
         };
-        let start = self.start.map(|b| resolve(b, false)).transpose()?.unwrap_or(0);
+        let start = self
+            .start
+            .map(|b| resolve(b, false))
+            .transpose()?
+            .unwrap_or(0);
         let end = self
             .end
             .map(|b| resolve(b, true))

@@ -9,7 +9,9 @@ use crate::error::{Error, Result};
 pub fn fps(candidates: &[usize], timestamps_s: &[f64], target_fps: f64) -> Result<Vec<usize>> {
     let err = |msg: String| Error::Plugin { plugin: "fps", msg };
     if !(target_fps.is_finite() && target_fps > 0.0) {
-        return Err(err(format!("target fps must be positive, got {target_fps}")));
+        return Err(err(format!(
+            "target fps must be positive, got {target_fps}"
+        )));
     }
     if let Some(&bad) = candidates.iter().find(|&&c| c >= timestamps_s.len()) {
         return Err(err(format!(
@@ -76,7 +78,10 @@ mod tests {
         let c: Vec<usize> = (0..3000).collect();
         let k = fps(&c, &ts, 1.0).unwrap();
         for (s, &i) in k.iter().enumerate() {
-            assert!((ts[i] - s as f64).abs() <= 0.5 / rate + 1e-9, "second {s}: frame {i}");
+            assert!(
+                (ts[i] - s as f64).abs() <= 0.5 / rate + 1e-9,
+                "second {s}: frame {i}"
+            );
         }
         // Index arithmetic (every 30th) would drift by one frame every ~33 s.
         assert_ne!(k[40], 40 * 30);

@@ -163,4 +163,3 @@ pub fn scan(source: &mut dyn FrameSource, mut progress: impl FnMut(usize)) -> Re
         failure: source.decode_failure(),
     })
 }
-

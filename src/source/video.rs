@@ -19,6 +19,7 @@ pub struct VideoSource {
     /// Index of the next frame to come out of the decoder.
     next_index: usize,
     last_ts: Option<f64>,
+    last_step: Option<f64>,
     ended: bool,
     failure: Option<(usize, String)>,
 }
@@ -65,11 +66,15 @@ impl VideoSource {
             pending: None,
             next_index: 0,
             last_ts: None,
+            last_step: None,
             ended: false,
             failure: None,
         };
         let first = src.decode_next()?.ok_or_else(|| {
-            Error::input(path, "the video has no decodable frames (empty, truncated or damaged)")
+            Error::input(
+                path,
+                "the video has no decodable frames (empty, truncated or damaged)",
+            )
         })?;
         src.meta.width = first.image.cols() as u32;
         src.meta.height = first.image.rows() as u32;
@@ -97,18 +102,29 @@ impl VideoSource {
         Ok(Some((index, ts)))
     }
 
-    /// The current frame's presentation time; falls back to index / fps when the stream gives
-    /// none or goes backwards.
+    /// The current frame's presentation time. When the stream gives none or goes backwards (OpenCV
+    /// reports no usable time for frames drained from the decoder at the end), the previous
+    /// frame interval is repeated (1 / fps for the second frame).
     fn timestamp(&mut self, index: usize) -> Option<f64> {
         let ms = self.cap.get(videoio::CAP_PROP_POS_MSEC).unwrap_or(f64::NAN);
         let from_stream = ms / 1000.0;
-        let ts = match (self.last_ts, self.meta.fps) {
-            (Some(prev), fps) if !(from_stream.is_finite() && from_stream > prev) => {
-                fps.map(|f| prev + 1.0 / f).or(Some(prev))
+        let fallback_step = self.last_step.or(self.meta.fps.map(|f| 1.0 / f));
+        let ts = match self.last_ts {
+            Some(prev) if !(from_stream.is_finite() && from_stream > prev) => {
+                log::debug!(
+                    "{}: frame {index}: no usable timestamp ({ms} ms); extrapolated",
+                    self.path.display()
+                );
+                Some(prev + fallback_step.unwrap_or(0.0))
             }
-            (None, fps) if !from_stream.is_finite() => fps.map(|f| index as f64 / f),
+            None if !from_stream.is_finite() => self.meta.fps.map(|f| index as f64 / f),
             _ => Some(from_stream),
         };
+        if let (Some(prev), Some(t)) = (self.last_ts, ts) {
+            if t > prev {
+                self.last_step = Some(t - prev);
+            }
+        }
         self.last_ts = ts;
         ts
     }
