@@ -6,5 +6,5 @@ scripts/setup.sh
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 export KEYFRAMER_TESTDATA="$PWD/target/testdata"
 cargo fmt --all -- --check
-cargo clippy --locked --all-targets -- -D warnings
+cargo clippy --locked --release --all-targets -- -D warnings
 cargo test --locked --release

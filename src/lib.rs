@@ -8,10 +8,12 @@ pub mod export;
 pub mod fsutil;
 pub mod gpu;
 pub mod info;
+pub mod kernels;
 pub mod progress;
 pub mod project;
 pub mod samplers;
 pub mod select;
 pub mod source;
+pub mod synthetic;
 
 pub use error::{Error, Result};

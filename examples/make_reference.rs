@@ -1,0 +1,56 @@
+//! Regenerates `reference/`: synthetic inputs and OpenCV's sharpness scores for every input, one
+//! JSON file per (input, metric), named `<input file>__<metric>.json`.
+//!
+//! Run from the repository root: `cargo run --release --example make_reference`
+
+use keyframer::kernels::sharpness::{score_opencv, Metric};
+use opencv::imgcodecs;
+use opencv::prelude::*;
+use std::path::Path;
+
+fn main() -> anyhow::Result<()> {
+    let root = Path::new("reference");
+    let inputs = root.join("inputs");
+    // Synthetic inputs: sizes that are not multiples of the 16x16 workgroup.
+    for (w, h, seed) in [(37, 83, 1u64), (641, 359, 2)] {
+        let img = keyframer::synthetic::pattern(w, h, seed)?;
+        let path = inputs.join(format!("synthetic_{w}x{h}_seed{seed}.png"));
+        imgcodecs::imwrite(
+            path.to_str().unwrap_or_default(),
+            &img,
+            &opencv::core::Vector::new(),
+        )?;
+    }
+    let mut files: Vec<_> = std::fs::read_dir(&inputs)?
+        .map(|e| e.map(|e| e.path()))
+        .collect::<Result<_, _>>()?;
+    files.sort();
+    let metrics = [
+        Metric::Tenengrad,
+        Metric::Laplacian { ksize: 1 },
+        Metric::Laplacian { ksize: 3 },
+    ];
+    for f in files {
+        let img = imgcodecs::imread(f.to_str().unwrap_or_default(), imgcodecs::IMREAD_COLOR)?;
+        let name = f
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        for m in metrics {
+            let score = score_opencv(&img, m)?;
+            let out = root.join("sharpness").join(format!("{name}__{m}.json"));
+            let v = serde_json::json!({
+                "input": format!("inputs/{name}"),
+                "metric": m.to_string(),
+                "width": img.cols(),
+                "height": img.rows(),
+                "opencv_version": opencv::core::get_version_string()?,
+                "score": score,
+            });
+            std::fs::write(&out, serde_json::to_string_pretty(&v)? + "\n")?;
+            println!("{}: {score}", out.display());
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,61 @@
+//! `laplacian`: sharpness as the variance of the Laplacian of the gray image, OpenCV ksize 1 or 3
+//! (shaders/laplacian.wgsl); the OpenCV twin uses cv::Laplacian and cv::meanStdDev.
+
+use crate::error::{CvContext, Result};
+use bytemuck::{Pod, Zeroable};
+use opencv::core::{self, Mat, Vector};
+use opencv::imgproc;
+
+/// WGSL source.
+pub const WGSL: &str = include_str!("../../shaders/laplacian.wgsl");
+
+/// Uniform parameters of laplacian.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct LaplacianParams {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Workgroups per row of the dispatch grid.
+    pub groups_x: u32,
+    /// Aperture: 1 or 3.
+    pub ksize: u32,
+}
+
+/// The offset the shader adds to each Laplacian value to keep sums unsigned.
+pub fn offset(ksize: u32) -> i64 {
+    if ksize == 1 {
+        1020
+    } else {
+        2040
+    }
+}
+
+/// Variance from the exact totals of (L + offset) and L² over `n` pixels.
+pub fn from_totals(sum_off: u64, sum_sq: u64, n: u64, ksize: u32) -> f64 {
+    let sum = sum_off as i128 - i128::from(offset(ksize)) * i128::from(n);
+    let n = n as f64;
+    let mean = sum as f64 / n;
+    (sum_sq as f64 / n - mean * mean).max(0.0)
+}
+
+/// OpenCV twin: variance of the Laplacian (CV_64F) of an 8-bit gray image.
+pub fn opencv(gray: &Mat, ksize: u32) -> Result<f64> {
+    let mut lap = Mat::default();
+    imgproc::laplacian(
+        gray,
+        &mut lap,
+        core::CV_64F,
+        ksize as i32,
+        1.0,
+        0.0,
+        core::BORDER_DEFAULT,
+    )
+    .cv(|| format!("Laplacian ksize {ksize}"))?;
+    let mut mean = Vector::<f64>::new();
+    let mut std = Vector::<f64>::new();
+    core::mean_std_dev(&lap, &mut mean, &mut std, &core::no_array()).cv(|| "meanStdDev".into())?;
+    let s = std.get(0).cv(|| "meanStdDev result".into())?;
+    Ok(s * s)
+}

@@ -1,0 +1,376 @@
+//! Sharpness scores per frame (Tenengrad or Laplacian variance) with two backends: the gpu runner
+//! chains gray → metric → reduce for a batch of frames in one submission and reads back only the
+//! 64-bit totals; the opencv backend runs the OpenCV twins.
+
+use super::{gray, groups_1d, groups_2d, laplacian, reduce, tenengrad};
+use crate::error::{Error, Result};
+use crate::gpu::GpuContext;
+use opencv::core::Mat;
+use opencv::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+use std::sync::Arc;
+
+/// A sharpness measure.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", tag = "metric")]
+pub enum Metric {
+    /// Mean of Gx² + Gy² of the 3x3 Sobel gradients.
+    Tenengrad,
+    /// Variance of the Laplacian with OpenCV aperture `ksize` (1 or 3).
+    Laplacian {
+        /// 1 (4-neighbour kernel) or 3.
+        ksize: u32,
+    },
+}
+
+impl fmt::Display for Metric {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Metric::Tenengrad => f.write_str("tenengrad"),
+            Metric::Laplacian { ksize } => write!(f, "laplacian-k{ksize}"),
+        }
+    }
+}
+
+impl FromStr for Metric {
+    type Err = String;
+
+    /// `tenengrad`, `laplacian` (ksize 1), `laplacian-k1`, `laplacian-k3`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "tenengrad" => Ok(Metric::Tenengrad),
+            "laplacian" | "laplacian-k1" => Ok(Metric::Laplacian { ksize: 1 }),
+            "laplacian-k3" => Ok(Metric::Laplacian { ksize: 3 }),
+            _ => Err(format!(
+                "unknown metric `{s}` (tenengrad, laplacian, laplacian-k1, laplacian-k3)"
+            )),
+        }
+    }
+}
+
+impl Metric {
+    /// Number of u32 partials per workgroup the metric's shader writes.
+    fn stride(self) -> u32 {
+        match self {
+            Metric::Tenengrad => 1,
+            Metric::Laplacian { .. } => 2,
+        }
+    }
+}
+
+/// OpenCV backend: the score of one 8-bit BGR (or gray) frame.
+pub fn score_opencv(frame: &Mat, metric: Metric) -> Result<f64> {
+    let g = gray::opencv(frame)?;
+    match metric {
+        Metric::Tenengrad => tenengrad::opencv(&g),
+        Metric::Laplacian { ksize } => laplacian::opencv(&g, ksize),
+    }
+}
+
+/// Per-frame resources of one batch slot.
+struct Slot {
+    bgr: wgpu::Buffer,
+    gray_bg: wgpu::BindGroup,
+    metric_bg: wgpu::BindGroup,
+    reduce_bg: wgpu::BindGroup,
+}
+
+/// Memory the runner may use for its batch of uploaded frames.
+const BATCH_BUDGET_BYTES: u64 = 192 << 20;
+/// Most frames per submission.
+const MAX_BATCH: usize = 16;
+/// Bytes per slot in the totals buffer (storage offset alignment).
+const TOTALS_SLOT: u64 = 256;
+
+/// GPU sharpness for frames of one size: several frames per submission, only scores read back.
+pub struct SharpnessGpu {
+    ctx: Arc<GpuContext>,
+    metric: Metric,
+    width: u32,
+    height: u32,
+    gray: wgpu::Buffer,
+    totals: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    slots: Vec<Slot>,
+    gray_pipe: Arc<wgpu::ComputePipeline>,
+    metric_pipe: Arc<wgpu::ComputePipeline>,
+    reduce_pipe: Arc<wgpu::ComputePipeline>,
+    pad: Vec<u8>,
+}
+
+fn uniform(ctx: &GpuContext, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+    let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: bytes.len() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    ctx.queue.write_buffer(&buf, 0, bytes);
+    buf
+}
+
+fn bind(
+    ctx: &GpuContext,
+    pipe: &wgpu::ComputePipeline,
+    entries: &[wgpu::BindingResource<'_>],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry<'_>> = entries
+        .iter()
+        .enumerate()
+        .map(|(i, r)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: r.clone(),
+        })
+        .collect();
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipe.get_bind_group_layout(0),
+        entries: &entries,
+    })
+}
+
+impl SharpnessGpu {
+    /// Prepares buffers and pipelines for `width` x `height` frames.
+    pub fn new(ctx: Arc<GpuContext>, metric: Metric, width: u32, height: u32) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(Error::param("frame size", "must not be empty"));
+        }
+        let n = u64::from(width) * u64::from(height);
+        let bgr_bytes = (n * 3).next_multiple_of(4);
+        let max_binding = ctx.limits.max_storage_buffer_binding_size;
+        if n * 4 > max_binding || bgr_bytes > max_binding {
+            return Err(Error::Gpu(format!(
+                "a {width}x{height} frame needs {} MiB buffers; this adapter binds at most {} MiB",
+                (n * 4) >> 20,
+                max_binding >> 20
+            )));
+        }
+        let batch = ((BATCH_BUDGET_BYTES / bgr_bytes) as usize).clamp(1, MAX_BATCH);
+        let (gx, gy) = groups_2d(width, height);
+        let stride = metric.stride();
+        let n_groups = gx * gy;
+        let gray_pipe = ctx.pipeline("gray", gray::WGSL, "main")?;
+        let (metric_pipe, metric_params): (_, Vec<u8>) = match metric {
+            Metric::Tenengrad => (
+                ctx.pipeline("tenengrad", tenengrad::WGSL, "main")?,
+                bytemuck::bytes_of(&tenengrad::TenengradParams {
+                    width,
+                    height,
+                    groups_x: gx,
+                    pad: 0,
+                })
+                .to_vec(),
+            ),
+            Metric::Laplacian { ksize } => {
+                if ksize != 1 && ksize != 3 {
+                    return Err(Error::param("laplacian ksize", "must be 1 or 3"));
+                }
+                (
+                    ctx.pipeline("laplacian", laplacian::WGSL, "main")?,
+                    bytemuck::bytes_of(&laplacian::LaplacianParams {
+                        width,
+                        height,
+                        groups_x: gx,
+                        ksize,
+                    })
+                    .to_vec(),
+                )
+            }
+        };
+        let reduce_pipe = ctx.pipeline("reduce", reduce::WGSL, "main")?;
+        let (g1x, _) = groups_1d(width * height);
+        let gray_u = uniform(
+            &ctx,
+            "gray params",
+            bytemuck::bytes_of(&gray::GrayParams {
+                width,
+                height,
+                groups_x: g1x,
+                pad: 0,
+            }),
+        );
+        let metric_u = uniform(&ctx, "metric params", &metric_params);
+        let reduce_u = uniform(
+            &ctx,
+            "reduce params",
+            bytemuck::bytes_of(&reduce::ReduceParams {
+                count: n_groups,
+                stride,
+                pad0: 0,
+                pad1: 0,
+            }),
+        );
+        let gray_buf = ctx.storage_buffer("gray", n * 4);
+        let partials = ctx.storage_buffer("partials", u64::from(n_groups * stride) * 4);
+        let totals = ctx.storage_buffer("totals", TOTALS_SLOT * batch as u64);
+        let readback = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("totals readback"),
+            size: TOTALS_SLOT * batch as u64,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let slots = (0..batch)
+            .map(|i| {
+                let bgr = ctx.storage_buffer("bgr", bgr_bytes);
+                let totals_slot = wgpu::BufferBinding {
+                    buffer: &totals,
+                    offset: TOTALS_SLOT * i as u64,
+                    size: wgpu::BufferSize::new(u64::from(stride) * 8),
+                };
+                Slot {
+                    gray_bg: bind(
+                        &ctx,
+                        &gray_pipe,
+                        &[
+                            bgr.as_entire_binding(),
+                            gray_buf.as_entire_binding(),
+                            gray_u.as_entire_binding(),
+                        ],
+                    ),
+                    metric_bg: bind(
+                        &ctx,
+                        &metric_pipe,
+                        &[
+                            gray_buf.as_entire_binding(),
+                            partials.as_entire_binding(),
+                            metric_u.as_entire_binding(),
+                        ],
+                    ),
+                    reduce_bg: bind(
+                        &ctx,
+                        &reduce_pipe,
+                        &[
+                            partials.as_entire_binding(),
+                            wgpu::BindingResource::Buffer(totals_slot),
+                            reduce_u.as_entire_binding(),
+                        ],
+                    ),
+                    bgr,
+                }
+            })
+            .collect();
+        Ok(SharpnessGpu {
+            ctx,
+            metric,
+            width,
+            height,
+            gray: gray_buf,
+            totals,
+            readback,
+            slots,
+            gray_pipe,
+            metric_pipe,
+            reduce_pipe,
+            pad: Vec::new(),
+        })
+    }
+
+    /// Frames per submission.
+    pub fn batch_size(&self) -> usize {
+        self.slots.len()
+    }
+
+    fn upload(&mut self, slot: usize, frame: &Mat) -> Result<()> {
+        let ok_type = frame.typ() == opencv::core::CV_8UC3;
+        if !ok_type || frame.cols() as u32 != self.width || frame.rows() as u32 != self.height {
+            return Err(Error::Gpu(format!(
+                "frame is {}x{} type {}; this runner takes {}x{} 8-bit BGR",
+                frame.cols(),
+                frame.rows(),
+                frame.typ(),
+                self.width,
+                self.height
+            )));
+        }
+        let owned;
+        let frame = if frame.is_continuous() {
+            frame
+        } else {
+            owned = frame.try_clone().map_err(|e| Error::Gpu(e.to_string()))?;
+            &owned
+        };
+        let bytes = frame.data_bytes().map_err(|e| Error::Gpu(e.to_string()))?;
+        let buf = &self.slots[slot].bgr;
+        if bytes.len() % 4 == 0 {
+            self.ctx.queue.write_buffer(buf, 0, bytes);
+        } else {
+            self.pad.clear();
+            self.pad.extend_from_slice(bytes);
+            self.pad.resize(bytes.len().next_multiple_of(4), 0);
+            self.ctx.queue.write_buffer(buf, 0, &self.pad);
+        }
+        Ok(())
+    }
+
+    fn encode(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
+        let s = &self.slots[slot];
+        let (g1x, g1y) = groups_1d(self.width * self.height);
+        let (g2x, g2y) = groups_2d(self.width, self.height);
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("sharpness"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&self.gray_pipe);
+        pass.set_bind_group(0, &s.gray_bg, &[]);
+        pass.dispatch_workgroups(g1x, g1y, 1);
+        pass.set_pipeline(&self.metric_pipe);
+        pass.set_bind_group(0, &s.metric_bg, &[]);
+        pass.dispatch_workgroups(g2x, g2y, 1);
+        pass.set_pipeline(&self.reduce_pipe);
+        pass.set_bind_group(0, &s.reduce_bg, &[]);
+        pass.dispatch_workgroups(self.metric.stride(), 1, 1);
+    }
+
+    /// Scores of `frames` (8-bit BGR, this runner's size), in order.
+    pub fn scores(&mut self, frames: &[&Mat]) -> Result<Vec<f64>> {
+        let mut out = Vec::with_capacity(frames.len());
+        for chunk in frames.chunks(self.slots.len()) {
+            for (i, f) in chunk.iter().enumerate() {
+                self.upload(i, f)?;
+            }
+            let mut enc = self
+                .ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("sharpness batch"),
+                });
+            for i in 0..chunk.len() {
+                self.encode(&mut enc, i);
+            }
+            let used = TOTALS_SLOT * chunk.len() as u64;
+            enc.copy_buffer_to_buffer(&self.totals, 0, &self.readback, 0, used);
+            self.ctx.queue.submit([enc.finish()]);
+            let bytes = self.ctx.map_and_copy(&self.readback)?;
+            let n = u64::from(self.width) * u64::from(self.height);
+            for i in 0..chunk.len() {
+                let off = i * TOTALS_SLOT as usize;
+                let words: &[u32] = bytemuck::cast_slice(&bytes[off..off + 16]);
+                let t = reduce::totals_from_words(words);
+                out.push(match self.metric {
+                    Metric::Tenengrad => tenengrad::from_totals(t[0], n),
+                    Metric::Laplacian { ksize } => laplacian::from_totals(t[0], t[1], n, ksize),
+                });
+            }
+        }
+        Ok(out)
+    }
+
+    /// The gray image the gpu computes for `frame` (for checking against cv::cvtColor).
+    pub fn gray_of(&mut self, frame: &Mat) -> Result<Vec<u8>> {
+        self.upload(0, frame)?;
+        let mut enc = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("gray"),
+            });
+        self.encode(&mut enc, 0);
+        self.ctx.queue.submit([enc.finish()]);
+        let n = u64::from(self.width) * u64::from(self.height);
+        let bytes = self.ctx.read_back(&self.gray, n * 4)?;
+        let words: &[u32] = bytemuck::cast_slice(&bytes);
+        Ok(words[..n as usize].iter().map(|&v| v as u8).collect())
+    }
+}

@@ -1,0 +1,17 @@
+//! Tolerances for comparing the gpu backend with its OpenCV twin, in one place with their reasons.
+
+/// Gray conversion: both use the same 14-bit fixed-point formula, so results must be identical.
+pub const GRAY_MAX_ABS_DIFF: u8 = 0;
+
+/// Sharpness scores (Tenengrad, Laplacian variance), relative error. The gpu path sums exact
+/// integers (per-workgroup u32, then 64-bit totals) and divides once in f64; OpenCV accumulates the
+/// same integer-valued pixels in double blocks, and the variance subtracts two large terms (an
+/// f64 rounding of ~1e-16 relative each, amplified by mean^2 / variance on flat images). 1e-4
+/// leaves room for that amplification on low-texture images while catching any real difference
+/// (one wrong pixel of a 37x83 image already changes Tenengrad by ~1e-3 or more).
+pub const SHARPNESS_REL: f64 = 1e-4;
+
+/// Relative error `|a - b| / max(|b|, tiny)`.
+pub fn rel_err(a: f64, b: f64) -> f64 {
+    (a - b).abs() / b.abs().max(1e-12)
+}

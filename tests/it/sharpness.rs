@@ -1,0 +1,159 @@
+//! Sharpness kernels: gpu (WGSL on lavapipe) against the OpenCV twins, gray bit-exact, scores
+//! within `tolerance::SHARPNESS_REL`, on odd sizes, several workgroups, both borders and 4K.
+
+use keyframer::gpu::GpuContext;
+use keyframer::kernels::gray;
+use keyframer::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
+use keyframer::kernels::tolerance::{rel_err, SHARPNESS_REL};
+use opencv::core::Mat;
+use opencv::prelude::*;
+use std::sync::Arc;
+
+pub const METRICS: [Metric; 3] = [
+    Metric::Tenengrad,
+    Metric::Laplacian { ksize: 1 },
+    Metric::Laplacian { ksize: 3 },
+];
+
+pub fn ctx() -> Arc<GpuContext> {
+    Arc::new(GpuContext::new(None).expect("a wgpu adapter (lavapipe in CI)"))
+}
+
+/// The library's deterministic test pattern.
+pub fn synthetic(w: i32, h: i32, seed: u64) -> Mat {
+    keyframer::synthetic::pattern(w, h, seed).unwrap()
+}
+
+fn check(ctx: &Arc<GpuContext>, img: &Mat, what: &str) {
+    for metric in METRICS {
+        let mut gpu =
+            SharpnessGpu::new(ctx.clone(), metric, img.cols() as u32, img.rows() as u32).unwrap();
+        let g = gpu.scores(&[img]).unwrap()[0];
+        let c = score_opencv(img, metric).unwrap();
+        let e = rel_err(g, c);
+        assert!(
+            e <= SHARPNESS_REL,
+            "{what} {metric}: gpu {g} opencv {c} rel err {e:e}"
+        );
+        assert!(c > 0.0, "{what} {metric}: degenerate test image");
+    }
+}
+
+#[test]
+fn gray_is_bit_exact() {
+    let ctx = ctx();
+    for (w, h) in [(37, 83), (641, 359), (1, 1), (256, 1)] {
+        let img = synthetic(w, h, 7);
+        let mut gpu =
+            SharpnessGpu::new(ctx.clone(), Metric::Tenengrad, w as u32, h as u32).unwrap();
+        let ours = gpu.gray_of(&img).unwrap();
+        let theirs = gray::opencv(&img).unwrap();
+        let theirs = theirs.data_bytes().unwrap();
+        let worst = ours
+            .iter()
+            .zip(theirs)
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap();
+        assert!(
+            worst <= keyframer::kernels::tolerance::GRAY_MAX_ABS_DIFF,
+            "{w}x{h}: max diff {worst}"
+        );
+    }
+}
+
+#[test]
+fn odd_sizes_match_opencv() {
+    let ctx = ctx();
+    for (w, h) in [(37, 83), (641, 359), (16, 16), (17, 3), (3, 2)] {
+        check(
+            &ctx,
+            &synthetic(w, h, w as u64 * 31 + h as u64),
+            &format!("{w}x{h}"),
+        );
+    }
+}
+
+#[test]
+fn uhd_frame_matches_opencv() {
+    let ctx = ctx();
+    check(&ctx, &synthetic(3840, 2160, 4), "3840x2160");
+}
+
+/// A batch of different frames in one submission gives each frame its own score.
+#[test]
+fn batches_keep_frames_apart() {
+    let ctx = ctx();
+    let frames: Vec<Mat> = (0..5).map(|s| synthetic(97, 61, s)).collect();
+    let refs: Vec<&Mat> = frames.iter().collect();
+    for metric in METRICS {
+        let mut gpu = SharpnessGpu::new(ctx.clone(), metric, 97, 61).unwrap();
+        assert!(gpu.batch_size() >= 5);
+        let g = gpu.scores(&refs).unwrap();
+        for (i, f) in frames.iter().enumerate() {
+            let c = score_opencv(f, metric).unwrap();
+            assert!(
+                rel_err(g[i], c) <= SHARPNESS_REL,
+                "{metric} frame {i}: {} vs {c}",
+                g[i]
+            );
+        }
+    }
+}
+
+/// Every golden file in reference/sharpness: the opencv backend reproduces it and the gpu backend
+/// matches it within the tolerance.
+#[test]
+fn reference_scores() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("reference");
+    let ctx = ctx();
+    let mut checked = 0;
+    for entry in std::fs::read_dir(root.join("sharpness")).unwrap() {
+        let path = entry.unwrap().path();
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        let input = root.join(v["input"].as_str().unwrap());
+        let metric: Metric = v["metric"].as_str().unwrap().parse().unwrap();
+        let expected = v["score"].as_f64().unwrap();
+        let img =
+            opencv::imgcodecs::imread(input.to_str().unwrap(), opencv::imgcodecs::IMREAD_COLOR)
+                .unwrap();
+        assert_eq!(
+            (img.cols() as u64, img.rows() as u64),
+            (v["width"].as_u64().unwrap(), v["height"].as_u64().unwrap())
+        );
+        let cpu = score_opencv(&img, metric).unwrap();
+        assert!(
+            rel_err(cpu, expected) <= SHARPNESS_REL,
+            "{}: opencv {cpu} vs stored {expected}",
+            path.display()
+        );
+        let mut gpu =
+            SharpnessGpu::new(ctx.clone(), metric, img.cols() as u32, img.rows() as u32).unwrap();
+        let g = gpu.scores(&[&img]).unwrap()[0];
+        assert!(
+            rel_err(g, expected) <= SHARPNESS_REL,
+            "{}: gpu {g} vs OpenCV {expected} (rel {:e})",
+            path.display(),
+            rel_err(g, expected)
+        );
+        checked += 1;
+    }
+    assert_eq!(checked, 15, "5 inputs x 3 metrics");
+    let size: u64 = walk_size(&root);
+    assert!(
+        size < 2 << 20,
+        "reference/ is {size} bytes, over its 2 MiB cap"
+    );
+}
+
+fn walk_size(p: &std::path::Path) -> u64 {
+    if p.is_dir() {
+        std::fs::read_dir(p)
+            .unwrap()
+            .map(|e| walk_size(&e.unwrap().path()))
+            .sum()
+    } else {
+        std::fs::metadata(p).unwrap().len()
+    }
+}
