@@ -3,7 +3,8 @@
 use crate::error::{Error, Result};
 use crate::export::{Crop, ExportSettings, Format, Resize};
 use crate::gpu::Backend;
-use crate::samplers::{Bound, Boundaries};
+use crate::kernels::sharpness::Metric;
+use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
 use crate::select::{Rate, SelectSettings};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
@@ -34,6 +35,47 @@ pub enum Command {
     Select(SelectArgs),
     /// Write a project's keyframes as images with a manifest.
     Export(ExportArgs),
+    /// Per-frame sharpness scores of a video, image folder or image.
+    Score(ScoreArgs),
+    /// Side-by-side timings of the gpu and opencv backends (ratios from one run).
+    Bench(BenchArgs),
+}
+
+/// `score` flags.
+#[derive(Debug, Args)]
+pub struct ScoreArgs {
+    /// Video file, image file or image folder.
+    pub input: PathBuf,
+    /// Sharpness metric: tenengrad, laplacian (= laplacian-k1) or laplacian-k3.
+    #[arg(long, default_value = "tenengrad")]
+    pub metric: Metric,
+    /// Print one JSON object instead of `index<TAB>timestamp<TAB>score` lines.
+    #[arg(long)]
+    pub json: bool,
+    /// Backend flags.
+    #[command(flatten)]
+    pub analysis: AnalysisArgs,
+}
+
+/// `bench` flags.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// What to time.
+    #[arg(value_enum, default_value = "sharpness")]
+    pub what: BenchWhat,
+    /// Frames per size and backend.
+    #[arg(long, default_value_t = 24)]
+    pub frames: usize,
+    /// GPU adapter (part of its name).
+    #[arg(long)]
+    pub adapter: Option<String>,
+}
+
+/// Benchmarks.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum BenchWhat {
+    /// Tenengrad and Laplacian variance at 640x360, 1920x1080, 3840x2160.
+    Sharpness,
 }
 
 /// Which kernels implementation to use.
@@ -126,9 +168,62 @@ pub struct SelectArgs {
     /// Replace an existing project file.
     #[arg(long)]
     pub force: bool,
+    /// Blur sampler flags.
+    #[command(flatten)]
+    pub blur: BlurArgs,
     /// Backend flags.
     #[command(flatten)]
     pub analysis: AnalysisArgs,
+}
+
+/// Flags of the blur sampler.
+#[derive(Debug, Args)]
+pub struct BlurArgs {
+    /// Drop (filter) or replace blurry keyframes, after --every/--fps.
+    #[arg(long)]
+    pub blur: bool,
+    /// Sharpness metric: tenengrad, laplacian (= laplacian-k1) or laplacian-k3.
+    #[arg(long, value_name = "METRIC", default_value = "tenengrad")]
+    pub blur_metric: Metric,
+    /// Half-width of the comparison window, in frames.
+    #[arg(long, value_name = "W", default_value_t = 10)]
+    pub blur_window: usize,
+    /// Filter mode keeps a frame iff its score >= RATIO x the mean score within the window.
+    #[arg(long, value_name = "RATIO", default_value_t = 0.8)]
+    pub blur_ratio: f64,
+    /// filter: drop blurry keyframes; replace: move each keyframe to the sharpest frame in its
+    /// window (never onto or across another keyframe).
+    #[arg(long, value_enum, default_value = "filter")]
+    pub blur_mode: BlurModeArg,
+}
+
+/// Blur sampler modes.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum BlurModeArg {
+    /// Drop blurry keyframes.
+    Filter,
+    /// Move keyframes to the sharpest nearby frame.
+    Replace,
+}
+
+impl BlurArgs {
+    /// The blur sampler's parameters when `--blur` is given.
+    pub fn params(&self) -> Result<Option<BlurParams>> {
+        if !self.blur {
+            return Ok(None);
+        }
+        let p = BlurParams {
+            metric: self.blur_metric,
+            window: self.blur_window,
+            ratio: self.blur_ratio,
+            mode: match self.blur_mode {
+                BlurModeArg::Filter => BlurMode::Filter,
+                BlurModeArg::Replace => BlurMode::Replace,
+            },
+        };
+        p.validate()?;
+        Ok(Some(p))
+    }
 }
 
 /// `export` flags.
@@ -197,6 +292,9 @@ impl SelectArgs {
             rate,
             add: self.add.clone(),
             remove: self.remove.clone(),
+            blur: self.blur.params()?,
+            backend: self.analysis.backend.into(),
+            adapter: self.analysis.adapter.clone(),
             images_fps: positive("--images-fps", self.images_fps)?,
             force: self.force,
             quiet,

@@ -2,6 +2,8 @@
 //! Per-frame analysis runs as WGSL compute shaders through wgpu, checked against OpenCV's CPU
 //! implementation; OpenCV decodes, and exports.
 
+pub mod analysis;
+pub mod bench;
 pub mod cli;
 pub mod error;
 pub mod export;

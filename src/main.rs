@@ -4,7 +4,7 @@
 use anyhow::Result;
 use clap::Parser;
 use keyframer::cli::{Cli, Command};
-use keyframer::{export, info, select, source};
+use keyframer::{analysis, export, gpu, info, select, source};
 use std::process::ExitCode;
 
 /// How a command ended when it did not fail outright.
@@ -70,6 +70,20 @@ fn run(cli: Cli) -> Result<Outcome> {
             Ok(Outcome::Ok)
         }
         Command::Probe(a) => probe(&a, quiet),
+        Command::Score(a) => score(&a, quiet),
+        Command::Bench(a) => {
+            let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(a.adapter.as_deref())?);
+            match a.what {
+                keyframer::cli::BenchWhat::Sharpness => {
+                    let rows = keyframer::bench::sharpness(&ctx, a.frames)?;
+                    print!(
+                        "{}",
+                        keyframer::bench::render_sharpness(&ctx.info.name, a.frames, &rows)
+                    );
+                }
+            }
+            Ok(Outcome::Ok)
+        }
         Command::Select(a) => {
             let settings = a.settings(quiet)?;
             let r = select::select(&settings)?;
@@ -173,6 +187,51 @@ fn probe(a: &keyframer::cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
         }
     }
     Ok(if problems.is_empty() {
+        Outcome::Ok
+    } else {
+        Outcome::Partial
+    })
+}
+
+fn score(a: &keyframer::cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
+    let (backend, ctx) =
+        gpu::resolve_backend(a.analysis.backend.into(), a.analysis.adapter.as_deref());
+    let r = analysis::analyse(
+        &a.input,
+        &source::OpenOptions::default(),
+        &analysis::Request {
+            sharpness: vec![a.metric],
+        },
+        backend,
+        ctx.as_ref(),
+        quiet,
+    )?;
+    let scores = &r.sharpness[0].1;
+    let ts = r.timestamps_s.as_deref();
+    if a.json {
+        let v = serde_json::json!({
+            "input": a.input,
+            "metric": a.metric,
+            "backend": r.backend,
+            "width": r.metadata.width,
+            "height": r.metadata.height,
+            "frame_count": r.metadata.frame_count,
+            "timestamps_s": ts,
+            "scores": scores,
+            "decode_problems": r.problems,
+        });
+        println!("{}", serde_json::to_string(&v)?);
+    } else {
+        use std::io::Write;
+        let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+        for (i, s) in scores.iter().enumerate() {
+            match ts.and_then(|t| t.get(i)) {
+                Some(t) => writeln!(out, "{i}\t{t:.6}\t{s}")?,
+                None => writeln!(out, "{i}\t\t{s}")?,
+            }
+        }
+    }
+    Ok(if r.problems.is_empty() {
         Outcome::Ok
     } else {
         Outcome::Partial

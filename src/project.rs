@@ -4,6 +4,8 @@
 
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
+use crate::gpu::Backend;
+use crate::kernels::sharpness::Metric;
 use crate::samplers::Boundaries;
 use crate::source::{Metadata, SourceKind};
 use serde::{Deserialize, Serialize};
@@ -63,6 +65,33 @@ pub struct Step {
 pub struct Cache {
     /// Presentation time of every frame in seconds (absent for image folders without a rate).
     pub timestamps_s: Option<Vec<f64>>,
+    /// Sharpness scores, one series per (metric, analysis resolution).
+    #[serde(default)]
+    pub sharpness: Vec<SharpnessSeries>,
+}
+
+/// One sharpness score per frame, keyed by metric and the resolution it was computed at.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SharpnessSeries {
+    /// Metric and its parameters (`tenengrad`, `laplacian-k1`, `laplacian-k3`).
+    pub metric: Metric,
+    /// Analysis width in pixels.
+    pub width: u32,
+    /// Analysis height in pixels.
+    pub height: u32,
+    /// Backend that computed the scores (both agree within the kernel tolerance).
+    pub backend: Backend,
+    /// One score per frame.
+    pub scores: Vec<f64>,
+}
+
+impl Cache {
+    /// The cached scores for `metric` at `width` x `height`, if present.
+    pub fn sharpness(&self, metric: Metric, width: u32, height: u32) -> Option<&SharpnessSeries> {
+        self.sharpness
+            .iter()
+            .find(|s| s.metric == metric && s.width == width && s.height == height)
+    }
 }
 
 impl Project {
@@ -133,6 +162,24 @@ impl Project {
                 return Err((
                     "cache.timestamps_s".into(),
                     format!("{} timestamps for {n} frames", ts.len()),
+                ));
+            }
+        }
+        for (i, series) in self.cache.sharpness.iter().enumerate() {
+            if series.scores.len() != n {
+                return Err((
+                    format!("cache.sharpness[{i}].scores"),
+                    format!("{} scores for {n} frames", series.scores.len()),
+                ));
+            }
+            if let Some(j) = series
+                .scores
+                .iter()
+                .position(|v| !v.is_finite() || *v < 0.0)
+            {
+                return Err((
+                    format!("cache.sharpness[{i}].scores[{j}]"),
+                    "scores must be finite and non-negative".into(),
                 ));
             }
         }

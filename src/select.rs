@@ -1,12 +1,15 @@
-//! `select`: one pass over the input to establish frame count and timestamps (or none, when a
-//! project for the same unchanged input already holds them), then the samplers in a fixed chain:
-//! boundaries → every-nth | fps → manual add/remove. Writes the project file atomically.
+//! `select`: one analysis pass over the input for the frame count, timestamps and the scores the
+//! samplers need (or none, when a project for the same unchanged input already caches them), then
+//! the samplers in a fixed chain: boundaries → every-nth | fps → blur → manual add/remove.
+//! Writes the project file atomically.
 
+use crate::analysis::{self, Request};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
-use crate::project::{Cache, InputRef, Project, Step, SCHEMA_VERSION};
-use crate::samplers::{self, Boundaries};
-use crate::source::{self, Metadata, OpenOptions, SourceKind};
+use crate::gpu::{self, Backend};
+use crate::project::{Cache, InputRef, Project, SharpnessSeries, Step, SCHEMA_VERSION};
+use crate::samplers::{self, BlurParams, Boundaries};
+use crate::source::{self, OpenOptions, SourceKind};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 
@@ -34,6 +37,12 @@ pub struct SelectSettings {
     pub add: Vec<usize>,
     /// Frames to remove after sampling.
     pub remove: Vec<usize>,
+    /// Blur sampler, if any (runs after the rate sampler).
+    pub blur: Option<BlurParams>,
+    /// Kernel backend for the analysis.
+    pub backend: Backend,
+    /// GPU adapter choice (part of its name).
+    pub adapter: Option<String>,
     /// Frame rate to assume for image folders.
     pub images_fps: Option<f64>,
     /// Replace an existing project file.
@@ -95,23 +104,72 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         .then(|| Project::load(&s.output).ok())
         .flatten()
         .filter(|p| p.input == input_ref);
-    let (metadata, cache, problems, decoded) = match reusable {
-        Some(p) => {
+    let metrics: Vec<_> = s.blur.iter().map(|b| b.metric).collect();
+    let mut decoded = false;
+    let (cached_meta, mut cache, mut problems) = match reusable {
+        Some(p) => (Some(p.metadata), p.cache, p.decode_problems),
+        None => (None, Cache::default(), Vec::new()),
+    };
+    let missing: Vec<_> = match &cached_meta {
+        Some(m) => metrics
+            .iter()
+            .copied()
+            .filter(|&k| cache.sharpness(k, m.width, m.height).is_none())
+            .collect(),
+        None => metrics.clone(),
+    };
+    let metadata = match cached_meta {
+        Some(m) if missing.is_empty() => {
             log::info!(
                 "reusing the frame data cached in {} (input unchanged; nothing decoded)",
                 s.output.display()
             );
-            (p.metadata, p.cache, p.decode_problems, false)
+            m
         }
-        None => {
-            let (m, c, pr) = scan_input(&s.input, s.images_fps, s.quiet)?;
-            (m, c, pr, true)
+        cached => {
+            let (backend, ctx) = if missing.is_empty() {
+                (Backend::Opencv, None)
+            } else {
+                gpu::resolve_backend(s.backend, s.adapter.as_deref())
+            };
+            let a = analysis::analyse(
+                &s.input,
+                &OpenOptions {
+                    images_fps: s.images_fps,
+                },
+                &Request { sharpness: missing },
+                backend,
+                ctx.as_ref(),
+                s.quiet,
+            )?;
+            if cached.is_some_and(|m| m.frame_count != a.metadata.frame_count) {
+                log::warn!(
+                    "the input decodes to a different frame count than cached; cache replaced"
+                );
+                cache = Cache::default();
+            }
+            for (metric, scores) in a.sharpness {
+                cache.sharpness.push(SharpnessSeries {
+                    metric,
+                    width: a.metadata.width,
+                    height: a.metadata.height,
+                    backend: a.backend,
+                    scores,
+                });
+            }
+            if cache.timestamps_s.is_none() {
+                cache.timestamps_s = a.timestamps_s;
+            }
+            problems = a.problems;
+            decoded = true;
+            a.metadata
         }
     };
 
     let mut history = Vec::new();
     let ts = cache.timestamps_s.as_deref();
-    let mut keys = s.boundaries.candidates(metadata.frame_count, ts)?;
+    let range = s.boundaries.candidates(metadata.frame_count, ts)?;
+    let mut keys = range.clone();
     history.push(Step {
         plugin: "boundaries".into(),
         params: json!({ "start": s.boundaries.start, "end": s.boundaries.end }),
@@ -142,6 +200,25 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         }
         None => {}
     }
+    if let Some(b) = &s.blur {
+        let series = cache
+            .sharpness(b.metric, metadata.width, metadata.height)
+            .ok_or_else(|| Error::Plugin {
+                plugin: "blur",
+                msg: format!("no {} scores were computed", b.metric),
+            })?;
+        let lo = range.first().copied().unwrap_or(0);
+        let hi = range.last().copied().unwrap_or(0);
+        keys = samplers::blur(&keys, &series.scores, b, lo, hi)?;
+        history.push(Step {
+            plugin: "blur".into(),
+            params: json!({
+                "metric": b.metric, "window": b.window, "ratio": b.ratio, "mode": b.mode,
+                "backend": series.backend,
+            }),
+            kept: keys.len(),
+        });
+    }
     if !s.add.is_empty() || !s.remove.is_empty() {
         keys = samplers::manual(&keys, &s.add, &s.remove, metadata.frame_count)?;
         history.push(Step {
@@ -164,46 +241,4 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
     };
     project.save(&s.output, true)?;
     Ok(SelectReport { project, decoded })
-}
-
-/// Decodes the whole input once: exact frame count, timestamps, and decode problems.
-fn scan_input(
-    input: &Path,
-    images_fps: Option<f64>,
-    quiet: bool,
-) -> Result<(Metadata, Cache, Vec<String>)> {
-    let mut src = source::open(input, &OpenOptions { images_fps })?;
-    let declared = src.metadata().frame_count as u64;
-    let bar = crate::progress::bar(declared, "scan", quiet);
-    let scan = source::scan(src.as_mut(), |n| bar.set_position(n as u64))?;
-    bar.finish_and_clear();
-    let mut meta = src.metadata().clone();
-    if meta.frame_count != scan.frame_count {
-        if scan.failure.is_none() {
-            log::info!(
-                "{}: the container declares {} frames, decoding found {}",
-                input.display(),
-                meta.frame_count,
-                scan.frame_count
-            );
-        }
-        meta.frame_count = scan.frame_count;
-    }
-    meta.frame_count_exact = true;
-    if let (Some(ts), Some(fps)) = (&scan.timestamps_s, meta.fps) {
-        if let (Some(first), Some(last)) = (ts.first(), ts.last()) {
-            meta.duration_s = Some(last - first + 1.0 / fps);
-        }
-    }
-    let problems: Vec<String> = scan.failure.into_iter().map(|(_, m)| m).collect();
-    for p in &problems {
-        log::warn!("{}: {p}", input.display());
-    }
-    Ok((
-        meta,
-        Cache {
-            timestamps_s: scan.timestamps_s,
-        },
-        problems,
-    ))
 }

@@ -14,7 +14,7 @@ use std::sync::Arc;
 
 /// A sharpness measure.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case", tag = "metric")]
+#[serde(try_from = "String", into = "String")]
 pub enum Metric {
     /// Mean of Gx² + Gy² of the 3x3 Sobel gradients.
     Tenengrad,
@@ -47,6 +47,19 @@ impl FromStr for Metric {
                 "unknown metric `{s}` (tenengrad, laplacian, laplacian-k1, laplacian-k3)"
             )),
         }
+    }
+}
+
+impl TryFrom<String> for Metric {
+    type Error = String;
+    fn try_from(s: String) -> Result<Self, String> {
+        s.parse()
+    }
+}
+
+impl From<Metric> for String {
+    fn from(m: Metric) -> String {
+        m.to_string()
     }
 }
 

@@ -1,11 +1,13 @@
 //! Keyframe samplers: pure, deterministic functions from a candidate list (sorted frame indices)
 //! and per-frame numbers to a subset of the candidates. They never touch pixels.
 
+mod blur;
 mod boundaries;
 mod every_nth;
 mod fps;
 mod manual;
 
+pub use blur::{blur, BlurMode, BlurParams};
 pub use boundaries::{Bound, Boundaries};
 pub use every_nth::every_nth;
 pub use fps::fps;

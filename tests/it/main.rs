@@ -1,5 +1,6 @@
 //! Integration tests: one binary, one module per capability.
 
+mod blur;
 mod common;
 mod foundation;
 mod sharpness;

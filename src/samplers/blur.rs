@@ -1,0 +1,152 @@
+//! `blur`: drop or replace blurry keyframes using a per-frame sharpness score.
+//! Filter mode keeps a keyframe iff score ≥ ratio × mean(scores of the frames within ±window,
+//! itself included, clipped to the sampled range). Replace mode moves each keyframe to the
+//! sharpest frame within ±window, never onto or across a neighbouring keyframe (ties: the frame
+//! nearest the original, then the earlier one).
+
+use crate::error::{Error, Result};
+use crate::kernels::sharpness::Metric;
+use serde::{Deserialize, Serialize};
+
+/// What to do with blurry keyframes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BlurMode {
+    /// Drop keyframes that are blurrier than their neighbourhood.
+    Filter,
+    /// Move keyframes to the sharpest nearby frame.
+    Replace,
+}
+
+/// Parameters of the blur sampler.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BlurParams {
+    /// Sharpness metric.
+    pub metric: Metric,
+    /// Half-width of the window in frames.
+    pub window: usize,
+    /// Filter threshold relative to the window mean (filter mode).
+    pub ratio: f64,
+    /// Filter or replace.
+    pub mode: BlurMode,
+}
+
+impl BlurParams {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.ratio.is_finite() && self.ratio > 0.0) {
+            return Err(Error::Plugin {
+                plugin: "blur",
+                msg: format!("ratio must be a positive number, got {}", self.ratio),
+            });
+        }
+        if self.window == 0 {
+            return Err(Error::Plugin {
+                plugin: "blur",
+                msg: "window must be at least 1 frame".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Applies the blur sampler to `keyframes` within the sampled range `lo..=hi`.
+pub fn blur(
+    keyframes: &[usize],
+    scores: &[f64],
+    p: &BlurParams,
+    lo: usize,
+    hi: usize,
+) -> Result<Vec<usize>> {
+    p.validate()?;
+    if hi >= scores.len() || lo > hi {
+        return Err(Error::Plugin {
+            plugin: "blur",
+            msg: format!(
+                "range {lo}..={hi} does not fit {} scored frames",
+                scores.len()
+            ),
+        });
+    }
+    let window = |k: usize| k.saturating_sub(p.window).max(lo)..=(k + p.window).min(hi);
+    Ok(match p.mode {
+        BlurMode::Filter => keyframes
+            .iter()
+            .copied()
+            .filter(|&k| {
+                let w = window(k);
+                let n = w.clone().count() as f64;
+                let mean = scores[w].iter().sum::<f64>() / n;
+                scores[k] >= p.ratio * mean
+            })
+            .collect(),
+        BlurMode::Replace => {
+            let mut out: Vec<usize> = Vec::with_capacity(keyframes.len());
+            for (i, &k) in keyframes.iter().enumerate() {
+                let w = window(k);
+                let mut lower = *w.start();
+                if let Some(&prev) = out.last() {
+                    lower = lower.max(prev + 1);
+                }
+                let mut upper = *w.end();
+                if let Some(&next) = keyframes.get(i + 1) {
+                    upper = upper.min(next.saturating_sub(1));
+                }
+                let best = (lower..=upper)
+                    .max_by(|&a, &b| {
+                        scores[a]
+                            .total_cmp(&scores[b])
+                            .then_with(|| k.abs_diff(b).cmp(&k.abs_diff(a)))
+                            .then_with(|| b.cmp(&a))
+                    })
+                    .unwrap_or(k);
+                out.push(best);
+            }
+            out
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn params(mode: BlurMode) -> BlurParams {
+        BlurParams {
+            metric: Metric::Tenengrad,
+            window: 2,
+            ratio: 0.8,
+            mode,
+        }
+    }
+
+    #[test]
+    fn filter_drops_dips() {
+        let scores = [10.0, 10.0, 2.0, 10.0, 10.0, 9.0, 10.0];
+        let k = blur(
+            &[0, 1, 2, 3, 4, 5, 6],
+            &scores,
+            &params(BlurMode::Filter),
+            0,
+            6,
+        )
+        .unwrap();
+        assert_eq!(k, vec![0, 1, 3, 4, 5, 6]);
+    }
+
+    #[test]
+    fn replace_moves_without_crossing() {
+        let scores = [1.0, 5.0, 1.0, 1.0, 9.0, 1.0, 1.0, 1.0];
+        // Keyframe 2 would like frame 4, but keyframe 3 is in the way: it takes frame 1 instead.
+        let k = blur(&[2, 3, 7], &scores, &params(BlurMode::Replace), 0, 7).unwrap();
+        assert_eq!(k, vec![1, 4, 7]);
+        assert!(k.windows(2).all(|w| w[0] < w[1]));
+    }
+
+    #[test]
+    fn replace_ties_prefer_the_original() {
+        let scores = [3.0; 9];
+        let k = blur(&[4], &scores, &params(BlurMode::Replace), 0, 8).unwrap();
+        assert_eq!(k, vec![4]);
+    }
+}
