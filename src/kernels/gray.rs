@@ -16,8 +16,8 @@ pub struct GrayParams {
     pub width: u32,
     /// Image height.
     pub height: u32,
-    /// Workgroups per dispatch row (the dispatch is folded into 2-D).
-    pub groups_x: u32,
+    /// u32 words per row of the packed gray output.
+    pub stride: u32,
     /// Unused.
     pub pad: u32,
 }

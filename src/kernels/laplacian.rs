@@ -17,8 +17,8 @@ pub struct LaplacianParams {
     pub width: u32,
     /// Image height.
     pub height: u32,
-    /// Workgroups per row of the dispatch grid.
-    pub groups_x: u32,
+    /// u32 words per row of the packed gray input.
+    pub stride: u32,
     /// Aperture: 1 or 3.
     pub ksize: u32,
 }

@@ -4,7 +4,6 @@
 
 pub mod gray;
 pub mod laplacian;
-pub mod reduce;
 pub mod sharpness;
 pub mod tenengrad;
 pub mod tolerance;
@@ -14,20 +13,21 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("gray", gray::WGSL),
     ("tenengrad", tenengrad::WGSL),
     ("laplacian", laplacian::WGSL),
-    ("reduce", reduce::WGSL),
 ];
 
-/// Workgroups for `n` invocations of a 1-D kernel with 256 per group, folded into 2-D so no
-/// dimension exceeds the 65 535 limit: (groups_x, groups_y).
-pub fn groups_1d(n: u32) -> (u32, u32) {
-    let groups = n.div_ceil(256).max(1);
-    let x = groups.min(65_535);
-    (x, groups.div_ceil(x))
+/// Words (4 gray pixels each) per row of a packed gray image of `width` pixels.
+pub fn gray_stride(width: u32) -> u32 {
+    width.div_ceil(4)
 }
 
-/// Workgroups for a 16x16 tiled 2-D kernel over `width` x `height`.
-pub fn groups_2d(width: u32, height: u32) -> (u32, u32) {
-    (width.div_ceil(16), height.div_ceil(16))
+/// Workgroups of gray.wgsl (64 words per group) for a `width` x `height` image.
+pub fn gray_groups(width: u32, height: u32) -> (u32, u32) {
+    (gray_stride(width).div_ceil(64), height)
+}
+
+/// Workgroups of the 32x32-pixel-tile kernels (tenengrad, laplacian).
+pub fn tile_groups(width: u32, height: u32) -> (u32, u32) {
+    (width.div_ceil(32), height.div_ceil(32))
 }
 
 /// Validates a WGSL source with naga (no adapter needed); returns naga's message on failure.
@@ -55,9 +55,9 @@ mod tests {
 
     #[test]
     fn dispatch_shapes() {
-        assert_eq!(super::groups_1d(37 * 83), (12, 1));
-        assert_eq!(super::groups_1d(3840 * 2160), (32_400, 1));
-        assert_eq!(super::groups_1d(65_536 * 256), (65_535, 2));
-        assert_eq!(super::groups_2d(641, 359), (41, 23));
+        assert_eq!(super::gray_stride(641), 161);
+        assert_eq!(super::gray_groups(641, 359), (3, 359));
+        assert_eq!(super::tile_groups(641, 359), (21, 12));
+        assert_eq!(super::tile_groups(3840, 2160), (120, 68));
     }
 }

@@ -1,8 +1,8 @@
 //! Sharpness scores per frame (Tenengrad or Laplacian variance) with two backends: the gpu runner
-//! chains gray → metric → reduce for a batch of frames in one submission and reads back only the
+//! chains gray → metric for a batch of frames in one submission and reads back only the exact
 //! 64-bit totals; the opencv backend runs the OpenCV twins.
 
-use super::{gray, groups_1d, groups_2d, laplacian, reduce, tenengrad};
+use super::{gray, gray_groups, gray_stride, laplacian, tenengrad, tile_groups};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use opencv::core::Mat;
@@ -64,13 +64,21 @@ impl From<Metric> for String {
 }
 
 impl Metric {
-    /// Number of u32 partials per workgroup the metric's shader writes.
-    fn stride(self) -> u32 {
+    /// Number of 64-bit totals the metric's shader accumulates.
+    fn totals(self) -> u64 {
         match self {
             Metric::Tenengrad => 1,
             Metric::Laplacian { .. } => 2,
         }
     }
+}
+
+/// Decodes (low, high) word pairs of 64-bit totals.
+fn totals_from_words(words: &[u32]) -> Vec<u64> {
+    words
+        .chunks_exact(2)
+        .map(|w| u64::from(w[0]) | (u64::from(w[1]) << 32))
+        .collect()
 }
 
 /// OpenCV backend: the score of one 8-bit BGR (or gray) frame.
@@ -87,7 +95,6 @@ struct Slot {
     bgr: wgpu::Buffer,
     gray_bg: wgpu::BindGroup,
     metric_bg: wgpu::BindGroup,
-    reduce_bg: wgpu::BindGroup,
 }
 
 /// Memory the runner may use for its batch of uploaded frames.
@@ -109,7 +116,6 @@ pub struct SharpnessGpu {
     slots: Vec<Slot>,
     gray_pipe: Arc<wgpu::ComputePipeline>,
     metric_pipe: Arc<wgpu::ComputePipeline>,
-    reduce_pipe: Arc<wgpu::ComputePipeline>,
     pad: Vec<u8>,
 }
 
@@ -153,17 +159,15 @@ impl SharpnessGpu {
         let n = u64::from(width) * u64::from(height);
         let bgr_bytes = (n * 3).next_multiple_of(4);
         let max_binding = ctx.limits.max_storage_buffer_binding_size;
-        if n * 4 > max_binding || bgr_bytes > max_binding {
+        if bgr_bytes > max_binding {
             return Err(Error::Gpu(format!(
                 "a {width}x{height} frame needs {} MiB buffers; this adapter binds at most {} MiB",
-                (n * 4) >> 20,
+                bgr_bytes >> 20,
                 max_binding >> 20
             )));
         }
         let batch = ((BATCH_BUDGET_BYTES / bgr_bytes) as usize).clamp(1, MAX_BATCH);
-        let (gx, gy) = groups_2d(width, height);
-        let stride = metric.stride();
-        let n_groups = gx * gy;
+        let stride = gray_stride(width);
         let gray_pipe = ctx.pipeline("gray", gray::WGSL, "main")?;
         let (metric_pipe, metric_params): (_, Vec<u8>) = match metric {
             Metric::Tenengrad => (
@@ -171,7 +175,7 @@ impl SharpnessGpu {
                 bytemuck::bytes_of(&tenengrad::TenengradParams {
                     width,
                     height,
-                    groups_x: gx,
+                    stride,
                     pad: 0,
                 })
                 .to_vec(),
@@ -185,38 +189,25 @@ impl SharpnessGpu {
                     bytemuck::bytes_of(&laplacian::LaplacianParams {
                         width,
                         height,
-                        groups_x: gx,
+                        stride,
                         ksize,
                     })
                     .to_vec(),
                 )
             }
         };
-        let reduce_pipe = ctx.pipeline("reduce", reduce::WGSL, "main")?;
-        let (g1x, _) = groups_1d(width * height);
         let gray_u = uniform(
             &ctx,
             "gray params",
             bytemuck::bytes_of(&gray::GrayParams {
                 width,
                 height,
-                groups_x: g1x,
+                stride,
                 pad: 0,
             }),
         );
         let metric_u = uniform(&ctx, "metric params", &metric_params);
-        let reduce_u = uniform(
-            &ctx,
-            "reduce params",
-            bytemuck::bytes_of(&reduce::ReduceParams {
-                count: n_groups,
-                stride,
-                pad0: 0,
-                pad1: 0,
-            }),
-        );
-        let gray_buf = ctx.storage_buffer("gray", n * 4);
-        let partials = ctx.storage_buffer("partials", u64::from(n_groups * stride) * 4);
+        let gray_buf = ctx.storage_buffer("gray", u64::from(stride) * u64::from(height) * 4);
         let totals = ctx.storage_buffer("totals", TOTALS_SLOT * batch as u64);
         let readback = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("totals readback"),
@@ -230,7 +221,7 @@ impl SharpnessGpu {
                 let totals_slot = wgpu::BufferBinding {
                     buffer: &totals,
                     offset: TOTALS_SLOT * i as u64,
-                    size: wgpu::BufferSize::new(u64::from(stride) * 8),
+                    size: wgpu::BufferSize::new(metric.totals() * 8),
                 };
                 Slot {
                     gray_bg: bind(
@@ -247,17 +238,8 @@ impl SharpnessGpu {
                         &metric_pipe,
                         &[
                             gray_buf.as_entire_binding(),
-                            partials.as_entire_binding(),
-                            metric_u.as_entire_binding(),
-                        ],
-                    ),
-                    reduce_bg: bind(
-                        &ctx,
-                        &reduce_pipe,
-                        &[
-                            partials.as_entire_binding(),
                             wgpu::BindingResource::Buffer(totals_slot),
-                            reduce_u.as_entire_binding(),
+                            metric_u.as_entire_binding(),
                         ],
                     ),
                     bgr,
@@ -275,7 +257,6 @@ impl SharpnessGpu {
             slots,
             gray_pipe,
             metric_pipe,
-            reduce_pipe,
             pad: Vec::new(),
         })
     }
@@ -319,21 +300,23 @@ impl SharpnessGpu {
 
     fn encode(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
         let s = &self.slots[slot];
-        let (g1x, g1y) = groups_1d(self.width * self.height);
-        let (g2x, g2y) = groups_2d(self.width, self.height);
+        let (gx, gy) = gray_groups(self.width, self.height);
+        let (tx, ty) = tile_groups(self.width, self.height);
+        enc.clear_buffer(
+            &self.totals,
+            TOTALS_SLOT * slot as u64,
+            Some(self.metric.totals() * 8),
+        );
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("sharpness"),
             timestamp_writes: None,
         });
         pass.set_pipeline(&self.gray_pipe);
         pass.set_bind_group(0, &s.gray_bg, &[]);
-        pass.dispatch_workgroups(g1x, g1y, 1);
+        pass.dispatch_workgroups(gx, gy, 1);
         pass.set_pipeline(&self.metric_pipe);
         pass.set_bind_group(0, &s.metric_bg, &[]);
-        pass.dispatch_workgroups(g2x, g2y, 1);
-        pass.set_pipeline(&self.reduce_pipe);
-        pass.set_bind_group(0, &s.reduce_bg, &[]);
-        pass.dispatch_workgroups(self.metric.stride(), 1, 1);
+        pass.dispatch_workgroups(tx, ty, 1);
     }
 
     /// Scores of `frames` (8-bit BGR, this runner's size), in order.
@@ -360,7 +343,7 @@ impl SharpnessGpu {
             for i in 0..chunk.len() {
                 let off = i * TOTALS_SLOT as usize;
                 let words: &[u32] = bytemuck::cast_slice(&bytes[off..off + 16]);
-                let t = reduce::totals_from_words(words);
+                let t = totals_from_words(words);
                 out.push(match self.metric {
                     Metric::Tenengrad => tenengrad::from_totals(t[0], n),
                     Metric::Laplacian { ksize } => laplacian::from_totals(t[0], t[1], n, ksize),
@@ -381,9 +364,13 @@ impl SharpnessGpu {
             });
         self.encode(&mut enc, 0);
         self.ctx.queue.submit([enc.finish()]);
-        let n = u64::from(self.width) * u64::from(self.height);
-        let bytes = self.ctx.read_back(&self.gray, n * 4)?;
-        let words: &[u32] = bytemuck::cast_slice(&bytes);
-        Ok(words[..n as usize].iter().map(|&v| v as u8).collect())
+        let stride = gray_stride(self.width) as usize;
+        let bytes = self
+            .ctx
+            .read_back(&self.gray, (stride * self.height as usize * 4) as u64)?;
+        let (w, h) = (self.width as usize, self.height as usize);
+        Ok((0..h)
+            .flat_map(|y| bytes[y * stride * 4..y * stride * 4 + w].to_vec())
+            .collect())
     }
 }
