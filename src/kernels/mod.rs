@@ -2,6 +2,7 @@
 //! Rust module, its params struct and its OpenCV twin (the `opencv` function of the module), and
 //! the two are compared in tests within the bounds of [`tolerance`].
 
+pub mod farneback;
 pub mod gray;
 pub mod laplacian;
 pub mod sharpness;
@@ -13,6 +14,11 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("gray", gray::WGSL),
     ("tenengrad", tenengrad::WGSL),
     ("laplacian", laplacian::WGSL),
+    ("farneback_smooth", farneback::SMOOTH_WGSL),
+    ("farneback_resize", farneback::RESIZE_WGSL),
+    ("farneback_polyexp", farneback::POLYEXP_WGSL),
+    ("farneback_matrices", farneback::MATRICES_WGSL),
+    ("farneback_flow", farneback::FLOW_WGSL),
 ];
 
 /// Words (4 gray pixels each) per row of a packed gray image of `width` pixels.

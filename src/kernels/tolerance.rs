@@ -11,6 +11,16 @@
 /// (one wrong pixel of a 37x83 image already changes Tenengrad by ~1e-3 or more).
 pub const SHARPNESS_REL: f64 = 1e-4;
 
+/// Farneback flow, mean endpoint error in pixels against cv::calcOpticalFlowFarneback with the
+/// same parameters. The gpu path runs every stage in f32 where OpenCV accumulates the polynomial
+/// expansion's horizontal pass and the box window in double, and sums in another order; the
+/// iterations and pyramid levels carry these ~1e-6 relative differences forward.
+pub const FLOW_EPE_MEAN: f64 = 0.01;
+
+/// Farneback flow, 99th percentile of the endpoint error in pixels (same reasons; the tail comes
+/// from nearly singular windows where the solve amplifies rounding differences).
+pub const FLOW_EPE_P99: f64 = 0.1;
+
 /// Relative error `|a - b| / max(|b|, tiny)`.
 pub fn rel_err(a: f64, b: f64) -> f64 {
     (a - b).abs() / b.abs().max(1e-12)

@@ -2,5 +2,6 @@
 
 mod blur;
 mod common;
+mod flow;
 mod foundation;
 mod sharpness;

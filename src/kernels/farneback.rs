@@ -1,0 +1,859 @@
+//! `farneback`: dense optical flow as cv::calcOpticalFlowFarneback computes it, in WGSL stages that
+//! keep every intermediate on the device: per-level smoothing of the full-resolution image
+//! (farneback_smooth), INTER_LINEAR resize (farneback_resize), polynomial expansion
+//! (farneback_polyexp), matrix update (farneback_matrices) and windowed flow update
+//! (farneback_flow). The OpenCV twin is `opencv` (the OpenCV call itself).
+
+use crate::error::{CvContext, Error, Result};
+use crate::gpu::GpuContext;
+use bytemuck::{Pod, Zeroable};
+use opencv::core::{Mat, Size};
+use opencv::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// WGSL sources of the stages.
+pub const SMOOTH_WGSL: &str = include_str!("../../shaders/farneback_smooth.wgsl");
+/// INTER_LINEAR resize.
+pub const RESIZE_WGSL: &str = include_str!("../../shaders/farneback_resize.wgsl");
+/// Polynomial expansion.
+pub const POLYEXP_WGSL: &str = include_str!("../../shaders/farneback_polyexp.wgsl");
+/// Matrix update.
+pub const MATRICES_WGSL: &str = include_str!("../../shaders/farneback_matrices.wgsl");
+/// Flow update.
+pub const FLOW_WGSL: &str = include_str!("../../shaders/farneback_flow.wgsl");
+
+/// Parameters of cv::calcOpticalFlowFarneback.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FarnebackParams {
+    /// Scale between pyramid levels (< 1).
+    pub pyr_scale: f64,
+    /// Number of pyramid levels below the full resolution (fewer when the image gets small).
+    pub levels: u32,
+    /// Averaging window size.
+    pub winsize: u32,
+    /// Iterations per level.
+    pub iterations: u32,
+    /// Neighbourhood of the polynomial expansion (5 or 7).
+    pub poly_n: u32,
+    /// Gaussian sigma of the polynomial expansion.
+    pub poly_sigma: f64,
+    /// Gaussian window (OPTFLOW_FARNEBACK_GAUSSIAN) instead of a box.
+    pub gaussian: bool,
+}
+
+impl Default for FarnebackParams {
+    /// The parameters of OpenCV's Farneback tutorial: 0.5, 3, 15, 3, 5, 1.2, box window.
+    fn default() -> Self {
+        FarnebackParams {
+            pyr_scale: 0.5,
+            levels: 3,
+            winsize: 15,
+            iterations: 3,
+            poly_n: 5,
+            poly_sigma: 1.2,
+            gaussian: false,
+        }
+    }
+}
+
+impl FarnebackParams {
+    /// Checks the ranges OpenCV accepts.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |name: &str, msg: &str| Err(Error::param(name, msg));
+        if !(self.pyr_scale > 0.0 && self.pyr_scale < 1.0) {
+            return bad("pyr_scale", "must be in (0, 1)");
+        }
+        if self.winsize == 0 {
+            return bad("winsize", "must be at least 1");
+        }
+        if self.iterations == 0 {
+            return bad("iterations", "must be at least 1");
+        }
+        if !(1..=10).contains(&self.poly_n) {
+            return bad("poly_n", "must be between 1 and 10 (5 or 7 are usual)");
+        }
+        if !(self.poly_sigma.is_finite() && self.poly_sigma >= 0.0) {
+            return bad("poly_sigma", "must be a non-negative number");
+        }
+        Ok(())
+    }
+
+    fn flags(&self) -> i32 {
+        if self.gaussian {
+            opencv::video::OPTFLOW_FARNEBACK_GAUSSIAN
+        } else {
+            0
+        }
+    }
+}
+
+/// OpenCV twin: the flow from `prev` to `next` (8-bit gray), CV_32FC2. With `initial`, the flow
+/// starts from it (OPTFLOW_USE_INITIAL_FLOW).
+pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>) -> Result<Mat> {
+    p.validate()?;
+    let mut flow = match initial {
+        Some(f) => f.try_clone().cv(|| "copy initial flow".into())?,
+        None => Mat::default(),
+    };
+    let flags = p.flags()
+        | if initial.is_some() {
+            opencv::video::OPTFLOW_USE_INITIAL_FLOW
+        } else {
+            0
+        };
+    opencv::video::calc_optical_flow_farneback(
+        prev,
+        next,
+        &mut flow,
+        p.pyr_scale,
+        p.levels as i32,
+        p.winsize as i32,
+        p.iterations as i32,
+        p.poly_n as i32,
+        p.poly_sigma,
+        flags,
+    )
+    .cv(|| "calcOpticalFlowFarneback".into())?;
+    Ok(flow)
+}
+
+/// One pyramid level as OpenCV derives it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Level {
+    /// Level size.
+    pub width: u32,
+    /// Level size.
+    pub height: u32,
+    /// pyr_scale^k.
+    pub scale: f64,
+    /// Smoothing kernel applied to the full-resolution image before resizing (odd length).
+    pub smooth: Vec<f32>,
+}
+
+/// OpenCV rounds with cvRound: to nearest, ties to even.
+fn cv_round(v: f64) -> i64 {
+    v.round_ties_even() as i64
+}
+
+/// cv::getGaussianKernel(n, sigma) as float taps.
+fn gaussian_kernel(n: usize, sigma: f64) -> Vec<f32> {
+    if sigma <= 0.0 && n == 3 {
+        return vec![0.25, 0.5, 0.25];
+    }
+    let sigma = if sigma > 0.0 {
+        sigma
+    } else {
+        ((n as f64 - 1.0) * 0.5 - 1.0) * 0.3 + 0.8
+    };
+    let scale2 = -0.5 / (sigma * sigma);
+    let raw: Vec<f64> = (0..n)
+        .map(|i| {
+            let x = i as f64 - (n as f64 - 1.0) * 0.5;
+            (scale2 * x * x).exp()
+        })
+        .collect();
+    let sum: f64 = raw.iter().sum();
+    raw.iter().map(|v| (v / sum) as f32).collect()
+}
+
+/// The levels OpenCV uses for a `width` x `height` image, index 0 = full resolution.
+pub fn levels(width: u32, height: u32, p: &FarnebackParams) -> Vec<Level> {
+    const MIN_SIZE: f64 = 32.0;
+    let mut n = 0;
+    let mut scale = 1.0;
+    while n < p.levels {
+        scale *= p.pyr_scale;
+        if f64::from(width) * scale < MIN_SIZE || f64::from(height) * scale < MIN_SIZE {
+            break;
+        }
+        n += 1;
+    }
+    (0..=n)
+        .map(|k| {
+            let mut scale = 1.0;
+            for _ in 0..k {
+                scale *= p.pyr_scale;
+            }
+            let sigma = (1.0 / scale - 1.0) * 0.5;
+            let size = ((cv_round(sigma * 5.0) | 1).max(3)) as usize;
+            Level {
+                width: cv_round(f64::from(width) * scale) as u32,
+                height: cv_round(f64::from(height) * scale) as u32,
+                scale,
+                smooth: gaussian_kernel(size, sigma),
+            }
+        })
+        .collect()
+}
+
+/// Polynomial-expansion weights as FarnebackPrepareGaussian computes them:
+/// (g[0..=n], xg, xxg as f32) and (ig11, ig03, ig33, ig55).
+pub fn poly_weights(n: u32, sigma: f64) -> (Vec<f32>, [f64; 4]) {
+    let n = n as i64;
+    let sigma = if sigma < f64::from(f32::EPSILON) {
+        n as f64 * 0.3
+    } else {
+        sigma
+    };
+    let mut g = vec![0f32; (2 * n + 1) as usize];
+    let mut s = 0.0f64;
+    for x in -n..=n {
+        let v = (-(x * x) as f64 / (2.0 * sigma * sigma)).exp() as f32;
+        g[(x + n) as usize] = v;
+        s += f64::from(v);
+    }
+    let s = 1.0 / s;
+    let mut xg = vec![0f32; g.len()];
+    let mut xxg = vec![0f32; g.len()];
+    for x in -n..=n {
+        let i = (x + n) as usize;
+        g[i] = (f64::from(g[i]) * s) as f32;
+        xg[i] = (x as f32) * g[i];
+        xxg[i] = ((x * x) as f32) * g[i];
+    }
+    let mut gm = [[0f64; 6]; 6];
+    for y in -n..=n {
+        for x in -n..=n {
+            let w = f64::from(g[(y + n) as usize]) * f64::from(g[(x + n) as usize]);
+            let (xf, yf) = (x as f64, y as f64);
+            gm[0][0] += w;
+            gm[1][1] += w * xf * xf;
+            gm[3][3] += w * xf * xf * xf * xf;
+            gm[5][5] += w * xf * xf * yf * yf;
+        }
+    }
+    gm[2][2] = gm[1][1];
+    gm[0][3] = gm[1][1];
+    gm[0][4] = gm[1][1];
+    gm[3][0] = gm[1][1];
+    gm[4][0] = gm[1][1];
+    gm[4][4] = gm[3][3];
+    gm[3][4] = gm[5][5];
+    gm[4][3] = gm[5][5];
+    let inv = invert6(gm);
+    let mut kern = Vec::with_capacity(3 * (n as usize + 1));
+    let c = n as usize;
+    kern.extend_from_slice(&g[c..]);
+    kern.extend_from_slice(&xg[c..]);
+    kern.extend_from_slice(&xxg[c..]);
+    (kern, [inv[1][1], inv[0][3], inv[3][3], inv[5][5]])
+}
+
+/// Inverse of a symmetric positive definite 6x6 matrix (Gauss-Jordan with partial pivoting).
+fn invert6(a: [[f64; 6]; 6]) -> [[f64; 6]; 6] {
+    let mut m = a;
+    let mut inv = [[0f64; 6]; 6];
+    for (i, row) in inv.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    for col in 0..6 {
+        let piv = (col..6)
+            .max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))
+            .unwrap_or(col);
+        m.swap(col, piv);
+        inv.swap(col, piv);
+        let d = m[col][col];
+        for k in 0..6 {
+            m[col][k] /= d;
+            inv[col][k] /= d;
+        }
+        for r in 0..6 {
+            if r != col {
+                let f = m[r][col];
+                for k in 0..6 {
+                    m[r][k] -= f * m[col][k];
+                    inv[r][k] -= f * inv[col][k];
+                }
+            }
+        }
+    }
+    inv
+}
+
+/// Flow-window weights from the centre out (radius + 1 taps) and the final scale.
+pub fn window_weights(winsize: u32, gaussian: bool) -> (Vec<f32>, f32) {
+    let m = (winsize / 2) as usize;
+    if !gaussian {
+        return (
+            vec![1.0; m + 1],
+            (1.0 / f64::from(winsize * winsize)) as f32,
+        );
+    }
+    let sigma = m as f64 * 0.3;
+    let mut k = vec![1.0f32; m + 1];
+    let mut s = 1.0f64;
+    for (i, v) in k.iter_mut().enumerate().skip(1) {
+        let t = (-((i * i) as f64) / (2.0 * sigma * sigma)).exp() as f32;
+        *v = t;
+        s += f64::from(t) * 2.0;
+    }
+    let s = 1.0 / s;
+    for v in k.iter_mut() {
+        *v = (f64::from(*v) * s) as f32;
+    }
+    (k, 1.0)
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct SmoothParams {
+    width: u32,
+    height: u32,
+    stride: u32,
+    radius: u32,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct ResizeParams {
+    src_w: u32,
+    src_h: u32,
+    dst_w: u32,
+    dst_h: u32,
+    channels: u32,
+    pad0: u32,
+    scale_x: f32,
+    scale_y: f32,
+    factor: f32,
+    pad1: [f32; 3],
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct PolyParams {
+    width: u32,
+    height: u32,
+    n: u32,
+    pad: u32,
+    ig: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct SizeParams {
+    width: u32,
+    height: u32,
+    pad: [u32; 2],
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct FlowParams {
+    width: u32,
+    height: u32,
+    radius: u32,
+    pad0: u32,
+    scale: f32,
+    pad1: [f32; 3],
+}
+
+struct Pipes {
+    smooth_rows: Arc<wgpu::ComputePipeline>,
+    smooth_cols: Arc<wgpu::ComputePipeline>,
+    resize: Arc<wgpu::ComputePipeline>,
+    poly_cols: Arc<wgpu::ComputePipeline>,
+    poly_rows: Arc<wgpu::ComputePipeline>,
+    matrices: Arc<wgpu::ComputePipeline>,
+    flow_cols: Arc<wgpu::ComputePipeline>,
+    flow_rows: Arc<wgpu::ComputePipeline>,
+}
+
+/// Bind groups that compute one frame's expansion pyramid.
+struct FrameSlot {
+    gray: wgpu::Buffer,
+    /// Per level: smooth rows, smooth cols, resize, poly cols, poly rows.
+    levels: Vec<[wgpu::BindGroup; 5]>,
+    /// Per level: the expansion R (5 x f32 per pixel).
+    r: Vec<wgpu::Buffer>,
+}
+
+/// Bind groups of the flow iterations of one level for one (prev, next) slot order.
+struct LevelFlow {
+    matrices: wgpu::BindGroup,
+    cols: wgpu::BindGroup,
+    rows: wgpu::BindGroup,
+    /// Upsampling of the coarser level's flow into this level (None at the coarsest).
+    upsample: Option<wgpu::BindGroup>,
+}
+
+/// Farneback flow on the GPU for frames of one size. Keeps the expansion pyramid of the last frame
+/// so a video's consecutive pairs compute each frame's pyramid once.
+pub struct FarnebackGpu {
+    ctx: Arc<GpuContext>,
+    params: FarnebackParams,
+    levels: Vec<Level>,
+    pipes: Pipes,
+    slots: [FrameSlot; 2],
+    /// flow[order][level] bind groups; order 0 = (slot 0 -> slot 1), 1 = (slot 1 -> slot 0).
+    flows: [Vec<LevelFlow>; 2],
+    flow: Vec<wgpu::Buffer>,
+    /// Which slot holds the most recent frame, if any.
+    newest: Option<usize>,
+    pad: Vec<u8>,
+}
+
+fn storage(ctx: &GpuContext, label: &str, bytes: u64) -> wgpu::Buffer {
+    ctx.storage_buffer(label, bytes)
+}
+
+fn init_buffer(
+    ctx: &GpuContext,
+    label: &str,
+    usage: wgpu::BufferUsages,
+    bytes: &[u8],
+) -> wgpu::Buffer {
+    let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: (bytes.len() as u64).next_multiple_of(4).max(16),
+        usage: usage | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    ctx.queue.write_buffer(&buf, 0, bytes);
+    buf
+}
+
+fn uniform<T: Pod>(ctx: &GpuContext, label: &str, v: &T) -> wgpu::Buffer {
+    init_buffer(
+        ctx,
+        label,
+        wgpu::BufferUsages::UNIFORM,
+        bytemuck::bytes_of(v),
+    )
+}
+
+fn bind_at(
+    ctx: &GpuContext,
+    pipe: &wgpu::ComputePipeline,
+    entries: &[(u32, &wgpu::Buffer)],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry<'_>> = entries
+        .iter()
+        .map(|(b, buf)| wgpu::BindGroupEntry {
+            binding: *b,
+            resource: buf.as_entire_binding(),
+        })
+        .collect();
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipe.get_bind_group_layout(0),
+        entries: &entries,
+    })
+}
+
+fn groups16(w: u32, h: u32) -> (u32, u32) {
+    (w.div_ceil(16), h.div_ceil(16))
+}
+
+impl FarnebackGpu {
+    /// Allocates everything for `width` x `height` 8-bit gray frames.
+    pub fn new(
+        ctx: Arc<GpuContext>,
+        params: FarnebackParams,
+        width: u32,
+        height: u32,
+    ) -> Result<Self> {
+        params.validate()?;
+        if width < 2 || height < 2 {
+            return Err(Error::param(
+                "frame size",
+                "Farneback needs at least 2x2 pixels",
+            ));
+        }
+        let levels = levels(width, height, &params);
+        let full = u64::from(width) * u64::from(height);
+        if full * 20 > ctx.limits.max_storage_buffer_binding_size {
+            return Err(Error::Gpu(format!(
+                "Farneback at {width}x{height} needs {} MiB buffers; this adapter binds at most {} MiB (use a smaller analysis resolution)",
+                (full * 20) >> 20,
+                ctx.limits.max_storage_buffer_binding_size >> 20
+            )));
+        }
+        let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
+        let pipes = Pipes {
+            smooth_rows: p("farneback_smooth", SMOOTH_WGSL, "rows")?,
+            smooth_cols: p("farneback_smooth", SMOOTH_WGSL, "cols")?,
+            resize: p("farneback_resize", RESIZE_WGSL, "main")?,
+            poly_cols: p("farneback_polyexp", POLYEXP_WGSL, "cols")?,
+            poly_rows: p("farneback_polyexp", POLYEXP_WGSL, "rows")?,
+            matrices: p("farneback_matrices", MATRICES_WGSL, "main")?,
+            flow_cols: p("farneback_flow", FLOW_WGSL, "cols")?,
+            flow_rows: p("farneback_flow", FLOW_WGSL, "rows")?,
+        };
+        // Shared scratch buffers (full-resolution sized; passes run one after another).
+        let tmp = storage(&ctx, "smooth tmp", full * 4);
+        let smoothed = storage(&ctx, "smoothed", full * 4);
+        let img = storage(&ctx, "level image", full * 4);
+        let rows3 = storage(&ctx, "polyexp rows", full * 12);
+        let m = storage(&ctx, "matrices", full * 20);
+        let vsum = storage(&ctx, "window sums", full * 20);
+        let (kern, ig) = poly_weights(params.poly_n, params.poly_sigma);
+        let kern_buf = init_buffer(
+            &ctx,
+            "poly kernel",
+            wgpu::BufferUsages::STORAGE,
+            bytemuck::cast_slice(&kern),
+        );
+        let (win, win_scale) = window_weights(params.winsize, params.gaussian);
+        let win_buf = init_buffer(
+            &ctx,
+            "window weights",
+            wgpu::BufferUsages::STORAGE,
+            bytemuck::cast_slice(&win),
+        );
+
+        let flow: Vec<wgpu::Buffer> = levels
+            .iter()
+            .map(|l| storage(&ctx, "flow", u64::from(l.width) * u64::from(l.height) * 8))
+            .collect();
+
+        let make_slot = |_: usize| -> FrameSlot {
+            let gray = storage(&ctx, "gray upload", full);
+            let r: Vec<wgpu::Buffer> = levels
+                .iter()
+                .map(|l| {
+                    storage(
+                        &ctx,
+                        "expansion",
+                        u64::from(l.width) * u64::from(l.height) * 20,
+                    )
+                })
+                .collect();
+            let level_groups = levels
+                .iter()
+                .zip(&r)
+                .map(|(l, r_buf)| {
+                    let radius = (l.smooth.len() / 2) as u32;
+                    let weights = init_buffer(
+                        &ctx,
+                        "smooth weights",
+                        wgpu::BufferUsages::STORAGE,
+                        bytemuck::cast_slice(&l.smooth),
+                    );
+                    let sp = uniform(
+                        &ctx,
+                        "smooth params",
+                        &SmoothParams {
+                            width,
+                            height,
+                            stride: width,
+                            radius,
+                        },
+                    );
+                    let rp = uniform(
+                        &ctx,
+                        "resize params",
+                        &ResizeParams {
+                            src_w: width,
+                            src_h: height,
+                            dst_w: l.width,
+                            dst_h: l.height,
+                            channels: 1,
+                            pad0: 0,
+                            scale_x: (1.0 / (f64::from(l.width) / f64::from(width))) as f32,
+                            scale_y: (1.0 / (f64::from(l.height) / f64::from(height))) as f32,
+                            factor: 1.0,
+                            pad1: [0.0; 3],
+                        },
+                    );
+                    let pp = uniform(
+                        &ctx,
+                        "polyexp params",
+                        &PolyParams {
+                            width: l.width,
+                            height: l.height,
+                            n: params.poly_n,
+                            pad: 0,
+                            ig: [ig[0] as f32, ig[1] as f32, ig[2] as f32, ig[3] as f32],
+                        },
+                    );
+                    [
+                        bind_at(
+                            &ctx,
+                            &pipes.smooth_rows,
+                            &[(0, &gray), (1, &tmp), (3, &weights), (4, &sp)],
+                        ),
+                        bind_at(
+                            &ctx,
+                            &pipes.smooth_cols,
+                            &[(1, &tmp), (2, &smoothed), (3, &weights), (4, &sp)],
+                        ),
+                        bind_at(&ctx, &pipes.resize, &[(0, &smoothed), (1, &img), (2, &rp)]),
+                        bind_at(
+                            &ctx,
+                            &pipes.poly_cols,
+                            &[(0, &img), (1, &rows3), (3, &kern_buf), (4, &pp)],
+                        ),
+                        bind_at(
+                            &ctx,
+                            &pipes.poly_rows,
+                            &[(1, &rows3), (2, r_buf), (3, &kern_buf), (4, &pp)],
+                        ),
+                    ]
+                })
+                .collect();
+            FrameSlot {
+                gray,
+                levels: level_groups,
+                r,
+            }
+        };
+        let slots = [make_slot(0), make_slot(1)];
+
+        let make_flows = |prev: &FrameSlot, next: &FrameSlot| -> Vec<LevelFlow> {
+            levels
+                .iter()
+                .enumerate()
+                .map(|(k, l)| {
+                    let sz = uniform(
+                        &ctx,
+                        "level size",
+                        &SizeParams {
+                            width: l.width,
+                            height: l.height,
+                            pad: [0; 2],
+                        },
+                    );
+                    let fp = uniform(
+                        &ctx,
+                        "flow params",
+                        &FlowParams {
+                            width: l.width,
+                            height: l.height,
+                            radius: params.winsize / 2,
+                            pad0: 0,
+                            scale: win_scale,
+                            pad1: [0.0; 3],
+                        },
+                    );
+                    let upsample = levels.get(k + 1).map(|c| {
+                        let up = uniform(
+                            &ctx,
+                            "flow upsample params",
+                            &ResizeParams {
+                                src_w: c.width,
+                                src_h: c.height,
+                                dst_w: l.width,
+                                dst_h: l.height,
+                                channels: 2,
+                                pad0: 0,
+                                scale_x: (1.0 / (f64::from(l.width) / f64::from(c.width))) as f32,
+                                scale_y: (1.0 / (f64::from(l.height) / f64::from(c.height))) as f32,
+                                factor: (1.0 / params.pyr_scale) as f32,
+                                pad1: [0.0; 3],
+                            },
+                        );
+                        bind_at(
+                            &ctx,
+                            &pipes.resize,
+                            &[(0, &flow[k + 1]), (1, &flow[k]), (2, &up)],
+                        )
+                    });
+                    LevelFlow {
+                        matrices: bind_at(
+                            &ctx,
+                            &pipes.matrices,
+                            &[
+                                (0, &prev.r[k]),
+                                (1, &next.r[k]),
+                                (2, &flow[k]),
+                                (3, &m),
+                                (4, &sz),
+                            ],
+                        ),
+                        cols: bind_at(
+                            &ctx,
+                            &pipes.flow_cols,
+                            &[(0, &m), (1, &vsum), (3, &win_buf), (4, &fp)],
+                        ),
+                        rows: bind_at(
+                            &ctx,
+                            &pipes.flow_rows,
+                            &[(1, &vsum), (2, &flow[k]), (3, &win_buf), (4, &fp)],
+                        ),
+                        upsample,
+                    }
+                })
+                .collect()
+        };
+        let flows = [
+            make_flows(&slots[0], &slots[1]),
+            make_flows(&slots[1], &slots[0]),
+        ];
+        Ok(FarnebackGpu {
+            ctx,
+            params,
+            levels,
+            pipes,
+            slots,
+            flows,
+            flow,
+            newest: None,
+            pad: Vec::new(),
+        })
+    }
+
+    /// The pyramid levels in use (index 0 = full resolution).
+    pub fn levels(&self) -> &[Level] {
+        &self.levels
+    }
+
+    fn upload(&mut self, slot: usize, gray: &Mat) -> Result<()> {
+        let (w, h) = (self.levels[0].width, self.levels[0].height);
+        if gray.typ() != opencv::core::CV_8UC1 || gray.cols() as u32 != w || gray.rows() as u32 != h
+        {
+            return Err(Error::Gpu(format!(
+                "frame is {}x{} type {}; this Farneback runner takes {w}x{h} 8-bit gray",
+                gray.cols(),
+                gray.rows(),
+                gray.typ()
+            )));
+        }
+        let owned;
+        let gray = if gray.is_continuous() {
+            gray
+        } else {
+            owned = gray.try_clone().cv(|| "copy gray".into())?;
+            &owned
+        };
+        let bytes = gray.data_bytes().cv(|| "gray bytes".into())?;
+        let buf = &self.slots[slot].gray;
+        if bytes.len() % 4 == 0 {
+            self.ctx.queue.write_buffer(buf, 0, bytes);
+        } else {
+            self.pad.clear();
+            self.pad.extend_from_slice(bytes);
+            self.pad.resize(bytes.len().next_multiple_of(4), 0);
+            self.ctx.queue.write_buffer(buf, 0, &self.pad);
+        }
+        Ok(())
+    }
+
+    fn encode_pyramid(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
+        let full = &self.levels[0];
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("farneback pyramid"),
+            timestamp_writes: None,
+        });
+        for (l, g) in self.levels.iter().zip(&self.slots[slot].levels) {
+            let (fx, fy) = groups16(full.width, full.height);
+            let (lx, ly) = groups16(l.width, l.height);
+            let steps: [(&wgpu::ComputePipeline, (u32, u32)); 5] = [
+                (&self.pipes.smooth_rows, (fx, fy)),
+                (&self.pipes.smooth_cols, (fx, fy)),
+                (&self.pipes.resize, (lx, ly)),
+                (&self.pipes.poly_cols, (lx, ly)),
+                (&self.pipes.poly_rows, (lx, ly)),
+            ];
+            for ((pipe, (x, y)), bg) in steps.into_iter().zip(g) {
+                pass.set_pipeline(pipe);
+                pass.set_bind_group(0, bg, &[]);
+                pass.dispatch_workgroups(x, y, 1);
+            }
+        }
+    }
+
+    fn encode_flow(&self, enc: &mut wgpu::CommandEncoder, order: usize) {
+        let top = self.levels.len() - 1;
+        enc.clear_buffer(&self.flow[top], 0, None);
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("farneback flow"),
+            timestamp_writes: None,
+        });
+        for k in (0..=top).rev() {
+            let l = &self.levels[k];
+            let lf = &self.flows[order][k];
+            let (x, y) = groups16(l.width, l.height);
+            if let Some(up) = &lf.upsample {
+                pass.set_pipeline(&self.pipes.resize);
+                pass.set_bind_group(0, up, &[]);
+                pass.dispatch_workgroups(x, y, 1);
+            }
+            pass.set_pipeline(&self.pipes.matrices);
+            pass.set_bind_group(0, &lf.matrices, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+            for i in 0..self.params.iterations {
+                pass.set_pipeline(&self.pipes.flow_cols);
+                pass.set_bind_group(0, &lf.cols, &[]);
+                pass.dispatch_workgroups(x, y, 1);
+                pass.set_pipeline(&self.pipes.flow_rows);
+                pass.set_bind_group(0, &lf.rows, &[]);
+                pass.dispatch_workgroups(x, y, 1);
+                if i + 1 < self.params.iterations {
+                    pass.set_pipeline(&self.pipes.matrices);
+                    pass.set_bind_group(0, &lf.matrices, &[]);
+                    pass.dispatch_workgroups(x, y, 1);
+                }
+            }
+        }
+    }
+
+    /// Makes `gray` the newest frame: computes its expansion pyramid on the device. Returns true
+    /// when a previous frame exists, so that [`FarnebackGpu::encode_last_flow`] has a pair.
+    pub fn push(&mut self, gray: &Mat) -> Result<bool> {
+        let slot = self.newest.map(|s| 1 - s).unwrap_or(0);
+        self.upload(slot, gray)?;
+        let mut enc = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("farneback push"),
+            });
+        self.encode_pyramid(&mut enc, slot);
+        let had_prev = self.newest.is_some();
+        if had_prev {
+            self.encode_flow(&mut enc, 1 - slot);
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        self.newest = Some(slot);
+        Ok(had_prev)
+    }
+
+    /// The full-resolution flow buffer (2 x f32 per pixel) of the last pair.
+    pub fn flow_buffer(&self) -> &wgpu::Buffer {
+        &self.flow[0]
+    }
+
+    /// Reads back the flow of the last pair as CV_32FC2.
+    pub fn read_flow(&self) -> Result<Mat> {
+        let (w, h) = (self.levels[0].width, self.levels[0].height);
+        let bytes = self
+            .ctx
+            .read_back(&self.flow[0], u64::from(w) * u64::from(h) * 8)?;
+        let floats: &[f32] = bytemuck::cast_slice(&bytes);
+        let mut m = Mat::new_rows_cols_with_default(
+            h as i32,
+            w as i32,
+            opencv::core::CV_32FC2,
+            opencv::core::Scalar::all(0.0),
+        )
+        .cv(|| "allocate flow".into())?;
+        m.data_typed_mut::<opencv::core::Vec2f>()
+            .cv(|| "flow data".into())?
+            .iter_mut()
+            .zip(floats.chunks_exact(2))
+            .for_each(|(d, s)| *d = opencv::core::Vec2f::from([s[0], s[1]]));
+        Ok(m)
+    }
+
+    /// The flow from `prev` to `next` (8-bit gray), read back as CV_32FC2.
+    pub fn flow(&mut self, prev: &Mat, next: &Mat) -> Result<Mat> {
+        self.newest = None;
+        self.push(prev)?;
+        self.push(next)?;
+        self.read_flow()
+    }
+}
+
+/// Gray image of a frame for Farneback (BGR converted with cv::cvtColor, gray kept).
+pub fn to_gray(frame: &Mat) -> Result<Mat> {
+    super::gray::opencv(frame)
+}
+
+/// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).
+pub fn resize_area(m: &Mat, size: Size) -> Result<Mat> {
+    let mut out = Mat::default();
+    opencv::imgproc::resize(m, &mut out, size, 0.0, 0.0, opencv::imgproc::INTER_AREA)
+        .cv(|| "resize".into())?;
+    Ok(out)
+}
