@@ -5,6 +5,7 @@
 pub mod farneback;
 pub mod gray;
 pub mod laplacian;
+pub mod movement;
 pub mod sharpness;
 pub mod tenengrad;
 pub mod tolerance;
@@ -19,6 +20,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("farneback_polyexp", farneback::POLYEXP_WGSL),
     ("farneback_matrices", farneback::MATRICES_WGSL),
     ("farneback_flow", farneback::FLOW_WGSL),
+    ("movement", movement::WGSL),
 ];
 
 /// Words (4 gray pixels each) per row of a packed gray image of `width` pixels.

@@ -84,3 +84,42 @@ fn middlebury_pairs_match_opencv() {
         }
     }
 }
+
+/// The device statistic equals the host statistic of the same magnitudes (exact selection), and
+/// gpu vs opencv movement agrees within MOVEMENT_REL.
+#[test]
+fn movement_statistic_on_device() {
+    use keyframer::kernels::movement::{self, MovementGpu, Statistic};
+    use keyframer::kernels::tolerance::{rel_err, MOVEMENT_REL};
+    let prev = gray_of(&testdata("opencv-doc/rubberwhale1.png"));
+    let next = gray_of(&testdata("opencv-doc/rubberwhale2.png"));
+    let p = FarnebackParams::default();
+    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None).unwrap());
+    let mut gpu =
+        FarnebackGpu::new(ctx.clone(), p, prev.cols() as u32, prev.rows() as u32).unwrap();
+    let g = gpu.flow(&prev, &next).unwrap();
+    let n = (prev.cols() * prev.rows()) as u32;
+    let stat = MovementGpu::new(ctx, gpu.flow_buffer(), n).unwrap();
+    let cv_flow = farneback::opencv(&prev, &next, &p, None).unwrap();
+    let g_mags = movement::magnitudes(&g).unwrap();
+    let c_mags = movement::magnitudes(&cv_flow).unwrap();
+    for s in [
+        Statistic::Median,
+        Statistic::TrimmedMean { trim: 0.1 },
+        Statistic::TrimmedMean { trim: 0.0 },
+        Statistic::TrimmedMean { trim: 0.25 },
+    ] {
+        let on_device = stat.compute(s).unwrap();
+        let host_same = movement::cpu(&g_mags, s).unwrap();
+        assert!(
+            rel_err(on_device, host_same) < 1e-6,
+            "{s:?}: device {on_device} host {host_same}"
+        );
+        let opencv = movement::cpu(&c_mags, s).unwrap();
+        assert!(
+            rel_err(on_device, opencv) <= MOVEMENT_REL,
+            "{s:?}: gpu {on_device} opencv {opencv}"
+        );
+        eprintln!("{s:?}: gpu {on_device} opencv {opencv}");
+    }
+}
