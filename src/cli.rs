@@ -3,6 +3,7 @@
 use crate::error::{Error, Result};
 use crate::export::{Crop, ExportSettings, Format, Resize};
 use crate::gpu::Backend;
+use crate::kernels::farneback::FarnebackParams;
 use crate::kernels::sharpness::Metric;
 use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
 use crate::select::{Rate, SelectSettings};
@@ -37,6 +38,8 @@ pub enum Command {
     Export(ExportArgs),
     /// Per-frame sharpness scores of a video, image folder or image.
     Score(ScoreArgs),
+    /// Dense Farneback flow between two images, written as a Middlebury .flo file.
+    Flow(FlowArgs),
     /// Side-by-side timings of the gpu and opencv backends (ratios from one run).
     Bench(BenchArgs),
 }
@@ -52,6 +55,71 @@ pub struct ScoreArgs {
     /// Print one JSON object instead of `index<TAB>timestamp<TAB>score` lines.
     #[arg(long)]
     pub json: bool,
+    /// Backend flags.
+    #[command(flatten)]
+    pub analysis: AnalysisArgs,
+}
+
+/// Farneback parameters (cv::calcOpticalFlowFarneback's, same meaning and defaults of OpenCV's
+/// tutorial).
+#[derive(Debug, Clone, Args)]
+pub struct FarnebackArgs {
+    /// Scale between pyramid levels.
+    #[arg(long, default_value_t = 0.5)]
+    pub pyr_scale: f64,
+    /// Pyramid levels below full resolution.
+    #[arg(long, default_value_t = 3)]
+    pub levels: u32,
+    /// Averaging window size.
+    #[arg(long, default_value_t = 15)]
+    pub winsize: u32,
+    /// Iterations per level.
+    #[arg(long, default_value_t = 3)]
+    pub iterations: u32,
+    /// Polynomial expansion neighbourhood (5 or 7).
+    #[arg(long, default_value_t = 5)]
+    pub poly_n: u32,
+    /// Polynomial expansion sigma.
+    #[arg(long, default_value_t = 1.2)]
+    pub poly_sigma: f64,
+    /// Gaussian window instead of a box (OPTFLOW_FARNEBACK_GAUSSIAN).
+    #[arg(long)]
+    pub gaussian: bool,
+}
+
+impl FarnebackArgs {
+    /// Validated parameters.
+    pub fn params(&self) -> Result<FarnebackParams> {
+        let p = FarnebackParams {
+            pyr_scale: self.pyr_scale,
+            levels: self.levels,
+            winsize: self.winsize,
+            iterations: self.iterations,
+            poly_n: self.poly_n,
+            poly_sigma: self.poly_sigma,
+            gaussian: self.gaussian,
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+/// `flow` flags.
+#[derive(Debug, Args)]
+pub struct FlowArgs {
+    /// First image.
+    pub a: PathBuf,
+    /// Second image (same size).
+    pub b: PathBuf,
+    /// Output .flo file.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Replace an existing output file.
+    #[arg(long)]
+    pub force: bool,
+    /// Farneback parameters.
+    #[command(flatten)]
+    pub farneback: FarnebackArgs,
     /// Backend flags.
     #[command(flatten)]
     pub analysis: AnalysisArgs,

@@ -7,6 +7,7 @@ pub mod bench;
 pub mod cli;
 pub mod error;
 pub mod export;
+pub mod flo;
 pub mod fsutil;
 pub mod gpu;
 pub mod info;

@@ -71,6 +71,7 @@ fn run(cli: Cli) -> Result<Outcome> {
         }
         Command::Probe(a) => probe(&a, quiet),
         Command::Score(a) => score(&a, quiet),
+        Command::Flow(a) => flow(&a),
         Command::Bench(a) => {
             let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(a.adapter.as_deref())?);
             match a.what {
@@ -236,4 +237,58 @@ fn score(a: &keyframer::cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
     } else {
         Outcome::Partial
     })
+}
+
+fn flow(a: &keyframer::cli::FlowArgs) -> Result<Outcome> {
+    use keyframer::kernels::{farneback, movement};
+    let params = a.farneback.params()?;
+    keyframer::fsutil::check_overwrite(&a.output, a.force)?;
+    let read = |p: &std::path::Path| -> Result<opencv::core::Mat> {
+        use opencv::prelude::*;
+        if !p.is_file() {
+            anyhow::bail!("{}: no such image file", p.display());
+        }
+        let m = opencv::imgcodecs::imread(
+            p.to_str().unwrap_or_default(),
+            opencv::imgcodecs::IMREAD_GRAYSCALE,
+        )?;
+        if m.empty() {
+            anyhow::bail!("{}: cannot read as an image", p.display());
+        }
+        Ok(m)
+    };
+    let (ga, gb) = (read(&a.a)?, read(&a.b)?);
+    {
+        use opencv::prelude::*;
+        if ga.size()? != gb.size()? {
+            anyhow::bail!(
+                "{} is {}x{} but {} is {}x{}; flow needs two images of one size",
+                a.a.display(),
+                ga.cols(),
+                ga.rows(),
+                a.b.display(),
+                gb.cols(),
+                gb.rows()
+            );
+        }
+    }
+    let (backend, ctx) =
+        gpu::resolve_backend(a.analysis.backend.into(), a.analysis.adapter.as_deref());
+    let field = match (backend, ctx) {
+        (gpu::Backend::Gpu, Some(ctx)) => {
+            use opencv::prelude::*;
+            let mut f =
+                farneback::FarnebackGpu::new(ctx, params, ga.cols() as u32, ga.rows() as u32)?;
+            f.flow(&ga, &gb)?
+        }
+        _ => farneback::opencv(&ga, &gb, &params, None)?,
+    };
+    keyframer::flo::write(&a.output, &field)?;
+    let mags = movement::magnitudes(&field)?;
+    let median = movement::cpu(&mags, movement::Statistic::Median)?;
+    eprintln!(
+        "flow ({backend}) -> {}: median magnitude {median:.4} px",
+        a.output.display()
+    );
+    Ok(Outcome::Ok)
 }

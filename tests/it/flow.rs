@@ -123,3 +123,104 @@ fn movement_statistic_on_device() {
         eprintln!("{s:?}: gpu {on_device} opencv {opencv}");
     }
 }
+
+fn video_gray(path: &std::path::Path, frames: &[usize]) -> Vec<Mat> {
+    let mut src = keyframer::source::open(path, &Default::default()).unwrap();
+    let mut out = Vec::new();
+    keyframer::source::read_indices(src.as_mut(), frames, |f| {
+        out.push(keyframer::kernels::gray::opencv(&f.image).unwrap());
+        Ok(())
+    })
+    .unwrap();
+    out
+}
+
+/// Megamind frames (camera motion) at full size and cropped to 641x359 (not a multiple of 16).
+#[test]
+fn megamind_frames_and_odd_size_match_opencv() {
+    let g = video_gray(&testdata("opencv-doc/Megamind.avi"), &[40, 41, 120, 122]);
+    for (a, b) in [(&g[0], &g[1]), (&g[2], &g[3])] {
+        compare(a, b, &FarnebackParams::default(), "Megamind");
+        let roi = opencv::core::Rect::new(37, 80, 641, 359);
+        let ca = Mat::roi(a, roi).unwrap().try_clone().unwrap();
+        let cb = Mat::roi(b, roi).unwrap().try_clone().unwrap();
+        for p in param_sets() {
+            compare(&ca, &cb, &p, "Megamind 641x359");
+        }
+    }
+}
+
+/// A sub-pixel translation of a real photo is recovered within 0.05 px (median over the interior).
+#[test]
+fn synthetic_translation_is_recovered() {
+    let photo = gray_of(&testdata("opencv-doc/aloeL.jpg"));
+    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None).unwrap());
+    for (dx, dy) in [(1.3f64, -0.7f64), (-4.25, 2.5), (0.2, 0.0)] {
+        let m = Mat::from_slice_2d(&[[1.0f64, 0.0, dx], [0.0, 1.0, dy]]).unwrap();
+        let mut shifted = Mat::default();
+        opencv::imgproc::warp_affine(
+            &photo,
+            &mut shifted,
+            &m,
+            photo.size().unwrap(),
+            opencv::imgproc::INTER_CUBIC,
+            opencv::core::BORDER_REFLECT_101,
+            opencv::core::Scalar::all(0.0),
+        )
+        .unwrap();
+        let roi = opencv::core::Rect::new(200, 200, 480, 320);
+        let a = Mat::roi(&photo, roi).unwrap().try_clone().unwrap();
+        let b = Mat::roi(&shifted, roi).unwrap().try_clone().unwrap();
+        let p = FarnebackParams::default();
+        let mut gpu = FarnebackGpu::new(ctx.clone(), p, 480, 320).unwrap();
+        let f = gpu.flow(&a, &b).unwrap();
+        let d = f.data_typed::<Vec2f>().unwrap();
+        let (mut us, mut vs) = (Vec::new(), Vec::new());
+        for y in 40..280 {
+            for x in 40..440 {
+                us.push(d[y * 480 + x][0]);
+                vs.push(d[y * 480 + x][1]);
+            }
+        }
+        us.sort_by(f32::total_cmp);
+        vs.sort_by(f32::total_cmp);
+        let (mu, mv) = (f64::from(us[us.len() / 2]), f64::from(vs[vs.len() / 2]));
+        assert!(
+            (mu - dx).abs() <= 0.05 && (mv - dy).abs() <= 0.05,
+            "shift ({dx}, {dy}) recovered as ({mu}, {mv})"
+        );
+        compare(&a, &b, &p, "translation");
+    }
+}
+
+/// `keyframer flow` writes a Middlebury .flo that both backends agree on.
+#[test]
+fn flow_command_writes_flo() {
+    use crate::common::{kf, kf_ok, s};
+    let d = tempfile::tempdir().unwrap();
+    let a = testdata("opencv-doc/basketball1.png");
+    let b = testdata("opencv-doc/basketball2.png");
+    let g = d.path().join("g.flo");
+    let c = d.path().join("c.flo");
+    kf_ok(&["flow", s(&a), s(&b), "-o", s(&g)]);
+    kf_ok(&["flow", s(&a), s(&b), "-o", s(&c), "--backend", "opencv"]);
+    let (w, h, fg) = keyframer::flo::read(&g).unwrap();
+    let (_, _, fc) = keyframer::flo::read(&c).unwrap();
+    assert_eq!((w, h), (640, 480));
+    let mean: f64 = fg
+        .chunks(2)
+        .zip(fc.chunks(2))
+        .map(|(p, q)| f64::from(((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt()))
+        .sum::<f64>()
+        / f64::from(w * h);
+    assert!(mean <= FLOW_EPE_MEAN, "{mean}");
+    // Refuses to overwrite, and rejects images of different sizes.
+    assert_eq!(
+        kf(&["flow", s(&a), s(&b), "-o", s(&g)]).status.code(),
+        Some(1)
+    );
+    let other = testdata("opencv-doc/rubberwhale1.png");
+    let out = kf(&["flow", s(&a), s(&other), "-o", s(&d.path().join("x.flo"))]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("one size"));
+}
