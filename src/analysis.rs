@@ -1,11 +1,18 @@
 //! Analysis: one decode pass over an input that yields the exact frame count, every frame's
-//! timestamp and the requested per-frame scores. Frames stream through in small batches (bounded
-//! memory); when no scores are requested, frames are only grabbed, never converted.
+//! timestamp and the requested per-frame scores: sharpness, camera movement between consecutive
+//! frames, and the stationary sampler's reference-mode selection (which needs pixels because its
+//! frame pairs depend on the threshold). Frames stream through in small batches (bounded memory);
+//! when nothing needs pixels, frames are only grabbed, never converted.
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::{Backend, GpuContext};
+use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams, SLOTS};
+use crate::kernels::movement::{self, MovementGpu, Statistic};
 use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
 use crate::source::{self, Frame, Metadata, OpenOptions};
+use opencv::core::Mat;
+use opencv::prelude::*;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -14,6 +21,56 @@ use std::sync::Arc;
 pub struct Request {
     /// Sharpness metrics to score every frame with.
     pub sharpness: Vec<Metric>,
+    /// Camera movement between consecutive frames.
+    pub movement: Option<MovementRequest>,
+    /// The stationary sampler's reference-mode run (requires `movement`).
+    pub stationary: Option<StationaryRequest>,
+}
+
+/// How movement is measured.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MovementRequest {
+    /// Farneback parameters.
+    pub farneback: FarnebackParams,
+    /// Statistic of the flow magnitudes.
+    pub statistic: Statistic,
+    /// Width of the analysis resolution (frames are converted to gray and resized with
+    /// INTER_AREA; never upscaled).
+    pub analysis_width: u32,
+}
+
+/// The stationary sampler's parameters (reference mode).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StationaryRequest {
+    /// Movement (full-resolution pixels) since the last keyframe that makes a new keyframe.
+    pub threshold: f64,
+    /// Frames after which the reference is re-anchored, carrying the accumulated movement.
+    pub reset_delta: usize,
+    /// First candidate frame.
+    pub first: usize,
+    /// Last candidate frame (inclusive).
+    pub last: usize,
+}
+
+/// Movement between consecutive frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MovementSeries {
+    /// Analysis width.
+    pub width: u32,
+    /// Analysis height.
+    pub height: u32,
+    /// Factor from analysis pixels to full-resolution pixels.
+    pub scale_to_full: f64,
+    /// values[i] = movement from frame i-1 to frame i in full-resolution pixels; values[0] = 0.
+    pub values: Vec<f64>,
+}
+
+/// The analysis size for a `width` x `height` input: `analysis_width` wide (never wider than the
+/// input), height scaled and rounded.
+pub fn analysis_size(width: u32, height: u32, analysis_width: u32) -> (u32, u32) {
+    let w = analysis_width.clamp(1, width.max(1));
+    let h = ((f64::from(height) * f64::from(w) / f64::from(width.max(1))).round() as u32).max(1);
+    (w, h)
 }
 
 /// What one pass produced.
@@ -25,6 +82,10 @@ pub struct Analysis {
     pub timestamps_s: Option<Vec<f64>>,
     /// Scores per requested metric, one per frame.
     pub sharpness: Vec<(Metric, Vec<f64>)>,
+    /// Movement between consecutive frames, when requested.
+    pub movement: Option<MovementSeries>,
+    /// Keyframes chosen by the stationary sampler, when requested.
+    pub stationary: Option<Vec<usize>>,
     /// Decode problems (damaged stream), one line each.
     pub problems: Vec<String>,
     /// Backend that computed the scores.
@@ -92,6 +153,160 @@ impl Scorer {
     }
 }
 
+/// Flow + statistic between frames held in slots, on one backend.
+enum Engine {
+    Gpu {
+        flow: Box<FarnebackGpu>,
+        stat: MovementGpu,
+    },
+    Opencv {
+        params: FarnebackParams,
+        frames: Vec<Option<Mat>>,
+    },
+}
+
+impl Engine {
+    fn load(&mut self, slot: usize, gray: Mat) -> Result<()> {
+        match self {
+            Engine::Gpu { flow, .. } => flow.load(slot, &gray),
+            Engine::Opencv { frames, .. } => {
+                frames[slot] = Some(gray);
+                Ok(())
+            }
+        }
+    }
+
+    /// Movement statistic (analysis pixels) from slot `from` to slot `to`.
+    fn movement(&mut self, from: usize, to: usize, statistic: Statistic) -> Result<f64> {
+        match self {
+            Engine::Gpu { flow, stat } => {
+                flow.flow_between(from, to)?;
+                stat.compute(statistic)
+            }
+            Engine::Opencv { params, frames } => {
+                let (Some(a), Some(b)) = (&frames[from], &frames[to]) else {
+                    return Err(Error::param("slots", "frame not loaded"));
+                };
+                let f = farneback::opencv(a, b, params, None)?;
+                movement::cpu(&movement::magnitudes(&f)?, statistic)
+            }
+        }
+    }
+}
+
+/// Per-frame movement state: consecutive movement and the stationary reference mode.
+struct MovementPass {
+    req: MovementRequest,
+    stationary: Option<StationaryRequest>,
+    engine: Engine,
+    size: (i32, i32),
+    scale: f64,
+    values: Vec<f64>,
+    prev: Option<usize>,
+    /// (slot, frame index) of the stationary reference.
+    reference: Option<(usize, usize)>,
+    accumulated: f64,
+    keys: Vec<usize>,
+}
+
+impl MovementPass {
+    fn new(
+        req: MovementRequest,
+        stationary: Option<StationaryRequest>,
+        backend: Backend,
+        ctx: Option<&Arc<GpuContext>>,
+        meta: &Metadata,
+    ) -> Result<(MovementPass, Backend)> {
+        req.farneback.validate()?;
+        req.statistic.validate()?;
+        let (w, h) = analysis_size(meta.width, meta.height, req.analysis_width);
+        let mut used = Backend::Opencv;
+        let mut engine = Engine::Opencv {
+            params: req.farneback,
+            frames: vec![None; SLOTS],
+        };
+        if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
+            let made = FarnebackGpu::new(ctx.clone(), req.farneback, w, h).and_then(|flow| {
+                let stat = MovementGpu::new(ctx.clone(), flow.flow_buffer(), w * h)?;
+                Ok(Engine::Gpu {
+                    flow: Box::new(flow),
+                    stat,
+                })
+            });
+            match made {
+                Ok(e) => {
+                    engine = e;
+                    used = Backend::Gpu;
+                }
+                Err(e) => log::warn!("{e}; movement uses the opencv backend"),
+            }
+        }
+        Ok((
+            MovementPass {
+                req,
+                stationary,
+                engine,
+                size: (w as i32, h as i32),
+                scale: f64::from(meta.width) / f64::from(w),
+                values: Vec::new(),
+                prev: None,
+                reference: None,
+                accumulated: 0.0,
+                keys: Vec::new(),
+            },
+            used,
+        ))
+    }
+
+    fn step(&mut self, frame: &Frame) -> Result<()> {
+        let gray = crate::kernels::gray::opencv(&frame.image)?;
+        let small = if (gray.cols(), gray.rows()) == self.size {
+            gray
+        } else {
+            farneback::resize_area(&gray, opencv::core::Size::new(self.size.0, self.size.1))?
+        };
+        let busy = [self.prev, self.reference.map(|r| r.0)];
+        let cur = (0..SLOTS).find(|s| !busy.contains(&Some(*s))).unwrap_or(0);
+        self.engine.load(cur, small)?;
+        let stat = self.req.statistic;
+        let consecutive = match self.prev {
+            Some(p) => self.engine.movement(p, cur, stat)? * self.scale,
+            None => 0.0,
+        };
+        self.values.push(consecutive);
+        let i = frame.index;
+        if let Some(st) = self.stationary {
+            if (st.first..=st.last).contains(&i) {
+                match self.reference {
+                    None => {
+                        self.keys.push(i);
+                        self.reference = Some((cur, i));
+                        self.accumulated = 0.0;
+                    }
+                    Some((slot, index)) => {
+                        let m = if Some(slot) == self.prev && index + 1 == i {
+                            consecutive
+                        } else {
+                            self.engine.movement(slot, cur, stat)? * self.scale
+                        };
+                        let total = self.accumulated + m;
+                        if total >= st.threshold {
+                            self.keys.push(i);
+                            self.reference = Some((cur, i));
+                            self.accumulated = 0.0;
+                        } else if i - index >= st.reset_delta {
+                            self.reference = Some((cur, i));
+                            self.accumulated = total;
+                        }
+                    }
+                }
+            }
+        }
+        self.prev = Some(cur);
+        Ok(())
+    }
+}
+
 /// Runs one pass over `input`. `ctx` is the GPU context when the gpu backend is in use.
 pub fn analyse(
     input: &Path,
@@ -114,7 +329,18 @@ pub fn analyse(
     let mut scores: Vec<Vec<f64>> = vec![Vec::new(); req.sharpness.len()];
     let mut used = Backend::Opencv;
     let mut count = 0usize;
-    if req.sharpness.is_empty() {
+    if req.stationary.is_some() && req.movement.is_none() {
+        return Err(Error::param("stationary", "needs a movement request"));
+    }
+    let mut moving = match req.movement {
+        Some(m) => {
+            let (pass, b) = MovementPass::new(m, req.stationary, backend, ctx, src.metadata())?;
+            used = b;
+            Some(pass)
+        }
+        None => None,
+    };
+    if req.sharpness.is_empty() && moving.is_none() {
         while let Some((_, t)) = src.skip_frame()? {
             have_ts &= t.is_some();
             timestamps.extend(t);
@@ -124,7 +350,9 @@ pub fn analyse(
     } else {
         let meta = src.metadata().clone();
         let (mut scorer, b) = Scorer::new(backend, ctx, &req.sharpness, &meta)?;
-        used = b;
+        if !req.sharpness.is_empty() {
+            used = b;
+        }
         let batch = scorer.batch();
         let mut pending: Vec<Frame> = Vec::with_capacity(batch);
         loop {
@@ -133,7 +361,15 @@ pub fn analyse(
             if let Some(f) = next {
                 have_ts &= f.timestamp_s.is_some();
                 timestamps.extend(f.timestamp_s);
-                pending.push(f);
+                if let Some(m) = moving.as_mut() {
+                    m.step(&f).map_err(|e| with_path(e, input))?;
+                    if req.sharpness.is_empty() {
+                        bar.set_position(count as u64 + 1);
+                    }
+                }
+                if !req.sharpness.is_empty() {
+                    pending.push(f);
+                }
                 count += 1;
             }
             if pending.len() == batch || (done && !pending.is_empty()) {
@@ -172,6 +408,16 @@ pub fn analyse(
         metadata,
         timestamps_s: have_ts.then_some(timestamps),
         sharpness: req.sharpness.iter().copied().zip(scores).collect(),
+        movement: moving.as_ref().map(|m| MovementSeries {
+            width: m.size.0 as u32,
+            height: m.size.1 as u32,
+            scale_to_full: m.scale,
+            values: m.values.clone(),
+        }),
+        stationary: moving
+            .as_ref()
+            .filter(|m| m.stationary.is_some())
+            .map(|m| m.keys.clone()),
         problems,
         backend: used,
     })

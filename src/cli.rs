@@ -1,12 +1,14 @@
 //! Command-line flags (clap derive) and their conversion into validated settings, in one place.
 
+use crate::analysis::MovementRequest;
 use crate::error::{Error, Result};
 use crate::export::{Crop, ExportSettings, Format, Resize};
 use crate::gpu::Backend;
 use crate::kernels::farneback::FarnebackParams;
+use crate::kernels::movement::Statistic;
 use crate::kernels::sharpness::Metric;
 use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
-use crate::select::{Rate, SelectSettings};
+use crate::select::{Rate, SelectSettings, Stationary};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
@@ -239,9 +241,76 @@ pub struct SelectArgs {
     /// Blur sampler flags.
     #[command(flatten)]
     pub blur: BlurArgs,
+    /// Movement sampler flags.
+    #[command(flatten)]
+    pub movement: MovementArgs,
     /// Backend flags.
     #[command(flatten)]
     pub analysis: AnalysisArgs,
+}
+
+/// Flags of the camera-movement samplers and of how movement is measured.
+#[derive(Debug, Args)]
+pub struct MovementArgs {
+    /// Drop frames where the camera stands still (reference mode: a frame becomes a keyframe when
+    /// the movement since the last keyframe reaches --stationary-threshold).
+    #[arg(long)]
+    pub stationary: bool,
+    /// Stationary threshold in full-resolution pixels (default: 1 % of the frame width).
+    #[arg(long, value_name = "PX")]
+    pub stationary_threshold: Option<f64>,
+    /// Frames after which the stationary reference frame is re-anchored (carrying the movement
+    /// accumulated so far), so flow is never asked across a larger gap.
+    #[arg(long, value_name = "N", default_value_t = 15)]
+    pub reset_delta: usize,
+    /// Even camera movement: keep a frame each time the movement accumulated since the last
+    /// keyframe reaches PX full-resolution pixels.
+    #[arg(long, value_name = "PX")]
+    pub spacing: Option<f64>,
+    /// Statistic of the per-pixel flow magnitudes: median (iVS3D's code) or trimmed-mean (the
+    /// paper).
+    #[arg(long, value_enum, default_value = "median")]
+    pub movement: StatisticArg,
+    /// Fraction dropped at each end by --movement trimmed-mean.
+    #[arg(long, default_value_t = 0.1)]
+    pub trim: f64,
+    /// Width of the analysis resolution for flow (never above the input's width).
+    #[arg(long, value_name = "W", default_value_t = 640)]
+    pub analysis_width: u32,
+    /// Farneback parameters.
+    #[command(flatten)]
+    pub farneback: FarnebackArgs,
+}
+
+/// Movement statistics.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum StatisticArg {
+    /// Median of the flow magnitudes.
+    Median,
+    /// Trimmed mean of the flow magnitudes (--trim at each end).
+    TrimmedMean,
+}
+
+impl MovementArgs {
+    /// How movement is measured.
+    pub fn request(&self) -> Result<MovementRequest> {
+        let statistic = match self.movement {
+            StatisticArg::Median => Statistic::Median,
+            StatisticArg::TrimmedMean => Statistic::TrimmedMean { trim: self.trim },
+        };
+        statistic.validate()?;
+        if self.analysis_width < 16 {
+            return Err(Error::param(
+                "--analysis-width",
+                "must be at least 16 pixels",
+            ));
+        }
+        Ok(MovementRequest {
+            farneback: self.farneback.params()?,
+            statistic,
+            analysis_width: self.analysis_width,
+        })
+    }
 }
 
 /// Flags of the blur sampler.
@@ -361,6 +430,12 @@ impl SelectArgs {
             add: self.add.clone(),
             remove: self.remove.clone(),
             blur: self.blur.params()?,
+            stationary: self.movement.stationary.then_some(Stationary {
+                threshold: positive("--stationary-threshold", self.movement.stationary_threshold)?,
+                reset_delta: self.movement.reset_delta,
+            }),
+            spacing: positive("--spacing", self.movement.spacing)?,
+            movement: self.movement.request()?,
             backend: self.analysis.backend.into(),
             adapter: self.analysis.adapter.clone(),
             images_fps: positive("--images-fps", self.images_fps)?,

@@ -202,6 +202,7 @@ fn score(a: &keyframer::cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
         &source::OpenOptions::default(),
         &analysis::Request {
             sharpness: vec![a.metric],
+            ..Default::default()
         },
         backend,
         ctx.as_ref(),

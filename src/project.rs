@@ -2,6 +2,7 @@
 //! per-frame cache (timestamps, scores) and the history of steps. Loading validates every field and
 //! names the offending one; saving is atomic.
 
+use crate::analysis::{MovementRequest, MovementSeries, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu::Backend;
@@ -68,6 +69,36 @@ pub struct Cache {
     /// Sharpness scores, one series per (metric, analysis resolution).
     #[serde(default)]
     pub sharpness: Vec<SharpnessSeries>,
+    /// Movement between consecutive frames, one series per way of measuring it.
+    #[serde(default)]
+    pub movement: Vec<MovementCache>,
+    /// Stationary-sampler runs (reference mode: their frame pairs depend on the threshold).
+    #[serde(default)]
+    pub stationary: Vec<StationaryCache>,
+}
+
+/// Cached movement between consecutive frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MovementCache {
+    /// How it was measured (Farneback parameters, statistic, analysis width): the cache key.
+    pub request: MovementRequest,
+    /// Backend that computed it.
+    pub backend: Backend,
+    /// The values.
+    pub series: MovementSeries,
+}
+
+/// A cached stationary-sampler run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StationaryCache {
+    /// How movement was measured.
+    pub request: MovementRequest,
+    /// Threshold, reset delta and frame range: with `request`, the cache key.
+    pub params: StationaryRequest,
+    /// Backend that computed it.
+    pub backend: Backend,
+    /// The frames it kept.
+    pub keyframes: Vec<usize>,
 }
 
 /// One sharpness score per frame, keyed by metric and the resolution it was computed at.
@@ -86,6 +117,22 @@ pub struct SharpnessSeries {
 }
 
 impl Cache {
+    /// Cached consecutive movement measured as `request`.
+    pub fn movement(&self, request: &MovementRequest) -> Option<&MovementCache> {
+        self.movement.iter().find(|m| &m.request == request)
+    }
+
+    /// Cached stationary run for `request` and `params`.
+    pub fn stationary(
+        &self,
+        request: &MovementRequest,
+        params: &StationaryRequest,
+    ) -> Option<&StationaryCache> {
+        self.stationary
+            .iter()
+            .find(|r| &r.request == request && &r.params == params)
+    }
+
     /// The cached scores for `metric` at `width` x `height`, if present.
     pub fn sharpness(&self, metric: Metric, width: u32, height: u32) -> Option<&SharpnessSeries> {
         self.sharpness
@@ -180,6 +227,22 @@ impl Project {
                 return Err((
                     format!("cache.sharpness[{i}].scores[{j}]"),
                     "scores must be finite and non-negative".into(),
+                ));
+            }
+        }
+        for (i, m) in self.cache.movement.iter().enumerate() {
+            if m.series.values.len() != n {
+                return Err((
+                    format!("cache.movement[{i}].series.values"),
+                    format!("{} values for {n} frames", m.series.values.len()),
+                ));
+            }
+        }
+        for (i, r) in self.cache.stationary.iter().enumerate() {
+            if r.keyframes.windows(2).any(|w| w[0] >= w[1]) || r.keyframes.iter().any(|&k| k >= n) {
+                return Err((
+                    format!("cache.stationary[{i}].keyframes"),
+                    "must be sorted, distinct frame indices of the input".into(),
                 ));
             }
         }

@@ -3,11 +3,13 @@
 //! the samplers in a fixed chain: boundaries → every-nth | fps → blur → manual add/remove.
 //! Writes the project file atomically.
 
-use crate::analysis::{self, Request};
+use crate::analysis::{self, MovementRequest, Request, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu::{self, Backend};
-use crate::project::{Cache, InputRef, Project, SharpnessSeries, Step, SCHEMA_VERSION};
+use crate::project::{
+    Cache, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache, Step, SCHEMA_VERSION,
+};
 use crate::samplers::{self, BlurParams, Boundaries};
 use crate::source::{self, OpenOptions, SourceKind};
 use serde_json::json;
@@ -20,6 +22,70 @@ pub enum Rate {
     Every(usize),
     /// Resample to this many frames per second by timestamps.
     Fps(f64),
+}
+
+/// Stationary sampler settings as given (the threshold defaults to 1 % of the frame width).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stationary {
+    /// Movement in full-resolution pixels since the last keyframe that makes a new one.
+    pub threshold: Option<f64>,
+    /// Frames after which the reference frame is re-anchored.
+    pub reset_delta: usize,
+}
+
+/// The stationary request for this input: threshold and candidate range resolved.
+fn stationary_request(
+    st: Stationary,
+    b: &Boundaries,
+    meta: &crate::source::Metadata,
+    cache: &Cache,
+) -> Result<StationaryRequest> {
+    let width = Some(meta.width);
+    let (first, last) = match meta.frame_count_exact {
+        true => {
+            let c = b.candidates(meta.frame_count, cache.timestamps_s.as_deref())?;
+            (c[0], *c.last().unwrap_or(&c[0]))
+        }
+        false => {
+            let first = match b.start {
+                Some(samplers::Bound::Frame(i)) => i,
+                _ => 0,
+            };
+            let last = match b.end {
+                Some(samplers::Bound::Frame(i)) => i,
+                _ => usize::MAX,
+            };
+            (first, last)
+        }
+    };
+    let threshold = match (st.threshold, width) {
+        (Some(t), _) => t,
+        (None, Some(w)) => f64::from(w) * 0.01,
+        (None, None) => {
+            return Err(Error::Plugin {
+                plugin: "stationary",
+                msg: "give --stationary-threshold for an input whose size is not known yet".into(),
+            })
+        }
+    };
+    if !(threshold.is_finite() && threshold > 0.0) {
+        return Err(Error::Plugin {
+            plugin: "stationary",
+            msg: format!("threshold must be a positive number of pixels, got {threshold}"),
+        });
+    }
+    if st.reset_delta == 0 {
+        return Err(Error::Plugin {
+            plugin: "stationary",
+            msg: "reset delta must be at least 1 frame".into(),
+        });
+    }
+    Ok(StationaryRequest {
+        threshold,
+        reset_delta: st.reset_delta,
+        first,
+        last,
+    })
 }
 
 /// Validated settings of one `select` run.
@@ -39,6 +105,12 @@ pub struct SelectSettings {
     pub remove: Vec<usize>,
     /// Blur sampler, if any (runs after the rate sampler).
     pub blur: Option<BlurParams>,
+    /// Stationary sampler, if any (runs first, after the boundaries).
+    pub stationary: Option<Stationary>,
+    /// Spacing sampler threshold in full-resolution pixels, if any (after stationary).
+    pub spacing: Option<f64>,
+    /// How movement is measured for the stationary and spacing samplers.
+    pub movement: MovementRequest,
     /// Kernel backend for the analysis.
     pub backend: Backend,
     /// GPU adapter choice (part of its name).
@@ -106,9 +178,40 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         .filter(|p| p.input == input_ref);
     let metrics: Vec<_> = s.blur.iter().map(|b| b.metric).collect();
     let mut decoded = false;
-    let (cached_meta, mut cache, mut problems) = match reusable {
+    let (mut cached_meta, mut cache, mut problems) = match reusable {
         Some(p) => (Some(p.metadata), p.cache, p.decode_problems),
         None => (None, Cache::default(), Vec::new()),
+    };
+    let open = OpenOptions {
+        images_fps: s.images_fps,
+    };
+    let uses_seconds = [s.boundaries.start, s.boundaries.end]
+        .iter()
+        .any(|b| matches!(b, Some(samplers::Bound::Seconds(_))));
+    if s.stationary.is_some() && cached_meta.is_none() && uses_seconds {
+        // The stationary sampler runs during decoding and needs its frame range first.
+        let a = analysis::analyse(
+            &s.input,
+            &open,
+            &Request::default(),
+            Backend::Opencv,
+            None,
+            s.quiet,
+        )?;
+        cache.timestamps_s = a.timestamps_s;
+        problems = a.problems;
+        cached_meta = Some(a.metadata);
+        decoded = true;
+    }
+    let stationary_req = match s.stationary {
+        Some(st) => {
+            let meta = match &cached_meta {
+                Some(m) => m.clone(),
+                None => source::open(&s.input, &open)?.metadata().clone(),
+            };
+            Some(stationary_request(st, &s.boundaries, &meta, &cache)?)
+        }
+        None => None,
     };
     let missing: Vec<_> = match &cached_meta {
         Some(m) => metrics
@@ -118,26 +221,39 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             .collect(),
         None => metrics.clone(),
     };
+    let need_series = s.spacing.is_some() && cache.movement(&s.movement).is_none();
+    let need_stationary =
+        stationary_req.is_some_and(|st| cache.stationary(&s.movement, &st).is_none());
+    let complete = missing.is_empty() && !need_series && !need_stationary;
     let metadata = match cached_meta {
-        Some(m) if missing.is_empty() => {
-            log::info!(
-                "reusing the frame data cached in {} (input unchanged; nothing decoded)",
-                s.output.display()
-            );
+        Some(m) if complete => {
+            if !decoded {
+                log::info!(
+                    "reusing the frame data cached in {} (input unchanged; nothing decoded)",
+                    s.output.display()
+                );
+            }
             m
         }
         cached => {
-            let (backend, ctx) = if missing.is_empty() {
-                (Backend::Opencv, None)
-            } else {
+            let wants_pixels = !missing.is_empty() || need_series || need_stationary;
+            let (backend, ctx) = if wants_pixels {
                 gpu::resolve_backend(s.backend, s.adapter.as_deref())
+            } else {
+                (Backend::Opencv, None)
             };
             let a = analysis::analyse(
                 &s.input,
-                &OpenOptions {
-                    images_fps: s.images_fps,
+                &open,
+                &Request {
+                    sharpness: missing,
+                    movement: (need_series || need_stationary).then_some(s.movement),
+                    stationary: if need_stationary {
+                        stationary_req
+                    } else {
+                        None
+                    },
                 },
-                &Request { sharpness: missing },
                 backend,
                 ctx.as_ref(),
                 s.quiet,
@@ -155,6 +271,23 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
                     height: a.metadata.height,
                     backend: a.backend,
                     scores,
+                });
+            }
+            if let Some(series) = a.movement {
+                cache.movement.retain(|m| m.request != s.movement);
+                cache.movement.push(MovementCache {
+                    request: s.movement,
+                    backend: a.backend,
+                    series,
+                });
+            }
+            if let (Some(keys), Some(mut st)) = (a.stationary, stationary_req) {
+                st.last = st.last.min(a.metadata.frame_count.saturating_sub(1));
+                cache.stationary.push(StationaryCache {
+                    request: s.movement,
+                    params: st,
+                    backend: a.backend,
+                    keyframes: keys,
                 });
             }
             if cache.timestamps_s.is_none() {
@@ -175,6 +308,36 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         params: json!({ "start": s.boundaries.start, "end": s.boundaries.end }),
         kept: keys.len(),
     });
+    if let Some(st) = s.stationary {
+        let req = stationary_request(st, &s.boundaries, &metadata, &cache)?;
+        let run = cache
+            .stationary(&s.movement, &req)
+            .ok_or_else(|| Error::Plugin {
+                plugin: "stationary",
+                msg: "no stationary run was computed".into(),
+            })?;
+        keys.retain(|k| run.keyframes.binary_search(k).is_ok());
+        history.push(Step {
+            plugin: "stationary".into(),
+            params: json!({
+                "threshold_px": req.threshold, "reset_delta": req.reset_delta,
+                "movement": s.movement, "backend": run.backend,
+            }),
+            kept: keys.len(),
+        });
+    }
+    if let Some(threshold) = s.spacing {
+        let series = cache.movement(&s.movement).ok_or_else(|| Error::Plugin {
+            plugin: "spacing",
+            msg: "no movement was computed".into(),
+        })?;
+        keys = samplers::spacing(&keys, &series.series.values, threshold)?;
+        history.push(Step {
+            plugin: "spacing".into(),
+            params: json!({ "threshold_px": threshold, "movement": s.movement, "backend": series.backend }),
+            kept: keys.len(),
+        });
+    }
     match s.rate {
         Some(Rate::Every(n)) => {
             keys = samplers::every_nth(&keys, n)?;

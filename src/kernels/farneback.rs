@@ -377,19 +377,21 @@ struct LevelFlow {
     upsample: Option<wgpu::BindGroup>,
 }
 
-/// Farneback flow on the GPU for frames of one size. Keeps the expansion pyramid of the last frame
-/// so a video's consecutive pairs compute each frame's pyramid once.
+/// Number of frame slots: each holds one frame's expansion pyramid on the device, so a video's
+/// frames are expanded once and flow runs between any two slots (previous frame, reference frame,
+/// current frame).
+pub const SLOTS: usize = 3;
+
+/// Farneback flow on the GPU for frames of one size.
 pub struct FarnebackGpu {
     ctx: Arc<GpuContext>,
     params: FarnebackParams,
     levels: Vec<Level>,
     pipes: Pipes,
-    slots: [FrameSlot; 2],
-    /// flow[order][level] bind groups; order 0 = (slot 0 -> slot 1), 1 = (slot 1 -> slot 0).
-    flows: [Vec<LevelFlow>; 2],
+    slots: Vec<FrameSlot>,
+    /// Per ordered slot pair (from, to): per level bind groups.
+    flows: Vec<((usize, usize), Vec<LevelFlow>)>,
     flow: Vec<wgpu::Buffer>,
-    /// Which slot holds the most recent frame, if any.
-    newest: Option<usize>,
     pad: Vec<u8>,
 }
 
@@ -598,7 +600,7 @@ impl FarnebackGpu {
                 r,
             }
         };
-        let slots = [make_slot(0), make_slot(1)];
+        let slots: Vec<FrameSlot> = (0..SLOTS).map(make_slot).collect();
 
         let make_flows = |prev: &FrameSlot, next: &FrameSlot| -> Vec<LevelFlow> {
             levels
@@ -676,10 +678,12 @@ impl FarnebackGpu {
                 })
                 .collect()
         };
-        let flows = [
-            make_flows(&slots[0], &slots[1]),
-            make_flows(&slots[1], &slots[0]),
-        ];
+        let mut flows = Vec::new();
+        for from in 0..SLOTS {
+            for to in (0..SLOTS).filter(|&t| t != from) {
+                flows.push(((from, to), make_flows(&slots[from], &slots[to])));
+            }
+        }
         Ok(FarnebackGpu {
             ctx,
             params,
@@ -688,7 +692,6 @@ impl FarnebackGpu {
             slots,
             flows,
             flow,
-            newest: None,
             pad: Vec::new(),
         })
     }
@@ -753,7 +756,10 @@ impl FarnebackGpu {
         }
     }
 
-    fn encode_flow(&self, enc: &mut wgpu::CommandEncoder, order: usize) {
+    fn encode_flow(&self, enc: &mut wgpu::CommandEncoder, from: usize, to: usize) {
+        let Some((_, per_level)) = self.flows.iter().find(|(k, _)| *k == (from, to)) else {
+            return;
+        };
         let top = self.levels.len() - 1;
         enc.clear_buffer(&self.flow[top], 0, None);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -762,7 +768,7 @@ impl FarnebackGpu {
         });
         for k in (0..=top).rev() {
             let l = &self.levels[k];
-            let lf = &self.flows[order][k];
+            let lf = &per_level[k];
             let (x, y) = groups16(l.width, l.height);
             if let Some(up) = &lf.upsample {
                 pass.set_pipeline(&self.pipes.resize);
@@ -788,25 +794,41 @@ impl FarnebackGpu {
         }
     }
 
-    /// Makes `gray` the newest frame: computes its expansion pyramid on the device. Returns true
-    /// when a previous frame exists, so that [`FarnebackGpu::encode_last_flow`] has a pair.
-    pub fn push(&mut self, gray: &Mat) -> Result<bool> {
-        let slot = self.newest.map(|s| 1 - s).unwrap_or(0);
+    /// Uploads `gray` into `slot` and computes its expansion pyramid on the device.
+    pub fn load(&mut self, slot: usize, gray: &Mat) -> Result<()> {
+        if slot >= SLOTS {
+            return Err(Error::param("slot", format!("must be below {SLOTS}")));
+        }
         self.upload(slot, gray)?;
         let mut enc = self
             .ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("farneback push"),
+                label: Some("farneback pyramid"),
             });
         self.encode_pyramid(&mut enc, slot);
-        let had_prev = self.newest.is_some();
-        if had_prev {
-            self.encode_flow(&mut enc, 1 - slot);
-        }
         self.ctx.queue.submit([enc.finish()]);
-        self.newest = Some(slot);
-        Ok(had_prev)
+        Ok(())
+    }
+
+    /// Computes the flow from the frame in slot `from` to the frame in slot `to` into
+    /// [`FarnebackGpu::flow_buffer`].
+    pub fn flow_between(&mut self, from: usize, to: usize) -> Result<()> {
+        if from >= SLOTS || to >= SLOTS || from == to {
+            return Err(Error::param(
+                "slots",
+                format!("need two distinct slots below {SLOTS}"),
+            ));
+        }
+        let mut enc = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("farneback flow"),
+            });
+        self.encode_flow(&mut enc, from, to);
+        self.ctx.queue.submit([enc.finish()]);
+        Ok(())
     }
 
     /// The full-resolution flow buffer (2 x f32 per pixel) of the last pair.
@@ -838,9 +860,9 @@ impl FarnebackGpu {
 
     /// The flow from `prev` to `next` (8-bit gray), read back as CV_32FC2.
     pub fn flow(&mut self, prev: &Mat, next: &Mat) -> Result<Mat> {
-        self.newest = None;
-        self.push(prev)?;
-        self.push(next)?;
+        self.load(0, prev)?;
+        self.load(1, next)?;
+        self.flow_between(0, 1)?;
         self.read_flow()
     }
 }

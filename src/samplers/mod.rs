@@ -6,9 +6,11 @@ mod boundaries;
 mod every_nth;
 mod fps;
 mod manual;
+mod spacing;
 
 pub use blur::{blur, BlurMode, BlurParams};
 pub use boundaries::{Bound, Boundaries};
 pub use every_nth::every_nth;
 pub use fps::fps;
 pub use manual::manual;
+pub use spacing::spacing;

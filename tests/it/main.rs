@@ -4,4 +4,5 @@ mod blur;
 mod common;
 mod flow;
 mod foundation;
+mod movement;
 mod sharpness;

@@ -1,0 +1,188 @@
+//! Camera-movement samplers on synthetic clips with known camera motion: a hover inside a pan
+//! (stationary) and a pan whose speed varies 5x (spacing), on both backends.
+
+use crate::common::*;
+use opencv::core::{Mat, Point, Rect, Scalar, Size, Vector};
+use opencv::prelude::*;
+use opencv::{imgcodecs, imgproc};
+use std::path::{Path, PathBuf};
+
+/// Renders frames at crop positions `xs` (640x360 window of aloeL.jpg at y = 300, shown at
+/// 320x180), with `objects(i)` small moving squares drawn, and encodes them at 30 fps.
+fn render(
+    dir: &Path,
+    name: &str,
+    xs: &[i32],
+    objects: impl Fn(usize) -> Vec<(i32, i32)>,
+) -> PathBuf {
+    let photo = imgcodecs::imread(
+        testdata("opencv-doc/aloeL.jpg").to_str().unwrap(),
+        imgcodecs::IMREAD_COLOR,
+    )
+    .unwrap();
+    let frames = dir.join(format!("{name}-frames"));
+    std::fs::create_dir_all(&frames).unwrap();
+    for (i, &x) in xs.iter().enumerate() {
+        let crop = Mat::roi(&photo, Rect::new(x, 300, 640, 360))
+            .unwrap()
+            .try_clone()
+            .unwrap();
+        let mut small = Mat::default();
+        imgproc::resize(
+            &crop,
+            &mut small,
+            Size::new(320, 180),
+            0.0,
+            0.0,
+            imgproc::INTER_AREA,
+        )
+        .unwrap();
+        for (ox, oy) in objects(i) {
+            imgproc::rectangle(
+                &mut small,
+                Rect::new(ox, oy, 10, 10),
+                Scalar::new(20.0, 240.0, 250.0, 0.0),
+                -1,
+                imgproc::LINE_8,
+                0,
+            )
+            .unwrap();
+        }
+        imgcodecs::imwrite(
+            frames.join(format!("f{i:04}.png")).to_str().unwrap(),
+            &small,
+            &Vector::new(),
+        )
+        .unwrap();
+    }
+    let clip = dir.join(format!("{name}.mp4"));
+    ffmpeg(&[
+        "-framerate",
+        "30",
+        "-i",
+        frames.join("f%04d.png").to_str().unwrap(),
+        "-c:v",
+        "libx264",
+        "-crf",
+        "16",
+        "-pix_fmt",
+        "yuv420p",
+        s(&clip),
+    ]);
+    clip
+}
+
+fn select(clip: &Path, project: &Path, backend: &str, extra: &[&str]) -> Vec<usize> {
+    let mut args = vec![
+        "select",
+        s(clip),
+        "-o",
+        s(project),
+        "--force",
+        "--backend",
+        backend,
+        "--analysis-width",
+        "320",
+    ];
+    args.extend_from_slice(extra);
+    kf_ok(&args);
+    keyframes(project)
+}
+
+/// Pan 60 frames (4 crop px = 2 output px per frame), hover 90 frames (3 s) while three small
+/// squares move, pan 60 frames.
+#[test]
+fn stationary_drops_the_hover_not_the_pans() {
+    let d = tempfile::tempdir().unwrap();
+    let mut xs = Vec::new();
+    let mut x = 20;
+    for i in 0..210 {
+        if !(60..150).contains(&i) {
+            x += 4;
+        }
+        xs.push(x);
+    }
+    let clip = render(d.path(), "hover", &xs, |i| {
+        if (60..150).contains(&i) {
+            let t = (i - 60) as i32;
+            vec![(20 + 3 * t, 40), (280 - 2 * t, 120), (150, 10 + t)]
+        } else {
+            Vec::new()
+        }
+    });
+    let mut by_backend = Vec::new();
+    for backend in ["gpu", "opencv"] {
+        let p = d.path().join(format!("hover-{backend}.json"));
+        let keys = select(
+            &clip,
+            &p,
+            backend,
+            &["--stationary", "--stationary-threshold", "1.5"],
+        );
+        let in_hover = keys.iter().filter(|&&k| (61..150).contains(&k)).count();
+        assert!(
+            in_hover <= 1,
+            "{backend}: {in_hover} keyframes inside the hover: {keys:?}"
+        );
+        for i in (1..60).chain(151..210) {
+            assert!(
+                keys.contains(&i),
+                "{backend}: moving frame {i} dropped: {keys:?}"
+            );
+        }
+        by_backend.push(keys);
+    }
+    assert_eq!(
+        by_backend[0], by_backend[1],
+        "gpu and opencv select different keyframes"
+    );
+}
+
+fn cv(v: &[f64]) -> f64 {
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt() / m
+}
+
+/// Speed varies between 1 and 5 crop px per frame; spacing evens out the displacement between
+/// keyframes far better than a fixed rate with the same number of keyframes.
+#[test]
+fn spacing_evens_out_camera_displacement() {
+    let d = tempfile::tempdir().unwrap();
+    let n = 200;
+    let mut pos = 0.0f64;
+    let mut xs = Vec::new();
+    for i in 0..n {
+        xs.push(20 + pos.round() as i32);
+        let phase = 2.0 * std::f64::consts::PI * i as f64 / n as f64;
+        pos += 1.0 + 4.0 * (0.5 - 0.5 * phase.cos());
+    }
+    let clip = render(d.path(), "speed", &xs, |_| Vec::new());
+    let displacement = |keys: &[usize]| -> Vec<f64> {
+        keys.windows(2)
+            .map(|w| f64::from(xs[w[1]] - xs[w[0]]))
+            .collect()
+    };
+    let mut by_backend = Vec::new();
+    for backend in ["gpu", "opencv"] {
+        let p = d.path().join(format!("speed-{backend}.json"));
+        let spaced = select(&clip, &p, backend, &["--spacing", "30"]);
+        by_backend.push(spaced.clone());
+        let count = spaced.len();
+        assert!(count >= 8, "{backend}: {spaced:?}");
+        let rate = count as f64 / (n as f64 / 30.0);
+        let q = d.path().join(format!("fps-{backend}.json"));
+        let fixed = select(&clip, &q, backend, &["--fps", &format!("{rate}")]);
+        assert!(
+            (fixed.len() as i64 - count as i64).abs() <= 1,
+            "{} vs {count}",
+            fixed.len()
+        );
+        let (cs, cf) = (cv(&displacement(&spaced)), cv(&displacement(&fixed)));
+        eprintln!("{backend}: {count} keyframes, CV spacing {cs:.3}, CV fps {cf:.3}");
+        assert!(cf >= 2.0 * cs, "{backend}: CV spacing {cs} vs fps {cf}");
+    }
+    assert_eq!(
+        by_backend[0], by_backend[1],
+        "gpu and opencv select different keyframes"
+    );
+}
