@@ -2,7 +2,7 @@
 //! (stationary) and a pan whose speed varies 5x (spacing), on both backends.
 
 use crate::common::*;
-use opencv::core::{Mat, Point, Rect, Scalar, Size, Vector};
+use opencv::core::{Mat, Rect, Scalar, Size, Vector};
 use opencv::prelude::*;
 use opencv::{imgcodecs, imgproc};
 use std::path::{Path, PathBuf};
