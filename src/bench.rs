@@ -83,3 +83,98 @@ pub fn render_sharpness(adapter: &str, frames: usize, rows: &[SharpnessRow]) -> 
     }
     s
 }
+
+/// One row of the Farneback table.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FlowRow {
+    /// Frame width.
+    pub width: u32,
+    /// Frame height.
+    pub height: u32,
+    /// Parameter set label.
+    pub params: String,
+    /// cv::calcOpticalFlowFarneback, ms per frame pair.
+    pub opencv_ms: f64,
+    /// gpu backend streaming a video (one pyramid per new frame, flow, no readback), ms per pair.
+    pub gpu_ms: f64,
+}
+
+/// Sizes the Farneback benchmark runs at.
+pub const FLOW_SIZES: [(u32, u32); 3] = [(320, 180), (640, 360), (1280, 720)];
+
+/// Times Farneback with OpenCV's tutorial parameters and with (levels 5, winsize 13,
+/// iterations 10, poly_n 5, poly_sigma 1.1) at every size over `pairs` frame pairs.
+pub fn flow(ctx: &Arc<GpuContext>, pairs: usize) -> Result<Vec<FlowRow>> {
+    use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams};
+    let pairs = pairs.max(1);
+    let tutorial = FarnebackParams::default();
+    let heavy = FarnebackParams {
+        levels: 5,
+        winsize: 13,
+        iterations: 10,
+        poly_n: 5,
+        poly_sigma: 1.1,
+        ..tutorial
+    };
+    let mut rows = Vec::new();
+    for (w, h) in FLOW_SIZES {
+        let frames: Vec<opencv::core::Mat> = (0..2)
+            .map(|s| {
+                crate::synthetic::pattern(w as i32, h as i32, s)
+                    .and_then(|m| crate::kernels::gray::opencv(&m))
+            })
+            .collect::<Result<_>>()?;
+        for (label, p) in [("tutorial", tutorial), ("l5 w13 i10 n5 s1.1", heavy)] {
+            let t = Instant::now();
+            for i in 0..pairs {
+                farneback::opencv(&frames[i % 2], &frames[(i + 1) % 2], &p, None)?;
+            }
+            let opencv_ms = t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
+            let mut gpu = FarnebackGpu::new(ctx.clone(), p, w, h)?;
+            gpu.load(0, &frames[0])?;
+            gpu.load(1, &frames[1])?;
+            gpu.flow_between(0, 1)?;
+            gpu.read_flow()?; // warm-up
+            let t = Instant::now();
+            for i in 0..pairs {
+                let (from, to) = (i % 2, (i + 1) % 2);
+                gpu.load(to, &frames[to])?;
+                gpu.flow_between(from, to)?;
+            }
+            ctx.device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| crate::Error::Gpu(e.to_string()))?;
+            let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
+            rows.push(FlowRow {
+                width: w,
+                height: h,
+                params: label.into(),
+                opencv_ms,
+                gpu_ms,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// The Farneback table as text.
+pub fn render_flow(adapter: &str, pairs: usize, rows: &[FlowRow]) -> String {
+    let mut s = format!(
+        "farneback, {pairs} pairs per cell, gpu = {adapter} (streaming: one pyramid per frame + flow)\n"
+    );
+    s += &format!(
+        "{:>10} {:>20} {:>12} {:>12} {:>12}\n",
+        "size", "params", "opencv ms", "gpu ms", "opencv/gpu"
+    );
+    for r in rows {
+        s += &format!(
+            "{:>10} {:>20} {:>12.1} {:>12.1} {:>12.2}\n",
+            format!("{}x{}", r.width, r.height),
+            r.params,
+            r.opencv_ms,
+            r.gpu_ms,
+            r.opencv_ms / r.gpu_ms
+        );
+    }
+    s
+}

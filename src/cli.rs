@@ -146,6 +146,8 @@ pub struct BenchArgs {
 pub enum BenchWhat {
     /// Tenengrad and Laplacian variance at 640x360, 1920x1080, 3840x2160.
     Sharpness,
+    /// Farneback flow per frame pair at 320x180, 640x360, 1280x720.
+    Flow,
 }
 
 /// Which kernels implementation to use.

@@ -75,6 +75,14 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Bench(a) => {
             let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(a.adapter.as_deref())?);
             match a.what {
+                keyframer::cli::BenchWhat::Flow => {
+                    let pairs = a.frames.min(8);
+                    let rows = keyframer::bench::flow(&ctx, pairs)?;
+                    print!(
+                        "{}",
+                        keyframer::bench::render_flow(&ctx.info.name, pairs, &rows)
+                    );
+                }
                 keyframer::cli::BenchWhat::Sharpness => {
                     let rows = keyframer::bench::sharpness(&ctx, a.frames)?;
                     print!(

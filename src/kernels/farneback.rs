@@ -359,6 +359,9 @@ struct Pipes {
     flow_rows: Arc<wgpu::ComputePipeline>,
 }
 
+/// Pixels per invocation of the running-sum box passes (RUN in farneback_flow.wgsl).
+const BOX_RUN: u32 = 16;
+
 /// Bind groups that compute one frame's expansion pyramid.
 struct FrameSlot {
     gray: wgpu::Buffer,
@@ -479,8 +482,16 @@ impl FarnebackGpu {
             poly_cols: p("farneback_polyexp", POLYEXP_WGSL, "cols")?,
             poly_rows: p("farneback_polyexp", POLYEXP_WGSL, "rows")?,
             matrices: p("farneback_matrices", MATRICES_WGSL, "main")?,
-            flow_cols: p("farneback_flow", FLOW_WGSL, "cols")?,
-            flow_rows: p("farneback_flow", FLOW_WGSL, "rows")?,
+            flow_cols: p(
+                "farneback_flow",
+                FLOW_WGSL,
+                if params.gaussian { "cols" } else { "box_cols" },
+            )?,
+            flow_rows: p(
+                "farneback_flow",
+                FLOW_WGSL,
+                if params.gaussian { "rows" } else { "box_rows" },
+            )?,
         };
         // Shared scratch buffers (full-resolution sized; passes run one after another).
         let tmp = storage(&ctx, "smooth tmp", full * 4);
@@ -663,16 +674,28 @@ impl FarnebackGpu {
                                 (4, &sz),
                             ],
                         ),
-                        cols: bind_at(
-                            &ctx,
-                            &pipes.flow_cols,
-                            &[(0, &m), (1, &vsum), (3, &win_buf), (4, &fp)],
-                        ),
-                        rows: bind_at(
-                            &ctx,
-                            &pipes.flow_rows,
-                            &[(1, &vsum), (2, &flow[k]), (3, &win_buf), (4, &fp)],
-                        ),
+                        cols: if params.gaussian {
+                            bind_at(
+                                &ctx,
+                                &pipes.flow_cols,
+                                &[(0, &m), (1, &vsum), (3, &win_buf), (4, &fp)],
+                            )
+                        } else {
+                            bind_at(&ctx, &pipes.flow_cols, &[(0, &m), (1, &vsum), (4, &fp)])
+                        },
+                        rows: if params.gaussian {
+                            bind_at(
+                                &ctx,
+                                &pipes.flow_rows,
+                                &[(1, &vsum), (2, &flow[k]), (3, &win_buf), (4, &fp)],
+                            )
+                        } else {
+                            bind_at(
+                                &ctx,
+                                &pipes.flow_rows,
+                                &[(1, &vsum), (2, &flow[k]), (4, &fp)],
+                            )
+                        },
                         upsample,
                     }
                 })
@@ -778,13 +801,23 @@ impl FarnebackGpu {
             pass.set_pipeline(&self.pipes.matrices);
             pass.set_bind_group(0, &lf.matrices, &[]);
             pass.dispatch_workgroups(x, y, 1);
+            let (cx, cy, rx, ry) = if self.params.gaussian {
+                (x, y, x, y)
+            } else {
+                (
+                    l.width.div_ceil(16),
+                    l.height.div_ceil(BOX_RUN).div_ceil(16),
+                    l.width.div_ceil(BOX_RUN).div_ceil(16),
+                    l.height.div_ceil(16),
+                )
+            };
             for i in 0..self.params.iterations {
                 pass.set_pipeline(&self.pipes.flow_cols);
                 pass.set_bind_group(0, &lf.cols, &[]);
-                pass.dispatch_workgroups(x, y, 1);
+                pass.dispatch_workgroups(cx, cy, 1);
                 pass.set_pipeline(&self.pipes.flow_rows);
                 pass.set_bind_group(0, &lf.rows, &[]);
-                pass.dispatch_workgroups(x, y, 1);
+                pass.dispatch_workgroups(rx, ry, 1);
                 if i + 1 < self.params.iterations {
                     pass.set_pipeline(&self.pipes.matrices);
                     pass.set_bind_group(0, &lf.matrices, &[]);
