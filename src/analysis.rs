@@ -435,3 +435,44 @@ fn with_path(e: crate::Error, input: &Path) -> crate::Error {
         other => other,
     }
 }
+
+/// Movement of `pairs` frame pairs (t, t+1) spread evenly over the input, in full-resolution
+/// pixels: the sample `--auto` proposes thresholds from. Decodes sequentially (grab over the
+/// frames in between).
+pub fn sample_movement(
+    input: &Path,
+    opts: &OpenOptions,
+    req: MovementRequest,
+    pairs: usize,
+    backend: Backend,
+    ctx: Option<&Arc<GpuContext>>,
+) -> Result<Vec<f64>> {
+    let mut src = source::open(input, opts)?;
+    let meta = src.metadata().clone();
+    let n = meta.frame_count;
+    if n < 2 {
+        return Ok(Vec::new());
+    }
+    let pairs = pairs.clamp(1, n / 2);
+    let mut indices: Vec<usize> = (0..pairs)
+        .flat_map(|k| {
+            let t = k * (n - 2) / pairs.max(2).saturating_sub(1).max(1);
+            [t.min(n - 2), t.min(n - 2) + 1]
+        })
+        .collect();
+    indices.sort_unstable();
+    indices.dedup();
+    let (mut pass, _) = MovementPass::new(req, None, backend, ctx, &meta)?;
+    let mut seen = Vec::new();
+    source::read_indices(src.as_mut(), &indices, |f| {
+        seen.push(f.index);
+        pass.step(&f)
+    })?;
+    Ok(seen
+        .iter()
+        .enumerate()
+        .skip(1)
+        .filter(|(k, &i)| seen[k - 1] + 1 == i)
+        .map(|(k, _)| pass.values[k])
+        .collect())
+}

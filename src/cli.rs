@@ -8,7 +8,7 @@ use crate::kernels::farneback::FarnebackParams;
 use crate::kernels::movement::Statistic;
 use crate::kernels::sharpness::Metric;
 use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
-use crate::select::{Rate, SelectSettings, Stationary};
+use crate::select::{Rate, SelectSettings, Stationary, Threshold};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
@@ -266,9 +266,12 @@ pub struct MovementArgs {
     #[arg(long, value_name = "N", default_value_t = 15)]
     pub reset_delta: usize,
     /// Even camera movement: keep a frame each time the movement accumulated since the last
-    /// keyframe reaches PX full-resolution pixels.
-    #[arg(long, value_name = "PX")]
-    pub spacing: Option<f64>,
+    /// keyframe reaches PX full-resolution pixels (`auto`: proposed from a sample, explained).
+    #[arg(long, value_name = "PX|auto")]
+    pub spacing: Option<Threshold>,
+    /// Propose the stationary threshold from a sample of 40 frame pairs (explained on stderr).
+    #[arg(long)]
+    pub auto: bool,
     /// Statistic of the per-pixel flow magnitudes: median (iVS3D's code) or trimmed-mean (the
     /// paper).
     #[arg(long, value_enum, default_value = "median")]
@@ -436,7 +439,8 @@ impl SelectArgs {
                 threshold: positive("--stationary-threshold", self.movement.stationary_threshold)?,
                 reset_delta: self.movement.reset_delta,
             }),
-            spacing: positive("--spacing", self.movement.spacing)?,
+            spacing: self.movement.spacing,
+            auto: self.movement.auto,
             movement: self.movement.request()?,
             backend: self.analysis.backend.into(),
             adapter: self.analysis.adapter.clone(),

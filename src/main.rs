@@ -96,6 +96,9 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Select(a) => {
             let settings = a.settings(quiet)?;
             let r = select::select(&settings)?;
+            for line in &r.proposals {
+                eprintln!("{line}");
+            }
             let p = &r.project;
             eprintln!(
                 "{} keyframes of {} frames -> {}{}",

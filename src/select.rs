@@ -24,6 +24,30 @@ pub enum Rate {
     Fps(f64),
 }
 
+/// A movement threshold: pixels, or proposed from a sample of the input.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Threshold {
+    /// Full-resolution pixels.
+    Px(f64),
+    /// Proposed by `--auto` logic from a sample.
+    Auto,
+}
+
+impl std::str::FromStr for Threshold {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "auto" {
+            return Ok(Threshold::Auto);
+        }
+        match s.parse::<f64>() {
+            Ok(v) if v.is_finite() && v > 0.0 => Ok(Threshold::Px(v)),
+            _ => Err(format!(
+                "`{s}` is neither a positive number of pixels nor `auto`"
+            )),
+        }
+    }
+}
+
 /// Stationary sampler settings as given (the threshold defaults to 1 % of the frame width).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Stationary {
@@ -108,7 +132,9 @@ pub struct SelectSettings {
     /// Stationary sampler, if any (runs first, after the boundaries).
     pub stationary: Option<Stationary>,
     /// Spacing sampler threshold in full-resolution pixels, if any (after stationary).
-    pub spacing: Option<f64>,
+    pub spacing: Option<Threshold>,
+    /// Propose the stationary threshold from a sample of the input when none is given.
+    pub auto: bool,
     /// How movement is measured for the stationary and spacing samplers.
     pub movement: MovementRequest,
     /// Kernel backend for the analysis.
@@ -130,6 +156,8 @@ pub struct SelectReport {
     pub project: Project,
     /// Whether the input was decoded (false when the cache of an existing project was reused).
     pub decoded: bool,
+    /// Explanations of thresholds proposed by `--auto`.
+    pub proposals: Vec<String>,
 }
 
 /// The input's kind and fingerprint, from the file system only.
@@ -203,7 +231,35 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         cached_meta = Some(a.metadata);
         decoded = true;
     }
-    let stationary_req = match s.stationary {
+    let mut proposals = Vec::new();
+    let wants_auto_stationary = s.auto && s.stationary.is_some_and(|st| st.threshold.is_none());
+    let mut stationary_setting = s.stationary;
+    let mut spacing = match s.spacing {
+        Some(Threshold::Px(v)) => Some(v),
+        _ => None,
+    };
+    if wants_auto_stationary || s.spacing == Some(Threshold::Auto) {
+        let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
+        let sample =
+            analysis::sample_movement(&s.input, &open, s.movement, 40, backend, ctx.as_ref())?;
+        let meta = match &cached_meta {
+            Some(m) => m.clone(),
+            None => source::open(&s.input, &open)?.metadata().clone(),
+        };
+        if wants_auto_stationary {
+            let p = samplers::auto::stationary_threshold(&sample);
+            if let Some(st) = stationary_setting.as_mut() {
+                st.threshold = Some(p.threshold);
+            }
+            proposals.push(format!("stationary --auto: {}", p.explanation));
+        }
+        if s.spacing == Some(Threshold::Auto) {
+            let p = samplers::auto::spacing_threshold(&sample, meta.width, meta.frame_count);
+            spacing = Some(p.threshold);
+            proposals.push(format!("spacing auto: {}", p.explanation));
+        }
+    }
+    let stationary_req = match stationary_setting {
         Some(st) => {
             let meta = match &cached_meta {
                 Some(m) => m.clone(),
@@ -221,7 +277,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             .collect(),
         None => metrics.clone(),
     };
-    let need_series = s.spacing.is_some() && cache.movement(&s.movement).is_none();
+    let need_series = spacing.is_some() && cache.movement(&s.movement).is_none();
     let need_stationary =
         stationary_req.is_some_and(|st| cache.stationary(&s.movement, &st).is_none());
     let complete = missing.is_empty() && !need_series && !need_stationary;
@@ -308,7 +364,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         params: json!({ "start": s.boundaries.start, "end": s.boundaries.end }),
         kept: keys.len(),
     });
-    if let Some(st) = s.stationary {
+    if let Some(st) = stationary_setting {
         let req = stationary_request(st, &s.boundaries, &metadata, &cache)?;
         let run = cache
             .stationary(&s.movement, &req)
@@ -322,11 +378,12 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             params: json!({
                 "threshold_px": req.threshold, "reset_delta": req.reset_delta,
                 "movement": s.movement, "backend": run.backend,
+                "auto": wants_auto_stationary,
             }),
             kept: keys.len(),
         });
     }
-    if let Some(threshold) = s.spacing {
+    if let Some(threshold) = spacing {
         let series = cache.movement(&s.movement).ok_or_else(|| Error::Plugin {
             plugin: "spacing",
             msg: "no movement was computed".into(),
@@ -334,7 +391,10 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         keys = samplers::spacing(&keys, &series.series.values, threshold)?;
         history.push(Step {
             plugin: "spacing".into(),
-            params: json!({ "threshold_px": threshold, "movement": s.movement, "backend": series.backend }),
+            params: json!({
+                "threshold_px": threshold, "movement": s.movement, "backend": series.backend,
+                "auto": s.spacing == Some(Threshold::Auto),
+            }),
             kept: keys.len(),
         });
     }
@@ -403,5 +463,9 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         decode_problems: problems,
     };
     project.save(&s.output, true)?;
-    Ok(SelectReport { project, decoded })
+    Ok(SelectReport {
+        project,
+        decoded,
+        proposals,
+    })
 }

@@ -1,6 +1,7 @@
 //! Keyframe samplers: pure, deterministic functions from a candidate list (sorted frame indices)
 //! and per-frame numbers to a subset of the candidates. They never touch pixels.
 
+pub mod auto;
 mod blur;
 mod boundaries;
 mod every_nth;

@@ -136,6 +136,39 @@ fn stationary_drops_the_hover_not_the_pans() {
         by_backend[0], by_backend[1],
         "gpu and opencv select different keyframes"
     );
+
+    // --auto proposes a threshold from a sample, explains it, and gives the same verdict.
+    let p = d.path().join("hover-auto.json");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args([
+            "select",
+            s(&clip),
+            "-o",
+            s(&p),
+            "--backend",
+            "opencv",
+            "--analysis-width",
+            "320",
+            "--stationary",
+            "--auto",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("stationary --auto: sampled") && err.contains("geometric mean"),
+        "{err}"
+    );
+    let keys = keyframes(&p);
+    assert!(
+        keys.iter().filter(|&&k| (61..150).contains(&k)).count() <= 1,
+        "{keys:?}"
+    );
+    assert!(
+        (1..60).chain(151..210).all(|i| keys.contains(&i)),
+        "{keys:?}"
+    );
 }
 
 fn cv(v: &[f64]) -> f64 {
@@ -184,5 +217,26 @@ fn spacing_evens_out_camera_displacement() {
     assert_eq!(
         by_backend[0], by_backend[1],
         "gpu and opencv select different keyframes"
+    );
+    let p = d.path().join("speed-auto.json");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args([
+            "select",
+            s(&clip),
+            "-o",
+            s(&p),
+            "--backend",
+            "opencv",
+            "--analysis-width",
+            "320",
+            "--spacing",
+            "auto",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && err.contains("spacing auto: spacing threshold 48.0 px"),
+        "{err}"
     );
 }
