@@ -116,6 +116,9 @@ pub struct FlowArgs {
     /// Output .flo file.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Start from this flow (.flo of the same size; OPTFLOW_USE_INITIAL_FLOW).
+    #[arg(long, value_name = "FLO")]
+    pub initial: Option<PathBuf>,
     /// Replace an existing output file.
     #[arg(long)]
     pub force: bool,

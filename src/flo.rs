@@ -47,3 +47,21 @@ pub fn read(path: &Path) -> Result<(u32, u32, Vec<f32>)> {
         .collect();
     Ok((w as u32, h as u32, v))
 }
+
+/// Reads a `.flo` file as a CV_32FC2 matrix.
+pub fn read_mat(path: &Path) -> Result<Mat> {
+    let (w, h, v) = read(path)?;
+    let mut m = Mat::new_rows_cols_with_default(
+        h as i32,
+        w as i32,
+        opencv::core::CV_32FC2,
+        opencv::core::Scalar::all(0.0),
+    )
+    .map_err(|e| Error::input(path, e.to_string()))?;
+    m.data_typed_mut::<Vec2f>()
+        .map_err(|e| Error::input(path, e.to_string()))?
+        .iter_mut()
+        .zip(v.chunks_exact(2))
+        .for_each(|(d, s)| *d = Vec2f::from([s[0], s[1]]));
+    Ok(m)
+}

@@ -779,12 +779,14 @@ impl FarnebackGpu {
         }
     }
 
-    fn encode_flow(&self, enc: &mut wgpu::CommandEncoder, from: usize, to: usize) {
+    fn encode_flow(&self, enc: &mut wgpu::CommandEncoder, from: usize, to: usize, initial: bool) {
         let Some((_, per_level)) = self.flows.iter().find(|(k, _)| *k == (from, to)) else {
             return;
         };
         let top = self.levels.len() - 1;
-        enc.clear_buffer(&self.flow[top], 0, None);
+        if !initial {
+            enc.clear_buffer(&self.flow[top], 0, None);
+        }
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("farneback flow"),
             timestamp_writes: None,
@@ -847,6 +849,17 @@ impl FarnebackGpu {
     /// Computes the flow from the frame in slot `from` to the frame in slot `to` into
     /// [`FarnebackGpu::flow_buffer`].
     pub fn flow_between(&mut self, from: usize, to: usize) -> Result<()> {
+        self.flow_between_from(from, to, None)
+    }
+
+    /// As [`FarnebackGpu::flow_between`], starting from `initial` (CV_32FC2, full resolution) as
+    /// OPTFLOW_USE_INITIAL_FLOW does: resized to the coarsest level with INTER_AREA and scaled.
+    pub fn flow_between_from(
+        &mut self,
+        from: usize,
+        to: usize,
+        initial: Option<&Mat>,
+    ) -> Result<()> {
         if from >= SLOTS || to >= SLOTS || from == to {
             return Err(Error::param(
                 "slots",
@@ -859,7 +872,40 @@ impl FarnebackGpu {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("farneback flow"),
             });
-        self.encode_flow(&mut enc, from, to);
+        if let Some(init) = initial {
+            let top = self
+                .levels
+                .last()
+                .ok_or_else(|| Error::Gpu("no pyramid levels".into()))?;
+            let full = &self.levels[0];
+            if init.typ() != opencv::core::CV_32FC2
+                || (init.cols() as u32, init.rows() as u32) != (full.width, full.height)
+            {
+                return Err(Error::param(
+                    "initial flow",
+                    format!("must be {}x{} CV_32FC2", full.width, full.height),
+                ));
+            }
+            let mut small = Mat::default();
+            opencv::imgproc::resize(
+                init,
+                &mut small,
+                Size::new(top.width as i32, top.height as i32),
+                0.0,
+                0.0,
+                opencv::imgproc::INTER_AREA,
+            )
+            .cv(|| "resize initial flow".into())?;
+            let mut scaled = Mat::default();
+            small
+                .convert_to(&mut scaled, opencv::core::CV_32FC2, top.scale, 0.0)
+                .cv(|| "scale initial flow".into())?;
+            let bytes = scaled.data_bytes().cv(|| "initial flow bytes".into())?;
+            self.ctx
+                .queue
+                .write_buffer(&self.flow[self.levels.len() - 1], 0, bytes);
+        }
+        self.encode_flow(&mut enc, from, to, initial.is_some());
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
@@ -893,9 +939,14 @@ impl FarnebackGpu {
 
     /// The flow from `prev` to `next` (8-bit gray), read back as CV_32FC2.
     pub fn flow(&mut self, prev: &Mat, next: &Mat) -> Result<Mat> {
+        self.flow_from(prev, next, None)
+    }
+
+    /// As [`FarnebackGpu::flow`], optionally starting from an initial flow.
+    pub fn flow_from(&mut self, prev: &Mat, next: &Mat, initial: Option<&Mat>) -> Result<Mat> {
         self.load(0, prev)?;
         self.load(1, next)?;
-        self.flow_between(0, 1)?;
+        self.flow_between_from(0, 1, initial)?;
         self.read_flow()
     }
 }

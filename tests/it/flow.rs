@@ -224,3 +224,35 @@ fn flow_command_writes_flo() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("one size"));
 }
+
+/// OPTFLOW_USE_INITIAL_FLOW: both start from the same initial field.
+#[test]
+fn initial_flow_option_matches_opencv() {
+    let prev = gray_of(&testdata("opencv-doc/basketball1.png"));
+    let next = gray_of(&testdata("opencv-doc/basketball2.png"));
+    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None).unwrap());
+    for p in [
+        FarnebackParams::default(),
+        FarnebackParams {
+            levels: 0,
+            iterations: 2,
+            ..FarnebackParams::default()
+        },
+    ] {
+        let start =
+            farneback::opencv(&prev, &next, &FarnebackParams { iterations: 1, ..p }, None).unwrap();
+        let mut gpu = FarnebackGpu::new(ctx.clone(), p, 640, 480).unwrap();
+        let g = gpu.flow_from(&prev, &next, Some(&start)).unwrap();
+        let c = farneback::opencv(&prev, &next, &p, Some(&start)).unwrap();
+        let without = farneback::opencv(&prev, &next, &p, None).unwrap();
+        let (mean, p99, max) = epe(&g, &c);
+        assert!(
+            mean <= FLOW_EPE_MEAN && p99 <= FLOW_EPE_P99,
+            "initial flow {p:?}: mean {mean} p99 {p99} max {max}"
+        );
+        assert!(
+            epe(&c, &without).0 > 10.0 * mean.max(1e-6),
+            "the initial flow must change the result"
+        );
+    }
+}

@@ -574,3 +574,57 @@ fn info_names_an_adapter() {
     let name = v["selected_adapter"]["Ok"]["name"].as_str();
     assert!(name.is_some(), "no GPU adapter (lavapipe expected): {v}");
 }
+
+/// Rotation metadata is reported and applied: a 320x180 stream tagged 90° decodes as 180x320.
+#[test]
+fn rotation_metadata_is_applied() {
+    let d = tempfile::tempdir().unwrap();
+    let plain = testsrc(d.path(), "plain.mp4", 320, 180, "30", 1.0);
+    let rotated = d.path().join("rotated.mp4");
+    ffmpeg(&[
+        "-i",
+        s(&plain),
+        "-c",
+        "copy",
+        "-metadata:s:v:0",
+        "rotate=90",
+        s(&rotated),
+    ]);
+    let v: serde_json::Value =
+        serde_json::from_str(&kf_ok(&["probe", s(&rotated), "--json"])).unwrap();
+    assert_eq!(v["rotation_deg"], 90);
+    assert_eq!(
+        (v["width"].as_u64(), v["height"].as_u64()),
+        (Some(180), Some(320))
+    );
+    let p = d.path().join("p.json");
+    kf_ok(&["select", s(&rotated), "--every", "10", "-o", s(&p)]);
+    let out = d.path().join("out");
+    kf_ok(&["export", s(&p), "--out", s(&out)]);
+    assert_eq!(
+        image::image_dimensions(out.join("frame_000010.jpg")).unwrap(),
+        (180, 320)
+    );
+}
+
+/// Without a usable adapter the gpu backend warns once and the opencv backend does the work.
+#[test]
+fn missing_adapter_falls_back_to_opencv() {
+    let d = tempfile::tempdir().unwrap();
+    let clip = testsrc(d.path(), "c.mp4", 160, 90, "30", 1.0);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args(["score", s(&clip), "--json"])
+        .env("KEYFRAMER_ADAPTER", "no-such-adapter")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert_eq!(
+        err.matches("falling back to the opencv backend").count(),
+        1,
+        "{err}"
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["backend"], "opencv");
+    assert_eq!(v["scores"].as_array().unwrap().len(), 30);
+}
