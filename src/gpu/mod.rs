@@ -212,6 +212,47 @@ impl GpuContext {
         })
     }
 
+    /// Uploads the pixels of `mat` (checked to be `typ` and `width` x `height`; `what` names the
+    /// runner in errors) into `buffer`, padded with zeros to a multiple of 4 bytes in `scratch`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn upload_mat(
+        &self,
+        buffer: &wgpu::Buffer,
+        mat: &opencv::core::Mat,
+        typ: i32,
+        width: u32,
+        height: u32,
+        what: &str,
+        scratch: &mut Vec<u8>,
+    ) -> Result<()> {
+        use opencv::prelude::*;
+        if mat.typ() != typ || mat.cols() as u32 != width || mat.rows() as u32 != height {
+            return Err(Error::Gpu(format!(
+                "frame is {}x{} of type {}; the {what} runner takes {width}x{height} of type {typ}",
+                mat.cols(),
+                mat.rows(),
+                mat.typ()
+            )));
+        }
+        let owned;
+        let mat = if mat.is_continuous() {
+            mat
+        } else {
+            owned = mat.try_clone().map_err(|e| Error::Gpu(e.to_string()))?;
+            &owned
+        };
+        let bytes = mat.data_bytes().map_err(|e| Error::Gpu(e.to_string()))?;
+        if bytes.len() % 4 == 0 {
+            self.queue.write_buffer(buffer, 0, bytes);
+        } else {
+            scratch.clear();
+            scratch.extend_from_slice(bytes);
+            scratch.resize(bytes.len().next_multiple_of(4), 0);
+            self.queue.write_buffer(buffer, 0, scratch);
+        }
+        Ok(())
+    }
+
     /// Copies the first `size` bytes of `buffer` to the host (submits and waits).
     pub fn read_back(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
         let size = size.next_multiple_of(4);

@@ -726,33 +726,16 @@ impl FarnebackGpu {
 
     fn upload(&mut self, slot: usize, gray: &Mat) -> Result<()> {
         let (w, h) = (self.levels[0].width, self.levels[0].height);
-        if gray.typ() != opencv::core::CV_8UC1 || gray.cols() as u32 != w || gray.rows() as u32 != h
-        {
-            return Err(Error::Gpu(format!(
-                "frame is {}x{} type {}; this Farneback runner takes {w}x{h} 8-bit gray",
-                gray.cols(),
-                gray.rows(),
-                gray.typ()
-            )));
-        }
-        let owned;
-        let gray = if gray.is_continuous() {
-            gray
-        } else {
-            owned = gray.try_clone().cv(|| "copy gray".into())?;
-            &owned
-        };
-        let bytes = gray.data_bytes().cv(|| "gray bytes".into())?;
         let buf = &self.slots[slot].gray;
-        if bytes.len() % 4 == 0 {
-            self.ctx.queue.write_buffer(buf, 0, bytes);
-        } else {
-            self.pad.clear();
-            self.pad.extend_from_slice(bytes);
-            self.pad.resize(bytes.len().next_multiple_of(4), 0);
-            self.ctx.queue.write_buffer(buf, 0, &self.pad);
-        }
-        Ok(())
+        self.ctx.upload_mat(
+            buf,
+            gray,
+            opencv::core::CV_8UC1,
+            w,
+            h,
+            "Farneback (8-bit gray)",
+            &mut self.pad,
+        )
     }
 
     fn encode_pyramid(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {

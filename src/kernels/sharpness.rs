@@ -6,7 +6,6 @@ use super::{gray, gray_groups, gray_stride, laplacian, tenengrad, tile_groups};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use opencv::core::Mat;
-use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -267,35 +266,15 @@ impl SharpnessGpu {
     }
 
     fn upload(&mut self, slot: usize, frame: &Mat) -> Result<()> {
-        let ok_type = frame.typ() == opencv::core::CV_8UC3;
-        if !ok_type || frame.cols() as u32 != self.width || frame.rows() as u32 != self.height {
-            return Err(Error::Gpu(format!(
-                "frame is {}x{} type {}; this runner takes {}x{} 8-bit BGR",
-                frame.cols(),
-                frame.rows(),
-                frame.typ(),
-                self.width,
-                self.height
-            )));
-        }
-        let owned;
-        let frame = if frame.is_continuous() {
-            frame
-        } else {
-            owned = frame.try_clone().map_err(|e| Error::Gpu(e.to_string()))?;
-            &owned
-        };
-        let bytes = frame.data_bytes().map_err(|e| Error::Gpu(e.to_string()))?;
-        let buf = &self.slots[slot].bgr;
-        if bytes.len() % 4 == 0 {
-            self.ctx.queue.write_buffer(buf, 0, bytes);
-        } else {
-            self.pad.clear();
-            self.pad.extend_from_slice(bytes);
-            self.pad.resize(bytes.len().next_multiple_of(4), 0);
-            self.ctx.queue.write_buffer(buf, 0, &self.pad);
-        }
-        Ok(())
+        self.ctx.upload_mat(
+            &self.slots[slot].bgr,
+            frame,
+            opencv::core::CV_8UC3,
+            self.width,
+            self.height,
+            "sharpness (8-bit BGR)",
+            &mut self.pad,
+        )
     }
 
     fn encode(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
