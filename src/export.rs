@@ -286,7 +286,8 @@ pub fn export(
             })
             .collect();
         let mut k = 0;
-        let not_read = source::read_indices(src.as_mut(), &project.keyframes, |frame| {
+        let total = project.keyframes.len();
+        let result = source::read_indices(src.as_mut(), &project.keyframes, |frame| {
             let img = transform(&frame.image, settings, size)?;
             let name = &names[k];
             let fmt = if name.ends_with(".png") {
@@ -306,6 +307,13 @@ pub fn export(
             k += 1;
             bar.inc(1);
             Ok(())
+        });
+        let not_read = result.map_err(|e| Error::Output {
+            path: out.to_path_buf(),
+            msg: format!(
+                "{e}; export stopped after {} of {total} images (each written whole), no manifest written",
+                frames.len()
+            ),
         })?;
         let reason = src
             .decode_failure()

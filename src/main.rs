@@ -37,7 +37,8 @@ fn main() -> ExitCode {
         Ok(Outcome::Ok) => ExitCode::SUCCESS,
         Ok(Outcome::Partial) => ExitCode::from(2),
         Err(e) => {
-            eprintln!("error: {e:#}");
+            // Library errors already carry their cause in the message; print it once.
+            eprintln!("error: {e}");
             ExitCode::from(1)
         }
     }

@@ -628,3 +628,54 @@ fn missing_adapter_falls_back_to_opencv() {
     assert_eq!(v["backend"], "opencv");
     assert_eq!(v["scores"].as_array().unwrap().len(), 30);
 }
+
+/// A full disk: a clear error naming the file, only whole images left, no temporary files, no
+/// manifest. Needs a 256 KiB tmpfs (root); skipped with a message where mounting is not allowed.
+#[test]
+fn full_disk_fails_cleanly() {
+    struct Mount(std::path::PathBuf);
+    impl Drop for Mount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount").arg(&self.0).status();
+        }
+    }
+    let d = tempfile::tempdir().unwrap();
+    let small = d.path().join("small");
+    std::fs::create_dir(&small).unwrap();
+    let ok = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=256k", "tmpfs", s(&small)])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .map(|st| st.success())
+        .unwrap_or(false);
+    if !ok {
+        eprintln!("SKIPPED full_disk_fails_cleanly: cannot mount a tmpfs here (needs root)");
+        return;
+    }
+    let _guard = Mount(small.clone());
+    let clip = testsrc(d.path(), "c.mp4", 640, 360, "30", 2.0);
+    let p = d.path().join("p.json");
+    kf_ok(&["select", s(&clip), "--every", "5", "-o", s(&p)]);
+    let out = small.join("out");
+    let (code, err) = code_and_stderr(&kf(&["export", s(&p), "--out", s(&out), "--format", "png"]));
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("No space left") && err.contains(".png") && err.contains("no manifest"),
+        "{err}"
+    );
+    assert_eq!(
+        err.matches("No space left").count(),
+        1,
+        "one clear line: {err}"
+    );
+    let names = listing(&out);
+    assert!(
+        !names
+            .iter()
+            .any(|n| n.starts_with('.') || n == "manifest.json"),
+        "{names:?}"
+    );
+    for n in &names {
+        image::open(out.join(n)).unwrap_or_else(|e| panic!("{n} is not a whole image: {e}"));
+    }
+}
