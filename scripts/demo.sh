@@ -14,7 +14,7 @@ ffmpeg -loglevel error -f lavfi -i testsrc2=size=640x360:rate=30:duration=10 \
   -c:v libx264 -pix_fmt yuv420p "$out/sample.mp4"
 "$kf" info
 "$kf" probe "$out/sample.mp4"
-"$kf" select "$out/sample.mp4" --fps 2 -o "$out/sample.kf.json"
+"$kf" select "$out/sample.mp4" --fps 2 --blur --blur-mode replace --blur-window 3 -o "$out/sample.kf.json"
 "$kf" export "$out/sample.kf.json" --out "$out/keyframes" --resize 320x180
 echo
 echo "demo: project file:  $out/sample.kf.json"
