@@ -17,7 +17,15 @@ use std::path::PathBuf;
 /// Exit codes: 0 success; 1 usage or input error (nothing partial is written); 2 partial failure
 /// (some frames or inputs could not be processed; the rest was written and the problems reported).
 #[derive(Debug, Parser)]
-#[command(name = "keyframer", version, about, long_about = None)]
+#[command(
+    name = "keyframer",
+    version,
+    about,
+    long_about = None,
+    after_help = "Exit codes: 0 success; 1 usage or input error (nothing partial is written); \
+                  2 partial failure (some frames could not be decoded; the rest was written and \
+                  the problems reported).\nLogs: RUST_LOG=debug for more detail on stderr."
+)]
 pub struct Cli {
     /// No progress bars; only errors and warnings on stderr.
     #[arg(short, long, global = true)]
