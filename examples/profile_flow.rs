@@ -35,6 +35,19 @@ fn main() -> anyhow::Result<()> {
             t4 - t3
         );
     }
+    for levels in 0..4 {
+        let p = FarnebackParams {
+            levels,
+            ..FarnebackParams::default()
+        };
+        let mut f = FarnebackGpu::new(ctx.clone(), p, 640, 480)?;
+        f.load(0, &a)?;
+        wait()?;
+        let t = Instant::now();
+        f.load(0, &a)?;
+        wait()?;
+        println!("levels {levels}: pyramid {:?}", t.elapsed());
+    }
     let t = Instant::now();
     let _ = keyframer::kernels::farneback::opencv(&a, &b, &FarnebackParams::default(), None)?;
     println!("opencv {:?}", t.elapsed());

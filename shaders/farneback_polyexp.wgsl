@@ -81,15 +81,27 @@ fn rows(@builtin(global_invocation_id) gid: vec3<u32>) {
     var b4 = 0.0;
     var b5 = at(x, 2u, y) * g0;
     var b6 = 0.0;
+    let last = i32(params.width) - 1;
+    let row = y * params.width;
     for (var k = 1u; k <= params.n; k = k + 1u) {
         let ki = i32(k);
-        let tg = at(x + ki, 0u, y) + at(x - ki, 0u, y);
-        b1 = b1 + tg * g(k);
+        let right = (row + u32(min(x + ki, last))) * 3u;
+        let left = (row + u32(max(x - ki, 0))) * 3u;
+        let r0 = rows3[right];
+        let l0 = rows3[left];
+        let r1 = rows3[right + 1u];
+        let l1 = rows3[left + 1u];
+        let r2 = rows3[right + 2u];
+        let l2 = rows3[left + 2u];
+        let gk = g(k);
+        let xgk = xg(k);
+        let tg = r0 + l0;
+        b1 = b1 + tg * gk;
         b4 = b4 + tg * xxg(k);
-        b2 = b2 + (at(x + ki, 0u, y) - at(x - ki, 0u, y)) * xg(k);
-        b3 = b3 + (at(x + ki, 1u, y) + at(x - ki, 1u, y)) * g(k);
-        b6 = b6 + (at(x + ki, 1u, y) - at(x - ki, 1u, y)) * xg(k);
-        b5 = b5 + (at(x + ki, 2u, y) + at(x - ki, 2u, y)) * g(k);
+        b2 = b2 + (r0 - l0) * xgk;
+        b3 = b3 + (r1 + l1) * gk;
+        b6 = b6 + (r1 - l1) * xgk;
+        b5 = b5 + (r2 + l2) * gk;
     }
     let o = (y * params.width + gid.x) * 5u;
     r[o] = b3 * params.ig11;
