@@ -361,11 +361,8 @@ fn file_name(p: &Path) -> String {
 
 /// Refuses to export when the input is no longer the one the project was made from.
 pub fn check_fingerprint(project: &Project, input: &Path) -> Result<()> {
-    let now = match project.input.kind {
-        SourceKind::Images => fsutil::fingerprint_files(&source::list_images(input)?)?,
-        _ => fsutil::fingerprint_file(input)?,
-    };
-    if now != project.input.fingerprint {
+    let (kind, now) = crate::select::identify(input)?;
+    if kind != project.input.kind || now != project.input.fingerprint {
         return Err(Error::input(
             input,
             "the input changed since the project was made (size, time or content differ); run select again",

@@ -85,19 +85,7 @@ pub fn blur_clip(dir: &Path) -> PathBuf {
         .unwrap();
     }
     let clip = dir.join("blur.mp4");
-    ffmpeg(&[
-        "-framerate",
-        "30",
-        "-i",
-        frames.join("f%04d.png").to_str().unwrap(),
-        "-c:v",
-        "libx264",
-        "-crf",
-        "12",
-        "-pix_fmt",
-        "yuv420p",
-        s(&clip),
-    ]);
+    encode_frames(&frames, "12", &clip);
     clip
 }
 
@@ -212,10 +200,7 @@ fn reselect_uses_the_score_cache() {
     let run = |extra: &[&str]| {
         let mut args = vec!["select", s(&clip), "-o", s(&p), "--force", "--blur"];
         args.extend_from_slice(extra);
-        std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
-            .args(&args)
-            .output()
-            .unwrap()
+        kf_loud(&args)
     };
     let out = run(&["--blur-ratio", "1.05"]);
     let err = String::from_utf8_lossy(&out.stderr);

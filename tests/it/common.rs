@@ -14,6 +14,31 @@ pub fn kf(args: &[&str]) -> Output {
         .expect("run keyframer")
 }
 
+/// Runs keyframer with `args` without --quiet (to read its messages); never panics on failure.
+pub fn kf_loud(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args(args)
+        .output()
+        .expect("run keyframer")
+}
+
+/// Encodes `dir/f%04d.png` at 30 fps as H.264 (`crf`) into `out`.
+pub fn encode_frames(dir: &Path, crf: &str, out: &Path) {
+    ffmpeg(&[
+        "-framerate",
+        "30",
+        "-i",
+        dir.join("f%04d.png").to_str().unwrap(),
+        "-c:v",
+        "libx264",
+        "-crf",
+        crf,
+        "-pix_fmt",
+        "yuv420p",
+        s(out),
+    ]);
+}
+
 /// Runs keyframer and asserts success; returns stdout.
 pub fn kf_ok(args: &[&str]) -> String {
     let out = kf(args);

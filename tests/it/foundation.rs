@@ -354,10 +354,7 @@ fn reselect_reuses_cached_frame_data() {
     let (code, err) = code_and_stderr(&kf(&["select", s(&clip), "--fps", "2", "-o", s(&p)]));
     assert_eq!(code, 1, "{err}");
     assert_eq!(keyframes(&p).len(), 4);
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
-        .args(["select", s(&clip), "--fps", "2", "-o", s(&p), "--force"])
-        .output()
-        .unwrap();
+    let out = kf_loud(&["select", s(&clip), "--fps", "2", "-o", s(&p), "--force"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("nothing decoded"), "{err}");

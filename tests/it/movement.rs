@@ -56,23 +56,16 @@ fn render(
         .unwrap();
     }
     let clip = dir.join(format!("{name}.mp4"));
-    ffmpeg(&[
-        "-framerate",
-        "30",
-        "-i",
-        frames.join("f%04d.png").to_str().unwrap(),
-        "-c:v",
-        "libx264",
-        "-crf",
-        "16",
-        "-pix_fmt",
-        "yuv420p",
-        s(&clip),
-    ]);
+    encode_frames(&frames, "16", &clip);
     clip
 }
 
-fn select(clip: &Path, project: &Path, backend: &str, extra: &[&str]) -> Vec<usize> {
+fn select_args<'a>(
+    clip: &'a Path,
+    project: &'a Path,
+    backend: &'a str,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
     let mut args = vec![
         "select",
         s(clip),
@@ -85,7 +78,11 @@ fn select(clip: &Path, project: &Path, backend: &str, extra: &[&str]) -> Vec<usi
         "320",
     ];
     args.extend_from_slice(extra);
-    kf_ok(&args);
+    args
+}
+
+fn select(clip: &Path, project: &Path, backend: &str, extra: &[&str]) -> Vec<usize> {
+    kf_ok(&select_args(clip, project, backend, extra));
     keyframes(project)
 }
 
@@ -139,21 +136,12 @@ fn stationary_drops_the_hover_not_the_pans() {
 
     // --auto proposes a threshold from a sample, explains it, and gives the same verdict.
     let p = d.path().join("hover-auto.json");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
-        .args([
-            "select",
-            s(&clip),
-            "-o",
-            s(&p),
-            "--backend",
-            "opencv",
-            "--analysis-width",
-            "320",
-            "--stationary",
-            "--auto",
-        ])
-        .output()
-        .unwrap();
+    let out = kf_loud(&select_args(
+        &clip,
+        &p,
+        "opencv",
+        &["--stationary", "--auto"],
+    ));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(
@@ -219,21 +207,7 @@ fn spacing_evens_out_camera_displacement() {
         "gpu and opencv select different keyframes"
     );
     let p = d.path().join("speed-auto.json");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
-        .args([
-            "select",
-            s(&clip),
-            "-o",
-            s(&p),
-            "--backend",
-            "opencv",
-            "--analysis-width",
-            "320",
-            "--spacing",
-            "auto",
-        ])
-        .output()
-        .unwrap();
+    let out = kf_loud(&select_args(&clip, &p, "opencv", &["--spacing", "auto"]));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         out.status.success() && err.contains("spacing auto: spacing threshold 48.0 px"),
