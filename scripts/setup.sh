@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates)
+packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates curl unzip)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -36,4 +36,10 @@ if [ ! -f "$data/opencv-doc/.complete" ]; then
   mv "$data/opencv-doc.tmp/usr/share/doc/opencv-doc/examples/data/"* "$data/opencv-doc/"
   rm -rf "$data/opencv-doc.tmp" "$data/download"
   touch "$data/opencv-doc/.complete"
+fi
+
+# ONNX Runtime for `--mask-backend ort` (Debian has no package): the library from PyPI's wheel.
+if [ ! -s target/onnxruntime/libonnxruntime.so.1.31.1 ]; then
+  echo "setup: fetching ONNX Runtime 1.31.1 into target/onnxruntime/" >&2
+  scripts/fetch-ort.sh target/onnxruntime >/dev/null
 fi

@@ -8,6 +8,7 @@ use crate::kernels::farneback::FarnebackParams;
 use crate::kernels::movement::Statistic;
 use crate::kernels::sharpness::Metric;
 use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
+use crate::segment::{MaskSettings, SegBackend};
 use crate::select::{Rate, SelectSettings, Stationary, Threshold};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
@@ -44,8 +45,10 @@ pub enum Command {
     Probe(ProbeArgs),
     /// Analyse an input and select keyframes into a project file.
     Select(SelectArgs),
-    /// Write a project's keyframes as images with a manifest.
+    /// Write a project's keyframes as images with a manifest (and segmentation masks).
     Export(ExportArgs),
+    /// Segment one image with a model description: mask (and overlay) for trying a model.
+    Segment(SegmentArgs),
     /// Per-frame sharpness scores of a video, image folder or image.
     Score(ScoreArgs),
     /// Dense Farneback flow between two images, written as a Middlebury .flo file.
@@ -405,6 +408,89 @@ pub struct ExportArgs {
     /// Write into a non-empty folder, replacing an earlier export.
     #[arg(long)]
     pub force: bool,
+    /// Segmentation masks for every exported image.
+    #[command(flatten)]
+    pub masks: MaskArgs,
+}
+
+/// Segmentation mask flags of `export`.
+#[derive(Debug, Clone, Args)]
+pub struct MaskArgs {
+    /// Write a COLMAP mask (`masks/<image>.png`: hidden 0, kept 255) per exported image, made by
+    /// the segmentation model this description (TOML) names.
+    #[arg(long, value_name = "MODEL.toml")]
+    pub masks: Option<PathBuf>,
+    /// Classes to hide, comma-separated (default: the description's `hide` list).
+    #[arg(long, value_name = "NAMES", value_delimiter = ',', requires = "masks")]
+    pub mask_classes: Vec<String>,
+    /// Grow the hidden area by this many pixels.
+    #[arg(long, value_name = "PX", default_value_t = 0, requires = "masks")]
+    pub mask_dilate: u32,
+    /// Runtime for the network.
+    #[arg(long, value_enum, default_value = "opencv", requires = "masks")]
+    pub mask_backend: SegBackendArg,
+    /// Also write colour previews of the classes under `overlays/`.
+    #[arg(long, requires = "masks")]
+    pub mask_overlay: bool,
+}
+
+/// Segmentation runtimes.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SegBackendArg {
+    /// OpenCV DNN (every format OpenCV reads).
+    Opencv,
+    /// ONNX Runtime (ONNX models; library from ORT_DYLIB_PATH).
+    Ort,
+}
+
+impl From<SegBackendArg> for SegBackend {
+    fn from(b: SegBackendArg) -> SegBackend {
+        match b {
+            SegBackendArg::Opencv => SegBackend::Opencv,
+            SegBackendArg::Ort => SegBackend::Ort,
+        }
+    }
+}
+
+/// `segment` flags.
+#[derive(Debug, Args)]
+pub struct SegmentArgs {
+    /// Image to segment.
+    pub image: PathBuf,
+    /// Model description (TOML).
+    #[arg(long, value_name = "MODEL.toml")]
+    pub model: PathBuf,
+    /// Mask output (PNG: hidden 0, kept 255, the image's size).
+    #[arg(short, long, value_name = "MASK.png")]
+    pub output: PathBuf,
+    /// Colour preview of the classes.
+    #[arg(long, value_name = "IMAGE")]
+    pub overlay: Option<PathBuf>,
+    /// Classes to hide, comma-separated (default: the description's `hide` list).
+    #[arg(long, value_name = "NAMES", value_delimiter = ',')]
+    pub classes: Vec<String>,
+    /// Grow the hidden area by this many pixels.
+    #[arg(long, value_name = "PX", default_value_t = 0)]
+    pub dilate: u32,
+    /// Runtime for the network.
+    #[arg(long, value_enum, default_value = "opencv")]
+    pub backend: SegBackendArg,
+    /// Replace existing output files.
+    #[arg(long)]
+    pub force: bool,
+}
+
+impl SegmentArgs {
+    /// Validated settings.
+    pub fn settings(&self) -> MaskSettings {
+        MaskSettings {
+            model: self.model.clone(),
+            classes: self.classes.clone(),
+            dilate: self.dilate,
+            backend: self.backend.into(),
+            overlay: self.overlay.is_some(),
+        }
+    }
 }
 
 /// Export formats.
@@ -488,6 +574,13 @@ impl ExportArgs {
                 FormatArg::Png => Format::Png,
             }),
             quality: self.quality,
+            masks: self.masks.masks.as_ref().map(|model| MaskSettings {
+                model: model.clone(),
+                classes: self.masks.mask_classes.clone(),
+                dilate: self.masks.mask_dilate,
+                backend: self.masks.mask_backend.into(),
+                overlay: self.masks.mask_overlay,
+            }),
         })
     }
 }

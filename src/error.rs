@@ -32,10 +32,12 @@ pub enum Error {
     #[error("invalid value for {name}: {msg}")]
     Param { name: String, msg: String },
 
-    /// A project or workflow file is malformed; `field` is the path of the offending key.
-    #[error("{}: invalid {what} at `{field}`: {msg}", path.display())]
+    /// A project, workflow or model file is malformed; `field` is the path of the offending key
+    /// and `line` its line when known.
+    #[error("{}{}: invalid {what} at `{field}`: {msg}", path.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
     File {
         path: PathBuf,
+        line: Option<usize>,
         what: &'static str,
         field: String,
         msg: String,

@@ -5,6 +5,7 @@
 use crate::error::{CvContext, Error, Result};
 use crate::fsutil;
 use crate::project::Project;
+use crate::segment::{MaskSettings, Segmenter};
 use crate::source::{self, OpenOptions, SourceKind};
 use opencv::core::{Mat, Rect, Size, Vector};
 use opencv::prelude::*;
@@ -14,6 +15,10 @@ use std::path::{Path, PathBuf};
 
 /// Name of the manifest written into every export folder.
 pub const MANIFEST: &str = "manifest.json";
+/// Sub-folder of an export holding the COLMAP masks.
+pub const MASK_DIR: &str = "masks";
+/// Sub-folder of an export holding the overlay previews.
+pub const OVERLAY_DIR: &str = "overlays";
 
 /// How to size the exported images.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -68,6 +73,9 @@ pub struct ExportSettings {
     pub format: Option<Format>,
     /// JPEG quality 1..=100.
     pub quality: u8,
+    /// Segmentation masks written beside the images (`masks/<image name>.png`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub masks: Option<MaskSettings>,
 }
 
 /// One exported image in the manifest.
@@ -79,6 +87,12 @@ pub struct ExportedFrame {
     pub timestamp_s: Option<f64>,
     /// File name inside the export folder.
     pub file: String,
+    /// Mask file (`masks/<file>.png`), when masks were requested.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask: Option<String>,
+    /// Overlay preview (`overlays/<file>`), when requested.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub overlay: Option<String>,
 }
 
 /// The manifest: what was exported from what, with which settings and which tool.
@@ -106,6 +120,9 @@ pub struct Manifest {
     pub frames: Vec<ExportedFrame>,
     /// Keyframes that could not be exported, with the reason.
     pub missing: Vec<MissingFrame>,
+    /// Mean network time per image when masks were made (ms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask_ms_per_image: Option<f64>,
 }
 
 /// A keyframe that could not be exported.
@@ -220,8 +237,16 @@ pub fn export(
     let mut src = source::open(&input, &OpenOptions::default())?;
     let meta = src.metadata().clone();
     let size = output_size(settings, meta.width, meta.height)?;
+    // The model is loaded and checked before anything is written.
+    let mut masker = match &settings.masks {
+        Some(m) => Some(Masker::new(m, out)?),
+        None => None,
+    };
     let old_manifest = read_manifest(&out.join(MANIFEST));
     fsutil::prepare_output_dir(out, force)?;
+    if let Some(m) = &masker {
+        m.create_dirs()?;
+    }
 
     let is_video = meta.kind == SourceKind::Video;
     let transforms = settings.crop.is_some() || settings.resize.is_some();
@@ -261,9 +286,19 @@ pub fn export(
             frames.push(ExportedFrame {
                 index,
                 timestamp_s: timestamps.and_then(|t| t.get(index).copied()),
-                file: name,
+                file: name.clone(),
+                mask: None,
+                overlay: None,
             });
+            if let Some(m) = masker.as_mut() {
+                let img = imgcodecs::imread(&from, imgcodecs::IMREAD_COLOR)
+                    .cv(|| format!("read {}", from.display()))?;
+                m.push(name, img, &mut frames)?;
+            }
             bar.inc(1);
+        }
+        if let Some(m) = masker.as_mut() {
+            m.flush(&mut frames)?;
         }
     } else {
         let format = settings.format.unwrap_or(Format::Jpg);
@@ -303,10 +338,21 @@ pub fn export(
                     .timestamp_s
                     .or_else(|| timestamps.and_then(|t| t.get(frame.index).copied())),
                 file: name.clone(),
+                mask: None,
+                overlay: None,
             });
+            if let Some(m) = masker.as_mut() {
+                m.push(name.clone(), img, &mut frames)?;
+            }
             k += 1;
             bar.inc(1);
             Ok(())
+        })
+        .and_then(|missing| {
+            if let Some(m) = masker.as_mut() {
+                m.flush(&mut frames)?;
+            }
+            Ok(missing)
         });
         let not_read = result.map_err(|e| Error::Output {
             path: out.to_path_buf(),
@@ -342,6 +388,7 @@ pub fn export(
         height: size.1,
         frames,
         missing,
+        mask_ms_per_image: masker.as_ref().and_then(|m| m.seg.ms_per_image()),
     };
     let mut text = serde_json::to_string_pretty(&manifest).map_err(|e| Error::Output {
         path: out.join(MANIFEST),
@@ -380,10 +427,26 @@ fn read_manifest(path: &Path) -> Option<Manifest> {
 /// new export did not write. Files keyframer did not write are left alone.
 fn remove_stale(out: &Path, old: Option<&Manifest>, new: &[ExportedFrame]) {
     let Some(old) = old else { return };
-    for f in &old.frames {
-        let name = Path::new(&f.file);
-        let plain = name.components().count() == 1;
-        if plain && !new.iter().any(|n| n.file == f.file) {
+    let written: Vec<&str> = new
+        .iter()
+        .flat_map(|n| [Some(&n.file), n.mask.as_ref(), n.overlay.as_ref()])
+        .flatten()
+        .map(String::as_str)
+        .collect();
+    let listed = old
+        .frames
+        .iter()
+        .flat_map(|f| [Some(&f.file), f.mask.as_ref(), f.overlay.as_ref()])
+        .flatten();
+    for file in listed {
+        let name = Path::new(file);
+        // Only plain names or names inside our own masks/ and overlays/ folders.
+        let ours = match name.components().count() {
+            1 => true,
+            2 => name.starts_with(MASK_DIR) || name.starts_with(OVERLAY_DIR),
+            _ => false,
+        };
+        if ours && !written.contains(&file.as_str()) {
             let p = out.join(name);
             match std::fs::remove_file(&p) {
                 Ok(()) => log::info!("removed {} from the earlier export", p.display()),
@@ -391,5 +454,79 @@ fn remove_stale(out: &Path, old: Option<&Manifest>, new: &[ExportedFrame]) {
                 Err(e) => log::warn!("{}: cannot remove stale export: {e}", p.display()),
             }
         }
+    }
+}
+
+/// Collects exported images into batches for the segmentation network and writes their masks
+/// (and overlays) as each batch completes.
+struct Masker {
+    seg: Segmenter,
+    overlay: bool,
+    out: PathBuf,
+    pending: Vec<(String, Mat)>,
+}
+
+impl Masker {
+    fn new(settings: &MaskSettings, out: &Path) -> Result<Masker> {
+        let seg = Segmenter::new(settings)?;
+        Ok(Masker {
+            seg,
+            overlay: settings.overlay,
+            out: out.to_path_buf(),
+            pending: Vec::new(),
+        })
+    }
+
+    fn create_dirs(&self) -> Result<()> {
+        let mut dirs = vec![self.out.join(MASK_DIR)];
+        if self.overlay {
+            dirs.push(self.out.join(OVERLAY_DIR));
+        }
+        for d in dirs {
+            std::fs::create_dir_all(&d).map_err(|e| Error::io(&d, e))?;
+        }
+        Ok(())
+    }
+
+    /// Queues one exported image (`name` in the export folder); runs a batch when full.
+    fn push(&mut self, name: String, image: Mat, frames: &mut [ExportedFrame]) -> Result<()> {
+        self.pending.push((name, image));
+        if self.pending.len() >= self.seg.batch() {
+            self.flush(frames)?;
+        }
+        Ok(())
+    }
+
+    /// Segments the queued images and writes their masks, recording them in `frames`.
+    fn flush(&mut self, frames: &mut [ExportedFrame]) -> Result<()> {
+        if self.pending.is_empty() {
+            return Ok(());
+        }
+        let pending = std::mem::take(&mut self.pending);
+        let images: Vec<Mat> = pending.iter().map(|(_, m)| m.clone()).collect();
+        let maps = self.seg.classify(&images)?;
+        for ((name, image), map) in pending.iter().zip(&maps) {
+            let size = (image.cols() as u32, image.rows() as u32);
+            let mask = self.seg.mask(map, size)?;
+            let mask_name = crate::segment::write_mask(&self.out.join(MASK_DIR), name, &mask)?;
+            let overlay = if self.overlay {
+                let o = self.seg.overlay(image, map)?;
+                let fmt = if name.ends_with(".png") {
+                    Format::Png
+                } else {
+                    Format::Jpg
+                };
+                let bytes = encode(&o, fmt, 90)?;
+                fsutil::write_atomic(&self.out.join(OVERLAY_DIR).join(name), &bytes)?;
+                Some(format!("{OVERLAY_DIR}/{name}"))
+            } else {
+                None
+            };
+            if let Some(f) = frames.iter_mut().rev().find(|f| &f.file == name) {
+                f.mask = Some(format!("{MASK_DIR}/{mask_name}"));
+                f.overlay = overlay;
+            }
+        }
+        Ok(())
     }
 }

@@ -15,8 +15,10 @@ pub mod kernels;
 pub mod progress;
 pub mod project;
 pub mod samplers;
+pub mod segment;
 pub mod select;
 pub mod source;
 pub mod synthetic;
+pub mod tomlfile;
 
 pub use error::{Error, Result};

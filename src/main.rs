@@ -51,7 +51,7 @@ fn quiet_native_logs() {
     // Runs first thing in main, before any other thread exists.
     for (var, value) in [
         ("OPENCV_FFMPEG_LOGLEVEL", "-8"),
-        ("OPENCV_LOG_LEVEL", "ERROR"),
+        ("OPENCV_LOG_LEVEL", "FATAL"),
     ] {
         if std::env::var_os(var).is_none() {
             std::env::set_var(var, value);
@@ -136,6 +136,7 @@ fn run(cli: Cli) -> Result<Outcome> {
                 Outcome::Partial
             })
         }
+        Command::Segment(a) => segment(&a),
         Command::Export(a) => {
             let settings = a.settings()?;
             let r = export::export(&a.project, &a.out, &settings, a.force, quiet)?;
@@ -147,6 +148,14 @@ fn run(cli: Cli) -> Result<Outcome> {
                 m.height,
                 a.out.display()
             );
+            if let (Some(ms), Some(s)) = (m.mask_ms_per_image, &m.settings.masks) {
+                eprintln!(
+                    "masks: {} under {}/ ({:?} backend, {ms:.1} ms per image for the network)",
+                    m.frames.iter().filter(|f| f.mask.is_some()).count(),
+                    export::MASK_DIR,
+                    s.backend
+                );
+            }
             if m.missing.is_empty() {
                 Ok(Outcome::Ok)
             } else {
@@ -157,6 +166,51 @@ fn run(cli: Cli) -> Result<Outcome> {
             }
         }
     }
+}
+
+fn segment(a: &keyframer::cli::SegmentArgs) -> Result<Outcome> {
+    use keyframer::segment::Segmenter;
+    use keyframer::{fsutil, Error};
+    use opencv::imgcodecs;
+    use opencv::prelude::*;
+    let settings = a.settings();
+    fsutil::check_overwrite(&a.output, a.force)?;
+    if let Some(o) = &a.overlay {
+        fsutil::check_overwrite(o, a.force)?;
+    }
+    let mut seg = Segmenter::new(&settings)?;
+    let image = imgcodecs::imread(&a.image, imgcodecs::IMREAD_COLOR)
+        .map_err(|e| Error::input(&a.image, e.message))?;
+    if image.empty() {
+        return Err(Error::input(&a.image, "not a readable image").into());
+    }
+    let maps = seg.classify(std::slice::from_ref(&image))?;
+    let size = (image.cols() as u32, image.rows() as u32);
+    let mask = seg.mask(&maps[0], size)?;
+    let bytes = export::encode(&mask, export::Format::Png, 100)?;
+    fsutil::write_atomic(&a.output, &bytes)?;
+    if let Some(o) = &a.overlay {
+        let ov = seg.overlay(&image, &maps[0])?;
+        let png = o.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+        let fmt = if png {
+            export::Format::Png
+        } else {
+            export::Format::Jpg
+        };
+        fsutil::write_atomic(o, &export::encode(&ov, fmt, 90)?)?;
+    }
+    let hidden =
+        opencv::core::count_non_zero(&mask).map_err(|e| Error::input(&a.output, e.message))?;
+    let total = size.0 as f64 * size.1 as f64;
+    eprintln!(
+        "{}: {:.1}% hidden, network {:.1} ms ({:?}) -> {}",
+        a.image.display(),
+        100.0 * (1.0 - hidden as f64 / total),
+        seg.ms_per_image().unwrap_or(0.0),
+        settings.backend,
+        a.output.display()
+    );
+    Ok(Outcome::Ok)
 }
 
 fn probe(a: &keyframer::cli::ProbeArgs, quiet: bool) -> Result<Outcome> {

@@ -158,6 +158,7 @@ impl Project {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let bad = |field: String, msg: String| Error::File {
             path: path.to_path_buf(),
+            line: None,
             what: "project file",
             field,
             msg,
@@ -254,6 +255,7 @@ impl Project {
         fsutil::check_overwrite(path, force)?;
         let mut text = serde_json::to_string_pretty(self).map_err(|e| Error::File {
             path: path.to_path_buf(),
+            line: None,
             what: "project file",
             field: String::new(),
             msg: e.to_string(),

@@ -5,4 +5,6 @@ mod common;
 mod flow;
 mod foundation;
 mod movement;
+mod onnx_model;
+mod segment;
 mod sharpness;

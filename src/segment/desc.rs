@@ -1,0 +1,362 @@
+//! Model description files (TOML): which network, how to feed it, how to read its output and what
+//! its classes are called. Loading checks everything that can be checked without the model.
+
+use crate::error::{Error, Result};
+use crate::tomlfile;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// Network file format, as OpenCV DNN names it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Framework {
+    /// ONNX (the only format ONNX Runtime reads).
+    Onnx,
+    /// Torch7 `.net` / `.t7`.
+    Torch,
+    /// Caffe `.caffemodel` with a `.prototxt` config.
+    Caffe,
+    /// TensorFlow frozen `.pb`, optional `.pbtxt` config.
+    Tensorflow,
+    /// Darknet `.weights` with a `.cfg` config.
+    Darknet,
+}
+
+impl Framework {
+    /// The name OpenCV's `readNet` expects.
+    pub fn opencv_name(self) -> &'static str {
+        match self {
+            Framework::Onnx => "onnx",
+            Framework::Torch => "torch",
+            Framework::Caffe => "caffe",
+            Framework::Tensorflow => "tensorflow",
+            Framework::Darknet => "darknet",
+        }
+    }
+}
+
+/// Memory order of a 4-D image tensor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Layout {
+    /// Batch, channels, rows, columns.
+    #[default]
+    Nchw,
+    /// Batch, rows, columns, channels.
+    Nhwc,
+}
+
+/// Channel order the network expects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ChannelOrder {
+    /// Red first.
+    #[default]
+    Rgb,
+    /// Blue first (OpenCV's own order).
+    Bgr,
+}
+
+/// What the network's output means.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OutputKind {
+    /// One score channel per class; the class of a pixel is the argmax.
+    Scores,
+    /// One channel with the probability of the last class; pixels at or above `threshold` get the
+    /// last class, the others the first.
+    Probability,
+}
+
+/// `[input]` table.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputDesc {
+    /// Tensor name; the model's first input when absent.
+    pub name: Option<String>,
+    /// Width the image is resized to.
+    pub width: u32,
+    /// Height the image is resized to.
+    pub height: u32,
+    /// Tensor layout.
+    #[serde(default)]
+    pub layout: Layout,
+    /// Channel order.
+    #[serde(default)]
+    pub channels: ChannelOrder,
+    /// Each 8-bit value is multiplied by this first (e.g. 1/255).
+    #[serde(default = "one")]
+    pub scale: f32,
+    /// Subtracted after scaling, per channel in the model's order.
+    #[serde(default = "zeros")]
+    pub mean: [f32; 3],
+    /// Divides after the mean, per channel in the model's order.
+    #[serde(default = "ones")]
+    pub std: [f32; 3],
+    /// Most images per inference call; 1 for models with a fixed batch dimension.
+    #[serde(default = "one_usize")]
+    pub batch: usize,
+}
+
+/// `[output]` table.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputDesc {
+    /// Tensor name; the model's first output when absent.
+    pub name: Option<String>,
+    /// Meaning of the values.
+    pub kind: OutputKind,
+    /// Layout of a 4-D output; the input's when absent.
+    pub layout: Option<Layout>,
+    /// Probability threshold for `kind = "probability"`.
+    #[serde(default = "half")]
+    pub threshold: f32,
+}
+
+fn one() -> f32 {
+    1.0
+}
+fn one_usize() -> usize {
+    1
+}
+fn half() -> f32 {
+    0.5
+}
+fn zeros() -> [f32; 3] {
+    [0.0; 3]
+}
+fn ones() -> [f32; 3] {
+    [1.0; 3]
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDesc {
+    model: PathBuf,
+    framework: Framework,
+    config: Option<PathBuf>,
+    classes: Option<Vec<String>>,
+    classes_file: Option<PathBuf>,
+    colors: Option<Vec<[u8; 3]>>,
+    colors_file: Option<PathBuf>,
+    hide: Option<Vec<String>>,
+    input: InputDesc,
+    output: OutputDesc,
+}
+
+/// A loaded, checked model description; paths are resolved against the description's folder.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelDesc {
+    /// The description file itself.
+    pub path: PathBuf,
+    /// Network weights.
+    pub model: PathBuf,
+    /// Network file format.
+    pub framework: Framework,
+    /// Second file some formats need.
+    pub config: Option<PathBuf>,
+    /// Class names in output order.
+    pub classes: Vec<String>,
+    /// Overlay colour (R, G, B) per class.
+    pub colors: Vec<[u8; 3]>,
+    /// Classes hidden when the user names none.
+    pub hide: Vec<String>,
+    /// How to feed the network.
+    pub input: InputDesc,
+    /// How to read its output.
+    pub output: OutputDesc,
+}
+
+impl ModelDesc {
+    /// Reads and checks a description file.
+    pub fn load(path: &Path) -> Result<ModelDesc> {
+        let file = tomlfile::read::<RawDesc>(path, "model description")?;
+        let raw = &file.value;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let resolve = |p: &Path| dir.join(p);
+
+        let model = resolve(&raw.model);
+        if !model.is_file() {
+            return Err(file.error(
+                "model",
+                format!("{} does not exist or is not a file", model.display()),
+            ));
+        }
+        let config = raw.config.as_deref().map(resolve);
+        if let Some(c) = &config {
+            if !c.is_file() {
+                return Err(file.error(
+                    "config",
+                    format!("{} does not exist or is not a file", c.display()),
+                ));
+            }
+        }
+        let classes =
+            match (&raw.classes, &raw.classes_file) {
+                (Some(c), None) => c.clone(),
+                (None, Some(f)) => read_lines(&resolve(f))?,
+                _ => return Err(file.error(
+                    "classes",
+                    "give exactly one of `classes` (a list) or `classes_file` (one name per line)",
+                )),
+            };
+        if classes.is_empty() {
+            return Err(file.error("classes", "no class names"));
+        }
+        if raw.output.kind == OutputKind::Probability && classes.len() != 2 {
+            return Err(file.error(
+                "classes",
+                format!(
+                    "a probability output needs exactly two classes (below, at or above the threshold), got {}",
+                    classes.len()
+                ),
+            ));
+        }
+        for (i, c) in classes.iter().enumerate() {
+            if classes[..i].iter().any(|d| d.eq_ignore_ascii_case(c)) {
+                return Err(file.error("classes", format!("`{c}` is listed twice")));
+            }
+        }
+        let colors = match (&raw.colors, &raw.colors_file) {
+            (Some(c), None) => c.clone(),
+            (None, Some(f)) => read_colors(&resolve(f))?,
+            (None, None) => default_colors(classes.len()),
+            _ => return Err(file.error("colors", "give at most one of `colors` and `colors_file`")),
+        };
+        if colors.len() != classes.len() {
+            return Err(file.error(
+                "colors",
+                format!("{} colours for {} classes", colors.len(), classes.len()),
+            ));
+        }
+        let hide = raw.hide.clone().unwrap_or_default();
+        for (k, h) in hide.iter().enumerate() {
+            if !classes.iter().any(|c| c.eq_ignore_ascii_case(h)) {
+                return Err(file.error(
+                    &format!("hide[{k}]"),
+                    format!("`{h}` is not one of the classes ({})", classes.join(", ")),
+                ));
+            }
+        }
+        let i = &raw.input;
+        if i.width == 0 || i.height == 0 || i.width > 16384 || i.height > 16384 {
+            return Err(file.error("input.width", "width and height must be 1..=16384"));
+        }
+        if !(i.scale.is_finite() && i.scale != 0.0) {
+            return Err(file.error("input.scale", "must be a finite, non-zero number"));
+        }
+        if i.std.iter().any(|s| !(s.is_finite() && *s != 0.0)) {
+            return Err(file.error("input.std", "every value must be finite and non-zero"));
+        }
+        if i.batch == 0 || i.batch > 256 {
+            return Err(file.error("input.batch", "must be 1..=256"));
+        }
+        if !(0.0..=1.0).contains(&raw.output.threshold) {
+            return Err(file.error("output.threshold", "must be between 0 and 1"));
+        }
+        Ok(ModelDesc {
+            path: path.to_path_buf(),
+            model,
+            framework: raw.framework,
+            config,
+            classes,
+            colors,
+            hide,
+            input: raw.input.clone(),
+            output: raw.output.clone(),
+        })
+    }
+
+    /// Layout of the output tensor.
+    pub fn output_layout(&self) -> Layout {
+        self.output.layout.unwrap_or(self.input.layout)
+    }
+
+    /// Number of channels the output must have.
+    pub fn output_channels(&self) -> usize {
+        match self.output.kind {
+            OutputKind::Scores => self.classes.len(),
+            OutputKind::Probability => 1,
+        }
+    }
+
+    /// Class indices for the given names (case-insensitive); an unknown name is an error that
+    /// lists the known ones.
+    pub fn class_ids(&self, names: &[String]) -> Result<Vec<usize>> {
+        let names = if names.is_empty() {
+            &self.hide[..]
+        } else {
+            names
+        };
+        if names.is_empty() {
+            return Err(Error::param(
+                "--mask-classes",
+                format!(
+                    "name the classes to hide ({} has no `hide` list); classes: {}",
+                    self.path.display(),
+                    self.classes.join(", ")
+                ),
+            ));
+        }
+        names
+            .iter()
+            .map(|n| {
+                self.classes
+                    .iter()
+                    .position(|c| c.eq_ignore_ascii_case(n.trim()))
+                    .ok_or_else(|| {
+                        Error::param(
+                            "--mask-classes",
+                            format!(
+                                "`{n}` is not a class of {} (classes: {})",
+                                self.path.display(),
+                                self.classes.join(", ")
+                            ),
+                        )
+                    })
+            })
+            .collect()
+    }
+}
+
+fn read_lines(path: &Path) -> Result<Vec<String>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    Ok(text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .map(String::from)
+        .collect())
+}
+
+fn read_colors(path: &Path) -> Result<Vec<[u8; 3]>> {
+    read_lines(path)?
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            let v: Vec<u8> = l
+                .split([',', ' ', '\t'])
+                .filter(|s| !s.is_empty())
+                .map(|s| s.parse::<u8>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|e| Error::input(path, format!("line {}: {e}", i + 1)))?;
+            match v[..] {
+                [r, g, b] => Ok([r, g, b]),
+                _ => Err(Error::input(
+                    path,
+                    format!("line {}: expected R,G,B, got `{l}`", i + 1),
+                )),
+            }
+        })
+        .collect()
+}
+
+/// Distinct, stable colours for classes without a colour table.
+fn default_colors(n: usize) -> Vec<[u8; 3]> {
+    (0..n)
+        .map(|i| {
+            let h = (i as u32).wrapping_mul(2_654_435_761);
+            [(h >> 8) as u8, (h >> 16) as u8, (h >> 24) as u8]
+        })
+        .collect()
+}

@@ -1,0 +1,164 @@
+//! Reads TOML files (workflows, model descriptions) so that every error names the file, the line
+//! and the key: syntax and type errors from the parser, and semantic errors found afterwards.
+
+use crate::error::{Error, Result};
+use serde::de::DeserializeOwned;
+use std::path::{Path, PathBuf};
+
+/// A parsed TOML file that can still point at its own lines.
+pub struct TomlFile<T> {
+    /// The deserialized value.
+    pub value: T,
+    path: PathBuf,
+    what: &'static str,
+    doc: Option<toml_edit::ImDocument<String>>,
+    text: String,
+}
+
+/// Reads and deserializes `path`; `what` names the kind of file in errors ("workflow").
+pub fn read<T: DeserializeOwned>(path: &Path, what: &'static str) -> Result<TomlFile<T>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse(path, what, text)
+}
+
+/// Deserializes `text` as if read from `path`.
+pub fn parse<T: DeserializeOwned>(
+    path: &Path,
+    what: &'static str,
+    text: String,
+) -> Result<TomlFile<T>> {
+    let de = toml::Deserializer::new(&text);
+    let value: T = serde_path_to_error::deserialize(de).map_err(|e| {
+        let field = e.path().to_string();
+        let inner = e.into_inner();
+        let line = inner.span().map(|s| line_of(&text, s.start));
+        Error::File {
+            path: path.to_path_buf(),
+            line,
+            what,
+            field: if field == "." { String::new() } else { field },
+            msg: inner.message().trim().to_string(),
+        }
+    })?;
+    let doc = toml_edit::ImDocument::parse(text.clone()).ok();
+    Ok(TomlFile {
+        value,
+        path: path.to_path_buf(),
+        what,
+        doc,
+        text,
+    })
+}
+
+impl<T> TomlFile<T> {
+    /// The file's path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// An error about the key at `field` (dotted, with `[i]` for array elements, e.g.
+    /// `sample[2].fps`), pointing at its line when the key is present in the file.
+    pub fn error(&self, field: &str, msg: impl Into<String>) -> Error {
+        Error::File {
+            path: self.path.clone(),
+            line: self.line_of_key(field),
+            what: self.what,
+            field: field.to_string(),
+            msg: msg.into(),
+        }
+    }
+
+    /// Line (1-based) of the key at `field`, or of its nearest present parent.
+    pub fn line_of_key(&self, field: &str) -> Option<usize> {
+        let doc = self.doc.as_ref()?;
+        let mut item: &toml_edit::Item = doc.as_item();
+        let mut best = None;
+        for seg in split_path(field) {
+            let next = match seg {
+                Seg::Key(k) => item.get(k),
+                Seg::Index(i) => item.get(i),
+            };
+            let Some(next) = next else { break };
+            item = next;
+            if let Some(span) = item.span() {
+                best = Some(line_of(&self.text, span.start));
+            }
+        }
+        best
+    }
+}
+
+enum Seg<'a> {
+    Key(&'a str),
+    Index(usize),
+}
+
+fn split_path(field: &str) -> Vec<Seg<'_>> {
+    let mut out = Vec::new();
+    for part in field.split('.').filter(|p| !p.is_empty()) {
+        let (key, rest) = part.split_once('[').unwrap_or((part, ""));
+        if !key.is_empty() {
+            out.push(Seg::Key(key));
+        }
+        for idx in rest.split('[') {
+            if let Ok(i) = idx.trim_end_matches(']').parse::<usize>() {
+                out.push(Seg::Index(i));
+            }
+        }
+    }
+    out
+}
+
+fn line_of(text: &str, offset: usize) -> usize {
+    text.as_bytes()[..offset.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    struct Doc {
+        #[allow(dead_code)]
+        a: u32,
+        #[allow(dead_code)]
+        b: Vec<Inner>,
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    struct Inner {
+        #[allow(dead_code)]
+        x: f64,
+    }
+
+    #[test]
+    fn errors_name_line_and_key() {
+        let p = Path::new("w.toml");
+        let text = "a = 1\n\n[[b]]\nx = 1.0\n[[b]]\nx = \"no\"\n";
+        let e = parse::<Doc>(p, "workflow", text.into())
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(
+            e.starts_with("w.toml:6: invalid workflow at `b[1].x`"),
+            "{e}"
+        );
+
+        let ok = parse::<Doc>(
+            p,
+            "workflow",
+            "a = 1\n[[b]]\nx = 2.0\n[[b]]\nx = 3.0\n".into(),
+        )
+        .map_err(|e| e.to_string())
+        .unwrap();
+        assert_eq!(ok.line_of_key("b[1].x"), Some(5));
+        assert_eq!(ok.line_of_key("a"), Some(1));
+        let e = ok.error("b[0].x", "too small").to_string();
+        assert_eq!(e, "w.toml:3: invalid workflow at `b[0].x`: too small");
+    }
+}
