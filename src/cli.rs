@@ -49,6 +49,11 @@ pub enum Command {
     Export(ExportArgs),
     /// Segment one image with a model description: mask (and overlay) for trying a model.
     Segment(SegmentArgs),
+    /// Apply a workflow file to many inputs (one folder each; finished inputs are skipped).
+    Run(RunArgs),
+    /// Workflow files: save the steps that produced a project.
+    #[command(subcommand)]
+    Workflow(WorkflowCommand),
     /// Per-frame sharpness scores of a video, image folder or image.
     Score(ScoreArgs),
     /// Dense Farneback flow between two images, written as a Middlebury .flo file.
@@ -491,6 +496,84 @@ impl SegmentArgs {
             overlay: self.overlay.is_some(),
         }
     }
+}
+
+/// `run` flags.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Workflow file (TOML).
+    pub workflow: PathBuf,
+    /// Videos, image folders or images.
+    #[arg(required_unless_present = "inputs_from")]
+    pub inputs: Vec<PathBuf>,
+    /// Also read inputs from this file, one path per line (blank lines and # comments ignored).
+    #[arg(long, value_name = "FILE")]
+    pub inputs_from: Option<PathBuf>,
+    /// Output folder: one sub-folder per input (project.json, one folder per export, done.json).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Redo inputs that are already done.
+    #[arg(long)]
+    pub force: bool,
+    /// Inputs processed at the same time.
+    #[arg(long, short = 'j', default_value_t = 1)]
+    pub jobs: usize,
+    /// Handle only shard I of N (0-based): inputs at positions i mod N == I of the list sorted by
+    /// path. For Slurm job arrays: --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT.
+    #[arg(long, value_name = "I/N")]
+    pub shard: Option<crate::batch::Shard>,
+    /// Print the summary as JSON on stdout (the table goes to stderr either way).
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl RunArgs {
+    /// The inputs from the command line and --inputs-from, in order.
+    pub fn all_inputs(&self) -> Result<Vec<PathBuf>> {
+        let mut v = self.inputs.clone();
+        if let Some(f) = &self.inputs_from {
+            let text = std::fs::read_to_string(f).map_err(|e| Error::io(f, e))?;
+            v.extend(
+                text.lines()
+                    .map(str::trim)
+                    .filter(|l| !l.is_empty() && !l.starts_with('#'))
+                    .map(PathBuf::from),
+            );
+        }
+        Ok(v)
+    }
+}
+
+/// `workflow` subcommands.
+#[derive(Debug, Subcommand)]
+pub enum WorkflowCommand {
+    /// Write the workflow that reproduces a project's selection (and the given exports).
+    Save(WorkflowSaveArgs),
+    /// Check a workflow file without running it.
+    Check(WorkflowCheckArgs),
+}
+
+/// `workflow save` flags.
+#[derive(Debug, Args)]
+pub struct WorkflowSaveArgs {
+    /// Project file.
+    pub project: PathBuf,
+    /// Workflow file to write.
+    #[arg(short, long, value_name = "WORKFLOW.toml")]
+    pub output: PathBuf,
+    /// Export folders of this project whose settings become `[[export]]` steps.
+    #[arg(long, value_name = "DIR")]
+    pub export: Vec<PathBuf>,
+    /// Replace an existing file.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// `workflow check` flags.
+#[derive(Debug, Args)]
+pub struct WorkflowCheckArgs {
+    /// Workflow file.
+    pub workflow: PathBuf,
 }
 
 /// Export formats.

@@ -54,7 +54,8 @@ pub enum Format {
 }
 
 impl Format {
-    fn ext(self) -> &'static str {
+    /// File extension.
+    pub fn ext(self) -> &'static str {
         match self {
             Format::Jpg => "jpg",
             Format::Png => "png",
@@ -418,7 +419,8 @@ pub fn check_fingerprint(project: &Project, input: &Path) -> Result<()> {
     Ok(())
 }
 
-fn read_manifest(path: &Path) -> Option<Manifest> {
+/// Reads an export's manifest, if present and readable.
+pub fn read_manifest(path: &Path) -> Option<Manifest> {
     let text = std::fs::read_to_string(path).ok()?;
     serde_json::from_str(&text).ok()
 }

@@ -3,6 +3,7 @@
 //! implementation; OpenCV decodes, and exports.
 
 pub mod analysis;
+pub mod batch;
 pub mod bench;
 pub mod cli;
 pub mod error;
@@ -20,5 +21,6 @@ pub mod select;
 pub mod source;
 pub mod synthetic;
 pub mod tomlfile;
+pub mod workflow;
 
 pub use error::{Error, Result};

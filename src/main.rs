@@ -137,6 +137,52 @@ fn run(cli: Cli) -> Result<Outcome> {
             })
         }
         Command::Segment(a) => segment(&a),
+        Command::Run(a) => {
+            let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
+            let settings = keyframer::batch::RunSettings {
+                inputs: a.all_inputs()?,
+                out: a.out.clone(),
+                force: a.force,
+                jobs: a.jobs,
+                shard: a.shard,
+                quiet,
+            };
+            let reports = keyframer::batch::run(&wf, &settings)?;
+            eprint!("{}", keyframer::batch::table(&reports));
+            if a.json {
+                println!("{}", serde_json::to_string_pretty(&reports)?);
+            }
+            use keyframer::batch::Status;
+            Ok(
+                if reports
+                    .iter()
+                    .all(|r| matches!(r.status, Status::Done | Status::Skipped))
+                {
+                    Outcome::Ok
+                } else {
+                    Outcome::Partial
+                },
+            )
+        }
+        Command::Workflow(keyframer::cli::WorkflowCommand::Save(a)) => {
+            let text = keyframer::workflow::from_project(&a.project, &a.export)?;
+            keyframer::fsutil::check_overwrite(&a.output, a.force)?;
+            keyframer::fsutil::write_atomic(&a.output, text.as_bytes())?;
+            // What was written must load again.
+            keyframer::workflow::Workflow::load(&a.output)?;
+            eprintln!("workflow -> {}", a.output.display());
+            Ok(Outcome::Ok)
+        }
+        Command::Workflow(keyframer::cli::WorkflowCommand::Check(a)) => {
+            let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
+            eprintln!(
+                "{}: ok ({} sampler steps, {} exports)",
+                a.workflow.display(),
+                wf.file.sample.len(),
+                wf.exports()
+            );
+            Ok(Outcome::Ok)
+        }
         Command::Export(a) => {
             let settings = a.settings()?;
             let r = export::export(&a.project, &a.out, &settings, a.force, quiet)?;

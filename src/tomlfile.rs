@@ -27,20 +27,25 @@ pub fn parse<T: DeserializeOwned>(
     what: &'static str,
     text: String,
 ) -> Result<TomlFile<T>> {
+    let doc = toml_edit::ImDocument::parse(text.clone()).ok();
     let de = toml::Deserializer::new(&text);
     let value: T = serde_path_to_error::deserialize(de).map_err(|e| {
         let field = e.path().to_string();
         let inner = e.into_inner();
-        let line = inner.span().map(|s| line_of(&text, s.start));
+        let field = if field == "." { String::new() } else { field };
+        // Errors inside internally tagged tables carry no span: use the key's own line.
+        let line = inner
+            .span()
+            .map(|s| line_of(&text, s.start))
+            .or_else(|| doc.as_ref().and_then(|d| key_line(d, &text, &field)));
         Error::File {
             path: path.to_path_buf(),
             line,
             what,
-            field: if field == "." { String::new() } else { field },
+            field,
             msg: inner.message().trim().to_string(),
         }
     })?;
-    let doc = toml_edit::ImDocument::parse(text.clone()).ok();
     Ok(TomlFile {
         value,
         path: path.to_path_buf(),
@@ -70,22 +75,25 @@ impl<T> TomlFile<T> {
 
     /// Line (1-based) of the key at `field`, or of its nearest present parent.
     pub fn line_of_key(&self, field: &str) -> Option<usize> {
-        let doc = self.doc.as_ref()?;
-        let mut item: &toml_edit::Item = doc.as_item();
-        let mut best = None;
-        for seg in split_path(field) {
-            let next = match seg {
-                Seg::Key(k) => item.get(k),
-                Seg::Index(i) => item.get(i),
-            };
-            let Some(next) = next else { break };
-            item = next;
-            if let Some(span) = item.span() {
-                best = Some(line_of(&self.text, span.start));
-            }
-        }
-        best
+        key_line(self.doc.as_ref()?, &self.text, field)
     }
+}
+
+fn key_line(doc: &toml_edit::ImDocument<String>, text: &str, field: &str) -> Option<usize> {
+    let mut item: &toml_edit::Item = doc.as_item();
+    let mut best = None;
+    for seg in split_path(field) {
+        let next = match seg {
+            Seg::Key(k) => item.get(k),
+            Seg::Index(i) => item.get(i),
+        };
+        let Some(next) = next else { break };
+        item = next;
+        if let Some(span) = item.span() {
+            best = Some(line_of(text, span.start));
+        }
+    }
+    best
 }
 
 enum Seg<'a> {

@@ -26,6 +26,16 @@ pub enum Statistic {
 }
 
 impl Statistic {
+    /// The `--movement` flag value and `--trim` for this statistic.
+    pub fn to_flag(self) -> (&'static str, Option<f64>) {
+        match self {
+            Statistic::Median => ("median", None),
+            Statistic::TrimmedMean { trim } => ("trimmed-mean", Some(trim)),
+        }
+    }
+}
+
+impl Statistic {
     /// Checks the trim fraction.
     pub fn validate(&self) -> Result<()> {
         if let Statistic::TrimmedMean { trim } = self {

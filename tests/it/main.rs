@@ -1,5 +1,6 @@
 //! Integration tests: one binary, one module per capability.
 
+mod batch;
 mod blur;
 mod common;
 mod flow;

@@ -1,0 +1,382 @@
+//! `keyframer run`: applies a workflow to many inputs, one output folder each, a bounded number at
+//! a time; a failing input is reported and the rest go on; finished inputs (a `done.json` written
+//! last, matching workflow and input) are skipped, so a re-run after a crash finishes the job.
+
+use crate::error::{Error, Result};
+use crate::workflow::Workflow;
+use crate::{export, fsutil, select};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// File written last into an input's folder when every step of the workflow succeeded.
+pub const DONE: &str = "done.json";
+/// Marks a folder as made by `keyframer run` (so a re-run may replace its partial content).
+pub const MARKER: &str = ".keyframer-run";
+
+/// Which part of a batch this process handles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    /// 0-based index.
+    pub index: usize,
+    /// Number of shards.
+    pub count: usize,
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+    /// `I/N` with 0 <= I < N.
+    fn from_str(s: &str) -> std::result::Result<Shard, String> {
+        let bad = || format!("`{s}` is not I/N with 0 <= I < N (e.g. 0/3)");
+        let (i, n) = s.split_once('/').ok_or_else(bad)?;
+        let index: usize = i.trim().parse().map_err(|_| bad())?;
+        let count: usize = n.trim().parse().map_err(|_| bad())?;
+        if count == 0 || index >= count {
+            return Err(bad());
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+/// Settings of a batch run.
+#[derive(Debug, Clone)]
+pub struct RunSettings {
+    /// Inputs in the order given.
+    pub inputs: Vec<PathBuf>,
+    /// Folder receiving one sub-folder per input.
+    pub out: PathBuf,
+    /// Redo finished inputs.
+    pub force: bool,
+    /// Inputs processed at the same time.
+    pub jobs: usize,
+    /// This process's share of the inputs.
+    pub shard: Option<Shard>,
+    /// No per-step progress.
+    pub quiet: bool,
+}
+
+/// What happened to one input.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Status {
+    /// Processed now.
+    Done,
+    /// Already finished by an earlier run with the same workflow and input.
+    Skipped,
+    /// Processed, but some frames could not be decoded or exported.
+    Partial,
+    /// Failed; see `error`.
+    Failed,
+}
+
+/// One line of the summary.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InputReport {
+    /// The input as given.
+    pub input: PathBuf,
+    /// Its output folder.
+    pub folder: PathBuf,
+    /// Outcome.
+    pub status: Status,
+    /// Number of keyframes selected.
+    pub keyframes: Option<usize>,
+    /// Images written per export, in workflow order.
+    pub exported: Vec<usize>,
+    /// Wall time in seconds.
+    pub seconds: f64,
+    /// Problem, for failed and partial inputs.
+    pub error: Option<String>,
+}
+
+/// Contents of `done.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Done {
+    workflow_hash: String,
+    input: PathBuf,
+    fingerprint: fsutil::Fingerprint,
+    report: InputReport,
+}
+
+/// Stable sub-folder names: the input's file name, with `-2`, `-3`... for repeats.
+pub fn folder_names(inputs: &[PathBuf]) -> Vec<String> {
+    let mut names: Vec<String> = Vec::new();
+    for p in inputs {
+        let base = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "input".into());
+        let mut name = base.clone();
+        let mut k = 2;
+        while names.contains(&name) {
+            name = format!("{base}-{k}");
+            k += 1;
+        }
+        names.push(name);
+    }
+    names
+}
+
+/// The inputs of `shard`: positions i with i mod N == I in the list sorted by path, so every
+/// process given the same list agrees on the split whatever order the list came in.
+pub fn shard_of(inputs: &[PathBuf], shard: Option<Shard>) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..inputs.len()).collect();
+    order.sort_by(|&a, &b| inputs[a].cmp(&inputs[b]));
+    let mut mine: Vec<usize> = order
+        .into_iter()
+        .enumerate()
+        .filter(|(pos, _)| shard.is_none_or(|s| pos % s.count == s.index))
+        .map(|(_, i)| i)
+        .collect();
+    mine.sort_unstable();
+    mine
+}
+
+/// Runs the workflow over the inputs; returns one report per handled input, in input order.
+pub fn run(workflow: &Workflow, s: &RunSettings) -> Result<Vec<InputReport>> {
+    if s.inputs.is_empty() {
+        return Err(Error::param("INPUT", "give at least one input"));
+    }
+    if s.jobs == 0 {
+        return Err(Error::param("--jobs", "must be at least 1"));
+    }
+    let mut sorted = s.inputs.clone();
+    sorted.sort();
+    sorted.dedup();
+    if sorted.len() != s.inputs.len() {
+        return Err(Error::param("INPUT", "an input is listed twice"));
+    }
+    std::fs::create_dir_all(&s.out).map_err(|e| Error::io(&s.out, e))?;
+    let names = folder_names(&s.inputs);
+    let mine = shard_of(&s.inputs, s.shard);
+    let total = mine.len();
+    let next = AtomicUsize::new(0);
+    let finished = AtomicUsize::new(0);
+    let reports: Mutex<Vec<(usize, InputReport)>> = Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..s.jobs.min(total.max(1)) {
+            scope.spawn(|| loop {
+                let k = next.fetch_add(1, Ordering::SeqCst);
+                let Some(&i) = mine.get(k) else { break };
+                let folder = s.out.join(&names[i]);
+                let r = run_one(workflow, &s.inputs[i], &folder, s);
+                let n = finished.fetch_add(1, Ordering::SeqCst) + 1;
+                log_line(n, total, &r);
+                if let Ok(mut v) = reports.lock() {
+                    v.push((i, r));
+                }
+            });
+        }
+    });
+    let mut v = reports.into_inner().unwrap_or_default();
+    v.sort_by_key(|(i, _)| *i);
+    Ok(v.into_iter().map(|(_, r)| r).collect())
+}
+
+fn log_line(n: usize, total: usize, r: &InputReport) {
+    let what = match r.status {
+        Status::Done | Status::Partial => format!(
+            "{} keyframes, exports {:?} ({:.1} s)",
+            r.keyframes.unwrap_or(0),
+            r.exported,
+            r.seconds
+        ),
+        Status::Skipped => "already done".into(),
+        Status::Failed => format!("FAILED: {}", r.error.as_deref().unwrap_or("")),
+    };
+    eprintln!("[{n}/{total}] {}: {what}", r.input.display());
+}
+
+fn run_one(w: &Workflow, input: &Path, folder: &Path, s: &RunSettings) -> InputReport {
+    let t = Instant::now();
+    let mut report = InputReport {
+        input: input.to_path_buf(),
+        folder: folder.to_path_buf(),
+        status: Status::Failed,
+        keyframes: None,
+        exported: Vec::new(),
+        seconds: 0.0,
+        error: None,
+    };
+    match process(w, input, folder, s, &mut report) {
+        Ok(status) => report.status = status,
+        Err(e) => {
+            report.status = Status::Failed;
+            report.error = Some(e.to_string());
+        }
+    }
+    report.seconds = t.elapsed().as_secs_f64();
+    if report.status == Status::Done || report.status == Status::Partial {
+        let done = match select::identify(input) {
+            Ok((_, fingerprint)) => Done {
+                workflow_hash: format!("{:016x}", w.hash),
+                input: fsutil::absolute(input),
+                fingerprint,
+                report: report.clone(),
+            },
+            Err(e) => {
+                report.status = Status::Failed;
+                report.error = Some(e.to_string());
+                return report;
+            }
+        };
+        let written = serde_json::to_string_pretty(&done)
+            .map_err(|e| Error::Output {
+                path: folder.join(DONE),
+                msg: e.to_string(),
+            })
+            .and_then(|t| fsutil::write_atomic(&folder.join(DONE), t.as_bytes()));
+        if let Err(e) = written {
+            report.status = Status::Failed;
+            report.error = Some(e.to_string());
+        }
+    }
+    report
+}
+
+fn process(
+    w: &Workflow,
+    input: &Path,
+    folder: &Path,
+    s: &RunSettings,
+    report: &mut InputReport,
+) -> Result<Status> {
+    let done_path = folder.join(DONE);
+    if !s.force {
+        if let Some(done) = read_done(&done_path) {
+            let same_input = select::identify(input)
+                .map(|(_, f)| f == done.fingerprint)
+                .unwrap_or(false);
+            if done.workflow_hash == format!("{:016x}", w.hash) && same_input {
+                report.keyframes = done.report.keyframes;
+                report.exported = done.report.exported.clone();
+                return Ok(Status::Skipped);
+            }
+        }
+    }
+    // A folder we did not make is never written into; one we made is ours to redo.
+    if folder.exists() && !folder.join(MARKER).exists() {
+        let empty = std::fs::read_dir(folder)
+            .map(|mut d| d.next().is_none())
+            .unwrap_or(false);
+        if !empty {
+            return Err(Error::Output {
+                path: folder.to_path_buf(),
+                msg: "exists and was not made by `keyframer run`; move it away".into(),
+            });
+        }
+    }
+    std::fs::create_dir_all(folder).map_err(|e| Error::io(folder, e))?;
+    fsutil::write_atomic(&folder.join(MARKER), b"made by keyframer run\n")?;
+    let _ = std::fs::remove_file(&done_path);
+
+    let project = folder.join("project.json");
+    let settings = w.select_settings(input, &project, true)?;
+    let sel = select::select(&settings)?;
+    report.keyframes = Some(sel.project.keyframes.len());
+    let mut partial: Vec<String> = sel
+        .project
+        .decode_problems
+        .iter()
+        .map(|p| p.to_string())
+        .collect();
+    for i in 0..w.exports() {
+        let (name, es) = w.export_settings(i, &project, &folder.join("x"))?;
+        let out = folder.join(&name);
+        let r = export::export(&project, &out, &es, true, true)?;
+        report.exported.push(r.manifest.frames.len());
+        partial.extend(
+            r.manifest
+                .missing
+                .iter()
+                .map(|m| format!("{name}: frame {} not exported: {}", m.index, m.reason)),
+        );
+    }
+    if partial.is_empty() {
+        Ok(Status::Done)
+    } else {
+        report.error = Some(partial.join("; "));
+        Ok(Status::Partial)
+    }
+}
+
+fn read_done(path: &Path) -> Option<Done> {
+    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
+}
+
+/// The summary as a table for stderr.
+pub fn table(reports: &[InputReport]) -> String {
+    let mut out = format!(
+        "{:<8} {:>9} {:>16} {:>8}  input\n",
+        "status", "keyframes", "exported", "seconds"
+    );
+    for r in reports {
+        let status = match r.status {
+            Status::Done => "done",
+            Status::Skipped => "skipped",
+            Status::Partial => "partial",
+            Status::Failed => "FAILED",
+        };
+        let exported = r
+            .exported
+            .iter()
+            .map(|n| n.to_string())
+            .collect::<Vec<_>>()
+            .join(",");
+        out.push_str(&format!(
+            "{status:<8} {:>9} {:>16} {:>8.1}  {}\n",
+            r.keyframes
+                .map(|k| k.to_string())
+                .unwrap_or_else(|| "-".into()),
+            if exported.is_empty() {
+                "-".into()
+            } else {
+                exported
+            },
+            r.seconds,
+            r.input.display()
+        ));
+        if let Some(e) = &r.error {
+            out.push_str(&format!("         {e}\n"));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_cover_every_input_once_whatever_the_order() {
+        let inputs: Vec<PathBuf> = (0..10)
+            .map(|i| PathBuf::from(format!("v{i}.mp4")))
+            .collect();
+        let mut rev = inputs.clone();
+        rev.reverse();
+        let mut seen = Vec::new();
+        for k in 0..3 {
+            let s = Some(Shard { index: k, count: 3 });
+            let a: Vec<&PathBuf> = shard_of(&inputs, s).iter().map(|&i| &inputs[i]).collect();
+            let mut b: Vec<&PathBuf> = shard_of(&rev, s).iter().map(|&i| &rev[i]).collect();
+            b.sort();
+            assert_eq!(a, b, "same split for a reordered list");
+            seen.extend(a);
+        }
+        seen.sort();
+        assert_eq!(seen, inputs.iter().collect::<Vec<_>>());
+        assert!("3/3".parse::<Shard>().is_err());
+        assert_eq!("1/3".parse::<Shard>(), Ok(Shard { index: 1, count: 3 }));
+    }
+
+    #[test]
+    fn folder_names_are_unique() {
+        let n = folder_names(&[
+            PathBuf::from("a/clip.mp4"),
+            PathBuf::from("b/clip.mp4"),
+            PathBuf::from("c.mp4"),
+        ]);
+        assert_eq!(n, vec!["clip.mp4", "clip.mp4-2", "c.mp4"]);
+    }
+}
