@@ -465,7 +465,8 @@ struct Masker {
     seg: Segmenter,
     overlay: bool,
     out: PathBuf,
-    pending: Vec<(String, Mat)>,
+    names: Vec<String>,
+    images: Vec<Mat>,
 }
 
 impl Masker {
@@ -475,7 +476,8 @@ impl Masker {
             seg,
             overlay: settings.overlay,
             out: out.to_path_buf(),
-            pending: Vec::new(),
+            names: Vec::new(),
+            images: Vec::new(),
         })
     }
 
@@ -492,8 +494,9 @@ impl Masker {
 
     /// Queues one exported image (`name` in the export folder); runs a batch when full.
     fn push(&mut self, name: String, image: Mat, frames: &mut [ExportedFrame]) -> Result<()> {
-        self.pending.push((name, image));
-        if self.pending.len() >= self.seg.batch() {
+        self.names.push(name);
+        self.images.push(image);
+        if self.images.len() >= self.seg.batch() {
             self.flush(frames)?;
         }
         Ok(())
@@ -501,13 +504,13 @@ impl Masker {
 
     /// Segments the queued images and writes their masks, recording them in `frames`.
     fn flush(&mut self, frames: &mut [ExportedFrame]) -> Result<()> {
-        if self.pending.is_empty() {
+        if self.images.is_empty() {
             return Ok(());
         }
-        let pending = std::mem::take(&mut self.pending);
-        let images: Vec<Mat> = pending.iter().map(|(_, m)| m.clone()).collect();
+        let names = std::mem::take(&mut self.names);
+        let images = std::mem::take(&mut self.images);
         let maps = self.seg.classify(&images)?;
-        for ((name, image), map) in pending.iter().zip(&maps) {
+        for ((name, image), map) in names.iter().zip(&images).zip(&maps) {
             let size = (image.cols() as u32, image.rows() as u32);
             let mask = self.seg.mask(map, size)?;
             let mask_name = crate::segment::write_mask(&self.out.join(MASK_DIR), name, &mask)?;

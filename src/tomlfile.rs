@@ -56,6 +56,11 @@ pub fn parse<T: DeserializeOwned>(
 }
 
 impl<T> TomlFile<T> {
+    /// The file's text as read.
+    pub fn text(&self) -> &str {
+        &self.text
+    }
+
     /// The file's path.
     pub fn path(&self) -> &Path {
         &self.path

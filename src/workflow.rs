@@ -332,7 +332,7 @@ impl Workflow {
         for (i, e) in w.export.iter().enumerate() {
             export_args.push(export_flags(&file, w, i, e)?);
         }
-        let hash = crate::fsutil::fnv1a64(std::fs::read(path).unwrap_or_default().as_slice());
+        let hash = crate::fsutil::fnv1a64(file.text().as_bytes());
         let wf = Workflow {
             path: path.to_path_buf(),
             file: content.clone(),

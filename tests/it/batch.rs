@@ -97,9 +97,9 @@ fn example_workflow_runs_headless_and_its_saved_form_selects_the_same() {
     let wf = example_workflow(d);
     let clips = three_clips(d);
     let out = d.join("out");
-    let (code, json, err) = run(&wf, &clips, &out, &["-j", "2"]);
+    let (code, stdout, err) = run(&wf, &clips, &out, &["-j", "2"]);
     assert_eq!(code, 0, "{err}");
-    let summary: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let summary: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(summary.as_array().unwrap().len(), 3);
     for (clip, r) in clips.iter().zip(summary.as_array().unwrap()) {
         assert_eq!(r["status"], "done", "{r}");
@@ -107,21 +107,21 @@ fn example_workflow_runs_headless_and_its_saved_form_selects_the_same() {
         let keys = keyframes(&folder.join("project.json"));
         assert!(keys.len() >= 2, "{}: {keys:?}", clip.display());
         for export in ["full", "small"] {
-            let m = json_file(&folder.join(export).join("manifest.json"));
+            let m = json(&folder.join(export).join("manifest.json"));
             assert_eq!(m["frames"].as_array().unwrap().len(), keys.len());
         }
-        let small = json_file(&folder.join("small/manifest.json"));
+        let small = json(&folder.join("small/manifest.json"));
         assert_eq!(
             (small["width"].as_u64(), small["height"].as_u64()),
             (Some(1280), Some(720))
         );
-        let full = json_file(&folder.join("full/manifest.json"));
+        let full = json(&folder.join("full/manifest.json"));
         assert_eq!(
             (full["width"].as_u64(), full["height"].as_u64()),
             (Some(320), Some(240))
         );
         // The history names the workflow's plugins in order.
-        let plugins: Vec<String> = json_file(&folder.join("project.json"))["history"]
+        let plugins: Vec<String> = json(&folder.join("project.json"))["history"]
             .as_array()
             .unwrap()
             .iter()
@@ -155,9 +155,9 @@ fn example_workflow_runs_headless_and_its_saved_form_selects_the_same() {
     assert_eq!(results(&out, &clips), results(&out2, &clips));
 
     // Everything done: a re-run skips all inputs.
-    let (code, json, err) = run(&wf, &clips, &out, &[]);
+    let (code, stdout, err) = run(&wf, &clips, &out, &[]);
     assert_eq!(code, 0, "{err}");
-    let summary: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let summary: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert!(
         summary
             .as_array()
@@ -166,10 +166,6 @@ fn example_workflow_runs_headless_and_its_saved_form_selects_the_same() {
             .all(|r| r["status"] == "skipped"),
         "{summary}"
     );
-}
-
-fn json_file(p: &Path) -> serde_json::Value {
-    json(p)
 }
 
 #[test]
@@ -186,9 +182,9 @@ fn a_corrupt_input_fails_alone_and_a_killed_batch_resumes() {
     std::fs::write(&bad, &bytes[..]).unwrap();
     let inputs = vec![clips[0].clone(), bad.clone(), clips[1].clone()];
     let out = d.join("mixed");
-    let (code, json, err) = run(&wf, &inputs, &out, &[]);
+    let (code, stdout, err) = run(&wf, &inputs, &out, &[]);
     assert_eq!(code, 2, "{err}");
-    let summary: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let summary: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     let status: Vec<&str> = summary
         .as_array()
         .unwrap()
@@ -233,9 +229,9 @@ fn a_corrupt_input_fails_alone_and_a_killed_batch_resumes() {
         .filter(|n| !killed.join(n).join("done.json").exists())
         .count();
     assert!(unfinished >= 1, "the kill came too late to test resuming");
-    let (code, json, err) = run(&wf, &clips, &killed, &[]);
+    let (code, stdout, err) = run(&wf, &clips, &killed, &[]);
     assert_eq!(code, 0, "{err}");
-    let summary: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let summary: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!(summary[0]["status"], "skipped", "{summary}");
     let redone = summary
         .as_array()
