@@ -5,19 +5,22 @@
 //! when nothing needs pixels, frames are only grabbed, never converted.
 
 use crate::error::{Error, Result};
+use crate::fsutil::Fingerprint;
 use crate::gpu::{Backend, GpuContext};
 use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams, SLOTS};
 use crate::kernels::movement::{self, MovementGpu, Statistic};
 use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
-use crate::source::{self, Frame, Metadata, OpenOptions};
+use crate::source::{self, Frame, FrameSource, Metadata, OpenOptions};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
 use std::sync::Arc;
+use std::time::Instant;
 
 /// What to compute.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Request {
     /// Sharpness metrics to score every frame with.
     pub sharpness: Vec<Metric>,
@@ -37,6 +40,14 @@ pub struct MovementRequest {
     /// Width of the analysis resolution (frames are converted to gray and resized with
     /// INTER_AREA; never upscaled).
     pub analysis_width: u32,
+    /// Flow is measured between frames `stride` apart (every frame index divisible by it, and
+    /// the last); each frame in between gets an equal share. 1 measures every pair.
+    #[serde(default = "one")]
+    pub stride: u32,
+}
+
+fn one() -> u32 {
+    1
 }
 
 /// The stationary sampler's parameters (reference mode).
@@ -92,8 +103,10 @@ pub struct Analysis {
     pub backend: Backend,
 }
 
-/// Frames held at most at once by the opencv path before scoring (the gpu path uses its batch).
-const CPU_BATCH: usize = 8;
+/// Frames queued between the decode thread and the analysis (bounds memory with the batch).
+const DECODE_QUEUE: usize = 2;
+/// Frames held at most at once by the opencv sharpness worker before scoring.
+const CPU_BATCH: usize = 4;
 
 /// Scores frames in batches with one backend.
 enum Scorer {
@@ -128,19 +141,22 @@ impl Scorer {
         }
     }
 
-    /// Appends the scores of `frames` to `out` (one vector per metric).
-    fn score(&mut self, frames: &[Frame], out: &mut [Vec<f64>]) -> Result<()> {
-        let mats: Vec<&opencv::core::Mat> = frames.iter().map(|f| &f.image).collect();
+    /// The scores of `frames`: one vector per frame with one score per metric.
+    fn score(&mut self, frames: &[Frame]) -> Result<Vec<Vec<f64>>> {
+        let mut out = vec![Vec::new(); frames.len()];
         match self {
             Scorer::Gpu(runners) => {
-                for (r, o) in runners.iter_mut().zip(out.iter_mut()) {
-                    o.extend(r.scores(&mats)?);
+                let mats: Vec<&Mat> = frames.iter().map(|f| &f.image).collect();
+                for r in runners.iter_mut() {
+                    for (o, v) in out.iter_mut().zip(r.scores(&mats)?) {
+                        o.push(v);
+                    }
                 }
             }
             Scorer::Opencv(metrics) => {
-                for (&m, o) in metrics.iter().zip(out.iter_mut()) {
-                    for f in frames {
-                        o.push(score_opencv(&f.image, m).map_err(|e| crate::Error::Frame {
+                for (o, f) in out.iter_mut().zip(frames) {
+                    for &m in metrics.iter() {
+                        o.push(score_opencv(&f.image, m).map_err(|e| Error::Frame {
                             path: Default::default(),
                             index: f.index,
                             msg: e.to_string(),
@@ -149,7 +165,46 @@ impl Scorer {
                 }
             }
         }
-        Ok(())
+        Ok(out)
+    }
+}
+
+/// Messages to the sharpness worker.
+enum ToScorer {
+    Frame(Frame),
+    /// Score what is queued now (a checkpoint waits for it).
+    Flush,
+}
+
+/// The sharpness worker: scores frames in batches in its own thread, in index order, and sends
+/// `(frame index, scores per metric)` back.
+fn scorer_worker(
+    mut scorer: Scorer,
+    rx: Receiver<ToScorer>,
+    tx: Sender<(usize, Vec<f64>)>,
+) -> Result<()> {
+    let batch = scorer.batch();
+    let mut pending: Vec<Frame> = Vec::with_capacity(batch);
+    loop {
+        let (full, end) = match rx.recv() {
+            Ok(ToScorer::Frame(f)) => {
+                pending.push(f);
+                (pending.len() >= batch, false)
+            }
+            Ok(ToScorer::Flush) => (true, false),
+            Err(_) => (true, true),
+        };
+        if full && !pending.is_empty() {
+            let scores = scorer.score(&pending)?;
+            for (f, s) in pending.drain(..).zip(scores) {
+                if tx.send((f.index, s)).is_err() {
+                    return Ok(());
+                }
+            }
+        }
+        if end {
+            return Ok(());
+        }
     }
 }
 
@@ -194,7 +249,24 @@ impl Engine {
     }
 }
 
-/// Per-frame movement state: consecutive movement and the stationary reference mode.
+/// The movement state a checkpoint keeps: everything `MovementPass` needs to go on after the
+/// frame `anchor` (whose pixels, and those of `reference`, are decoded again on resume).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MovementState {
+    /// Consecutive movement of frames 0..=anchor.
+    pub values: Vec<f64>,
+    /// The last frame flow was measured to (a stride point).
+    pub anchor: usize,
+    /// The stationary sampler's reference frame.
+    pub reference: Option<usize>,
+    /// Movement accumulated by the stationary sampler since its last keyframe.
+    pub accumulated: f64,
+    /// Keyframes chosen by the stationary sampler so far.
+    pub keys: Vec<usize>,
+}
+
+/// Per-frame movement: consecutive movement (every `stride` frames, spread evenly over the
+/// frames in between) and the stationary reference mode.
 struct MovementPass {
     req: MovementRequest,
     stationary: Option<StationaryRequest>,
@@ -202,9 +274,12 @@ struct MovementPass {
     size: (i32, i32),
     scale: f64,
     values: Vec<f64>,
-    prev: Option<usize>,
+    /// (slot, frame index) of the last stride point.
+    anchor: Option<(usize, usize)>,
     /// (slot, frame index) of the stationary reference.
     reference: Option<(usize, usize)>,
+    /// The last frame, when it is not a stride point: loaded in a slot, or its pixels kept.
+    last: Option<(Option<usize>, usize, Option<Mat>)>,
     accumulated: f64,
     keys: Vec<usize>,
 }
@@ -219,6 +294,9 @@ impl MovementPass {
     ) -> Result<(MovementPass, Backend)> {
         req.farneback.validate()?;
         req.statistic.validate()?;
+        if req.stride == 0 {
+            return Err(Error::param("flow stride", "must be at least 1"));
+        }
         let (w, h) = analysis_size(meta.width, meta.height, req.analysis_width);
         let mut used = Backend::Opencv;
         let mut engine = Engine::Opencv {
@@ -249,8 +327,9 @@ impl MovementPass {
                 size: (w as i32, h as i32),
                 scale: f64::from(meta.width) / f64::from(w),
                 values: Vec::new(),
-                prev: None,
+                anchor: None,
                 reference: None,
+                last: None,
                 accumulated: 0.0,
                 keys: Vec::new(),
             },
@@ -258,52 +337,275 @@ impl MovementPass {
         ))
     }
 
-    fn step(&mut self, frame: &Frame) -> Result<()> {
-        let gray = crate::kernels::gray::opencv(&frame.image)?;
-        let small = if (gray.cols(), gray.rows()) == self.size {
-            gray
+    /// Gray at the analysis resolution (cv::cvtColor, then INTER_AREA unless the size matches).
+    fn prepare(size: (i32, i32), image: &Mat) -> Result<Mat> {
+        let gray = crate::kernels::gray::opencv(image)?;
+        if (gray.cols(), gray.rows()) == size {
+            Ok(gray)
         } else {
-            farneback::resize_area(&gray, opencv::core::Size::new(self.size.0, self.size.1))?
-        };
-        let busy = [self.prev, self.reference.map(|r| r.0)];
-        let cur = (0..SLOTS).find(|s| !busy.contains(&Some(*s))).unwrap_or(0);
-        self.engine.load(cur, small)?;
+            farneback::resize_area(&gray, opencv::core::Size::new(size.0, size.1))
+        }
+    }
+
+    /// A slot holding neither the anchor nor the reference.
+    fn free_slot(&self) -> usize {
+        let busy = [self.anchor.map(|a| a.0), self.reference.map(|r| r.0)];
+        (0..SLOTS).find(|s| !busy.contains(&Some(*s))).unwrap_or(0)
+    }
+
+    /// Whether the state is complete through the last frame stepped (a checkpoint may be taken).
+    fn at_stride_point(&self) -> bool {
+        self.last.is_none()
+    }
+
+    fn state(&self) -> Option<MovementState> {
+        let (_, anchor) = self.anchor?;
+        Some(MovementState {
+            values: self.values.clone(),
+            anchor,
+            reference: self.reference.map(|r| r.1),
+            accumulated: self.accumulated,
+            keys: self.keys.clone(),
+        })
+    }
+
+    /// Restores a checkpoint's state; the anchor and reference pixels follow through `prime`.
+    fn restore(&mut self, st: &MovementState) {
+        self.values = st.values.clone();
+        self.accumulated = st.accumulated;
+        self.keys = st.keys.clone();
+        self.anchor = None;
+        self.reference = None;
+        self.last = None;
+    }
+
+    /// Loads the pixels of a restored anchor or reference frame.
+    fn prime(&mut self, index: usize, small: Mat, st: &MovementState) -> Result<()> {
+        let slot = self.free_slot();
+        self.engine.load(slot, small)?;
+        if index == st.anchor {
+            self.anchor = Some((slot, index));
+        }
+        if st.reference == Some(index) {
+            self.reference = Some((slot, index));
+        }
+        Ok(())
+    }
+
+    /// Movement since the anchor, spread evenly over the frames after it, up to `slot`/`i`.
+    fn measure_to(&mut self, slot: usize, i: usize) -> Result<Option<f64>> {
         let stat = self.req.statistic;
-        let consecutive = match self.prev {
-            Some(p) => self.engine.movement(p, cur, stat)? * self.scale,
-            None => 0.0,
+        match self.anchor {
+            None => {
+                self.values.push(0.0);
+                self.anchor = Some((slot, i));
+                Ok(None)
+            }
+            Some((a_slot, a)) => {
+                let m = self.engine.movement(a_slot, slot, stat)? * self.scale;
+                let per = m / (i - a) as f64;
+                self.values.extend(std::iter::repeat_n(per, i - a));
+                self.anchor = Some((slot, i));
+                Ok((i - a == 1).then_some(m))
+            }
+        }
+    }
+
+    fn step(&mut self, i: usize, small: Mat) -> Result<()> {
+        let active = self
+            .stationary
+            .filter(|st| (st.first..=st.last).contains(&i));
+        let stride_point = self.anchor.is_none() || i % self.req.stride as usize == 0;
+        if !stride_point && active.is_none() {
+            self.last = Some((None, i, Some(small)));
+            return Ok(());
+        }
+        let cur = self.free_slot();
+        self.engine.load(cur, small)?;
+        self.last = None;
+        let consecutive = if stride_point {
+            self.measure_to(cur, i)?
+        } else {
+            self.last = Some((Some(cur), i, None));
+            None
         };
-        self.values.push(consecutive);
-        let i = frame.index;
-        if let Some(st) = self.stationary {
-            if (st.first..=st.last).contains(&i) {
-                match self.reference {
-                    None => {
+        if let Some(st) = active {
+            let stat = self.req.statistic;
+            match self.reference {
+                None => {
+                    self.keys.push(i);
+                    self.reference = Some((cur, i));
+                    self.accumulated = 0.0;
+                }
+                Some((slot, index)) => {
+                    let m = match consecutive {
+                        Some(m) if index + 1 == i => m,
+                        _ => self.engine.movement(slot, cur, stat)? * self.scale,
+                    };
+                    let total = self.accumulated + m;
+                    if total >= st.threshold {
                         self.keys.push(i);
                         self.reference = Some((cur, i));
                         self.accumulated = 0.0;
-                    }
-                    Some((slot, index)) => {
-                        let m = if Some(slot) == self.prev && index + 1 == i {
-                            consecutive
-                        } else {
-                            self.engine.movement(slot, cur, stat)? * self.scale
-                        };
-                        let total = self.accumulated + m;
-                        if total >= st.threshold {
-                            self.keys.push(i);
-                            self.reference = Some((cur, i));
-                            self.accumulated = 0.0;
-                        } else if i - index >= st.reset_delta {
-                            self.reference = Some((cur, i));
-                            self.accumulated = total;
-                        }
+                    } else if i - index >= st.reset_delta {
+                        self.reference = Some((cur, i));
+                        self.accumulated = total;
                     }
                 }
             }
         }
-        self.prev = Some(cur);
         Ok(())
+    }
+
+    /// Measures the frames after the last stride point.
+    fn finish(&mut self) -> Result<()> {
+        if let Some((slot, i, small)) = self.last.take() {
+            let slot = match (slot, small) {
+                (Some(s), _) => s,
+                (None, Some(m)) => {
+                    let s = self.free_slot();
+                    self.engine.load(s, m)?;
+                    s
+                }
+                (None, None) => return Err(Error::param("movement", "last frame lost")),
+            };
+            self.measure_to(slot, i)?;
+        }
+        Ok(())
+    }
+
+    /// Movement between two frames (for the `--auto` sample).
+    fn pair(&mut self, a: Mat, b: Mat) -> Result<f64> {
+        self.engine.load(0, a)?;
+        self.engine.load(1, b)?;
+        Ok(self.engine.movement(0, 1, self.req.statistic)? * self.scale)
+    }
+}
+
+/// Where and how often a running analysis saves what it computed, to resume after a kill.
+#[derive(Debug, Clone)]
+pub struct Resume {
+    /// The checkpoint file.
+    pub path: PathBuf,
+    /// The input's fingerprint (a checkpoint of another input is ignored).
+    pub fingerprint: Fingerprint,
+    /// Seconds between checkpoints.
+    pub every_s: f64,
+}
+
+/// A running analysis's saved state: frames 0..`frames` are complete.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Checkpoint {
+    /// Format version.
+    pub version: u32,
+    /// The input it belongs to.
+    pub fingerprint: Fingerprint,
+    /// What was being computed.
+    pub request: Request,
+    /// Backend that computed it.
+    pub backend: Backend,
+    /// Frames done.
+    pub frames: usize,
+    /// Their timestamps.
+    pub timestamps_s: Vec<f64>,
+    /// Whether every frame so far had a timestamp.
+    pub have_timestamps: bool,
+    /// Sharpness per metric, one score per frame done.
+    pub sharpness: Vec<Vec<f64>>,
+    /// Movement state after the last frame done.
+    pub movement: Option<MovementState>,
+}
+
+const CHECKPOINT_VERSION: u32 = 1;
+
+fn load_checkpoint(resume: &Resume, req: &Request) -> Option<Checkpoint> {
+    let bytes = std::fs::read(&resume.path).ok()?;
+    let c: Checkpoint = match serde_json::from_slice(&bytes) {
+        Ok(c) => c,
+        Err(e) => {
+            log::warn!(
+                "{}: unreadable checkpoint ({e}); starting over",
+                resume.path.display()
+            );
+            return None;
+        }
+    };
+    let fits = c.version == CHECKPOINT_VERSION
+        && c.fingerprint == resume.fingerprint
+        && &c.request == req
+        && c.sharpness.len() == req.sharpness.len()
+        && c.sharpness.iter().all(|s| s.len() == c.frames)
+        && c.timestamps_s.len() == if c.have_timestamps { c.frames } else { 0 }
+        && c.movement.is_some() == req.movement.is_some()
+        && c.movement
+            .as_ref()
+            .is_none_or(|m| m.values.len() == c.frames && m.anchor + 1 == c.frames);
+    if !fits {
+        log::info!(
+            "{}: checkpoint is for another input or request; starting over",
+            resume.path.display()
+        );
+        return None;
+    }
+    Some(c)
+}
+
+/// Items from the decode thread.
+enum Decoded {
+    /// A frame to analyse (`image` is empty when no sharpness is requested).
+    Frame(Frame, Option<Mat>),
+    /// An already analysed frame whose pixels a resumed movement state needs again.
+    Prime(usize, Mat),
+}
+
+/// Decodes `src` in its own thread: frames before `resume_at` are skipped (grabbed) except
+/// `prime`; every frame is converted to the analysis gray when `small` is given.
+fn decode_worker(
+    src: &mut dyn FrameSource,
+    resume_at: usize,
+    prime: &[usize],
+    small: Option<(i32, i32)>,
+    keep_image: bool,
+    tx: SyncSender<Result<Decoded>>,
+) {
+    let mut next = 0usize;
+    loop {
+        let item = if next < resume_at && !prime.contains(&next) {
+            match src.skip_frame() {
+                Ok(Some(_)) => {
+                    next += 1;
+                    continue;
+                }
+                Ok(None) => return,
+                Err(e) => Err(e),
+            }
+        } else {
+            match src.next_frame() {
+                Ok(None) => return,
+                Ok(Some(mut f)) => {
+                    next = f.index + 1;
+                    let gray = small
+                        .map(|s| MovementPass::prepare(s, &f.image))
+                        .transpose();
+                    gray.and_then(|g| {
+                        if f.index < resume_at {
+                            g.map(|g| Decoded::Prime(f.index, g))
+                                .ok_or_else(|| Error::param("resume", "no movement to prime"))
+                        } else {
+                            if !keep_image {
+                                f.image = Mat::default();
+                            }
+                            Ok(Decoded::Frame(f, g))
+                        }
+                    })
+                }
+                Err(e) => Err(e),
+            }
+        };
+        let stop = item.is_err();
+        if tx.send(item).is_err() || stop {
+            return;
+        }
     }
 }
 
@@ -316,94 +618,189 @@ pub fn analyse(
     ctx: Option<&Arc<GpuContext>>,
     quiet: bool,
 ) -> Result<Analysis> {
+    analyse_with(input, opts, req, backend, ctx, quiet, None)
+}
+
+/// As [`analyse`], saving a checkpoint to `resume` periodically and resuming from it when it
+/// matches the input and request. The decode thread, the sharpness worker and the movement
+/// pass (this thread) overlap; queues between them are a few frames long.
+pub fn analyse_with(
+    input: &Path,
+    opts: &OpenOptions,
+    req: &Request,
+    backend: Backend,
+    ctx: Option<&Arc<GpuContext>>,
+    quiet: bool,
+    resume: Option<&Resume>,
+) -> Result<Analysis> {
     let mut src = source::open(input, opts)?;
     let declared = src.metadata().frame_count as u64;
-    let what = if req.sharpness.is_empty() {
-        "scan"
-    } else {
-        "analyse"
-    };
-    let bar = crate::progress::bar(declared, what, quiet);
-    let mut timestamps = Vec::new();
-    let mut have_ts = true;
-    let mut scores: Vec<Vec<f64>> = vec![Vec::new(); req.sharpness.len()];
-    let mut used = Backend::Opencv;
-    let mut count = 0usize;
     if req.stationary.is_some() && req.movement.is_none() {
         return Err(Error::param("stationary", "needs a movement request"));
     }
+    if req.sharpness.is_empty() && req.movement.is_none() {
+        return scan_only(src.as_mut(), input, declared, quiet);
+    }
+    let meta = src.metadata().clone();
+    let mut used = Backend::Opencv;
     let mut moving = match req.movement {
         Some(m) => {
-            let (pass, b) = MovementPass::new(m, req.stationary, backend, ctx, src.metadata())?;
+            let (pass, b) = MovementPass::new(m, req.stationary, backend, ctx, &meta)?;
             used = b;
             Some(pass)
         }
         None => None,
     };
-    if req.sharpness.is_empty() && moving.is_none() {
-        while let Some((_, t)) = src.skip_frame()? {
-            have_ts &= t.is_some();
-            timestamps.extend(t);
-            count += 1;
-            bar.set_position(count as u64);
-        }
+    let scorer = if req.sharpness.is_empty() {
+        None
     } else {
-        let meta = src.metadata().clone();
-        let (mut scorer, b) = Scorer::new(backend, ctx, &req.sharpness, &meta)?;
-        if !req.sharpness.is_empty() {
+        let (s, b) = Scorer::new(backend, ctx, &req.sharpness, &meta)?;
+        if moving.is_none() || b == Backend::Opencv {
             used = b;
         }
-        let batch = scorer.batch();
-        let mut pending: Vec<Frame> = Vec::with_capacity(batch);
-        loop {
-            let next = src.next_frame()?;
-            let done = next.is_none();
-            if let Some(f) = next {
-                have_ts &= f.timestamp_s.is_some();
-                timestamps.extend(f.timestamp_s);
-                if let Some(m) = moving.as_mut() {
-                    m.step(&f).map_err(|e| with_path(e, input))?;
-                    if req.sharpness.is_empty() {
-                        bar.set_position(count as u64 + 1);
-                    }
-                }
-                if !req.sharpness.is_empty() {
-                    pending.push(f);
-                }
-                count += 1;
-            }
-            if pending.len() == batch || (done && !pending.is_empty()) {
-                scorer
-                    .score(&pending, &mut scores)
-                    .map_err(|e| with_path(e, input))?;
-                pending.clear();
-                bar.set_position(count as u64);
-            }
-            if done {
-                break;
-            }
+        Some(s)
+    };
+    let restored = resume.and_then(|r| load_checkpoint(r, req)).filter(|c| {
+        let same = c.backend == used;
+        if !same {
+            log::info!(
+                "the checkpoint was computed by the {} backend; starting over",
+                c.backend
+            );
+        }
+        same
+    });
+    let mut timestamps = Vec::new();
+    let mut have_ts = true;
+    let mut scores: Vec<Vec<f64>> = vec![Vec::new(); req.sharpness.len()];
+    let mut resume_at = 0usize;
+    let mut prime = Vec::new();
+    if let Some(c) = &restored {
+        log::info!(
+            "resuming the analysis of {} at frame {} (checkpoint {})",
+            input.display(),
+            c.frames,
+            resume
+                .map(|r| r.path.display().to_string())
+                .unwrap_or_default()
+        );
+        timestamps = c.timestamps_s.clone();
+        have_ts = c.have_timestamps;
+        scores = c.sharpness.clone();
+        resume_at = c.frames;
+        if let (Some(m), Some(st)) = (moving.as_mut(), &c.movement) {
+            m.restore(st);
+            prime = [Some(st.anchor), st.reference]
+                .into_iter()
+                .flatten()
+                .collect();
         }
     }
+    let small = moving.as_ref().map(|m| m.size);
+    let bar = crate::progress::bar(declared, "analyse", quiet);
+    bar.set_position(resume_at as u64);
+    bar.reset_eta();
+    let mut count = resume_at;
+    let mut last_save = Instant::now();
+    let outcome: Result<()> = std::thread::scope(|scope| {
+        let (dtx, drx) = sync_channel::<Result<Decoded>>(DECODE_QUEUE);
+        let keep_image = scorer.is_some();
+        let src_ref = src.as_mut();
+        let prime_ref = &prime;
+        scope.spawn(move || decode_worker(src_ref, resume_at, prime_ref, small, keep_image, dtx));
+        let (stx, srx) = sync_channel::<ToScorer>(scorer.as_ref().map_or(1, |s| s.batch()));
+        let (rtx, rrx) = channel::<(usize, Vec<f64>)>();
+        let worker = scorer.map(|s| scope.spawn(move || scorer_worker(s, srx, rtx)));
+        let drain = |scores: &mut Vec<Vec<f64>>, upto: usize| -> Result<()> {
+            while scores.first().map_or(0, Vec::len) < upto {
+                let Ok((_, s)) = rrx.recv() else {
+                    return Err(Error::Gpu("the sharpness worker stopped".into()));
+                };
+                for (o, v) in scores.iter_mut().zip(s) {
+                    o.push(v);
+                }
+            }
+            while let Ok((_, s)) = rrx.try_recv() {
+                for (o, v) in scores.iter_mut().zip(s) {
+                    o.push(v);
+                }
+            }
+            Ok(())
+        };
+        let run = (|| -> Result<()> {
+            for item in drx {
+                match item? {
+                    Decoded::Prime(i, g) => {
+                        if let (Some(m), Some(c)) = (moving.as_mut(), &restored) {
+                            if let Some(st) = &c.movement {
+                                m.prime(i, g, st)?;
+                            }
+                        }
+                    }
+                    Decoded::Frame(f, g) => {
+                        let i = f.index;
+                        have_ts &= f.timestamp_s.is_some();
+                        timestamps.extend(f.timestamp_s);
+                        if let (Some(m), Some(g)) = (moving.as_mut(), g) {
+                            m.step(i, g)?;
+                        }
+                        if worker.is_some() {
+                            stx.send(ToScorer::Frame(f))
+                                .map_err(|_| Error::Gpu("the sharpness worker stopped".into()))?;
+                            drain(&mut scores, 0)?;
+                        }
+                        count = i + 1;
+                        bar.set_position(count as u64);
+                        let due = resume.filter(|r| {
+                            r.every_s > 0.0 && last_save.elapsed().as_secs_f64() >= r.every_s
+                        });
+                        if let Some(r) = due {
+                            if moving.as_ref().is_none_or(|m| m.at_stride_point()) {
+                                if worker.is_some() {
+                                    stx.send(ToScorer::Flush).map_err(|_| {
+                                        Error::Gpu("the sharpness worker stopped".into())
+                                    })?;
+                                    drain(&mut scores, count)?;
+                                }
+                                save_checkpoint(
+                                    r,
+                                    req,
+                                    used,
+                                    count,
+                                    &timestamps,
+                                    have_ts,
+                                    &scores,
+                                    moving.as_ref(),
+                                )?;
+                                last_save = Instant::now();
+                            }
+                        }
+                    }
+                }
+            }
+            Ok(())
+        })();
+        drop(stx);
+        let worked = worker.map(|w| {
+            w.join()
+                .unwrap_or_else(|_| Err(Error::Gpu("the sharpness worker panicked".into())))
+        });
+        run?;
+        if let Some(w) = worked {
+            w?;
+        }
+        drain(&mut scores, count)?;
+        Ok(())
+    });
+    let outcome = outcome.map_err(|e| with_path(e, input));
     bar.finish_and_clear();
+    outcome?;
+    if let Some(m) = moving.as_mut() {
+        m.finish().map_err(|e| with_path(e, input))?;
+    }
     let mut metadata = src.metadata().clone();
-    if metadata.frame_count != count {
-        log::info!(
-            "{}: the container declares {} frames, decoding found {count}",
-            input.display(),
-            metadata.frame_count
-        );
-        metadata.frame_count = count;
-    }
-    metadata.frame_count_exact = true;
-    if let (true, Some(fps), Some(first), Some(last)) =
-        (have_ts, metadata.fps, timestamps.first(), timestamps.last())
-    {
-        metadata.duration_s = Some(last - first + 1.0 / fps);
-    }
-    let problems: Vec<String> = src.decode_failure().into_iter().map(|(_, m)| m).collect();
-    for p in &problems {
-        log::warn!("{}: {p}", input.display());
-    }
+    finish_metadata(&mut metadata, input, count, have_ts, &timestamps);
+    let problems = problems_of(src.as_ref(), input);
     Ok(Analysis {
         metadata,
         timestamps_s: have_ts.then_some(timestamps),
@@ -421,6 +818,107 @@ pub fn analyse(
         problems,
         backend: used,
     })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn save_checkpoint(
+    r: &Resume,
+    req: &Request,
+    backend: Backend,
+    frames: usize,
+    timestamps: &[f64],
+    have_ts: bool,
+    scores: &[Vec<f64>],
+    moving: Option<&MovementPass>,
+) -> Result<()> {
+    let c = Checkpoint {
+        version: CHECKPOINT_VERSION,
+        fingerprint: r.fingerprint.clone(),
+        request: req.clone(),
+        backend,
+        frames,
+        timestamps_s: if have_ts {
+            timestamps.to_vec()
+        } else {
+            Vec::new()
+        },
+        have_timestamps: have_ts,
+        sharpness: scores
+            .iter()
+            .map(|s| s[..frames.min(s.len())].to_vec())
+            .collect(),
+        movement: moving.and_then(MovementPass::state),
+    };
+    let bytes = serde_json::to_vec(&c).map_err(|e| Error::Output {
+        path: r.path.clone(),
+        msg: e.to_string(),
+    })?;
+    crate::fsutil::write_atomic(&r.path, &bytes)?;
+    log::debug!("checkpoint: {frames} frames -> {}", r.path.display());
+    Ok(())
+}
+
+/// Frame count and timestamps only: frames are grabbed, never converted.
+fn scan_only(
+    src: &mut dyn FrameSource,
+    input: &Path,
+    declared: u64,
+    quiet: bool,
+) -> Result<Analysis> {
+    let bar = crate::progress::bar(declared, "scan", quiet);
+    let mut timestamps = Vec::new();
+    let mut have_ts = true;
+    let mut count = 0usize;
+    while let Some((_, t)) = src.skip_frame()? {
+        have_ts &= t.is_some();
+        timestamps.extend(t);
+        count += 1;
+        bar.set_position(count as u64);
+    }
+    bar.finish_and_clear();
+    let mut metadata = src.metadata().clone();
+    finish_metadata(&mut metadata, input, count, have_ts, &timestamps);
+    let problems = problems_of(src, input);
+    Ok(Analysis {
+        metadata,
+        timestamps_s: have_ts.then_some(timestamps),
+        sharpness: Vec::new(),
+        movement: None,
+        stationary: None,
+        problems,
+        backend: Backend::Opencv,
+    })
+}
+
+fn finish_metadata(
+    metadata: &mut Metadata,
+    input: &Path,
+    count: usize,
+    have_ts: bool,
+    timestamps: &[f64],
+) {
+    if metadata.frame_count != count {
+        log::info!(
+            "{}: the container declares {} frames, decoding found {count}",
+            input.display(),
+            metadata.frame_count
+        );
+        metadata.frame_count = count;
+    }
+    metadata.frame_count_exact = true;
+    if let (true, Some(fps), Some(first), Some(last)) =
+        (have_ts, metadata.fps, timestamps.first(), timestamps.last())
+    {
+        metadata.duration_s = Some(last - first + 1.0 / fps);
+    }
+}
+
+fn problems_of(src: &dyn FrameSource, input: &Path) -> Vec<String> {
+    let problems: Vec<String> = src.decode_failure().into_iter().map(|(_, m)| m).collect();
+    for p in &problems {
+        log::warn!("{}: {p}", input.display());
+    }
+    problems
 }
 
 fn with_path(e: crate::Error, input: &Path) -> crate::Error {
@@ -463,16 +961,17 @@ pub fn sample_movement(
     indices.sort_unstable();
     indices.dedup();
     let (mut pass, _) = MovementPass::new(req, None, backend, ctx, &meta)?;
-    let mut seen = Vec::new();
+    let mut prev: Option<(usize, Mat)> = None;
+    let mut out = Vec::new();
     source::read_indices(src.as_mut(), &indices, |f| {
-        seen.push(f.index);
-        pass.step(&f)
+        let small = MovementPass::prepare(pass.size, &f.image)?;
+        if let Some((p, a)) = prev.take() {
+            if p + 1 == f.index {
+                out.push(pass.pair(a, small.clone())?);
+            }
+        }
+        prev = Some((f.index, small));
+        Ok(())
     })?;
-    Ok(seen
-        .iter()
-        .enumerate()
-        .skip(1)
-        .filter(|(k, &i)| seen[k - 1] + 1 == i)
-        .map(|(k, _)| pass.values[k])
-        .collect())
+    Ok(out)
 }

@@ -259,6 +259,10 @@ pub struct SelectArgs {
     /// Replace an existing project file.
     #[arg(long)]
     pub force: bool,
+    /// Seconds between checkpoints of a running analysis (`PROJECT.json.partial`; a run killed
+    /// midway resumes from it); 0 turns them off.
+    #[arg(long, value_name = "SECONDS", default_value_t = 15.0)]
+    pub checkpoint_every: f64,
     /// Blur sampler flags.
     #[command(flatten)]
     pub blur: BlurArgs,
@@ -301,6 +305,10 @@ pub struct MovementArgs {
     /// Width of the analysis resolution for flow (never above the input's width).
     #[arg(long, value_name = "W", default_value_t = 640)]
     pub analysis_width: u32,
+    /// Measure flow between frames K apart (each frame in between gets an equal share of the
+    /// movement; consecutive movement only, the stationary sampler compares every frame).
+    #[arg(long, value_name = "K", default_value_t = 1)]
+    pub flow_stride: u32,
     /// Farneback parameters.
     #[command(flatten)]
     pub farneback: FarnebackArgs,
@@ -323,6 +331,9 @@ impl MovementArgs {
             StatisticArg::TrimmedMean => Statistic::TrimmedMean { trim: self.trim },
         };
         statistic.validate()?;
+        if self.flow_stride == 0 {
+            return Err(Error::param("--flow-stride", "must be at least 1"));
+        }
         if self.analysis_width < 16 {
             return Err(Error::param(
                 "--analysis-width",
@@ -333,6 +344,7 @@ impl MovementArgs {
             farneback: self.farneback.params()?,
             statistic,
             analysis_width: self.analysis_width,
+            stride: self.flow_stride,
         })
     }
 }
@@ -626,6 +638,15 @@ impl SelectArgs {
             adapter: self.analysis.adapter.clone(),
             images_fps: positive("--images-fps", self.images_fps)?,
             force: self.force,
+            checkpoint_every_s: match self.checkpoint_every {
+                x if x.is_finite() && x >= 0.0 => x,
+                x => {
+                    return Err(Error::param(
+                        "--checkpoint-every",
+                        format!("must be 0 or more seconds, got {x}"),
+                    ))
+                }
+            },
             quiet,
         })
     }

@@ -145,6 +145,8 @@ pub struct SelectSettings {
     pub images_fps: Option<f64>,
     /// Replace an existing project file.
     pub force: bool,
+    /// Seconds between analysis checkpoints (0: none).
+    pub checkpoint_every_s: f64,
     /// No progress bars.
     pub quiet: bool,
 }
@@ -182,6 +184,13 @@ pub fn identify(input: &Path) -> Result<(SourceKind, Fingerprint)> {
         SourceKind::Video
     };
     Ok((kind, fsutil::fingerprint_file(input)?))
+}
+
+/// The checkpoint file of a running analysis for the project `output`: `output` + `.partial`.
+pub fn checkpoint_path(output: &Path) -> PathBuf {
+    let mut name = output.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    output.with_file_name(name)
 }
 
 /// Runs `select`.
@@ -298,7 +307,12 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             } else {
                 (Backend::Opencv, None)
             };
-            let a = analysis::analyse(
+            let resume = analysis::Resume {
+                path: checkpoint_path(&s.output),
+                fingerprint: input_ref.fingerprint.clone(),
+                every_s: s.checkpoint_every_s,
+            };
+            let a = analysis::analyse_with(
                 &s.input,
                 &open,
                 &Request {
@@ -313,6 +327,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
                 backend,
                 ctx.as_ref(),
                 s.quiet,
+                Some(&resume),
             )?;
             if cached.is_some_and(|m| m.frame_count != a.metadata.frame_count) {
                 log::warn!(
@@ -463,6 +478,15 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         decode_problems: problems,
     };
     project.save(&s.output, true)?;
+    let checkpoint = checkpoint_path(&s.output);
+    if checkpoint.exists() {
+        if let Err(e) = std::fs::remove_file(&checkpoint) {
+            log::warn!(
+                "{}: could not remove the checkpoint: {e}",
+                checkpoint.display()
+            );
+        }
+    }
     Ok(SelectReport {
         project,
         decoded,

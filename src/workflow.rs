@@ -50,6 +50,9 @@ pub struct Analysis {
     /// Width frames are scaled to for movement analysis.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub analysis_width: Option<u32>,
+    /// Flow measured between frames this many apart (`--flow-stride`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flow_stride: Option<u32>,
     /// `median` or `trimmed-mean`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub movement: Option<String>,
@@ -493,6 +496,15 @@ fn select_flags(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<(Vec<Strin
                 f("analysis_width"),
             );
         }
+        if let Some(v) = an.flow_stride {
+            push(
+                &mut a,
+                &mut o,
+                "--flow-stride",
+                Some(v.to_string()),
+                f("flow_stride"),
+            );
+        }
         if let Some(v) = &an.movement {
             push(&mut a, &mut o, "--movement", Some(v.clone()), f("movement"));
         }
@@ -791,6 +803,7 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
                     serde_json::from_value::<crate::analysis::MovementRequest>(m.clone())
                 {
                     analysis.analysis_width = Some(req.analysis_width);
+                    analysis.flow_stride = (req.stride != 1).then_some(req.stride);
                     let (name, trim) = req.statistic.to_flag();
                     analysis.movement = Some(name.into());
                     analysis.trim = trim;
