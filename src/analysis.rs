@@ -712,6 +712,9 @@ pub fn analyse_with(
         let (rtx, rrx) = channel::<(usize, Vec<f64>)>();
         let worker = scorer.map(|s| scope.spawn(move || scorer_worker(s, srx, rtx)));
         let drain = |scores: &mut Vec<Vec<f64>>, upto: usize| -> Result<()> {
+            if scores.is_empty() {
+                return Ok(());
+            }
             while scores.first().map_or(0, Vec::len) < upto {
                 let Ok((_, s)) = rrx.recv() else {
                     return Err(Error::Gpu("the sharpness worker stopped".into()));

@@ -158,6 +158,47 @@ pub struct BenchArgs {
     /// GPU adapter (part of its name).
     #[arg(long)]
     pub adapter: Option<String>,
+    /// pipeline: folder for the generated clips (kept and re-used) and scratch projects.
+    #[arg(long, default_value = "keyframer-bench")]
+    pub dir: PathBuf,
+    /// pipeline: length of the 1080p30 clip in seconds.
+    #[arg(long, default_value_t = 60)]
+    pub seconds: u32,
+    /// pipeline: frame rate of the 4K clips.
+    #[arg(long, default_value_t = 5)]
+    pub k4_fps: u32,
+    /// pipeline: lengths of the 4K clips in minutes (peak memory must not grow with length);
+    /// `--k4-minutes ""` skips them.
+    #[arg(long, value_delimiter = ',', default_value = "1,4")]
+    pub k4_minutes: Vec<u32>,
+    /// pipeline: backends to time.
+    #[arg(long, value_delimiter = ',', default_value = "gpu,opencv")]
+    pub backends: Vec<String>,
+    /// pipeline: extra `select` flags for the analysis, e.g. "--analysis-width 320".
+    #[arg(long, default_value = "", allow_hyphen_values = true)]
+    pub select_args: String,
+    /// pipeline: also measure the analysis-width / flow-stride trade-off (20 s 1080p clip).
+    #[arg(long)]
+    pub tradeoffs: bool,
+}
+
+impl BenchArgs {
+    /// Settings of `bench pipeline`.
+    pub fn pipeline_settings(&self) -> crate::bench_pipeline::Settings {
+        crate::bench_pipeline::Settings {
+            dir: self.dir.clone(),
+            seconds: self.seconds.max(1),
+            k4_fps: self.k4_fps.max(1),
+            k4_minutes: self.k4_minutes.iter().copied().filter(|&m| m > 0).collect(),
+            backends: self.backends.clone(),
+            select_args: self
+                .select_args
+                .split_whitespace()
+                .map(String::from)
+                .collect(),
+            tradeoffs: self.tradeoffs,
+        }
+    }
 }
 
 /// Benchmarks.
@@ -167,6 +208,8 @@ pub enum BenchWhat {
     Sharpness,
     /// Farneback flow per frame pair at 320x180, 640x360, 1280x720.
     Flow,
+    /// Whole-clip analysis vs decode-only on generated 1080p and 4K clips, with peak memory.
+    Pipeline,
 }
 
 /// Which kernels implementation to use.

@@ -5,6 +5,7 @@
 pub mod analysis;
 pub mod batch;
 pub mod bench;
+pub mod bench_pipeline;
 pub mod cli;
 pub mod error;
 pub mod export;

@@ -34,7 +34,9 @@ fn main() -> ExitCode {
     )
     .format_timestamp(None)
     .init();
-    match run(cli) {
+    let outcome = run(cli);
+    report_peak_memory();
+    match outcome {
         Ok(Outcome::Ok) => ExitCode::SUCCESS,
         Ok(Outcome::Partial) => ExitCode::from(2),
         Err(e) => {
@@ -42,6 +44,21 @@ fn main() -> ExitCode {
             eprintln!("error: {e}");
             ExitCode::from(1)
         }
+    }
+}
+
+/// With `KEYFRAMER_PEAK_RSS` set, prints `peak-rss-kib N` (the process's VmHWM) to stderr at
+/// exit: how `bench pipeline` measures each analysis's peak memory.
+fn report_peak_memory() {
+    if std::env::var_os("KEYFRAMER_PEAK_RSS").is_none() {
+        return;
+    }
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    if let Some(kib) = status.lines().find_map(|l| {
+        l.strip_prefix("VmHWM:")
+            .map(|v| v.trim().trim_end_matches("kB").trim().to_string())
+    }) {
+        eprintln!("peak-rss-kib {kib}");
     }
 }
 
@@ -110,8 +127,16 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Score(a) => score(&a, quiet),
         Command::Flow(a) => flow(&a),
         Command::Bench(a) => {
+            if let keyframer::cli::BenchWhat::Pipeline = a.what {
+                print!(
+                    "{}",
+                    keyframer::bench_pipeline::run(&a.pipeline_settings())?
+                );
+                return Ok(Outcome::Ok);
+            }
             let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(a.adapter.as_deref())?);
             match a.what {
+                keyframer::cli::BenchWhat::Pipeline => {}
                 keyframer::cli::BenchWhat::Flow => {
                     let pairs = a.frames.min(8);
                     let rows = keyframer::bench::flow(&ctx, pairs)?;

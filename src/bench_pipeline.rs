@@ -1,0 +1,336 @@
+//! `bench pipeline`: makes its own clips (1080p30 H.264 and 4K clips of two lengths) and, in one
+//! run, times decode-only (`ffmpeg -f null`, OpenCV read loop) against full analysis (`select
+//! --blur --spacing`, every frame scored and flowed) per backend, with ratios and peak memory.
+//! Analyses run as child processes so each one's peak RSS is its own.
+
+use crate::error::{Error, Result};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    /// Folder for the clips (re-used when present) and scratch projects.
+    pub dir: PathBuf,
+    /// Length of the 1080p clip in seconds.
+    pub seconds: u32,
+    /// Frame rate of the 4K clips.
+    pub k4_fps: u32,
+    /// Lengths of the 4K clips in minutes (empty: no 4K part).
+    pub k4_minutes: Vec<u32>,
+    /// Backends to time (`gpu`, `opencv`).
+    pub backends: Vec<String>,
+    /// Extra `select` flags (e.g. `--analysis-width 320 --flow-stride 2`).
+    pub select_args: Vec<String>,
+    /// Also measure the analysis-width / flow-stride trade-off on a 20 s 1080p clip.
+    pub tradeoffs: bool,
+}
+
+fn tool_error(what: &str, msg: impl Into<String>) -> Error {
+    Error::Param {
+        name: what.into(),
+        msg: msg.into(),
+    }
+}
+
+fn run_tool(cmd: &mut Command, what: &str) -> Result<std::process::Output> {
+    let out = cmd
+        .output()
+        .map_err(|e| tool_error(what, format!("cannot start: {e}")))?;
+    if !out.status.success() {
+        return Err(tool_error(
+            what,
+            format!(
+                "failed ({}): {}",
+                out.status,
+                String::from_utf8_lossy(&out.stderr).trim()
+            ),
+        ));
+    }
+    Ok(out)
+}
+
+/// A photo to pan over: Debian's opencv-doc aerial photo when the test data is present,
+/// otherwise ffmpeg's testsrc2 pattern.
+fn texture(dir: &Path, width: u32) -> Result<PathBuf> {
+    let out = dir.join(format!("texture-{width}.png"));
+    if out.exists() {
+        return Ok(out);
+    }
+    let data = std::env::var_os("KEYFRAMER_TESTDATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("target/testdata"));
+    let photo = data.join("opencv-doc/aero3.jpg");
+    let mut cmd = Command::new("ffmpeg");
+    cmd.args(["-v", "error", "-y"]);
+    if photo.exists() {
+        cmd.arg("-i").arg(&photo);
+    } else {
+        cmd.args([
+            "-f",
+            "lavfi",
+            "-i",
+            "testsrc2=size=640x480:rate=1",
+            "-frames:v",
+            "1",
+        ]);
+    }
+    cmd.args(["-vf", &format!("scale={width}:-2:flags=bicubic")]);
+    let tmp = dir.join(format!(".texture-{width}.tmp.png"));
+    cmd.arg(&tmp);
+    run_tool(&mut cmd, "ffmpeg (texture)")?;
+    std::fs::rename(&tmp, &out).map_err(|e| Error::io(&out, e))?;
+    Ok(out)
+}
+
+/// A `w`x`h` H.264 clip panning over the texture with sensor-like temporal noise (so the bitrate,
+/// and with it the decode cost, is that of real footage), made once.
+fn clip(dir: &Path, name: &str, w: u32, h: u32, fps: u32, secs: u32) -> Result<PathBuf> {
+    let out = dir.join(name);
+    if out.exists() {
+        return Ok(out);
+    }
+    let tex = texture(dir, w * 2)?;
+    eprintln!("bench: making {name} ({w}x{h}, {fps} fps, {secs} s)");
+    let tmp = dir.join(format!(".{name}.tmp.mp4"));
+    let vf = format!(
+        "crop={w}:{h}:x='(iw-{w})/2*(1+sin(t/7))':y='(ih-{h})/2*(1+sin(t/11))',\
+         noise=alls=8:allf=t,format=yuv420p"
+    );
+    run_tool(
+        Command::new("ffmpeg")
+            .args(["-v", "error", "-y", "-loop", "1", "-framerate"])
+            .arg(fps.to_string())
+            .arg("-i")
+            .arg(&tex)
+            .args(["-vf", &vf, "-t"])
+            .arg(secs.to_string())
+            .args(["-r"])
+            .arg(fps.to_string())
+            .args(["-c:v", "libx264", "-preset", "veryfast", "-crf", "23"])
+            .arg(&tmp),
+        "ffmpeg (clip)",
+    )?;
+    std::fs::rename(&tmp, &out).map_err(|e| Error::io(&out, e))?;
+    Ok(out)
+}
+
+/// Seconds for `ffmpeg -f null` to decode `clip`, or None without ffmpeg.
+fn ffmpeg_decode(clip: &Path) -> Option<f64> {
+    let t = Instant::now();
+    let ok = Command::new("ffmpeg")
+        .args(["-v", "error", "-i"])
+        .arg(clip)
+        .args(["-f", "null", "-"])
+        .output()
+        .ok()?
+        .status
+        .success();
+    ok.then(|| t.elapsed().as_secs_f64())
+}
+
+/// Seconds for keyframer's OpenCV read loop (decode + BGR, every frame) and the frame count.
+fn opencv_decode(clip: &Path) -> Result<(f64, usize)> {
+    let t = Instant::now();
+    let mut src = crate::source::open(clip, &Default::default())?;
+    let mut n = 0;
+    while src.next_frame()?.is_some() {
+        n += 1;
+    }
+    Ok((t.elapsed().as_secs_f64(), n))
+}
+
+/// One child `select` run: wall seconds and peak RSS in MiB.
+fn analysis(clip: &Path, project: &Path, backend: &str, extra: &[String]) -> Result<(f64, f64)> {
+    let exe = std::env::current_exe().map_err(|e| tool_error("keyframer", e.to_string()))?;
+    let _ = std::fs::remove_file(project);
+    let t = Instant::now();
+    let out = run_tool(
+        Command::new(exe)
+            .arg("select")
+            .arg(clip)
+            .args(["--blur", "--spacing", "200", "--backend", backend])
+            .args(extra)
+            .args(["--checkpoint-every", "0", "--quiet", "-o"])
+            .arg(project)
+            .env("KEYFRAMER_PEAK_RSS", "1"),
+        &format!("keyframer select ({backend})"),
+    )?;
+    let secs = t.elapsed().as_secs_f64();
+    let err = String::from_utf8_lossy(&out.stderr);
+    let peak = err
+        .lines()
+        .find_map(|l| l.strip_prefix("peak-rss-kib "))
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .map_or(f64::NAN, |k| k / 1024.0);
+    Ok((secs, peak))
+}
+
+fn fmt_ratio(a: f64, b: Option<f64>) -> String {
+    b.map_or("-".into(), |b| format!("{:.2}", a / b))
+}
+
+/// Runs the benchmark; progress on stderr, the report returned.
+pub fn run(s: &Settings) -> Result<String> {
+    std::fs::create_dir_all(&s.dir).map_err(|e| Error::io(&s.dir, e))?;
+    if Command::new("ffmpeg").arg("-version").output().is_err() {
+        return Err(tool_error(
+            "ffmpeg",
+            "the benchmark makes its clips with ffmpeg: install it (Debian: apt-get install ffmpeg)",
+        ));
+    }
+    let mut clips = vec![(
+        clip(
+            &s.dir,
+            &format!("1080p30-{}s.mp4", s.seconds),
+            1920,
+            1080,
+            30,
+            s.seconds,
+        )?,
+        true,
+    )];
+    for &m in &s.k4_minutes {
+        let name = format!("2160p{}-{m}min.mp4", s.k4_fps);
+        clips.push((clip(&s.dir, &name, 3840, 2160, s.k4_fps, m * 60)?, false));
+    }
+    let mut report = format!(
+        "pipeline: full analysis = `select --blur --spacing 200 {}` (sharpness of every frame + \
+         Farneback movement), as a child process; decode-only = ffmpeg -f null and keyframer's \
+         OpenCV read loop (decode + BGR)\n",
+        s.select_args.join(" ")
+    );
+    report += &format!(
+        "{:<24} {:>6} {:>9} {:>9} {:>8} {:>9} {:>9} {:>9} {:>9}\n",
+        "clip",
+        "frames",
+        "ffmpeg s",
+        "opencv s",
+        "backend",
+        "analyse s",
+        "/opencv",
+        "/ffmpeg",
+        "peak MiB"
+    );
+    for (path, _) in &clips {
+        let name = path.file_name().unwrap_or_default().to_string_lossy();
+        eprintln!("bench: decoding {name}");
+        let ff = ffmpeg_decode(path);
+        let (cv, frames) = opencv_decode(path)?;
+        for b in &s.backends {
+            eprintln!("bench: analysing {name} with {b}");
+            let project = s.dir.join(format!("{name}.{b}.json"));
+            let (secs, peak) = analysis(path, &project, b, &s.select_args)?;
+            report += &format!(
+                "{:<24} {:>6} {:>9} {:>9.1} {:>8} {:>9.1} {:>9.2} {:>9} {:>9.0}\n",
+                name,
+                frames,
+                ff.map_or("-".into(), |f| format!("{f:.1}")),
+                cv,
+                b,
+                secs,
+                secs / cv,
+                fmt_ratio(secs, ff),
+                peak
+            );
+        }
+    }
+    if s.tradeoffs {
+        report += &tradeoffs(s)?;
+    }
+    Ok(report)
+}
+
+fn movement(project: &Path) -> Result<(Vec<f64>, Vec<usize>)> {
+    let p = crate::project::Project::load(project)?;
+    let values = p
+        .cache
+        .movement
+        .first()
+        .map(|m| m.series.values.clone())
+        .unwrap_or_default();
+    Ok((values, p.keyframes))
+}
+
+/// Analysis width and flow stride against the reference (640, 1): time, movement per second
+/// (relative difference, median and P90 over the clip's seconds) and the spacing selection.
+fn tradeoffs(s: &Settings) -> Result<String> {
+    let clip = clip(&s.dir, "1080p30-20s.mp4", 1920, 1080, 30, 20)?;
+    let settings = [
+        (640, 1),
+        (640, 2),
+        (640, 3),
+        (320, 1),
+        (320, 2),
+        (320, 3),
+        (320, 5),
+    ];
+    let mut out = String::from(
+        "\ntrade-offs on 1080p30-20s.mp4 (opencv backend, `select --spacing 200` movement only; \
+         reference width 640 stride 1)\n",
+    );
+    out += &format!(
+        "{:>6} {:>6} {:>9} {:>12} {:>10} {:>10} {:>14}\n",
+        "width", "stride", "analyse s", "movement/s", "P90", "keyframes", "mean |shift|"
+    );
+    let exe = std::env::current_exe().map_err(|e| tool_error("keyframer", e.to_string()))?;
+    let mut reference: Option<(Vec<f64>, Vec<usize>)> = None;
+    for (w, k) in settings {
+        let project = s.dir.join(format!("tradeoff-{w}-{k}.json"));
+        let _ = std::fs::remove_file(&project);
+        eprintln!("bench: trade-off width {w} stride {k}");
+        let t = Instant::now();
+        run_tool(
+            Command::new(&exe)
+                .arg("select")
+                .arg(&clip)
+                .args(["--spacing", "200", "--backend", "opencv", "--quiet"])
+                .args(["--analysis-width", &w.to_string()])
+                .args([
+                    "--flow-stride",
+                    &k.to_string(),
+                    "--checkpoint-every",
+                    "0",
+                    "-o",
+                ])
+                .arg(&project),
+            "keyframer select (trade-off)",
+        )?;
+        let secs = t.elapsed().as_secs_f64();
+        let (values, keys) = movement(&project)?;
+        let (rel, p90, shift) = match &reference {
+            None => (0.0, 0.0, 0.0),
+            Some((rv, rk)) => {
+                let per_sec =
+                    |v: &[f64]| -> Vec<f64> { v.chunks(30).map(|c| c.iter().sum()).collect() };
+                let (a, b) = (per_sec(rv), per_sec(&values));
+                let mut d: Vec<f64> = a
+                    .iter()
+                    .zip(&b)
+                    .filter(|(x, _)| **x > 1.0)
+                    .map(|(x, y)| (y - x).abs() / x)
+                    .collect();
+                d.sort_by(f64::total_cmp);
+                let q = |p: f64| {
+                    d.get(((d.len() as f64 - 1.0) * p).round() as usize)
+                        .copied()
+                };
+                let shift = keys
+                    .iter()
+                    .map(|&k| rk.iter().map(|&r| r.abs_diff(k)).min().unwrap_or(0) as f64)
+                    .sum::<f64>()
+                    / keys.len().max(1) as f64;
+                (q(0.5).unwrap_or(0.0), q(0.9).unwrap_or(0.0), shift)
+            }
+        };
+        out += &format!(
+            "{w:>6} {k:>6} {secs:>9.1} {rel:>12.3} {p90:>10.3} {:>10} {shift:>14.2}\n",
+            keys.len()
+        );
+        if reference.is_none() {
+            reference = Some((values, keys));
+        }
+    }
+    Ok(out)
+}
