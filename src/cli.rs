@@ -168,7 +168,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 5)]
     pub k4_fps: u32,
     /// pipeline: lengths of the 4K clips in minutes (peak memory must not grow with length);
-    /// `--k4-minutes ""` skips them.
+    /// `--k4-minutes 0` skips them.
     #[arg(long, value_delimiter = ',', default_value = "1,4")]
     pub k4_minutes: Vec<u32>,
     /// pipeline: backends to time.
