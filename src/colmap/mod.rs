@@ -125,20 +125,18 @@ pub fn locate() -> Result<Colmap> {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
-    let version = text
-        .lines()
-        .find(|l| l.contains("Commit") || l.starts_with("COLMAP"))
-        .map(|l| l.trim().to_string())
-        .unwrap_or_default();
+    // Header: "COLMAP 3.8 -- Structure-from-Motion ..." then "(Commit ... without CUDA)".
     let cuda = text.contains("with CUDA") && !text.contains("without CUDA");
-    // Version line: "COLMAP 3.8 -- Structure-from-Motion..." then "(Commit ... without CUDA)".
-    let version = match text.lines().find(|l| l.trim_start().starts_with("COLMAP")) {
-        Some(first) => {
-            let v = first.split("--").next().unwrap_or(first).trim().to_string();
-            format!("{v} ({})", if cuda { "with CUDA" } else { "without CUDA" })
-        }
-        None => version,
-    };
+    let name = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("COLMAP"))
+        .and_then(|l| l.split("--").next())
+        .map(|v| v.trim().to_string())
+        .unwrap_or_else(|| "COLMAP (unknown version)".into());
+    let version = format!(
+        "{name} ({})",
+        if cuda { "with CUDA" } else { "without CUDA" }
+    );
     Ok(Colmap { bin, version, cuda })
 }
 
@@ -240,6 +238,17 @@ pub fn read_manifest(export: &Path) -> Result<Manifest> {
 
 /// Runs `keyframer colmap`; returns the record as written.
 pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
+    if a.overlap == 0 {
+        return Err(Error::param("--overlap", "must be at least 1"));
+    }
+    if !model::CAMERA_MODELS.iter().any(|m| m.1 == a.camera_model) {
+        let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
+        return Err(Error::param(
+            "--camera-model",
+            format!("`{}` is not one of {}", a.camera_model, names.join(", ")),
+        ));
+    }
+    mapper_keys(&a.mapper_option)?;
     let colmap = locate()?;
     let export = fsutil::absolute(&a.export);
     let manifest = read_manifest(&export)?;

@@ -89,7 +89,7 @@ pub enum Format {
 }
 
 /// COLMAP camera models: (id, name, number of parameters).
-const CAMERA_MODELS: [(i32, &str, usize); 11] = [
+pub const CAMERA_MODELS: [(i32, &str, usize); 11] = [
     (0, "SIMPLE_PINHOLE", 3),
     (1, "PINHOLE", 4),
     (2, "SIMPLE_RADIAL", 4),
