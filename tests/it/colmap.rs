@@ -228,6 +228,86 @@ fn dense_without_cuda_explains_and_keeps_sparse_and_failed_stage_named() {
         .contains("exhaustive_matcher"));
 }
 
+#[test]
+fn masks_reach_colmap_and_eval_reads_the_workspace() {
+    let d = tempfile::tempdir().unwrap();
+    let export = d.path().join("export");
+    std::fs::create_dir_all(export.join("masks")).unwrap();
+    let mut frames = Vec::new();
+    for (k, i) in [0, 5, 10].into_iter().enumerate() {
+        let name = format!("frame_{i:06}.jpg");
+        std::fs::write(export.join(&name), format!("image {i}")).unwrap();
+        std::fs::write(
+            export.join(format!("masks/{name}.png")),
+            format!("mask {i}"),
+        )
+        .unwrap();
+        frames.push(
+            serde_json::json!({"index": i, "timestamp_s": k as f64 / 6.0, "file": name,
+            "mask": format!("masks/{name}.png")}),
+        );
+    }
+    let manifest = serde_json::json!({
+        "tool": "keyframer", "tool_version": "0", "created_unix_s": 0,
+        "project": "/p.json", "source": "/v.mp4", "source_kind": "video",
+        "settings": {"resize": null, "crop": null, "format": null, "quality": 95},
+        "width": 320, "height": 240, "frames": frames, "missing": []
+    });
+    std::fs::write(export.join("manifest.json"), manifest.to_string()).unwrap();
+    let fake = fake_colmap(d.path());
+    let o = kf_env(
+        &["colmap", s(&export), "--sparse"],
+        &[("KEYFRAMER_COLMAP", s(&fake))],
+    );
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 0, "{err}");
+    let ws = export.join("colmap");
+    let masks = ws.join("masks");
+    assert_eq!(
+        std::fs::read_to_string(masks.join("frame_000005.jpg.png")).unwrap(),
+        "mask 5"
+    );
+    let rec = json(&ws.join("colmap.json"));
+    assert_eq!(rec["masks"], 3);
+    let fe = &rec["stages"][1];
+    assert_eq!(fe["stage"], "feature_extractor");
+    let cmd: Vec<&str> = fe["command"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    let at = cmd
+        .iter()
+        .position(|a| *a == "--ImageReader.mask_path")
+        .expect("mask path passed");
+    assert_eq!(cmd[at + 1], s(&masks));
+    let ini = std::fs::read_to_string(ws.join("project.ini")).unwrap();
+    assert!(
+        ini.contains(&format!("mask_path={}\n", masks.display())),
+        "{ini}"
+    );
+
+    // eval on the workspace: the stand-in model has cameras at x = 0, 1, 2.
+    let out = kf_ok(&["eval", s(&ws), "--json"]);
+    let r: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(
+        (r["selected"].as_u64(), r["registered"].as_u64()),
+        (Some(3), Some(3))
+    );
+    assert_eq!(r["models"], 1);
+    assert!(r["mean_reprojection_error"].is_null());
+    let idx: Vec<u64> = r["order"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|o| o[1].as_u64().unwrap())
+        .collect();
+    assert_eq!(idx, [0, 5, 10]);
+    assert!((r["spacing"]["mean"].as_f64().unwrap() - 1.0).abs() < 1e-12);
+    assert!(r["spacing"]["std"].as_f64().unwrap().abs() < 1e-12);
+}
+
 // ---------------------------------------------------------------------------------------------
 // A real reconstruction.
 
