@@ -256,10 +256,14 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
         return Err(Error::input(&export, "the export holds no images"));
     }
     let ws = fsutil::absolute(&a.output.clone().unwrap_or_else(|| export.join("colmap")));
-    if ws == export {
+    if export.starts_with(&ws) {
         return Err(Error::param(
             "--output",
-            "the workspace must not be the export folder itself",
+            format!(
+                "the workspace {} must not be or contain the export folder {}",
+                ws.display(),
+                export.display()
+            ),
         ));
     }
     prepare_workspace(&ws, a.force)?;

@@ -101,6 +101,16 @@ fn workspace_refused_without_force_and_replaced_with_it() {
     assert!(ini.contains("[ImageReader]\nsingle_camera=true"));
     assert_eq!(json(&ws.join("colmap.json")), rec);
 
+    // A workspace holding the export (its images/ could be the export) is refused.
+    let o = kf(&["colmap", s(&export), "-o", s(d.path()), "--force"]);
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("must not be or contain the export folder"),
+        "{err}"
+    );
+    assert!(export.join("manifest.json").is_file());
+
     // Existing workspace: refused, named, untouched.
     std::fs::write(ws.join("notes.txt"), "mine").unwrap();
     let o = kf(&["colmap", s(&export), "-o", s(&ws)]);
