@@ -60,6 +60,10 @@ pub enum Command {
     Flow(FlowArgs),
     /// Side-by-side timings of the gpu and opencv backends (ratios from one run).
     Bench(BenchArgs),
+    /// COLMAP workspace from an export (images, masks, database, project.ini); --sparse runs it.
+    Colmap(crate::colmap::ColmapArgs),
+    /// Evaluate a COLMAP model: registered images, reprojection error, spacing, GT pose error.
+    Eval(crate::eval::EvalArgs),
 }
 
 /// `score` flags.

@@ -62,6 +62,10 @@ pub enum Error {
         #[source]
         source: opencv::Error,
     },
+
+    /// COLMAP is missing, or one of its stages failed (the message names the stage and its log).
+    #[error("{0}")]
+    Colmap(String),
 }
 
 impl Error {

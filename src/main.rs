@@ -183,6 +183,8 @@ fn run(cli: Cli) -> Result<Outcome> {
             })
         }
         Command::Segment(a) => segment(&a),
+        Command::Colmap(a) => colmap(&a, quiet),
+        Command::Eval(a) => eval(&a),
         Command::Run(a) => {
             let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
             let settings = keyframer::batch::RunSettings {
@@ -258,6 +260,26 @@ fn run(cli: Cli) -> Result<Outcome> {
             }
         }
     }
+}
+
+fn colmap(a: &keyframer::colmap::ColmapArgs, quiet: bool) -> Result<Outcome> {
+    let rec = keyframer::colmap::run(a, quiet)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rec)?);
+    } else {
+        print!("{}", keyframer::colmap::render(&rec));
+    }
+    Ok(Outcome::Ok)
+}
+
+fn eval(a: &keyframer::eval::EvalArgs) -> Result<Outcome> {
+    let r = keyframer::eval::evaluate(a)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        print!("{}", keyframer::eval::render(&r));
+    }
+    Ok(Outcome::Ok)
 }
 
 fn segment(a: &keyframer::cli::SegmentArgs) -> Result<Outcome> {

@@ -2,6 +2,7 @@
 
 mod batch;
 mod blur;
+mod colmap;
 mod common;
 mod flow;
 mod foundation;

@@ -1,0 +1,698 @@
+//! `keyframer colmap`: turns an export folder into a COLMAP workspace (linked images and masks,
+//! database, a `project.ini` the GUI opens) and optionally runs COLMAP headless, one subprocess
+//! per stage with its output in `logs/<stage>.log`. Guarantees: nothing is written when COLMAP is
+//! missing, the export is not one, or the workspace exists without `--force` (which replaces only
+//! what keyframer makes); `colmap.json` (stages, times, command lines, models) is written
+//! atomically, also when a stage fails.
+
+pub mod align;
+pub mod model;
+
+use crate::error::{Error, Result};
+use crate::export::{Manifest, MANIFEST};
+use crate::fsutil;
+use clap::{Args, ValueEnum};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Instant;
+
+/// Name of the record written into every workspace.
+pub const RECORD: &str = "colmap.json";
+/// Environment variable naming the COLMAP binary to use instead of `colmap` on PATH.
+pub const COLMAP_ENV: &str = "KEYFRAMER_COLMAP";
+/// What keyframer creates in a workspace; `--force` removes exactly these.
+const OURS: [&str; 10] = [
+    "images",
+    "masks",
+    "sparse",
+    "dense",
+    "logs",
+    "database.db",
+    "database.db-shm",
+    "database.db-wal",
+    "project.ini",
+    RECORD,
+];
+
+/// `colmap` flags.
+#[derive(Debug, Args)]
+pub struct ColmapArgs {
+    /// Export folder made by `keyframer export` (holds manifest.json).
+    pub export: PathBuf,
+    /// Workspace folder (default: EXPORT/colmap).
+    #[arg(short, long, value_name = "WORKSPACE")]
+    pub output: Option<PathBuf>,
+    /// Run feature extraction, matching and the mapper (sparse model under sparse/N).
+    #[arg(long)]
+    pub sparse: bool,
+    /// Then densify (image_undistorter, patch_match_stereo, stereo_fusion); needs a CUDA COLMAP.
+    #[arg(long)]
+    pub dense: bool,
+    /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
+    #[arg(long, value_enum, default_value = "sequential")]
+    pub matcher: Matcher,
+    /// Sequential matching: match each image with this many following images.
+    #[arg(long, default_value_t = 10)]
+    pub overlap: u32,
+    /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
+    #[arg(long, default_value = "SIMPLE_RADIAL")]
+    pub camera_model: String,
+    /// Maximum SIFT features per image (COLMAP's default 8192 when not given).
+    #[arg(long, value_name = "N")]
+    pub max_features: Option<u32>,
+    /// Extra mapper option `KEY=VALUE`, passed as `--Mapper.KEY VALUE` (repeatable), e.g.
+    /// `init_min_tri_angle=4` for short baselines.
+    #[arg(long, value_name = "KEY=VALUE")]
+    pub mapper_option: Vec<String>,
+    /// Replace the keyframer-made content of an existing workspace.
+    #[arg(long)]
+    pub force: bool,
+    /// Print colmap.json to stdout instead of a summary.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Feature matching strategy.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Matcher {
+    /// `sequential_matcher`: neighbours in file-name (video) order.
+    Sequential,
+    /// `exhaustive_matcher`: every pair.
+    Exhaustive,
+}
+
+/// The COLMAP installation used.
+#[derive(Debug, Clone)]
+pub struct Colmap {
+    /// Binary.
+    pub bin: PathBuf,
+    /// Header line, e.g. "COLMAP 3.8 (Commit Unknown on Unknown without CUDA)".
+    pub version: String,
+    /// Whether the build has CUDA (dense stereo).
+    pub cuda: bool,
+}
+
+/// Finds COLMAP (`KEYFRAMER_COLMAP`, else `colmap` on PATH) and reads its version and CUDA
+/// support from the header of `colmap help`.
+pub fn locate() -> Result<Colmap> {
+    let bin = match std::env::var_os(COLMAP_ENV) {
+        Some(p) => {
+            let p = PathBuf::from(p);
+            if !p.is_file() {
+                return Err(Error::Colmap(format!(
+                    "{COLMAP_ENV}={}: no such file: install COLMAP (Debian/Ubuntu: apt-get install colmap) or fix the variable",
+                    p.display()
+                )));
+            }
+            p
+        }
+        None => crate::info::find_on_path("colmap").ok_or_else(|| {
+            Error::Colmap(
+                "colmap not found on PATH: install COLMAP (Debian/Ubuntu: apt-get install colmap)"
+                    .into(),
+            )
+        })?,
+    };
+    let out = Command::new(&bin)
+        .arg("help")
+        .stdin(Stdio::null())
+        .output()
+        .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", bin.display())))?;
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // Header: "COLMAP 3.8 -- Structure-from-Motion ..." then "(Commit ... without CUDA)".
+    let cuda = text.contains("with CUDA") && !text.contains("without CUDA");
+    let name = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("COLMAP"))
+        .and_then(|l| l.split("--").next())
+        .map(|v| v.trim().to_string())
+        .unwrap_or_else(|| "COLMAP (unknown version)".into());
+    let version = format!(
+        "{name} ({})",
+        if cuda { "with CUDA" } else { "without CUDA" }
+    );
+    Ok(Colmap { bin, version, cuda })
+}
+
+/// One COLMAP stage as run.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StageRecord {
+    /// COLMAP command name.
+    pub stage: String,
+    /// Full command line.
+    pub command: Vec<String>,
+    /// Wall time in seconds.
+    pub seconds: f64,
+    /// Log file, relative to the workspace.
+    pub log: String,
+    /// Exit code (None when killed by a signal).
+    pub exit_code: Option<i32>,
+}
+
+/// Summary of one model under `sparse/`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ModelSummary {
+    /// Folder relative to the workspace (`sparse/0`).
+    pub path: String,
+    /// Registered images.
+    pub registered_images: usize,
+    /// 3D points.
+    pub points3d: usize,
+    /// Mean of the points' reprojection errors (px).
+    pub mean_reprojection_error: Option<f64>,
+}
+
+/// `colmap.json`: what was run, how long it took, and what came out.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Record {
+    /// Always "keyframer".
+    pub tool: String,
+    /// keyframer version.
+    pub tool_version: String,
+    /// COLMAP binary.
+    pub colmap: PathBuf,
+    /// COLMAP version line.
+    pub colmap_version: String,
+    /// Whether COLMAP has CUDA.
+    pub cuda: bool,
+    /// The export folder (absolute).
+    pub export: PathBuf,
+    /// The workspace (absolute).
+    pub workspace: PathBuf,
+    /// Images in the workspace (the export's frames).
+    pub images: usize,
+    /// Masks in the workspace.
+    pub masks: usize,
+    /// Camera model.
+    pub camera_model: String,
+    /// Matcher (when sparse ran).
+    pub matcher: Option<Matcher>,
+    /// Sequential overlap (when sequential matching ran).
+    pub overlap: Option<u32>,
+    /// Stages in order.
+    pub stages: Vec<StageRecord>,
+    /// Models under sparse/, in folder order.
+    pub models: Vec<ModelSummary>,
+    /// Why the run stopped early, when it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+/// Reads a workspace's `colmap.json`.
+pub fn read_record(workspace: &Path) -> Result<Record> {
+    let p = workspace.join(RECORD);
+    let text = std::fs::read_to_string(&p).map_err(|e| Error::io(&p, e))?;
+    serde_json::from_str(&text).map_err(|e| Error::File {
+        path: p.clone(),
+        line: Some(e.line()),
+        what: "colmap record",
+        field: String::new(),
+        msg: e.to_string(),
+    })
+}
+
+/// Reads an export folder's manifest, with a clear error when it is not an export.
+pub fn read_manifest(export: &Path) -> Result<Manifest> {
+    let p = export.join(MANIFEST);
+    if !p.is_file() {
+        return Err(Error::input(
+            export,
+            "no manifest.json: not an export folder made by `keyframer export`",
+        ));
+    }
+    let text = std::fs::read_to_string(&p).map_err(|e| Error::io(&p, e))?;
+    serde_json::from_str(&text).map_err(|e| Error::File {
+        path: p.clone(),
+        line: Some(e.line()),
+        what: "export manifest",
+        field: String::new(),
+        msg: e.to_string(),
+    })
+}
+
+/// Runs `keyframer colmap`; returns the record as written.
+pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
+    if a.overlap == 0 {
+        return Err(Error::param("--overlap", "must be at least 1"));
+    }
+    if !model::CAMERA_MODELS.iter().any(|m| m.1 == a.camera_model) {
+        let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
+        return Err(Error::param(
+            "--camera-model",
+            format!("`{}` is not one of {}", a.camera_model, names.join(", ")),
+        ));
+    }
+    mapper_keys(&a.mapper_option)?;
+    let colmap = locate()?;
+    let export = fsutil::absolute(&a.export);
+    let manifest = read_manifest(&export)?;
+    if manifest.frames.is_empty() {
+        return Err(Error::input(&export, "the export holds no images"));
+    }
+    let ws = fsutil::absolute(&a.output.clone().unwrap_or_else(|| export.join("colmap")));
+    if export.starts_with(&ws) {
+        return Err(Error::param(
+            "--output",
+            format!(
+                "the workspace {} must not be or contain the export folder {}",
+                ws.display(),
+                export.display()
+            ),
+        ));
+    }
+    prepare_workspace(&ws, a.force)?;
+    let images = ws.join("images");
+    let masks_dir = ws.join("masks");
+    std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
+    std::fs::create_dir_all(ws.join("logs")).map_err(|e| Error::io(ws.join("logs"), e))?;
+    let mut masks = 0;
+    for f in &manifest.frames {
+        link_or_copy(&export.join(&f.file), &images.join(&f.file))?;
+        if let Some(m) = &f.mask {
+            if masks == 0 {
+                std::fs::create_dir_all(&masks_dir).map_err(|e| Error::io(&masks_dir, e))?;
+            }
+            link_or_copy(&export.join(m), &masks_dir.join(format!("{}.png", f.file)))?;
+            masks += 1;
+        }
+    }
+    let has_masks = masks > 0;
+    let mut rec = Record {
+        tool: "keyframer".into(),
+        tool_version: env!("CARGO_PKG_VERSION").into(),
+        colmap: colmap.bin.clone(),
+        colmap_version: colmap.version.clone(),
+        cuda: colmap.cuda,
+        export: export.clone(),
+        workspace: ws.clone(),
+        images: manifest.frames.len(),
+        masks,
+        camera_model: a.camera_model.clone(),
+        matcher: None,
+        overlap: None,
+        stages: Vec::new(),
+        models: Vec::new(),
+        error: None,
+    };
+    let runner = Runner {
+        colmap: &colmap,
+        ws: &ws,
+        quiet,
+    };
+    let result = (|| -> Result<()> {
+        write_project_ini(&runner, &mut rec, a, has_masks)?;
+        let db = ws.join("database.db");
+        let p = |p: &Path| p.display().to_string();
+        if !(a.sparse || a.dense) {
+            rec.stages
+                .push(runner.stage("database_creator", &[("--database_path", p(&db))])?);
+            return Ok(());
+        }
+        let gpu = if colmap.cuda { "1" } else { "0" };
+        let mut fe = vec![
+            ("--database_path", p(&db)),
+            ("--image_path", p(&images)),
+            ("--ImageReader.single_camera", "1".into()),
+            ("--ImageReader.camera_model", a.camera_model.clone()),
+            ("--SiftExtraction.use_gpu", gpu.into()),
+        ];
+        if has_masks {
+            fe.push(("--ImageReader.mask_path", p(&masks_dir)));
+        }
+        if let Some(n) = a.max_features {
+            fe.push(("--SiftExtraction.max_num_features", n.to_string()));
+        }
+        rec.stages.push(runner.stage("feature_extractor", &fe)?);
+        rec.matcher = Some(a.matcher);
+        let (name, mut args) = match a.matcher {
+            Matcher::Sequential => {
+                rec.overlap = Some(a.overlap);
+                (
+                    "sequential_matcher",
+                    vec![("--SequentialMatching.overlap", a.overlap.to_string())],
+                )
+            }
+            Matcher::Exhaustive => ("exhaustive_matcher", Vec::new()),
+        };
+        args.push(("--database_path", p(&db)));
+        args.push(("--SiftMatching.use_gpu", gpu.into()));
+        rec.stages.push(runner.stage(name, &args)?);
+        let sparse = ws.join("sparse");
+        std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
+        let mut margs = vec![
+            ("--database_path", p(&db)),
+            ("--image_path", p(&images)),
+            ("--output_path", p(&sparse)),
+        ];
+        let keys = mapper_keys(&a.mapper_option)?;
+        for (k, v) in &keys {
+            margs.push((k.as_str(), v.clone()));
+        }
+        rec.stages.push(runner.stage("mapper", &margs)?);
+        for dir in model::model_dirs(&sparse)? {
+            let (m, _) = model::read(&dir)?;
+            rec.models
+                .push(summarise(&m, &fsutil::relative_to(&dir, &ws)));
+        }
+        let Some(best) = largest(&rec.models) else {
+            return Err(Error::Colmap(format!(
+                "mapper made no model from {} images (see {})",
+                rec.images,
+                ws.join("logs/mapper.log").display()
+            )));
+        };
+        if !quiet {
+            for m in &rec.models {
+                eprintln!(
+                    "{}: {} of {} images registered, {} points",
+                    m.path, m.registered_images, rec.images, m.points3d
+                );
+            }
+        }
+        if a.dense {
+            let model_dir = ws.join(&best.path);
+            if !colmap.cuda {
+                return Err(Error::Colmap(format!(
+                    "dense reconstruction (patch_match_stereo) needs a CUDA build of COLMAP and {} is built without CUDA; \
+                     the sparse model is at {}; `colmap image_undistorter --image_path {} --input_path {} --output_path DIR` \
+                     prepares it for densifying elsewhere (e.g. OpenMVS)",
+                    colmap.bin.display(),
+                    model_dir.display(),
+                    images.display(),
+                    model_dir.display()
+                )));
+            }
+            let dense = ws.join("dense");
+            rec.stages.push(runner.stage(
+                "image_undistorter",
+                &[
+                    ("--image_path", p(&images)),
+                    ("--input_path", p(&model_dir)),
+                    ("--output_path", p(&dense)),
+                    ("--output_type", "COLMAP".into()),
+                ],
+            )?);
+            rec.stages.push(runner.stage(
+                "patch_match_stereo",
+                &[
+                    ("--workspace_path", p(&dense)),
+                    ("--workspace_format", "COLMAP".into()),
+                    ("--PatchMatchStereo.geom_consistency", "true".into()),
+                ],
+            )?);
+            rec.stages.push(runner.stage(
+                "stereo_fusion",
+                &[
+                    ("--workspace_path", p(&dense)),
+                    ("--workspace_format", "COLMAP".into()),
+                    ("--input_type", "geometric".into()),
+                    ("--output_path", p(&dense.join("fused.ply"))),
+                ],
+            )?);
+        }
+        Ok(())
+    })();
+    if let Err(e) = &result {
+        rec.error = Some(e.to_string());
+    }
+    write_record(&ws, &rec)?;
+    result.map(|()| rec)
+}
+
+/// `KEY=VALUE` mapper options as (`--Mapper.KEY`, `VALUE`).
+fn mapper_keys(options: &[String]) -> Result<Vec<(String, String)>> {
+    options
+        .iter()
+        .map(|o| match o.split_once('=') {
+            Some((k, v)) if !k.trim().is_empty() && !v.trim().is_empty() => {
+                let k = k.trim().trim_start_matches("Mapper.");
+                Ok((format!("--Mapper.{k}"), v.trim().to_string()))
+            }
+            _ => Err(Error::param(
+                "--mapper-option",
+                format!("`{o}` is not KEY=VALUE"),
+            )),
+        })
+        .collect()
+}
+
+/// The model with the most registered images (the first of equals).
+pub fn largest(models: &[ModelSummary]) -> Option<&ModelSummary> {
+    models
+        .iter()
+        .rev()
+        .max_by_key(|m| m.registered_images)
+        .filter(|m| m.registered_images > 0)
+}
+
+fn summarise(m: &model::Model, rel: &Path) -> ModelSummary {
+    let n = m.points.len();
+    ModelSummary {
+        path: rel.display().to_string(),
+        registered_images: m.images.len(),
+        points3d: n,
+        mean_reprojection_error: (n > 0)
+            .then(|| m.points.values().map(|p| p.error).sum::<f64>() / n as f64),
+    }
+}
+
+fn write_record(ws: &Path, rec: &Record) -> Result<()> {
+    let mut text = serde_json::to_string_pretty(rec).map_err(|e| Error::Output {
+        path: ws.join(RECORD),
+        msg: e.to_string(),
+    })?;
+    text.push('\n');
+    fsutil::write_atomic(&ws.join(RECORD), text.as_bytes())
+}
+
+/// Refuses an existing non-empty workspace unless `force`; with `force` removes what keyframer
+/// made there (and nothing else).
+fn prepare_workspace(ws: &Path, force: bool) -> Result<()> {
+    if ws.exists() && !ws.is_dir() {
+        return Err(Error::Output {
+            path: ws.to_path_buf(),
+            msg: "exists and is not a folder".into(),
+        });
+    }
+    let non_empty = ws.is_dir()
+        && std::fs::read_dir(ws)
+            .map_err(|e| Error::io(ws, e))?
+            .next()
+            .is_some();
+    if non_empty && !force {
+        return Err(Error::Output {
+            path: ws.to_path_buf(),
+            msg: "COLMAP workspace exists; pass --force to replace it".into(),
+        });
+    }
+    if non_empty {
+        for name in OURS {
+            let p = ws.join(name);
+            let r = if p.is_dir() {
+                std::fs::remove_dir_all(&p)
+            } else if p.exists() {
+                std::fs::remove_file(&p)
+            } else {
+                Ok(())
+            };
+            r.map_err(|e| Error::io(&p, e))?;
+        }
+    }
+    std::fs::create_dir_all(ws).map_err(|e| Error::io(ws, e))
+}
+
+/// Hard-links `from` to `to`, copying (atomically) when a link is impossible (other file system).
+fn link_or_copy(from: &Path, to: &Path) -> Result<()> {
+    if !from.is_file() {
+        return Err(Error::input(
+            from,
+            "listed in the export's manifest but missing",
+        ));
+    }
+    if std::fs::hard_link(from, to).is_ok() {
+        return Ok(());
+    }
+    fsutil::copy_atomic(from, to)
+}
+
+/// Runs COLMAP stages in a workspace.
+struct Runner<'a> {
+    colmap: &'a Colmap,
+    ws: &'a Path,
+    quiet: bool,
+}
+
+impl Runner<'_> {
+    /// Runs `colmap <name> <args>` with stdout and stderr in `logs/<name>.log`.
+    fn stage(&self, name: &str, args: &[(&str, String)]) -> Result<StageRecord> {
+        let rel = format!("logs/{name}.log");
+        let log = self.ws.join(&rel);
+        let file = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
+        let err = file.try_clone().map_err(|e| Error::io(&log, e))?;
+        let mut command = vec![self.colmap.bin.display().to_string(), name.to_string()];
+        for (k, v) in args {
+            command.push((*k).to_string());
+            command.push(v.clone());
+        }
+        let start = Instant::now();
+        let status = Command::new(&self.colmap.bin)
+            .args(&command[1..])
+            .stdin(Stdio::null())
+            .stdout(file)
+            .stderr(err)
+            .status()
+            .map_err(|e| {
+                Error::Colmap(format!("{}: cannot run: {e}", self.colmap.bin.display()))
+            })?;
+        let seconds = start.elapsed().as_secs_f64();
+        if !status.success() {
+            return Err(Error::Colmap(format!(
+                "colmap {name} failed ({status}) after {seconds:.1} s; log: {}",
+                log.display()
+            )));
+        }
+        if !self.quiet {
+            eprintln!("{name}: {seconds:.1} s");
+        }
+        Ok(StageRecord {
+            stage: name.into(),
+            command,
+            seconds,
+            log: rel,
+            exit_code: status.code(),
+        })
+    }
+}
+
+/// Writes `project.ini` from `colmap project_generator`'s defaults with this workspace's paths
+/// (absolute) and settings filled in.
+fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapArgs, masks: bool) -> Result<()> {
+    let ws = runner.ws;
+    let tmp = ws.join(format!(".project.ini.tmp-{}", std::process::id()));
+    let stage = runner.stage(
+        "project_generator",
+        &[
+            ("--output_path", tmp.display().to_string()),
+            ("--quality", "high".into()),
+        ],
+    );
+    let text = std::fs::read_to_string(&tmp).map_err(|e| Error::io(&tmp, e));
+    let _ = std::fs::remove_file(&tmp);
+    rec.stages.push(stage?);
+    let mut text = text?;
+    let p = |n: &str| ws.join(n).display().to_string();
+    let mut set = vec![
+        ("", "database_path", p("database.db")),
+        ("", "image_path", p("images")),
+        ("ImageReader", "single_camera", "true".into()),
+        ("ImageReader", "camera_model", a.camera_model.clone()),
+        ("SequentialMatching", "overlap", a.overlap.to_string()),
+    ];
+    if masks {
+        set.push(("ImageReader", "mask_path", p("masks")));
+    }
+    if let Some(n) = a.max_features {
+        set.push(("SiftExtraction", "max_num_features", n.to_string()));
+    }
+    for (section, key, value) in set {
+        text = ini_set(&text, section, key, &value);
+    }
+    fsutil::write_atomic(&ws.join("project.ini"), text.as_bytes())
+}
+
+/// `text` (an ini file) with `key` in `[section]` (`""`: before the first section) set to
+/// `value`; the key is appended to the section (created at the end if absent) when missing.
+pub fn ini_set(text: &str, section: &str, key: &str, value: &str) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut current = String::new();
+    let mut done = false;
+    let mut section_end: Option<usize> = None;
+    for line in text.lines() {
+        let t = line.trim();
+        if t.starts_with('[') && t.ends_with(']') {
+            if current == section && !done {
+                section_end = Some(out.len());
+            }
+            current = t[1..t.len() - 1].to_string();
+        } else if current == section && !done {
+            if let Some((k, _)) = t.split_once('=') {
+                if k.trim() == key {
+                    out.push(format!("{key}={value}"));
+                    done = true;
+                    continue;
+                }
+            }
+        }
+        out.push(line.to_string());
+    }
+    if !done {
+        let entry = format!("{key}={value}");
+        if current == section {
+            out.push(entry);
+        } else if let Some(i) = section_end {
+            out.insert(i, entry);
+        } else {
+            out.push(format!("[{section}]"));
+            out.push(entry);
+        }
+    }
+    let mut s = out.join("\n");
+    s.push('\n');
+    s
+}
+
+/// Human-readable summary of a record.
+pub fn render(rec: &Record) -> String {
+    let mut s = format!(
+        "workspace: {}\ncolmap:    {} ({})\nimages:    {} ({} masks)\n",
+        rec.workspace.display(),
+        rec.colmap_version,
+        rec.colmap.display(),
+        rec.images,
+        rec.masks
+    );
+    for st in &rec.stages {
+        s += &format!("stage:     {:<20} {:>8.1} s\n", st.stage, st.seconds);
+    }
+    for m in &rec.models {
+        s += &format!(
+            "model:     {:<20} {} of {} images registered, {} points, mean reprojection error {}\n",
+            m.path,
+            m.registered_images,
+            rec.images,
+            m.points3d,
+            m.mean_reprojection_error
+                .map(|e| format!("{e:.3} px"))
+                .unwrap_or_else(|| "-".into())
+        );
+    }
+    s += &format!(
+        "gui:       colmap gui --project_path {}\n",
+        rec.workspace.join("project.ini").display()
+    );
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ini_set_replaces_appends_and_creates() {
+        let t = "a=1\ndatabase_path=\n[ImageReader]\nmask_path=\ncamera_model=X\n[Other]\nk=v\n";
+        let t = ini_set(t, "", "database_path", "/w/db");
+        let t = ini_set(&t, "ImageReader", "camera_model", "PINHOLE");
+        let t = ini_set(&t, "ImageReader", "single_camera", "true");
+        let t = ini_set(&t, "New", "x", "1");
+        assert_eq!(
+            t,
+            "a=1\ndatabase_path=/w/db\n[ImageReader]\nmask_path=\ncamera_model=PINHOLE\nsingle_camera=true\n[Other]\nk=v\n[New]\nx=1\n"
+        );
+    }
+}

@@ -1,0 +1,496 @@
+//! Readers for COLMAP sparse models (`cameras`, `images`, `points3D` in the binary `.bin` or the
+//! text `.txt` format of COLMAP's "Output format" documentation). Both readers fill the same
+//! [`Model`]; every parse error names the file and the record (or line) at fault.
+
+use super::align::{self, Vec3};
+use crate::error::{Error, Result};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// One camera (intrinsics).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Camera {
+    /// Camera id.
+    pub id: u32,
+    /// COLMAP model name (`SIMPLE_RADIAL`, `PINHOLE`, ...).
+    pub model: String,
+    /// Image width in pixels.
+    pub width: u64,
+    /// Image height in pixels.
+    pub height: u64,
+    /// Model parameters in COLMAP's order.
+    pub params: Vec<f64>,
+}
+
+/// One registered image: its world-to-camera pose and 2D observations.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    /// Image id.
+    pub id: u32,
+    /// World-to-camera rotation as a quaternion (w, x, y, z).
+    pub qvec: [f64; 4],
+    /// World-to-camera translation.
+    pub tvec: Vec3,
+    /// Camera id.
+    pub camera_id: u32,
+    /// File name relative to the image folder.
+    pub name: String,
+    /// 2D points: x, y and the 3D point observed (None when not triangulated).
+    pub points2d: Vec<(f64, f64, Option<u64>)>,
+}
+
+impl Image {
+    /// Camera centre in world coordinates, `C = -Rᵀ t`.
+    pub fn centre(&self) -> Vec3 {
+        let rt = align::transpose(&align::quat_to_mat(self.qvec));
+        align::mul_vec(&rt, &self.tvec).map(|v| -v)
+    }
+
+    /// Camera-to-world rotation `Rᵀ`.
+    pub fn cam_to_world(&self) -> align::Mat3 {
+        align::transpose(&align::quat_to_mat(self.qvec))
+    }
+}
+
+/// One 3D point.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Point3D {
+    /// Point id.
+    pub id: u64,
+    /// Position.
+    pub xyz: Vec3,
+    /// Colour.
+    pub rgb: [u8; 3],
+    /// Mean reprojection error in pixels.
+    pub error: f64,
+    /// Observations: (image id, index of the 2D point in that image).
+    pub track: Vec<(u32, u32)>,
+}
+
+/// A sparse model.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Model {
+    /// Cameras by id.
+    pub cameras: BTreeMap<u32, Camera>,
+    /// Registered images by id.
+    pub images: BTreeMap<u32, Image>,
+    /// 3D points by id.
+    pub points: BTreeMap<u64, Point3D>,
+}
+
+/// The on-disk format a model was read from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// `cameras.bin`, `images.bin`, `points3D.bin`.
+    Binary,
+    /// `cameras.txt`, `images.txt`, `points3D.txt`.
+    Text,
+}
+
+/// COLMAP camera models: (id, name, number of parameters).
+pub const CAMERA_MODELS: [(i32, &str, usize); 11] = [
+    (0, "SIMPLE_PINHOLE", 3),
+    (1, "PINHOLE", 4),
+    (2, "SIMPLE_RADIAL", 4),
+    (3, "RADIAL", 5),
+    (4, "OPENCV", 8),
+    (5, "OPENCV_FISHEYE", 8),
+    (6, "FULL_OPENCV", 12),
+    (7, "FOV", 5),
+    (8, "SIMPLE_RADIAL_FISHEYE", 4),
+    (9, "RADIAL_FISHEYE", 5),
+    (10, "THIN_PRISM_FISHEYE", 12),
+];
+
+/// Which format the folder holds (binary preferred when both are complete), if any.
+pub fn detect(dir: &Path) -> Option<Format> {
+    let has = |ext: &str| {
+        ["cameras", "images", "points3D"]
+            .iter()
+            .all(|n| dir.join(format!("{n}.{ext}")).is_file())
+    };
+    if has("bin") {
+        Some(Format::Binary)
+    } else if has("txt") {
+        Some(Format::Text)
+    } else {
+        None
+    }
+}
+
+/// Reads the model in `dir` (binary if present, else text).
+pub fn read(dir: &Path) -> Result<(Model, Format)> {
+    match detect(dir) {
+        Some(Format::Binary) => Ok((read_binary(dir)?, Format::Binary)),
+        Some(Format::Text) => Ok((read_text(dir)?, Format::Text)),
+        None => Err(Error::input(
+            dir,
+            "not a COLMAP sparse model: needs cameras, images and points3D as .bin or .txt",
+        )),
+    }
+}
+
+fn bad(path: &Path, field: impl Into<String>, msg: impl Into<String>) -> Error {
+    Error::File {
+        path: path.to_path_buf(),
+        line: None,
+        what: "COLMAP model",
+        field: field.into(),
+        msg: msg.into(),
+    }
+}
+
+/// Little-endian cursor over a whole file, with errors naming the file and the record.
+struct Bin<'a> {
+    path: &'a Path,
+    data: Vec<u8>,
+    pos: usize,
+}
+
+impl<'a> Bin<'a> {
+    fn open(path: &'a Path) -> Result<Self> {
+        let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Ok(Bin { path, data, pos: 0 })
+    }
+    fn take<const N: usize>(&mut self, field: &dyn Fn() -> String) -> Result<[u8; N]> {
+        let end = self.pos + N;
+        let bytes = self
+            .data
+            .get(self.pos..end)
+            .ok_or_else(|| bad(self.path, field(), "file ends early"))?;
+        self.pos = end;
+        let mut out = [0u8; N];
+        out.copy_from_slice(bytes);
+        Ok(out)
+    }
+    fn u64(&mut self, f: &dyn Fn() -> String) -> Result<u64> {
+        Ok(u64::from_le_bytes(self.take(f)?))
+    }
+    fn u32(&mut self, f: &dyn Fn() -> String) -> Result<u32> {
+        Ok(u32::from_le_bytes(self.take(f)?))
+    }
+    fn i32(&mut self, f: &dyn Fn() -> String) -> Result<i32> {
+        Ok(i32::from_le_bytes(self.take(f)?))
+    }
+    fn f64(&mut self, f: &dyn Fn() -> String) -> Result<f64> {
+        Ok(f64::from_le_bytes(self.take(f)?))
+    }
+    fn u8(&mut self, f: &dyn Fn() -> String) -> Result<u8> {
+        Ok(self.take::<1>(f)?[0])
+    }
+    fn cstr(&mut self, f: &dyn Fn() -> String) -> Result<String> {
+        let rest = self.data.get(self.pos..).unwrap_or_default();
+        let n = rest
+            .iter()
+            .position(|&b| b == 0)
+            .ok_or_else(|| bad(self.path, f(), "unterminated name"))?;
+        let s = String::from_utf8_lossy(&rest[..n]).into_owned();
+        self.pos += n + 1;
+        Ok(s)
+    }
+    /// A count that must fit in what is left of the file (`min_bytes` per element).
+    fn count(&mut self, min_bytes: usize, f: &dyn Fn() -> String) -> Result<usize> {
+        let n = self.u64(f)?;
+        let left = (self.data.len() - self.pos) as u64;
+        if n.saturating_mul(min_bytes as u64) > left {
+            return Err(bad(self.path, f(), format!("count {n} exceeds the file")));
+        }
+        Ok(n as usize)
+    }
+    fn end(&self) -> Result<()> {
+        if self.pos != self.data.len() {
+            return Err(bad(
+                self.path,
+                "end",
+                format!(
+                    "{} unexpected bytes after the last record",
+                    self.data.len() - self.pos
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Reads `cameras.bin`, `images.bin` and `points3D.bin` from `dir`.
+pub fn read_binary(dir: &Path) -> Result<Model> {
+    let mut model = Model::default();
+    let path = dir.join("cameras.bin");
+    let mut b = Bin::open(&path)?;
+    let n = b.count(24, &|| "number of cameras".into())?;
+    for k in 0..n {
+        let f = move || format!("camera record {k}");
+        let id = b.u32(&f)?;
+        let model_id = b.i32(&f)?;
+        let (_, name, np) = CAMERA_MODELS
+            .iter()
+            .find(|m| m.0 == model_id)
+            .ok_or_else(|| bad(&path, f(), format!("unknown camera model id {model_id}")))?;
+        let width = b.u64(&f)?;
+        let height = b.u64(&f)?;
+        let params = (0..*np).map(|_| b.f64(&f)).collect::<Result<Vec<_>>>()?;
+        model.cameras.insert(
+            id,
+            Camera {
+                id,
+                model: (*name).to_string(),
+                width,
+                height,
+                params,
+            },
+        );
+    }
+    b.end()?;
+
+    let path = dir.join("images.bin");
+    let mut b = Bin::open(&path)?;
+    let n = b.count(64, &|| "number of images".into())?;
+    for k in 0..n {
+        let f = move || format!("image record {k}");
+        let id = b.u32(&f)?;
+        let mut q = [0.0; 4];
+        for v in &mut q {
+            *v = b.f64(&f)?;
+        }
+        let mut t = [0.0; 3];
+        for v in &mut t {
+            *v = b.f64(&f)?;
+        }
+        let camera_id = b.u32(&f)?;
+        let name = b.cstr(&f)?;
+        let np = b.count(24, &f)?;
+        let mut points2d = Vec::with_capacity(np);
+        for _ in 0..np {
+            let x = b.f64(&f)?;
+            let y = b.f64(&f)?;
+            let p = b.u64(&f)?;
+            // COLMAP writes an invalid id (-1) as u64::MAX.
+            points2d.push((x, y, (p != u64::MAX).then_some(p)));
+        }
+        model.images.insert(
+            id,
+            Image {
+                id,
+                qvec: q,
+                tvec: t,
+                camera_id,
+                name,
+                points2d,
+            },
+        );
+    }
+    b.end()?;
+
+    let path = dir.join("points3D.bin");
+    let mut b = Bin::open(&path)?;
+    let n = b.count(43, &|| "number of points".into())?;
+    for k in 0..n {
+        let f = move || format!("point record {k}");
+        let id = b.u64(&f)?;
+        let xyz = [b.f64(&f)?, b.f64(&f)?, b.f64(&f)?];
+        let rgb = [b.u8(&f)?, b.u8(&f)?, b.u8(&f)?];
+        let error = b.f64(&f)?;
+        let nt = b.count(8, &f)?;
+        let track = (0..nt)
+            .map(|_| Ok((b.u32(&f)?, b.u32(&f)?)))
+            .collect::<Result<Vec<_>>>()?;
+        model.points.insert(
+            id,
+            Point3D {
+                id,
+                xyz,
+                rgb,
+                error,
+                track,
+            },
+        );
+    }
+    b.end()?;
+    Ok(model)
+}
+
+/// Lines of a text file that are not comments: (1-based line number, trimmed text).
+fn text_lines(path: &Path) -> Result<Vec<(usize, String)>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    Ok(text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim().to_string()))
+        .filter(|(_, l)| !l.starts_with('#'))
+        .collect())
+}
+
+struct Fields<'a> {
+    path: &'a PathBuf,
+    line: usize,
+    it: std::str::SplitWhitespace<'a>,
+}
+
+impl<'a> Fields<'a> {
+    fn next<T: std::str::FromStr>(&mut self, field: &str) -> Result<T> {
+        let tok = self.it.next().ok_or_else(|| self.err(field, "missing"))?;
+        tok.parse()
+            .map_err(|_| self.err(field, &format!("cannot parse `{tok}`")))
+    }
+    fn rest(&mut self) -> Vec<&'a str> {
+        self.it.by_ref().collect()
+    }
+    fn err(&self, field: &str, msg: &str) -> Error {
+        Error::File {
+            path: self.path.clone(),
+            line: Some(self.line),
+            what: "COLMAP model",
+            field: field.into(),
+            msg: msg.into(),
+        }
+    }
+}
+
+/// Reads `cameras.txt`, `images.txt` and `points3D.txt` from `dir`.
+pub fn read_text(dir: &Path) -> Result<Model> {
+    let mut model = Model::default();
+    let path = dir.join("cameras.txt");
+    for (line, l) in text_lines(&path)?.iter().filter(|(_, l)| !l.is_empty()) {
+        let mut f = Fields {
+            path: &path,
+            line: *line,
+            it: l.split_whitespace(),
+        };
+        let id: u32 = f.next("CAMERA_ID")?;
+        let name: String = f.next("MODEL")?;
+        let width = f.next("WIDTH")?;
+        let height = f.next("HEIGHT")?;
+        let params = f
+            .rest()
+            .iter()
+            .map(|t| t.parse::<f64>())
+            .collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|_| f.err("PARAMS", "not a number"))?;
+        match CAMERA_MODELS.iter().find(|m| m.1 == name) {
+            Some(m) if m.2 == params.len() => {}
+            Some(m) => {
+                return Err(f.err("PARAMS", &format!("{name} needs {} parameters", m.2)));
+            }
+            None => return Err(f.err("MODEL", &format!("unknown camera model {name}"))),
+        }
+        model.cameras.insert(
+            id,
+            Camera {
+                id,
+                model: name,
+                width,
+                height,
+                params,
+            },
+        );
+    }
+
+    // Two lines per image; the second (its 2D points) may be empty, so blanks count there.
+    let path = dir.join("images.txt");
+    let lines = text_lines(&path)?;
+    let mut it = lines.iter();
+    while let Some((line, l)) = it.next() {
+        if l.is_empty() {
+            continue;
+        }
+        let mut f = Fields {
+            path: &path,
+            line: *line,
+            it: l.split_whitespace(),
+        };
+        let id: u32 = f.next("IMAGE_ID")?;
+        let qvec = [f.next("QW")?, f.next("QX")?, f.next("QY")?, f.next("QZ")?];
+        let tvec = [f.next("TX")?, f.next("TY")?, f.next("TZ")?];
+        let camera_id = f.next("CAMERA_ID")?;
+        // Names may contain spaces: the rest of the line.
+        let name = f.rest().join(" ");
+        if name.is_empty() {
+            return Err(f.err("NAME", "missing"));
+        }
+        let (pline, pl) = it
+            .next()
+            .map(|(n, s)| (*n, s.as_str()))
+            .unwrap_or((line + 1, ""));
+        let mut g = Fields {
+            path: &path,
+            line: pline,
+            it: pl.split_whitespace(),
+        };
+        let toks = g.rest();
+        if toks.len() % 3 != 0 {
+            return Err(g.err("POINTS2D", "not a list of X Y POINT3D_ID triples"));
+        }
+        let mut points2d = Vec::with_capacity(toks.len() / 3);
+        for c in toks.chunks(3) {
+            let num = |t: &str| {
+                t.parse::<f64>()
+                    .map_err(|_| g.err("POINTS2D", "bad coordinate"))
+            };
+            let p: i64 = c[2]
+                .parse()
+                .map_err(|_| g.err("POINTS2D", "bad POINT3D_ID"))?;
+            points2d.push((num(c[0])?, num(c[1])?, u64::try_from(p).ok()));
+        }
+        model.images.insert(
+            id,
+            Image {
+                id,
+                qvec,
+                tvec,
+                camera_id,
+                name,
+                points2d,
+            },
+        );
+    }
+
+    let path = dir.join("points3D.txt");
+    for (line, l) in text_lines(&path)?.iter().filter(|(_, l)| !l.is_empty()) {
+        let mut f = Fields {
+            path: &path,
+            line: *line,
+            it: l.split_whitespace(),
+        };
+        let id: u64 = f.next("POINT3D_ID")?;
+        let xyz = [f.next("X")?, f.next("Y")?, f.next("Z")?];
+        let rgb = [f.next("R")?, f.next("G")?, f.next("B")?];
+        let error = f.next("ERROR")?;
+        let toks = f.rest();
+        if toks.len() % 2 != 0 {
+            return Err(f.err("TRACK", "not a list of IMAGE_ID POINT2D_IDX pairs"));
+        }
+        let track = toks
+            .chunks(2)
+            .map(|c| Some((c[0].parse().ok()?, c[1].parse().ok()?)))
+            .collect::<Option<Vec<_>>>()
+            .ok_or_else(|| f.err("TRACK", "not integers"))?;
+        model.points.insert(
+            id,
+            Point3D {
+                id,
+                xyz,
+                rgb,
+                error,
+                track,
+            },
+        );
+    }
+    Ok(model)
+}
+
+/// The numbered model folders (`0/`, `1/`, …) under a `sparse/` root that hold a model, in
+/// numeric order.
+pub fn model_dirs(root: &Path) -> Result<Vec<PathBuf>> {
+    let mut dirs: Vec<(u64, PathBuf)> = std::fs::read_dir(root)
+        .map_err(|e| Error::io(root, e))?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let n: u64 = e.file_name().to_str()?.parse().ok()?;
+            let p = e.path();
+            detect(&p).map(|_| (n, p))
+        })
+        .collect();
+    dirs.sort();
+    Ok(dirs.into_iter().map(|(_, p)| p).collect())
+}
