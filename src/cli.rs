@@ -336,8 +336,9 @@ pub struct MovementArgs {
     #[arg(long, value_name = "N", default_value_t = 15)]
     pub reset_delta: usize,
     /// Even camera movement: keep a frame each time the movement accumulated since the last
-    /// keyframe reaches PX full-resolution pixels (`auto`: proposed from a sample, explained).
-    #[arg(long, value_name = "PX|auto")]
+    /// keyframe reaches PX full-resolution pixels (`auto`: proposed from a sample, explained;
+    /// `60kf`: the threshold that keeps 60 keyframes).
+    #[arg(long, value_name = "PX|Nkf|auto")]
     pub spacing: Option<Threshold>,
     /// Propose the stationary threshold from a sample of 40 frame pairs (explained on stderr).
     #[arg(long)]

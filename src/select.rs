@@ -31,6 +31,8 @@ pub enum Threshold {
     Px(f64),
     /// Proposed by `--auto` logic from a sample.
     Auto,
+    /// The threshold that keeps this many keyframes (`60kf`), found from the movement series.
+    Count(usize),
 }
 
 impl std::str::FromStr for Threshold {
@@ -39,10 +41,18 @@ impl std::str::FromStr for Threshold {
         if s == "auto" {
             return Ok(Threshold::Auto);
         }
+        if let Some(n) = s.strip_suffix("kf") {
+            return match n.parse::<usize>() {
+                Ok(n) if n >= 1 => Ok(Threshold::Count(n)),
+                _ => Err(format!(
+                    "`{s}`: give a keyframe count of 1 or more, e.g. `60kf`"
+                )),
+            };
+        }
         match s.parse::<f64>() {
             Ok(v) if v.is_finite() && v > 0.0 => Ok(Threshold::Px(v)),
             _ => Err(format!(
-                "`{s}` is neither a positive number of pixels nor `auto`"
+                "`{s}` is neither a positive number of pixels, a keyframe count (`60kf`) nor `auto`"
             )),
         }
     }
@@ -286,7 +296,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             .collect(),
         None => metrics.clone(),
     };
-    let need_series = spacing.is_some() && cache.movement(&s.movement).is_none();
+    let need_series = s.spacing.is_some() && cache.movement(&s.movement).is_none();
     let need_stationary =
         stationary_req.is_some_and(|st| cache.stationary(&s.movement, &st).is_none());
     let complete = missing.is_empty() && !need_series && !need_stationary;
@@ -398,17 +408,32 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             kept: keys.len(),
         });
     }
-    if let Some(threshold) = spacing {
+    if s.spacing.is_some() {
         let series = cache.movement(&s.movement).ok_or_else(|| Error::Plugin {
             plugin: "spacing",
             msg: "no movement was computed".into(),
         })?;
+        let threshold = match (s.spacing, spacing) {
+            (Some(Threshold::Count(n)), _) => {
+                let t = samplers::spacing_for_count(&keys, &series.series.values, n)?;
+                log::info!("spacing {n}kf: threshold {t:.2} px");
+                t
+            }
+            (_, Some(t)) => t,
+            _ => {
+                return Err(Error::Plugin {
+                    plugin: "spacing",
+                    msg: "no threshold".into(),
+                })
+            }
+        };
         keys = samplers::spacing(&keys, &series.series.values, threshold)?;
         history.push(Step {
             plugin: "spacing".into(),
             params: json!({
                 "threshold_px": threshold, "movement": s.movement, "backend": series.backend,
                 "auto": s.spacing == Some(Threshold::Auto),
+                "count": match s.spacing { Some(Threshold::Count(n)) => Some(n), _ => None },
             }),
             kept: keys.len(),
         });

@@ -14,4 +14,4 @@ pub use boundaries::{Bound, Boundaries};
 pub use every_nth::every_nth;
 pub use fps::fps;
 pub use manual::manual;
-pub use spacing::spacing;
+pub use spacing::{spacing, spacing_for_count};

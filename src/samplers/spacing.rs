@@ -37,8 +37,72 @@ pub fn spacing(candidates: &[usize], movement: &[f64], threshold: f64) -> Result
     Ok(out)
 }
 
+/// The threshold for which [`spacing`] keeps `count` keyframes of `candidates` (or the count
+/// nearest to it: the count falls in steps as the threshold grows), by bisection.
+pub fn spacing_for_count(candidates: &[usize], movement: &[f64], count: usize) -> Result<f64> {
+    let total: f64 = match (candidates.first(), candidates.last()) {
+        (Some(&a), Some(&b)) if b < movement.len() => movement[a + 1..=b].iter().sum(),
+        _ => 0.0,
+    };
+    if !(total > 0.0) {
+        return Err(Error::Plugin {
+            plugin: "spacing",
+            msg: "the camera does not move over the candidate frames".into(),
+        });
+    }
+    let kept = |t: f64| spacing(candidates, movement, t).map(|k| k.len());
+    // kept(t) falls from candidates.len() (t tiny) to 1 (t > total); find the smallest t that
+    // keeps at most `count`, then take whichever side of the step is nearer to `count`.
+    let (mut lo, mut hi) = (total * 1e-9, total * 2.0);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if kept(mid)? > count {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let (above, below) = (kept(lo)?, kept(hi)?);
+    Ok(if above.abs_diff(count) < below.abs_diff(count) {
+        lo
+    } else {
+        hi
+    })
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn count_threshold_keeps_that_many() {
+        let mv: Vec<f64> = (0..300)
+            .map(|i| if i == 0 { 0.0 } else { 1.0 + (i % 7) as f64 })
+            .collect();
+        let c: Vec<usize> = (0..300).collect();
+        let total: f64 = mv.iter().sum();
+        for n in [1, 2, 10, 37, 100, 250] {
+            let t = super::spacing_for_count(&c, &mv, n).unwrap();
+            let got = super::spacing(&c, &mv, t).unwrap().len();
+            // No threshold on a fine grid keeps a count nearer to n.
+            let best = (1..=4000)
+                .map(|k| {
+                    super::spacing(&c, &mv, total * k as f64 / 4000.0)
+                        .unwrap()
+                        .len()
+                })
+                .map(|m| m.abs_diff(n))
+                .min()
+                .unwrap();
+            assert!(
+                got.abs_diff(n) <= best,
+                "count {n}: kept {got}, a grid threshold gets within {best}"
+            );
+            if n <= 37 {
+                assert_eq!(got, n);
+            }
+        }
+        assert!(super::spacing_for_count(&c, &vec![0.0; 300], 5).is_err());
+    }
+
     #[test]
     fn keeps_a_frame_per_threshold_of_movement() {
         // Speed 1 px/frame for 10 frames, then 5 px/frame.
