@@ -267,8 +267,21 @@ fn process(
             });
         }
     }
-    std::fs::create_dir_all(folder).map_err(|e| Error::io(folder, e))?;
-    fsutil::write_atomic(&folder.join(MARKER), b"made by keyframer run\n")?;
+    if folder.exists() {
+        fsutil::write_atomic(&folder.join(MARKER), b"made by keyframer run\n")?;
+    } else {
+        // The folder appears with its marker inside (made under a hidden name, then renamed),
+        // so a kill at any moment never leaves an unmarked folder behind.
+        let name = folder.file_name().unwrap_or_default().to_string_lossy();
+        let tmp = folder.with_file_name(format!(".{name}.keyframer-new"));
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        }
+        std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        std::fs::write(tmp.join(MARKER), b"made by keyframer run\n")
+            .map_err(|e| Error::io(&tmp.join(MARKER), e))?;
+        std::fs::rename(&tmp, folder).map_err(|e| Error::io(folder, e))?;
+    }
     let _ = std::fs::remove_file(&done_path);
 
     let project = folder.join("project.json");

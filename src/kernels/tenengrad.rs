@@ -1,9 +1,10 @@
 //! `tenengrad`: sharpness as the mean of Gx² + Gy² of the 3x3 Sobel gradients of the gray image
-//! (shaders/tenengrad.wgsl); the OpenCV twin uses cv::Sobel and cv::mean.
+//! (shaders/tenengrad.wgsl); the OpenCV twin uses cv::Sobel and Mat::dot.
 
 use crate::error::{CvContext, Result};
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{self, Mat};
+use opencv::prelude::MatTraitConst;
 use opencv::imgproc;
 
 /// WGSL source.
@@ -28,21 +29,19 @@ pub fn from_totals(sum_sq: u64, n: u64) -> f64 {
     sum_sq as f64 / n as f64
 }
 
-/// OpenCV twin: Tenengrad of an 8-bit gray image.
+/// OpenCV twin: Tenengrad of an 8-bit gray image. Sobel into 16-bit integers (|G| ≤ 1020, so
+/// exact) and the squares summed by `Mat::dot` in double precision (sums below 2^53, so exact):
+/// the same exact total the gpu computes, in two passes fewer than multiply + add + mean.
 pub fn opencv(gray: &Mat) -> Result<f64> {
     let mut gx = Mat::default();
     let mut gy = Mat::default();
     let border = core::BORDER_DEFAULT;
-    imgproc::sobel(gray, &mut gx, core::CV_32F, 1, 0, 3, 1.0, 0.0, border)
+    imgproc::sobel(gray, &mut gx, core::CV_16S, 1, 0, 3, 1.0, 0.0, border)
         .cv(|| "Sobel dx".into())?;
-    imgproc::sobel(gray, &mut gy, core::CV_32F, 0, 1, 3, 1.0, 0.0, border)
+    imgproc::sobel(gray, &mut gy, core::CV_16S, 0, 1, 3, 1.0, 0.0, border)
         .cv(|| "Sobel dy".into())?;
-    let mut gx2 = Mat::default();
-    let mut gy2 = Mat::default();
-    core::multiply(&gx, &gx, &mut gx2, 1.0, -1).cv(|| "multiply".into())?;
-    core::multiply(&gy, &gy, &mut gy2, 1.0, -1).cv(|| "multiply".into())?;
-    let mut sum = Mat::default();
-    core::add(&gx2, &gy2, &mut sum, &core::no_array(), -1).cv(|| "add".into())?;
-    let m = core::mean(&sum, &core::no_array()).cv(|| "mean".into())?;
-    Ok(m[0])
+    let sx = gx.dot(&gx).cv(|| "dot dx".into())?;
+    let sy = gy.dot(&gy).cv(|| "dot dy".into())?;
+    let n = (gray.rows() as f64) * (gray.cols() as f64);
+    Ok((sx + sy) / n.max(1.0))
 }

@@ -44,7 +44,7 @@ pub fn spacing_for_count(candidates: &[usize], movement: &[f64], count: usize) -
         (Some(&a), Some(&b)) if b < movement.len() => movement[a + 1..=b].iter().sum(),
         _ => 0.0,
     };
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         return Err(Error::Plugin {
             plugin: "spacing",
             msg: "the camera does not move over the candidate frames".into(),
