@@ -137,6 +137,17 @@ fn run(cli: Cli) -> Result<Outcome> {
             })
         }
         Command::Segment(a) => segment(&a),
+        Command::Report(a) => {
+            let r = keyframer::report::write_report(&a.project, &a.settings(), None)?;
+            eprintln!(
+                "report: {} keyframes, {} thumbnails -> {} (timeline {})",
+                r.keyframes,
+                r.thumbs,
+                r.html.display(),
+                r.timeline.display()
+            );
+            Ok(Outcome::Ok)
+        }
         Command::Run(a) => {
             let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
             let settings = keyframer::batch::RunSettings {
