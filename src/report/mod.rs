@@ -22,7 +22,8 @@ pub struct ReportSettings {
     pub output: PathBuf,
     /// The PNG timeline; `None` for [`default_timeline_path`].
     pub timeline: Option<PathBuf>,
-    /// Take thumbnails from this export folder instead of decoding the input.
+    /// Take thumbnails from this export folder (its manifest) instead of decoding the input; an
+    /// unreadable folder is an error, a missing input only a note on the page.
     pub export: Option<PathBuf>,
     /// At most this many thumbnails, spread evenly over the keyframes (0: none).
     pub thumbs: usize,
@@ -82,7 +83,8 @@ pub fn write_report(
     let mut thumbs = Vec::new();
     if !wanted.is_empty() {
         let got = match &settings.export {
-            Some(dir) => thumbs::from_export(dir, &wanted).map_err(|e| e.to_string()),
+            // An export folder the user named must be usable.
+            Some(dir) => Ok(thumbs::from_export(dir, &wanted)?),
             None => {
                 let input = project.input_path(project_path);
                 export::check_fingerprint(&project, &input)
@@ -105,7 +107,7 @@ pub fn write_report(
         }
     }
     for m in &missing {
-        log::warn!("report: missing {m}");
+        log::warn!("not in the report: {m}");
     }
 
     let page = html::page(&html::PageInput {

@@ -103,6 +103,28 @@ fn bar_columns(img: &image::RgbImage, x0: u32, x1: u32, y0: u32, y1: u32, tol: i
         .collect()
 }
 
+/// Decodes standard base64 (the test's own decoder, independent of the page's encoder).
+fn unbase64(text: &str) -> Vec<u8> {
+    let value = |c: u8| match c {
+        b'A'..=b'Z' => u32::from(c - b'A'),
+        b'a'..=b'z' => u32::from(c - b'a') + 26,
+        b'0'..=b'9' => u32::from(c - b'0') + 52,
+        b'+' => 62,
+        b'/' => 63,
+        _ => panic!("not base64: {c}"),
+    };
+    let mut out = Vec::new();
+    for chunk in text.as_bytes().chunks(4) {
+        let data: Vec<u8> = chunk.iter().copied().filter(|&c| c != b'=').collect();
+        let n = data
+            .iter()
+            .enumerate()
+            .fold(0u32, |acc, (i, &c)| acc | (value(c) << (18 - 6 * i)));
+        out.extend((0..data.len().saturating_sub(1)).map(|i| (n >> (16 - 8 * i)) as u8));
+    }
+    out
+}
+
 fn report(project: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     let mut args = vec!["report", s(project), "-o", s(out)];
     args.extend_from_slice(extra);
@@ -149,6 +171,10 @@ fn report_page_is_self_contained_and_png_timeline_has_the_keyframe_bars() {
         .map(|rest| &rest[..rest.find('"').unwrap()])
         .collect();
     assert_eq!(uris.len(), 4);
+    for u in &uris {
+        let jpeg = image::load_from_memory(&unbase64(u)).expect("thumbnail decodes");
+        assert_eq!(jpeg.width(), 160, "thumbnails are 160 px wide");
+    }
     assert_eq!(html.matches("class=\"kf\"").count(), keys.len());
     for step in json(project)["history"].as_array().unwrap() {
         let id = step["plugin"].as_str().unwrap();
@@ -163,6 +189,24 @@ fn report_page_is_self_contained_and_png_timeline_has_the_keyframe_bars() {
     assert!(
         !html.contains("id=\"missing\""),
         "nothing should be missing"
+    );
+
+    // Thumbnails from an export folder: the exported images of the picked keyframes.
+    let images = dir.join("exported");
+    kf_ok(&["export", s(project), "--out", s(&images), "--force"]);
+    let via_export = dir.join("via-export.html");
+    let r = report(
+        project,
+        &via_export,
+        &["--export", s(&images), "--thumbs", "3", "--force"],
+    );
+    assert_eq!(code_and_stderr(&r).0, 0, "{}", code_and_stderr(&r).1);
+    let page = std::fs::read_to_string(&via_export).unwrap();
+    assert_eq!(page.matches("src=\"data:image/jpeg;base64,").count(), 3);
+    let last = keys.last().unwrap();
+    assert!(
+        page.contains(&format!("alt=\"frame {last}\"")),
+        "last keyframe shown"
     );
 
     // The PNG timeline beside the page: three panels, bars at the keyframe columns.
@@ -394,6 +438,16 @@ fn report_refuses_to_overwrite_and_names_bad_project_files() {
     let (code, err) = code_and_stderr(&report(&dir.join("absent.json"), &dir.join("b.html"), &[]));
     assert_eq!(code, 1);
     assert!(err.contains("absent.json"), "{err}");
+
+    // An export folder without a manifest is an error naming it.
+    let (code, err) = code_and_stderr(&report(
+        project,
+        &dir.join("e.html"),
+        &["--export", s(&dir.join("no-export"))],
+    ));
+    assert_eq!(code, 1);
+    assert!(err.contains("no-export"), "{err}");
+    assert!(!dir.join("e.html").exists());
 
     // An unwritable output is named.
     let nowhere = dir.join("no-such-folder").join("r.html");
