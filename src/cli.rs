@@ -64,6 +64,43 @@ pub enum Command {
     Colmap(crate::colmap::ColmapArgs),
     /// Evaluate a COLMAP model: registered images, reprojection error, spacing, GT pose error.
     Eval(crate::eval::EvalArgs),
+    /// Self-contained HTML report of a project (timeline, thumbnails, steps) plus a PNG timeline.
+    Report(ReportArgs),
+}
+
+/// `report` flags.
+#[derive(Debug, Args)]
+pub struct ReportArgs {
+    /// Project file written by `select`.
+    pub project: PathBuf,
+    /// Output HTML page.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// PNG timeline (default: `<output stem>.timeline.png` beside the page).
+    #[arg(long, value_name = "PNG")]
+    pub timeline: Option<PathBuf>,
+    /// Take thumbnails from this export folder instead of decoding the input.
+    #[arg(long, value_name = "EXPORT_DIR")]
+    pub export: Option<PathBuf>,
+    /// At most this many keyframe thumbnails, spread evenly (0: none).
+    #[arg(long, default_value_t = 60, value_name = "N")]
+    pub thumbs: usize,
+    /// Replace existing outputs.
+    #[arg(long)]
+    pub force: bool,
+}
+
+impl ReportArgs {
+    /// The report settings.
+    pub fn settings(&self) -> crate::report::ReportSettings {
+        crate::report::ReportSettings {
+            output: self.output.clone(),
+            timeline: self.timeline.clone(),
+            export: self.export.clone(),
+            thumbs: self.thumbs,
+            force: self.force,
+        }
+    }
 }
 
 /// `score` flags.

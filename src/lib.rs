@@ -18,6 +18,7 @@ pub mod info;
 pub mod kernels;
 pub mod progress;
 pub mod project;
+pub mod report;
 pub mod samplers;
 pub mod segment;
 pub mod select;

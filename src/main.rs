@@ -185,6 +185,17 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Segment(a) => segment(&a),
         Command::Colmap(a) => colmap(&a, quiet),
         Command::Eval(a) => eval(&a),
+        Command::Report(a) => {
+            let r = keyframer::report::write_report(&a.project, &a.settings(), None)?;
+            eprintln!(
+                "report: {} keyframes, {} thumbnails -> {} (timeline {})",
+                r.keyframes,
+                r.thumbs,
+                r.html.display(),
+                r.timeline.display()
+            );
+            Ok(Outcome::Ok)
+        }
         Command::Run(a) => {
             let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
             let settings = keyframer::batch::RunSettings {

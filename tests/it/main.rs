@@ -9,5 +9,6 @@ mod foundation;
 mod movement;
 mod onnx_model;
 mod pipeline;
+mod report;
 mod segment;
 mod sharpness;

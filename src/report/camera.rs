@@ -1,0 +1,321 @@
+//! Camera path for the report: camera centres (e.g. from a COLMAP model) projected on their two
+//! principal axes, segments coloured by the spacing to the previous camera, as an inline SVG.
+
+use std::fmt::Write;
+
+/// One camera: the frame it was taken from and its centre in world coordinates.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PathPoint {
+    /// Frame index in the input.
+    pub frame: usize,
+    /// Camera centre (world coordinates, e.g. COLMAP's -R^T t).
+    pub centre: [f64; 3],
+}
+
+/// Camera centres of a reconstruction, in any order (drawn in frame order).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CameraPath {
+    /// The cameras.
+    pub points: Vec<PathPoint>,
+}
+
+/// Numbers the camera-path section reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PathStats {
+    /// Number of cameras.
+    pub cameras: usize,
+    /// Mean distance between consecutive cameras (frame order).
+    pub mean_spacing: f64,
+    /// Coefficient of variation (standard deviation / mean) of those distances.
+    pub cv_spacing: f64,
+}
+
+const SIZE: f64 = 520.0;
+const PAD: f64 = 30.0;
+
+impl CameraPath {
+    /// Points sorted by frame.
+    fn sorted(&self) -> Vec<&PathPoint> {
+        let mut v: Vec<&PathPoint> = self.points.iter().collect();
+        v.sort_by_key(|p| p.frame);
+        v
+    }
+
+    /// Distances between consecutive cameras in frame order.
+    pub fn spacings(&self) -> Vec<f64> {
+        self.sorted()
+            .windows(2)
+            .map(|w| dist(&w[0].centre, &w[1].centre))
+            .collect()
+    }
+
+    /// Count, mean spacing and its coefficient of variation (`None` below two cameras).
+    pub fn stats(&self) -> Option<PathStats> {
+        let d = self.spacings();
+        if d.is_empty() {
+            return None;
+        }
+        let mean = d.iter().sum::<f64>() / d.len() as f64;
+        let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64;
+        Some(PathStats {
+            cameras: self.points.len(),
+            mean_spacing: mean,
+            cv_spacing: if mean > 0.0 { var.sqrt() / mean } else { 0.0 },
+        })
+    }
+
+    /// The centres projected on the two principal axes (largest spread first), in frame order.
+    pub fn projected(&self) -> Vec<(usize, f64, f64)> {
+        let pts = self.sorted();
+        if pts.is_empty() {
+            return Vec::new();
+        }
+        let n = pts.len() as f64;
+        let mut mean = [0.0; 3];
+        for p in &pts {
+            for (m, c) in mean.iter_mut().zip(p.centre) {
+                *m += c / n;
+            }
+        }
+        let mut cov = [[0.0; 3]; 3];
+        for p in &pts {
+            let d: Vec<f64> = (0..3).map(|i| p.centre[i] - mean[i]).collect();
+            for (i, row) in cov.iter_mut().enumerate() {
+                for (j, c) in row.iter_mut().enumerate() {
+                    *c += d[i] * d[j] / n;
+                }
+            }
+        }
+        let (vals, vecs) = jacobi_eigen(cov);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| vals[b].total_cmp(&vals[a]));
+        let axis = |k: usize| [vecs[0][k], vecs[1][k], vecs[2][k]];
+        let (a, b) = (axis(order[0]), axis(order[1]));
+        pts.iter()
+            .map(|p| {
+                let d = [
+                    p.centre[0] - mean[0],
+                    p.centre[1] - mean[1],
+                    p.centre[2] - mean[2],
+                ];
+                (p.frame, dot(&d, &a), dot(&d, &b))
+            })
+            .collect()
+    }
+
+    /// The path as an inline SVG with a colour-scale legend.
+    pub fn svg(&self) -> String {
+        let mut s = String::new();
+        // Writing to a String cannot fail.
+        let _ = self.write_svg(&mut s);
+        s
+    }
+
+    fn write_svg(&self, s: &mut String) -> std::fmt::Result {
+        let p = self.projected();
+        let d = self.spacings();
+        let (lo, hi) = d
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        let (minx, maxx, miny, maxy) = p.iter().fold(
+            (
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+            ),
+            |(a, b, c, e), &(_, x, y)| (a.min(x), b.max(x), c.min(y), e.max(y)),
+        );
+        let span = (maxx - minx).max(maxy - miny).max(1e-12);
+        let k = (SIZE - 2.0 * PAD) / span;
+        let cx = (minx + maxx) / 2.0;
+        let cy = (miny + maxy) / 2.0;
+        let to = |x: f64, y: f64| (SIZE / 2.0 + (x - cx) * k, SIZE / 2.0 - (y - cy) * k);
+        let legend_w = 200.0;
+        writeln!(
+            s,
+            r#"<svg id="camera-path" width="{}" height="{SIZE}" font-family="sans-serif" font-size="11" data-cameras="{}">"#,
+            SIZE + legend_w,
+            p.len()
+        )?;
+        writeln!(
+            s,
+            r##"<rect width="{SIZE}" height="{SIZE}" fill="#fafafa" stroke="#999"/>"##
+        )?;
+        for (i, w) in p.windows(2).enumerate() {
+            let (x1, y1) = to(w[0].1, w[0].2);
+            let (x2, y2) = to(w[1].1, w[1].2);
+            let t = if hi > lo {
+                (d[i] - lo) / (hi - lo)
+            } else {
+                0.5
+            };
+            writeln!(
+                s,
+                r#"<line class="seg" x1="{x1:.1}" y1="{y1:.1}" x2="{x2:.1}" y2="{y2:.1}" stroke="{}" stroke-width="3" stroke-linecap="round"><title>frames {}–{}: spacing {:.4}</title></line>"#,
+                scale_colour(t),
+                w[0].0,
+                w[1].0,
+                d[i]
+            )?;
+        }
+        for &(f, x, y) in &p {
+            let (x, y) = to(x, y);
+            writeln!(
+                s,
+                r##"<circle class="cam" cx="{x:.1}" cy="{y:.1}" r="2.5" fill="#222"><title>frame {f}</title></circle>"##
+            )?;
+        }
+        if let (Some(first), Some(last)) = (p.first(), p.last()) {
+            for (pt, label) in [(first, "first"), (last, "last")] {
+                let (x, y) = to(pt.1, pt.2);
+                writeln!(
+                    s,
+                    r#"<text x="{:.1}" y="{:.1}">{label} (frame {})</text>"#,
+                    x + 5.0,
+                    y - 5.0,
+                    pt.0
+                )?;
+            }
+        }
+        // Colour scale legend.
+        let lx = SIZE + 30.0;
+        writeln!(
+            s,
+            r#"<text x="{lx}" y="40">spacing to the previous camera</text>"#
+        )?;
+        let steps = 20;
+        for i in 0..steps {
+            let t = 1.0 - i as f64 / (steps - 1) as f64;
+            writeln!(
+                s,
+                r#"<rect x="{lx}" y="{}" width="20" height="10" fill="{}"/>"#,
+                50 + i * 10,
+                scale_colour(t)
+            )?;
+        }
+        if hi.is_finite() {
+            writeln!(
+                s,
+                r#"<text x="{}" y="59">{hi:.4} (max)</text><text x="{}" y="{}">{lo:.4} (min)</text>"#,
+                lx + 26.0,
+                lx + 26.0,
+                50 + steps * 10 - 1
+            )?;
+        }
+        writeln!(
+            s,
+            r#"<text x="{lx}" y="{}">axes: the two principal</text><text x="{lx}" y="{}">directions of the centres</text>"#,
+            50 + steps * 10 + 30,
+            50 + steps * 10 + 44
+        )?;
+        writeln!(s, "</svg>")
+    }
+}
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Blue (t = 0, small spacing) through green to yellow (t = 1, large spacing).
+pub fn scale_colour(t: f64) -> String {
+    let stops = [
+        [68.0, 1.0, 84.0],
+        [59.0, 82.0, 139.0],
+        [33.0, 145.0, 140.0],
+        [94.0, 201.0, 98.0],
+        [253.0, 231.0, 37.0],
+    ];
+    let t = t.clamp(0.0, 1.0) * (stops.len() - 1) as f64;
+    let i = (t.floor() as usize).min(stops.len() - 2);
+    let f = t - i as f64;
+    let c: Vec<u8> = (0..3)
+        .map(|j| (stops[i][j] + (stops[i + 1][j] - stops[i][j]) * f).round() as u8)
+        .collect();
+    format!("#{:02x}{:02x}{:02x}", c[0], c[1], c[2])
+}
+
+/// Eigenvalues and eigenvectors (columns) of a symmetric 3x3 matrix by cyclic Jacobi rotations.
+fn jacobi_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _ in 0..50 {
+        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
+        if off < 1e-15 {
+            break;
+        }
+        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
+            if a[p][q].abs() < 1e-300 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let t = if theta == 0.0 { 1.0 } else { t };
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let sn = t * c;
+            // A' = J^T A J with the rotation J in the (p, q) plane.
+            for row in a.iter_mut() {
+                let (akp, akq) = (row[p], row[q]);
+                row[p] = c * akp - sn * akq;
+                row[q] = sn * akp + c * akq;
+            }
+            let (rp, rq) = (a[p], a[q]);
+            a[p] = std::array::from_fn(|k| c * rp[k] - sn * rq[k]);
+            a[q] = std::array::from_fn(|k| sn * rp[k] + c * rq[k]);
+            for row in v.iter_mut() {
+                let vp = row[p];
+                let vq = row[q];
+                row[p] = c * vp - sn * vq;
+                row[q] = sn * vp + c * vq;
+            }
+        }
+    }
+    ([a[0][0], a[1][1], a[2][2]], v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn principal_axes_recover_a_tilted_plane_path() {
+        // A circle of radius 2 in a plane tilted out of x/y, plus a small wobble along the normal.
+        let n = 40;
+        let (s2, c2) = (0.6f64.sin(), 0.6f64.cos());
+        let path = CameraPath {
+            points: (0..n)
+                .map(|i| {
+                    let a = i as f64 / n as f64 * std::f64::consts::TAU;
+                    let (u, w) = (2.0 * a.cos(), 2.0 * a.sin());
+                    let e = 0.01 * (3.0 * a).sin();
+                    PathPoint {
+                        frame: i * 5,
+                        centre: [u, w * c2 - e * s2, w * s2 + e * c2],
+                    }
+                })
+                .collect(),
+        };
+        let p = path.projected();
+        assert_eq!(p.len(), n);
+        for &(_, x, y) in &p {
+            let r = (x * x + y * y).sqrt();
+            assert!((r - 2.0).abs() < 0.02, "radius {r} off the circle");
+        }
+        let st = path.stats().unwrap();
+        assert!(st.cv_spacing < 0.01, "equal steps: cv {}", st.cv_spacing);
+        let expect = 2.0 * 2.0 * (std::f64::consts::PI / n as f64).sin();
+        assert!((st.mean_spacing - expect).abs() < 0.01 * expect);
+    }
+
+    #[test]
+    fn colour_scale_ends() {
+        assert_eq!(scale_colour(0.0), "#440154");
+        assert_eq!(scale_colour(1.0), "#fde725");
+        assert_eq!(scale_colour(7.0), "#fde725");
+    }
+}

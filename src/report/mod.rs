@@ -1,0 +1,150 @@
+//! `keyframer report`: one self-contained HTML page (inline SVG, CSS, JS, data: URI thumbnails)
+//! showing a project's timeline, keyframe thumbnails, steps and camera path, plus a PNG timeline.
+
+mod camera;
+mod html;
+pub mod thumbs;
+pub mod timeline;
+
+pub use camera::{scale_colour, CameraPath, PathPoint, PathStats};
+pub use timeline::Timeline;
+
+use crate::error::{Error, Result};
+use crate::export;
+use crate::fsutil;
+use crate::project::Project;
+use std::path::{Path, PathBuf};
+
+/// What to write and from where.
+#[derive(Debug, Clone)]
+pub struct ReportSettings {
+    /// The HTML page.
+    pub output: PathBuf,
+    /// The PNG timeline; `None` for [`default_timeline_path`].
+    pub timeline: Option<PathBuf>,
+    /// Take thumbnails from this export folder (its manifest) instead of decoding the input; an
+    /// unreadable folder is an error, a missing input only a note on the page.
+    pub export: Option<PathBuf>,
+    /// At most this many thumbnails, spread evenly over the keyframes (0: none).
+    pub thumbs: usize,
+    /// Replace existing outputs.
+    pub force: bool,
+}
+
+/// What was written.
+#[derive(Debug, Clone)]
+pub struct ReportSummary {
+    /// The HTML page.
+    pub html: PathBuf,
+    /// The PNG timeline.
+    pub timeline: PathBuf,
+    /// Keyframes of the project.
+    pub keyframes: usize,
+    /// Thumbnails embedded.
+    pub thumbs: usize,
+    /// What the page says is missing (scores not cached, thumbnails not available, ...).
+    pub missing: Vec<String>,
+}
+
+/// `<stem>.timeline.png` beside the HTML page (`flight.html` → `flight.timeline.png`).
+pub fn default_timeline_path(html: &Path) -> PathBuf {
+    let stem = html
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "report".into());
+    html.with_file_name(format!("{stem}.timeline.png"))
+}
+
+/// Writes the report of the project file at `project_path`: the HTML page and the PNG timeline,
+/// atomically, refusing existing outputs unless `settings.force`. `camera` adds the camera-path
+/// section (e.g. centres read from a COLMAP model); without it the section says how to get one.
+pub fn write_report(
+    project_path: &Path,
+    settings: &ReportSettings,
+    camera: Option<&CameraPath>,
+) -> Result<ReportSummary> {
+    let png_path = settings
+        .timeline
+        .clone()
+        .unwrap_or_else(|| default_timeline_path(&settings.output));
+    if fsutil::absolute(&png_path) == fsutil::absolute(&settings.output) {
+        return Err(Error::param(
+            "--timeline",
+            "must differ from the HTML output",
+        ));
+    }
+    fsutil::check_overwrite(&settings.output, settings.force)?;
+    fsutil::check_overwrite(&png_path, settings.force)?;
+    let project = Project::load(project_path)?;
+    let timeline = Timeline::from_project(&project);
+    let mut missing = timeline.missing.clone();
+
+    let wanted = thumbs::pick(&project.keyframes, settings.thumbs);
+    let mut thumbs = Vec::new();
+    if !wanted.is_empty() {
+        let got = match &settings.export {
+            // An export folder the user named must be usable.
+            Some(dir) => Ok(thumbs::from_export(dir, &wanted)?),
+            None => {
+                let input = project.input_path(project_path);
+                export::check_fingerprint(&project, &input)
+                    .map_err(|e| e.to_string())
+                    .and_then(|()| thumbs::from_input(&input, &wanted).map_err(|e| e.to_string()))
+            }
+        };
+        match got {
+            Ok((t, lost)) => {
+                if !lost.is_empty() {
+                    missing.push(format!(
+                        "thumbnails of {} keyframes (frames not available: {:?})",
+                        lost.len(),
+                        lost
+                    ));
+                }
+                thumbs = t;
+            }
+            Err(e) => missing.push(format!("keyframe thumbnails: {e}")),
+        }
+    }
+    for m in &missing {
+        log::warn!("not in the report: {m}");
+    }
+
+    let page = html::page(&html::PageInput {
+        project: &project,
+        project_path,
+        timeline: &timeline,
+        thumbs: &thumbs,
+        camera,
+        missing: &missing,
+        timeline_png: png_path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned()),
+    });
+    let png = timeline.png()?;
+    fsutil::write_atomic(&png_path, &png)?;
+    fsutil::write_atomic(&settings.output, page.as_bytes())?;
+    Ok(ReportSummary {
+        html: settings.output.clone(),
+        timeline: png_path,
+        keyframes: project.keyframes.len(),
+        thumbs: thumbs.len(),
+        missing,
+    })
+}
+
+/// Escapes text for HTML element content and attribute values.
+pub fn esc(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            _ => out.push(c),
+        }
+    }
+    out
+}
