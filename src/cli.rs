@@ -60,6 +60,8 @@ pub enum Command {
     Flow(FlowArgs),
     /// Side-by-side timings of the gpu and opencv backends (ratios from one run).
     Bench(BenchArgs),
+    /// Dev tool: render a synthetic drone sequence (video.mp4, poses.tum, scene.json).
+    Scene(crate::scene::cli::SceneArgs),
 }
 
 /// `score` flags.

@@ -16,6 +16,7 @@ pub mod kernels;
 pub mod progress;
 pub mod project;
 pub mod samplers;
+pub mod scene;
 pub mod segment;
 pub mod select;
 pub mod source;

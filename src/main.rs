@@ -137,6 +137,11 @@ fn run(cli: Cli) -> Result<Outcome> {
             })
         }
         Command::Segment(a) => segment(&a),
+        Command::Scene(a) => {
+            let r = keyframer::scene::generate(&a.settings(quiet)?)?;
+            eprintln!("{}", keyframer::scene::cli::summary(&r, &a.out));
+            Ok(Outcome::Ok)
+        }
         Command::Run(a) => {
             let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
             let settings = keyframer::batch::RunSettings {
