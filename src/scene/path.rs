@@ -93,7 +93,7 @@ const LEG: f64 = 80.0;
 const LEG_SPACING: f64 = 30.0;
 const TURN_RADIUS: f64 = 7.0;
 /// The survey starts this far into its first leg, so short sequences reach a turn early.
-const SURVEY_START: f64 = 55.0;
+const SURVEY_START: f64 = 62.0;
 /// Number of survey legs (they stack up 30 m apart from y = -75 m).
 const SURVEY_LEGS: usize = 6;
 const ORBIT_RADIUS: f64 = 50.0;
@@ -186,25 +186,41 @@ impl Flight {
             let w = f.turn_weight(s);
             free + (V_TURN - free) * w
         };
-        // Hovers: placed at fractions of the moving time computed without them.
-        let mut hover_s = Vec::new();
-        let hover_len = (0.1 * seconds).clamp(1.0, 5.0);
-        if preset == Preset::HoverSurvey {
-            let moving = (seconds - 3.0 * hover_len).max(1.0);
-            let table = time_table(s_start, total, &|s| base(&flight, s), &[], 0.0);
-            for frac in [0.2, 0.5, 0.8] {
-                hover_s.push(s_at(&table, frac * moving));
-            }
-        }
-        let speed = |s: f64| {
+        // Speed with decelerations into, and accelerations out of, holds at `stops`.
+        let speed = |stops: &[f64], s: f64| {
             let mut v = base(&flight, s);
-            for &h in &hover_s {
+            for &h in stops {
                 let d: f64 = s - h;
                 v = v.min((HOVER_CREEP * HOVER_CREEP + 2.0 * HOVER_ACCEL * d.abs()).sqrt());
             }
             v
         };
-        let table = time_table(s_start, total, &speed, &hover_s, hover_len);
+        // Hovers: centred at 1/4, 1/2 and 3/4 of the sequence; each hold's place along the path
+        // is found by bisection on the timeline that includes the earlier holds.
+        let mut hover_s: Vec<f64> = Vec::new();
+        let hover_len = (0.1 * seconds).clamp(1.0, 5.0);
+        if preset == Preset::HoverSurvey {
+            for j in 0..3 {
+                let target = (j as f64 + 1.0) / 4.0 * seconds - 0.5 * hover_len;
+                let (mut lo, mut hi) = (hover_s.last().copied().unwrap_or(s_start), total);
+                for _ in 0..24 {
+                    let mid = 0.5 * (lo + hi);
+                    let mut stops = hover_s.clone();
+                    stops.push(mid);
+                    let v = |s: f64| speed(&stops, s);
+                    let table = time_table(s_start, total, &v, &stops, hover_len, target + 1.0);
+                    let t0 = table.iter().find(|p| p.1 == mid).map_or(f64::MAX, |p| p.0);
+                    if t0 < target {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                hover_s.push(lo);
+            }
+        }
+        let v = |s: f64| speed(&hover_s, s);
+        let table = time_table(s_start, total, &v, &hover_s, hover_len, f64::MAX);
         let hovers = hover_s
             .iter()
             .filter_map(|&h| {
@@ -218,7 +234,7 @@ impl Flight {
             .collect();
         flight.table = table;
         flight.hovers = hovers;
-        // Altitude: clear the highest terrain near the flown part by 22 m (orbit: 38 m over the
+        // Altitude: clear the highest terrain near the path by 22 m (orbit: 38 m over the
         // point of interest, looking at it).
         match preset {
             Preset::Orbit => {
@@ -226,7 +242,8 @@ impl Flight {
                 flight.pitch = (38.0f64).atan2(ORBIT_RADIUS);
             }
             _ => {
-                let end = s_at(&flight.table, seconds + 1.0);
+                // Over the whole pattern, so the poses do not depend on the length asked for.
+                let end = total;
                 let mut top = f64::MIN;
                 let mut s = s_start;
                 while s <= end {
@@ -392,20 +409,21 @@ fn lawnmower(legs: usize) -> Vec<Piece> {
 }
 
 /// (time, s) samples from `s0` to `s1` for speed `v(s)`, with a hold of `hold` seconds at each
-/// arc length in `stops` (which the table hits exactly).
+/// arc length in `stops` (which the table hits exactly). Stops early once the time passes `t_max`.
 fn time_table(
     s0: f64,
     s1: f64,
     v: &dyn Fn(f64) -> f64,
     stops: &[f64],
     hold: f64,
+    t_max: f64,
 ) -> Vec<(f64, f64)> {
     let mut out = vec![(0.0, s0)];
     let (mut t, mut s) = (0.0, s0);
     let mut pending: Vec<f64> = stops.iter().copied().filter(|&h| h > s0).collect();
     pending.sort_by(f64::total_cmp);
     let mut next = pending.iter().copied().peekable();
-    while s < s1 {
+    while s < s1 && t <= t_max {
         let mut step = DS;
         let stop = next.peek().copied();
         if let Some(h) = stop {
@@ -415,7 +433,10 @@ fn time_table(
         }
         if step > 0.0 {
             t += step / v(s + 0.5 * step).max(1e-3);
-            s += step;
+            s = match stop {
+                Some(h) if s + step >= h => h,
+                _ => s + step,
+            };
             out.push((t, s));
         }
         if stop.is_some_and(|h| s >= h) {

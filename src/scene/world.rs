@@ -490,7 +490,8 @@ pub fn terrain_texture(dir: &Path, seed: u64, size: u32) -> Result<MipImage> {
                     continue;
                 }
                 let k = gy as usize * grid + gx as usize;
-                let d = (wu - seeds[k].0).hypot(wv - seeds[k].1);
+                let (ex, ey) = (wu - seeds[k].0, wv - seeds[k].1);
+                let d = ex * ex + ey * ey;
                 if d < d1 {
                     (d2, i2) = (d1, i1);
                     (d1, i1) = (d, k);
@@ -507,7 +508,7 @@ pub fn terrain_texture(dir: &Path, seed: u64, size: u32) -> Result<MipImage> {
             let c = sample(&photos[p.photo], sx, sy);
             [c[0] * p.tint[0], c[1] * p.tint[1], c[2] * p.tint[2]]
         };
-        let t = ((d2 - d1) / 0.012).clamp(0.0, 1.0);
+        let t = ((d2.sqrt() - d1.sqrt()) / 0.012).clamp(0.0, 1.0);
         let w1 = 0.5 + 0.5 * t;
         let c1 = colour(i1);
         let c = if w1 < 0.999 {

@@ -7,5 +7,6 @@ mod flow;
 mod foundation;
 mod movement;
 mod onnx_model;
+mod scene;
 mod segment;
 mod sharpness;
