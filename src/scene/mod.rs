@@ -444,7 +444,7 @@ pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
         shutter_s: SHUTTER / s.fps,
         pose_time:
             "mid-shutter: frame i is exposed over [i/fps - shutter_s/2, i/fps + shutter_s/2] \
-                    (blur_samples renders spread evenly over it, averaged); its pose is at i/fps"
+                    (1 to blur_samples renders spread evenly over it and averaged: as many as keep the image motion between neighbouring renders under 1.25 px); its pose is at i/fps"
                 .into(),
         intrinsics: k,
         conventions: Conventions {

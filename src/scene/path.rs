@@ -177,7 +177,11 @@ impl Flight {
             alt_noise: Noise(seed ^ 0xA17),
             pitch: 0.0,
             poi: V3(0.0, 0.0, height(0.0, 0.0)),
-            jitter_phase: [rng.unit() * 6.28, rng.unit() * 6.28, rng.unit() * 6.28],
+            jitter_phase: [
+                rng.unit() * std::f64::consts::TAU,
+                rng.unit() * std::f64::consts::TAU,
+                rng.unit() * std::f64::consts::TAU,
+            ],
         };
         // Base speed: smooth noise along the path, blended to V_TURN around turns.
         let base = |f: &Flight, s: f64| {

@@ -52,8 +52,8 @@ pub struct Terrain {
 impl Terrain {
     /// Smooth hills of a few tens of metres from `seed`.
     pub fn new(seed: u64) -> Terrain {
-        let n = Noise(seed ^ 0x7E77_A1);
-        let ridge = Noise(seed ^ 0x41D6E);
+        let n = Noise(seed ^ 0x007E_77A1);
+        let ridge = Noise(seed ^ 0x0004_1D6E);
         let verts = CELLS + 1;
         let mut heights = Vec::with_capacity(verts * verts);
         for j in 0..verts {

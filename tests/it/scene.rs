@@ -224,20 +224,18 @@ fn scene_fast_turns_are_blurred() {
     let desc = json(&dir.join("scene.json"));
     let turns = desc["fast_turns"].as_array().unwrap();
     assert!(!turns.is_empty(), "no fast turn in {desc}");
-    let mut in_turn = vec![false; 100];
-    let mut near_turn = vec![false; 100];
+    let mut in_turn = [false; 100];
+    let mut near_turn = [false; 100];
     for t in turns {
         let (a, b) = (
             t["start_frame"].as_u64().unwrap() as usize,
             t["end_frame"].as_u64().unwrap() as usize,
         );
         assert!(t["max_yaw_rate_deg_s"].as_f64().unwrap() > 45.0, "{t}");
-        for i in a..=b {
-            in_turn[i] = true;
-        }
-        for i in a.saturating_sub(6)..(b + 6).min(100) {
-            near_turn[i] = true;
-        }
+        in_turn[a..=b].iter_mut().for_each(|f| *f = true);
+        near_turn[a.saturating_sub(6)..(b + 6).min(100)]
+            .iter_mut()
+            .for_each(|f| *f = true);
     }
     let out: serde_json::Value = serde_json::from_str(&kf_ok(&[
         "score",
