@@ -184,8 +184,11 @@ impl Flight {
             ],
         };
         // Base speed: smooth noise along the path, blended to V_TURN around turns.
+        // A slow swell between V_MIN and V_MAX (period 90 m of path) made irregular by noise.
+        let phase = rng.range(0.0, std::f64::consts::TAU);
         let base = |f: &Flight, s: f64| {
-            let n = (speed_noise.fbm(s / 45.0, 0.5, 3) * 2.2).clamp(-1.0, 1.0);
+            let swell = (std::f64::consts::TAU * s / 90.0 + phase).sin();
+            let n = (1.3 * swell + 0.8 * speed_noise.fbm(s / 40.0, 0.5, 3)).clamp(-1.0, 1.0);
             let free = 0.5 * (V_MIN + V_MAX) + 0.5 * (V_MAX - V_MIN) * n;
             let w = f.turn_weight(s);
             free + (V_TURN - free) * w
@@ -488,6 +491,22 @@ mod tests {
                 (a0 - a1).sin().abs() < 1e-9 && (a0 - a1).cos() > 0.0,
                 "{w:?}"
             );
+        }
+    }
+
+    #[test]
+    fn survey_speed_varies_by_three_or_more() {
+        for seed in [1, 2, 3] {
+            let f = Flight::new(Preset::Survey, 45.0, seed, &|_, _| 0.0);
+            let v: Vec<f64> = (1..450)
+                .map(|i| {
+                    let t = i as f64 * 0.1;
+                    (f.arc_length(t + 0.05) - f.arc_length(t - 0.05)) / 0.1
+                })
+                .collect();
+            let max = v.iter().copied().fold(0.0, f64::max);
+            let min = v.iter().copied().fold(f64::MAX, f64::min);
+            assert!(max / min > 3.0, "seed {seed}: speed {min}..{max}");
         }
     }
 
