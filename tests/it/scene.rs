@@ -185,19 +185,41 @@ fn scene_markers_appear_where_the_poses_project_them() {
                 continue;
             }
             checked += 1;
-            // Magenta-weighted centroid in a window around the projection.
-            let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+            // Expected pixel area of the 2 m square (corners projected, shoelace formula).
+            let corners: Vec<(f64, f64)> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+                .iter()
+                .map(|(dx, dy)| {
+                    let d = [m[0] + dx - v[0], m[1] + dy - v[1], m[2] - v[2]];
+                    let c: Vec<f64> = (0..3)
+                        .map(|a| r[0][a] * d[0] + r[1][a] * d[1] + r[2][a] * d[2])
+                        .collect();
+                    (fx * c[0] / c[2] + cx, fy * c[1] / c[2] + cy)
+                })
+                .collect();
+            let area = 0.5
+                * (0..4)
+                    .map(|j| {
+                        let (a, b) = (corners[j], corners[(j + 1) % 4]);
+                        a.0 * b.1 - b.0 * a.1
+                    })
+                    .sum::<f64>()
+                    .abs();
+            // Centroid of the clearly magenta pixels in a window around the projection.
+            let (mut n, mut sx, mut sy) = (0.0, 0.0, 0.0);
             for y in (w as i32 - 10)..=(w as i32 + 10) {
                 for x in (u as i32 - 10)..=(u as i32 + 10) {
                     let [b, g, rr] = pixel(&frames[i], x, y);
-                    let wgt = (b.min(rr) - g - 80.0).max(0.0);
-                    sw += wgt;
-                    sx += wgt * (x as f64 + 0.5);
-                    sy += wgt * (y as f64 + 0.5);
+                    if b > 170.0 && rr > 170.0 && g < 90.0 {
+                        n += 1.0;
+                        sx += x as f64 + 0.5;
+                        sy += y as f64 + 0.5;
+                    }
                 }
             }
-            if sw < 500.0 {
-                continue; // hidden behind a building or a hill
+            let sw = n;
+            // A marker partly hidden (by a car, a building or a hill) has a shifted centroid.
+            if n < 0.5 * area {
+                continue;
             }
             found += 1;
             let err = (sx / sw - u).hypot(sy / sw - w);
