@@ -20,6 +20,7 @@ pub mod progress;
 pub mod project;
 pub mod report;
 pub mod samplers;
+pub mod scene;
 pub mod segment;
 pub mod select;
 pub mod source;

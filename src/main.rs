@@ -194,6 +194,9 @@ fn run(cli: Cli) -> Result<Outcome> {
                 r.html.display(),
                 r.timeline.display()
             );
+        Command::Scene(a) => {
+            let r = keyframer::scene::generate(&a.settings(quiet)?)?;
+            eprintln!("{}", keyframer::scene::cli::summary(&r, &a.out));
             Ok(Outcome::Ok)
         }
         Command::Run(a) => {

@@ -143,6 +143,8 @@ impl GpuContext {
         limits.max_storage_buffers_per_shader_stage =
             have.max_storage_buffers_per_shader_stage.min(8);
         limits.max_compute_workgroup_storage_size = have.max_compute_workgroup_storage_size;
+        // `keyframer scene` textures its terrain with a 4096-texel image.
+        limits.max_texture_dimension_2d = have.max_texture_dimension_2d.min(8192);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("keyframer"),
             required_features: wgpu::Features::empty(),

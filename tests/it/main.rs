@@ -10,5 +10,6 @@ mod movement;
 mod onnx_model;
 mod pipeline;
 mod report;
+mod scene;
 mod segment;
 mod sharpness;

@@ -1,0 +1,125 @@
+//! Flags of `keyframer scene` and their conversion into [`SceneSettings`]; the one-line summary.
+
+use super::path::Preset;
+use super::{SceneReport, SceneSettings};
+use crate::error::{Error, Result};
+use clap::{Args, ValueEnum};
+use std::path::{Path, PathBuf};
+
+/// Flight presets on the command line.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum PresetArg {
+    /// Lawnmower legs, variable speed (3-9 m/s), fast turns (~57°/s); 45 s by default.
+    Survey,
+    /// Circle of 50 m around a point of interest, looking at it, variable speed; 50 s.
+    Orbit,
+    /// The survey with three hovers of 10 % of the length each (1-5 s); 55 s.
+    HoverSurvey,
+}
+
+/// `scene` flags (a development command: synthetic data with exact ground truth).
+#[derive(Debug, Args)]
+#[command(
+    long_about = "Development command: renders a synthetic drone flight over textured hilly \
+                  terrain with driving cars, with motion blur, on the GPU (wgpu). Writes OUT_DIR/\
+                  video.mp4 (H.264, yuv420p, constant fps), poses.tum (camera-to-world pose per \
+                  frame at its mid-shutter time, OpenCV camera axes: x right, y down, z forward; \
+                  world z up, metres) and scene.json (intrinsics, hovers, fast turns, objects)."
+)]
+pub struct SceneArgs {
+    /// Output folder (refused when not empty, unless --force).
+    pub out: PathBuf,
+    /// Flight.
+    #[arg(long, value_enum, default_value = "survey")]
+    pub preset: PresetArg,
+    /// Length in seconds (default: 45 survey, 50 orbit, 55 hover-survey).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Frame rate of the video.
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f64,
+    /// Image size WxH (even numbers).
+    #[arg(long, default_value = "640x360")]
+    pub size: String,
+    /// Seed of the terrain, textures, path, speeds and objects.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Renders averaged over the shutter (half a frame interval) per frame; 1 = no motion blur.
+    #[arg(long, default_value_t = 8)]
+    pub blur_samples: u32,
+    /// Folder of the texture photos (default: $KEYFRAMER_TESTDATA/opencv-doc, else
+    /// target/testdata/opencv-doc).
+    #[arg(long)]
+    pub textures: Option<PathBuf>,
+    /// Add 16 flat magenta 2 m squares at the positions listed in scene.json (test aid).
+    #[arg(long)]
+    pub markers: bool,
+    /// Replace the contents of a non-empty output folder.
+    #[arg(long)]
+    pub force: bool,
+    /// GPU adapter to use (part of its name).
+    #[arg(long)]
+    pub adapter: Option<String>,
+}
+
+impl SceneArgs {
+    /// Validated settings.
+    pub fn settings(&self, quiet: bool) -> Result<SceneSettings> {
+        let bad = || Error::param("--size", format!("`{}` is not WxH", self.size));
+        let (w, h) = self.size.split_once(['x', 'X']).ok_or_else(bad)?;
+        let width: u32 = w.trim().parse().map_err(|_| bad())?;
+        let height: u32 = h.trim().parse().map_err(|_| bad())?;
+        let textures = match &self.textures {
+            Some(t) => t.clone(),
+            None => std::env::var_os("KEYFRAMER_TESTDATA")
+                .map(PathBuf::from)
+                .unwrap_or_else(|| PathBuf::from("target/testdata"))
+                .join("opencv-doc"),
+        };
+        if !textures.is_dir() {
+            return Err(Error::input(
+                &textures,
+                "texture photo folder not found (scripts/setup.sh fetches Debian's opencv-doc \
+                 examples; or pass --textures)",
+            ));
+        }
+        Ok(SceneSettings {
+            out: self.out.clone(),
+            preset: match self.preset {
+                PresetArg::Survey => Preset::Survey,
+                PresetArg::Orbit => Preset::Orbit,
+                PresetArg::HoverSurvey => Preset::HoverSurvey,
+            },
+            seconds: self.seconds,
+            fps: self.fps,
+            width,
+            height,
+            seed: self.seed,
+            blur_samples: self.blur_samples,
+            textures,
+            markers: self.markers,
+            force: self.force,
+            quiet,
+            adapter: self.adapter.clone(),
+        })
+    }
+}
+
+/// One line for stderr: frames, size, timing, where.
+pub fn summary(r: &SceneReport, out: &Path) -> String {
+    let d = &r.description;
+    format!(
+        "{} frames {}x{} @ {} fps ({}, seed {}, {} sub-samples) in {:.1} s = {:.2} frames/s on {} -> {}",
+        d.frame_count,
+        d.width,
+        d.height,
+        d.fps,
+        d.preset.name(),
+        d.seed,
+        d.blur_samples,
+        r.render_seconds,
+        d.frame_count as f64 / r.render_seconds.max(1e-9),
+        r.adapter,
+        out.display()
+    )
+}

@@ -1,0 +1,488 @@
+//! `keyframer scene`: a synthetic drone sequence (dev tool) rendered with wgpu. Writes into an
+//! output folder, each file atomically and `scene.json` last: `video.mp4` (H.264, yuv420p,
+//! constant frame rate), `poses.tum` (one camera-to-world pose per video frame, at the frame's
+//! mid-shutter time i / fps) and `scene.json` (settings, intrinsics, hovers, fast turns, objects).
+//! The same settings and seed give the same poses and pixels.
+
+pub mod cli;
+pub mod math;
+pub mod path;
+pub mod render;
+pub mod world;
+
+mod encode;
+
+use crate::error::{Error, Result};
+use math::{Pose, V3};
+use path::{Flight, Preset};
+use render::{Instance, Intrinsics, Renderer, SceneData, SubSample};
+use std::path::PathBuf;
+use world::{Kind, Object, Terrain};
+
+/// Yaw rate above which frames count as a fast turn (degrees per second).
+pub const FAST_TURN_DEG_S: f64 = 30.0;
+/// Shutter time as a fraction of the frame interval.
+pub const SHUTTER: f64 = 0.5;
+/// Focal length as a fraction of the image width (horizontal field of view about 71°).
+pub const FOCAL_PER_WIDTH: f64 = 0.7;
+/// Largest image motion (pixels) between neighbouring shutter sub-samples: a frame whose content
+/// moves `m` px during the shutter gets `ceil(m / MAX_SUB_STEP_PX)` sub-samples, at most
+/// `--blur-samples` (fewer sub-samples where the motion is small give the same image).
+pub const MAX_SUB_STEP_PX: f64 = 1.25;
+/// Direction towards the sun (world, unit length after normalisation).
+const SUN: V3 = V3(0.45, -0.35, 0.82);
+
+/// What to generate.
+#[derive(Debug, Clone)]
+pub struct SceneSettings {
+    /// Output folder.
+    pub out: PathBuf,
+    /// Flight preset.
+    pub preset: Preset,
+    /// Length in seconds (None: the preset's default).
+    pub seconds: Option<f64>,
+    /// Frame rate.
+    pub fps: f64,
+    /// Image width (even).
+    pub width: u32,
+    /// Image height (even).
+    pub height: u32,
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Shutter sub-samples averaged per frame (motion blur); 1 = none.
+    pub blur_samples: u32,
+    /// Folder with the photos used as textures (Debian opencv-doc examples).
+    pub textures: PathBuf,
+    /// Add flat magenta marker squares at known positions (test aid).
+    pub markers: bool,
+    /// Replace the contents of a non-empty output folder.
+    pub force: bool,
+    /// No progress bar.
+    pub quiet: bool,
+    /// GPU adapter name part.
+    pub adapter: Option<String>,
+}
+
+/// An inclusive range of frame indices.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FrameRange {
+    /// First frame.
+    pub start_frame: usize,
+    /// Last frame (inclusive).
+    pub end_frame: usize,
+}
+
+/// A fast-turn segment.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FastTurn {
+    /// Frames.
+    #[serde(flatten)]
+    pub frames: FrameRange,
+    /// Largest yaw rate in it (degrees per second).
+    pub max_yaw_rate_deg_s: f64,
+}
+
+/// The description written as scene.json.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct SceneDescription {
+    /// Always "keyframer scene".
+    pub generator: String,
+    /// keyframer version.
+    pub version: String,
+    /// Preset name.
+    pub preset: Preset,
+    /// Seed.
+    pub seed: u64,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Frame rate (constant).
+    pub fps: f64,
+    /// Number of video frames (= lines of poses.tum).
+    pub frame_count: usize,
+    /// Sub-samples per frame.
+    pub blur_samples: u32,
+    /// Sub-samples actually rendered per frame: min, mean, max (see `MAX_SUB_STEP_PX`).
+    pub sub_samples_rendered: [f64; 3],
+    /// Exposure time (seconds), centred on each frame's timestamp.
+    pub shutter_s: f64,
+    /// What a pose's timestamp means.
+    pub pose_time: String,
+    /// Pinhole camera (COLMAP PINHOLE, pixel centres at +0.5).
+    pub intrinsics: Intrinsics,
+    /// Conventions of poses.tum and the world.
+    pub conventions: Conventions,
+    /// Hover holds (frames whose whole shutter lies inside a hold).
+    pub hovers: Vec<FrameRange>,
+    /// Yaw-rate threshold of `fast_turns`.
+    pub fast_turn_threshold_deg_s: f64,
+    /// Segments whose yaw rate exceeds the threshold.
+    pub fast_turns: Vec<FastTurn>,
+    /// Camera speed over moving frames (m/s): min, max.
+    pub speed_range_m_s: [f64; 2],
+    /// Terrain description.
+    pub terrain: TerrainInfo,
+    /// Boxes: buildings, cars (with their loops), markers.
+    pub objects: Vec<Object>,
+}
+
+/// Axis conventions.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Conventions {
+    /// poses.tum line format.
+    pub poses: String,
+    /// Camera axes.
+    pub camera_axes: String,
+    /// World axes.
+    pub world_axes: String,
+    /// Pixel coordinates.
+    pub pixels: String,
+}
+
+/// Terrain facts.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct TerrainInfo {
+    /// It covers [-half, half]² metres.
+    pub half_size_m: f64,
+    /// Grid cells per side.
+    pub cells: usize,
+    /// Lowest and highest terrain height (metres).
+    pub height_range_m: [f64; 2],
+    /// Photos of the texture patchwork.
+    pub photos: Vec<String>,
+    /// Direction towards the sun.
+    pub sun: [f64; 3],
+}
+
+/// What `generate` reports.
+#[derive(Debug, Clone)]
+pub struct SceneReport {
+    /// The description that was written.
+    pub description: SceneDescription,
+    /// Adapter used.
+    pub adapter: String,
+    /// Seconds spent rendering and encoding frames.
+    pub render_seconds: f64,
+}
+
+fn validate(s: &SceneSettings) -> Result<f64> {
+    if !(s.fps.is_finite() && s.fps > 0.0 && s.fps <= 240.0) {
+        return Err(Error::param("--fps", "must be in (0, 240]"));
+    }
+    if s.width < 32 || s.height < 32 || s.width > 4096 || s.height > 4096 {
+        return Err(Error::param(
+            "--size",
+            "width and height must be in 32..=4096",
+        ));
+    }
+    if s.width % 2 != 0 || s.height % 2 != 0 {
+        return Err(Error::param(
+            "--size",
+            "width and height must be even (yuv420p video)",
+        ));
+    }
+    if s.blur_samples == 0 || s.blur_samples > 64 {
+        return Err(Error::param("--blur-samples", "must be in 1..=64"));
+    }
+    let seconds = s.seconds.unwrap_or(s.preset.default_seconds());
+    if !(seconds.is_finite() && seconds > 0.0) {
+        return Err(Error::param("--seconds", "must be positive"));
+    }
+    if (seconds * s.fps).round() < 1.0 {
+        return Err(Error::param("--seconds", "gives no frame at this --fps"));
+    }
+    Ok(seconds)
+}
+
+/// Pose of every sub-sample of frame `i`: times spread evenly over the shutter, centred on i / fps.
+fn sub_times(i: usize, fps: f64, k: u32) -> Vec<f64> {
+    let t = i as f64 / fps;
+    let shutter = SHUTTER / fps;
+    (0..k)
+        .map(|j| t + shutter * ((j as f64 + 0.5) / k as f64 - 0.5))
+        .collect()
+}
+
+fn yaw(p: &Pose) -> f64 {
+    p.rot[2].1.atan2(p.rot[2].0)
+}
+
+fn instances(objects: &[Object], t: f64, terrain: &Terrain) -> Vec<Instance> {
+    let mut v = vec![Instance::terrain()];
+    for o in objects {
+        let (c, yaw) = o.placement(t, terrain);
+        let q = o.quadrant;
+        let rect = [0.5 * (q % 2) as f32, 0.5 * (q / 2) as f32, 0.5, 0.5];
+        let kind = if o.kind == Kind::Marker { 2.0 } else { 1.0 };
+        let tint = [o.tint[0] as f32, o.tint[1] as f32, o.tint[2] as f32, kind];
+        v.push(Instance::boxed(c, yaw, o.size, rect, tint));
+    }
+    v
+}
+
+/// Where the ray through pixel (u, v) of `pose` first meets the terrain (marching 1 m steps).
+fn ray_hit(pose: &Pose, k: &Intrinsics, u: f64, v: f64, terrain: &Terrain) -> Option<V3> {
+    let d = V3((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0).unit();
+    let r = &pose.rot;
+    let dir = r[0] * d.0 + r[1] * d.1 + r[2] * d.2;
+    (1..1500)
+        .map(|t| pose.centre + dir * t as f64)
+        .find(|p| p.2 <= terrain.height(p.0, p.1))
+}
+
+/// Largest image displacement (pixels) of the visible content between the start and the end of
+/// frame `i`'s shutter: terrain points seen through a 5x5 pixel grid, and the visible cars.
+fn shutter_motion(
+    i: usize,
+    s: &SceneSettings,
+    flight: &Flight,
+    terrain: &Terrain,
+    objects: &[Object],
+    k: &Intrinsics,
+) -> f64 {
+    let t = i as f64 / s.fps;
+    let half = 0.5 * SHUTTER / s.fps;
+    let (pa, pm, pb) = (flight.pose(t - half), flight.pose(t), flight.pose(t + half));
+    let (w, h) = (s.width as f64, s.height as f64);
+    let shift = |a: V3, b: V3| -> f64 {
+        let (qa, qb) = (pa.to_camera(a), pb.to_camera(b));
+        if qa.2 < 0.5 || qb.2 < 0.5 {
+            return 0.0;
+        }
+        let (ua, va) = k.project(qa);
+        let (ub, vb) = k.project(qb);
+        (ua - ub).hypot(va - vb)
+    };
+    let mut m: f64 = 0.0;
+    for gy in 0..5 {
+        for gx in 0..5 {
+            let (u, v) = (w * (gx as f64 + 0.5) / 5.0, h * (gy as f64 + 0.5) / 5.0);
+            if let Some(p) = ray_hit(&pm, k, u, v, terrain) {
+                m = m.max(shift(p, p));
+            }
+        }
+    }
+    for o in objects.iter().filter(|o| o.path.is_some()) {
+        let (c, _) = o.placement(t, terrain);
+        let q = pm.to_camera(c);
+        if q.2 < 0.5 {
+            continue;
+        }
+        let (u, v) = k.project(q);
+        if u < -0.2 * w || u > 1.2 * w || v < -0.2 * h || v > 1.2 * h {
+            continue;
+        }
+        let (a, _) = o.placement(t - half, terrain);
+        let (b, _) = o.placement(t + half, terrain);
+        m = m.max(shift(a, b));
+    }
+    m
+}
+
+/// One TUM line: `timestamp tx ty tz qx qy qz qw`.
+pub fn tum_line(t: f64, p: &Pose) -> String {
+    let q = p.quaternion();
+    format!(
+        "{t:.6} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}\n",
+        p.centre.0, p.centre.1, p.centre.2, q[0], q[1], q[2], q[3]
+    )
+}
+
+/// Generates the sequence described by `s`.
+pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
+    let seconds = validate(s)?;
+    crate::fsutil::prepare_output_dir(&s.out, s.force)?;
+    let frames = (seconds * s.fps).round() as usize;
+    let terrain = Terrain::new(s.seed);
+    let flight = Flight::new(s.preset, seconds, s.seed, &|x, y| terrain.height(x, y));
+    let last_t = (frames - 1) as f64 / s.fps + 0.5 * SHUTTER / s.fps;
+    if last_t > flight.duration() {
+        return Err(Error::param(
+            "--seconds",
+            format!(
+                "the {} path lasts {:.1} s; ask for at most that",
+                s.preset.name(),
+                flight.duration()
+            ),
+        ));
+    }
+    let objects = world::objects(
+        s.seed,
+        &terrain,
+        &flight.ground_track(seconds, 5.0),
+        s.markers,
+    );
+    let t0 = std::time::Instant::now();
+    log::info!("building textures from {}", s.textures.display());
+    let terrain_tex = world::terrain_texture(&s.textures, s.seed, world::TERRAIN_TEX)?;
+    let atlas = world::atlas(&s.textures)?;
+    log::info!("textures built in {:.1} s", t0.elapsed().as_secs_f64());
+    let (tv, ti) = terrain.mesh();
+    let (bv, bi) = world::box_mesh();
+    let ctx = crate::gpu::GpuContext::new(s.adapter.as_deref())?;
+    let data = SceneData {
+        terrain: (&tv, &ti),
+        boxes: (&bv, &bi),
+        terrain_tex: &terrain_tex,
+        atlas: &atlas,
+        instances: 1 + objects.len() as u32,
+    };
+    let renderer = Renderer::new(&ctx, &data, s.width, s.height, s.blur_samples)?;
+    log::info!("renderer ready after {:.1} s", t0.elapsed().as_secs_f64());
+    drop(terrain_tex);
+    drop(atlas);
+    let k = Intrinsics {
+        fx: FOCAL_PER_WIDTH * s.width as f64,
+        fy: FOCAL_PER_WIDTH * s.width as f64,
+        cx: 0.5 * s.width as f64,
+        cy: 0.5 * s.height as f64,
+    };
+    let sun = SUN.unit();
+    let sun4 = [sun.0 as f32, sun.1 as f32, sun.2 as f32, 0.0];
+    let video = s.out.join("video.mp4");
+    let mut enc = encode::Encoder::start(&video, s.width, s.height, s.fps)?;
+    let bar = crate::progress::bar(frames as u64, "render", s.quiet);
+    let started = std::time::Instant::now();
+    let mut tum = String::new();
+    let mut yaw_rates = Vec::with_capacity(frames);
+    let mut speeds = Vec::with_capacity(frames);
+    let mut sub_counts = Vec::with_capacity(frames);
+    let chunks = terrain.chunk_bounds();
+    for i in 0..frames {
+        let motion = shutter_motion(i, s, &flight, &terrain, &objects, &k);
+        let count = ((motion / MAX_SUB_STEP_PX).ceil() as u32).clamp(1, s.blur_samples);
+        sub_counts.push(count);
+        let subs: Vec<SubSample> = sub_times(i, s.fps, count)
+            .into_iter()
+            .map(|t| {
+                let pose = flight.pose(t);
+                SubSample {
+                    clip: render::clip_matrix(&pose, &k, s.width, s.height),
+                    instances: instances(&objects, t, &terrain),
+                    terrain: render::visible_chunks(&pose, &k, s.width, s.height, &chunks),
+                }
+            })
+            .collect();
+        let rgba = renderer.frame(&subs, sun4)?;
+        enc.write(&rgba)?;
+        let t = i as f64 / s.fps;
+        let pose = flight.pose(t);
+        tum.push_str(&tum_line(t, &pose));
+        let h = 0.01;
+        let (a, b) = (flight.pose(t - h), flight.pose(t + h));
+        let mut d = yaw(&b) - yaw(&a);
+        d = (d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+        yaw_rates.push((d / (2.0 * h)).to_degrees().abs());
+        speeds.push((b.centre - a.centre).norm() / (2.0 * h));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    enc.finish()?;
+    let render_seconds = started.elapsed().as_secs_f64();
+    let sub_total: u64 = sub_counts.iter().map(|&c| c as u64).sum();
+    crate::fsutil::write_atomic(&s.out.join("poses.tum"), tum.as_bytes())?;
+
+    let half_shutter = 0.5 * SHUTTER / s.fps;
+    let hovers = flight
+        .hovers()
+        .iter()
+        .filter_map(|h| {
+            let inside: Vec<usize> = (0..frames)
+                .filter(|&i| {
+                    let t = i as f64 / s.fps;
+                    t - half_shutter >= h.t0 && t + half_shutter <= h.t1
+                })
+                .collect();
+            Some(FrameRange {
+                start_frame: *inside.first()?,
+                end_frame: *inside.last()?,
+            })
+        })
+        .collect();
+    let mut fast_turns: Vec<FastTurn> = Vec::new();
+    for (i, &r) in yaw_rates.iter().enumerate() {
+        if r < FAST_TURN_DEG_S {
+            continue;
+        }
+        match fast_turns.last_mut() {
+            Some(f) if f.frames.end_frame + 1 == i => {
+                f.frames.end_frame = i;
+                f.max_yaw_rate_deg_s = f.max_yaw_rate_deg_s.max(r);
+            }
+            _ => fast_turns.push(FastTurn {
+                frames: FrameRange {
+                    start_frame: i,
+                    end_frame: i,
+                },
+                max_yaw_rate_deg_s: r,
+            }),
+        }
+    }
+    for f in &mut fast_turns {
+        f.max_yaw_rate_deg_s = (f.max_yaw_rate_deg_s * 100.0).round() / 100.0;
+    }
+    let moving: Vec<f64> = speeds.iter().copied().filter(|&v| v > 0.05).collect();
+    let lo = terrain.heights.iter().copied().fold(f32::MAX, f32::min) as f64;
+    let hi = terrain.heights.iter().copied().fold(f32::MIN, f32::max) as f64;
+    let round2 = |v: f64| (v * 100.0).round() / 100.0;
+    let description = SceneDescription {
+        generator: "keyframer scene".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        preset: s.preset,
+        seed: s.seed,
+        width: s.width,
+        height: s.height,
+        fps: s.fps,
+        frame_count: frames,
+        blur_samples: s.blur_samples,
+        sub_samples_rendered: [
+            sub_counts.iter().copied().min().unwrap_or(0) as f64,
+            round2(sub_total as f64 / frames as f64),
+            sub_counts.iter().copied().max().unwrap_or(0) as f64,
+        ],
+        shutter_s: SHUTTER / s.fps,
+        pose_time:
+            "mid-shutter: frame i is exposed over [i/fps - shutter_s/2, i/fps + shutter_s/2] \
+                    (1 to blur_samples renders spread evenly over it and averaged: as many as keep the image motion between neighbouring renders under 1.25 px); its pose is at i/fps"
+                .into(),
+        intrinsics: k,
+        conventions: Conventions {
+            poses: "poses.tum: `timestamp tx ty tz qx qy qz qw` per video frame, timestamp = \
+                    frame index / fps; camera-to-world: t is the camera centre in the world, q \
+                    rotates camera axes into world axes (Hamilton, w last)"
+                .into(),
+            camera_axes: "OpenCV / COLMAP: x right, y down, z viewing direction".into(),
+            world_axes: "x east, y north, z up; metres".into(),
+            pixels: "COLMAP: image top-left corner at (0, 0), pixel (i, j) centred at \
+                     (i + 0.5, j + 0.5); u = fx x/z + cx, v = fy y/z + cy"
+                .into(),
+        },
+        hovers,
+        fast_turn_threshold_deg_s: FAST_TURN_DEG_S,
+        fast_turns,
+        speed_range_m_s: [
+            round2(moving.iter().copied().fold(f64::MAX, f64::min).min(1e9)),
+            round2(moving.iter().copied().fold(0.0, f64::max)),
+        ],
+        terrain: TerrainInfo {
+            half_size_m: world::HALF,
+            cells: world::CELLS,
+            height_range_m: [round2(lo), round2(hi)],
+            photos: world::TERRAIN_PHOTOS
+                .iter()
+                .map(|p| p.to_string())
+                .collect(),
+            sun: [sun.0, sun.1, sun.2],
+        },
+        objects,
+    };
+    let json = serde_json::to_string_pretty(&description)
+        .map_err(|e| Error::Gpu(format!("scene.json: {e}")))?;
+    crate::fsutil::write_atomic(&s.out.join("scene.json"), json.as_bytes())?;
+    Ok(SceneReport {
+        description,
+        adapter: ctx.info.name.clone(),
+        render_seconds,
+    })
+}
