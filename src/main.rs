@@ -194,6 +194,8 @@ fn run(cli: Cli) -> Result<Outcome> {
                 r.html.display(),
                 r.timeline.display()
             );
+            Ok(Outcome::Ok)
+        }
         Command::Scene(a) => {
             let r = keyframer::scene::generate(&a.settings(quiet)?)?;
             eprintln!("{}", keyframer::scene::cli::summary(&r, &a.out));
