@@ -84,6 +84,10 @@ pub struct ReportArgs {
     /// Take thumbnails from this export folder instead of decoding the input.
     #[arg(long, value_name = "EXPORT_DIR")]
     pub export: Option<PathBuf>,
+    /// A COLMAP model of the keyframes (model folder, sparse/ root or `keyframer colmap`
+    /// workspace): draws the camera path coloured by spacing.
+    #[arg(long, value_name = "MODEL")]
+    pub model: Option<PathBuf>,
     /// At most this many keyframe thumbnails, spread evenly (0: none).
     #[arg(long, default_value_t = 60, value_name = "N")]
     pub thumbs: usize,

@@ -285,6 +285,27 @@ pub fn evaluate(a: &EvalArgs) -> Result<Report> {
     })
 }
 
+/// Registered camera centres with their frame index (from the export's manifest), in frame
+/// order, for the largest model at `model` (anything [`evaluate`] accepts).
+pub fn camera_centres(model: &Path, export: Option<&Path>) -> Result<Vec<(usize, Vec3)>> {
+    let r = resolve(model)?;
+    let (m, _) = model::read(&r.model_dir)?;
+    let export = export.map(Path::to_path_buf).or(r.export);
+    let manifest = export.as_deref().map(read_manifest).transpose()?;
+    let ordered = order_images(&m, manifest.as_ref(), export.as_deref())?;
+    let mut out = Vec::with_capacity(ordered.len());
+    for o in ordered {
+        let Some(i) = o.index else {
+            return Err(Error::input(
+                model,
+                "the model's images need the export's manifest for their frame numbers (--export)",
+            ));
+        };
+        out.push((i, o.centre));
+    }
+    Ok(out)
+}
+
 /// A registered image with what the manifest knows about it.
 struct Ordered {
     name: String,

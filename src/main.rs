@@ -186,7 +186,16 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Colmap(a) => colmap(&a, quiet),
         Command::Eval(a) => eval(&a),
         Command::Report(a) => {
-            let r = keyframer::report::write_report(&a.project, &a.settings(), None)?;
+            let camera = match &a.model {
+                Some(m) => Some(keyframer::report::CameraPath {
+                    points: keyframer::eval::camera_centres(m, a.export.as_deref())?
+                        .into_iter()
+                        .map(|(frame, centre)| keyframer::report::PathPoint { frame, centre })
+                        .collect(),
+                }),
+                None => None,
+            };
+            let r = keyframer::report::write_report(&a.project, &a.settings(), camera.as_ref())?;
             eprintln!(
                 "report: {} keyframes, {} thumbnails -> {} (timeline {})",
                 r.keyframes,

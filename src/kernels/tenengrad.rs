@@ -4,8 +4,8 @@
 use crate::error::{CvContext, Result};
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{self, Mat};
-use opencv::prelude::MatTraitConst;
 use opencv::imgproc;
+use opencv::prelude::MatTraitConst;
 
 /// WGSL source.
 pub const WGSL: &str = include_str!("../../shaders/tenengrad.wgsl");

@@ -493,6 +493,24 @@ fn colmap_sparse_reconstructs_parallax_clip_and_eval_matches_ground_truth() {
     let g = &r["gt"];
     assert_eq!(g["matched"], best);
     assert_eq!(g["matched_by"], "timestamp");
+
+    // The report draws the reconstructed camera path (one camera per registered image).
+    let html = d.path().join("report.html");
+    kf_ok(&[
+        "report",
+        s(&project),
+        "-o",
+        s(&html),
+        "--model",
+        s(&ws),
+        "--thumbs",
+        "0",
+    ]);
+    let page = std::fs::read_to_string(&html).unwrap();
+    assert!(
+        page.contains(&format!("<p id=\"camera-stats\">{best} cameras;")),
+        "camera path of {best} cameras in the report"
+    );
     // The ground-truth spacing of the registered frames, from the path itself.
     let order: Vec<i32> = r["order"]
         .as_array()
