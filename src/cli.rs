@@ -393,12 +393,13 @@ pub struct MovementArgs {
     /// Fraction dropped at each end by --movement trimmed-mean.
     #[arg(long, default_value_t = 0.1)]
     pub trim: f64,
-    /// Width of the analysis resolution for flow (never above the input's width).
-    #[arg(long, value_name = "W", default_value_t = 640)]
+    /// Width of the analysis resolution for flow (never above the input's width). Default from
+    /// `keyframer bench pipeline --tradeoffs` (see README).
+    #[arg(long, value_name = "W", default_value_t = 320)]
     pub analysis_width: u32,
     /// Measure flow between frames K apart (each frame in between gets an equal share of the
     /// movement; consecutive movement only, the stationary sampler compares every frame).
-    #[arg(long, value_name = "K", default_value_t = 1)]
+    #[arg(long, value_name = "K", default_value_t = 2)]
     pub flow_stride: u32,
     /// Farneback parameters.
     #[command(flatten)]

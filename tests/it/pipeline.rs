@@ -94,7 +94,7 @@ fn flow_stride_spreads_the_movement_of_each_step() {
     let three = d.path().join("three.json");
     let base = ["select", s(&clip), "--backend", "opencv", "--spacing", "30"];
     let mut a = base.to_vec();
-    a.extend(["-o", s(&one)]);
+    a.extend(["--flow-stride", "1", "-o", s(&one)]);
     kf_ok(&a);
     let mut b = base.to_vec();
     b.extend(["--flow-stride", "3", "-o", s(&three)]);
