@@ -662,18 +662,18 @@ fn decode_worker(
                     let gray = small
                         .map(|s| MovementPass::prepare(s, &f.image))
                         .transpose();
-                    gray.and_then(|g| {
+                    gray.map(|g| {
                         if f.index < resume_at {
                             // Without `small` the frame itself goes (staged on the device).
-                            Ok(Decoded::Prime(
+                            Decoded::Prime(
                                 f.index,
                                 g.unwrap_or_else(|| std::mem::take(&mut f.image)),
-                            ))
+                            )
                         } else {
                             if !keep_image {
                                 f.image = Mat::default();
                             }
-                            Ok(Decoded::Frame(f, g))
+                            Decoded::Frame(f, g)
                         }
                     })
                 }
