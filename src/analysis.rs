@@ -9,6 +9,7 @@ use crate::fsutil::Fingerprint;
 use crate::gpu::{Backend, GpuContext};
 use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams, SLOTS};
 use crate::kernels::movement::{self, MovementGpu, Statistic};
+use crate::kernels::resize_area;
 use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
 use crate::source::{self, Frame, FrameSource, Metadata, OpenOptions};
 use opencv::core::Mat;
@@ -134,6 +135,29 @@ impl Scorer {
         Ok((Scorer::Opencv(metrics.to_vec()), Backend::Opencv))
     }
 
+    /// Makes the gpu scorer also resize every frame's device gray to `size` (resize_area) into
+    /// small buffers, one per batch position; None for the opencv scorer.
+    fn attach_resize(&mut self, size: (u32, u32)) -> Result<Option<Vec<wgpu::Buffer>>> {
+        match self {
+            Scorer::Gpu(runners) => match runners.first_mut() {
+                Some(r) => r.attach_resize(size).map(Some),
+                None => Ok(None),
+            },
+            Scorer::Opencv(_) => Ok(None),
+        }
+    }
+
+    /// Uploads one frame and computes its gray and resized gray (into small buffer 0) without
+    /// keeping its scores (for priming a resumed movement state).
+    fn stage(&mut self, image: &Mat) -> Result<()> {
+        if let Scorer::Gpu(runners) = self {
+            if let Some(r) = runners.first_mut() {
+                r.scores(&[image])?;
+            }
+        }
+        Ok(())
+    }
+
     fn batch(&self) -> usize {
         match self {
             Scorer::Gpu(r) => r.iter().map(|g| g.batch_size()).min().unwrap_or(1),
@@ -208,11 +232,20 @@ fn scorer_worker(
     }
 }
 
+/// One frame's pixels at the analysis resolution: an 8-bit gray Mat, or the index of the
+/// device buffer the gpu scorer resized it into (valid until its next batch).
+enum Pixels {
+    Small(Mat),
+    Staged(usize),
+}
+
 /// Flow + statistic between frames held in slots, on one backend.
 enum Engine {
     Gpu {
         flow: Box<FarnebackGpu>,
         stat: MovementGpu,
+        /// The scorer's resized-gray buffers (empty unless frames stay on the device).
+        staged: Vec<wgpu::Buffer>,
     },
     Opencv {
         params: FarnebackParams,
@@ -221,20 +254,30 @@ enum Engine {
 }
 
 impl Engine {
-    fn load(&mut self, slot: usize, gray: Mat) -> Result<()> {
-        match self {
-            Engine::Gpu { flow, .. } => flow.load(slot, &gray),
-            Engine::Opencv { frames, .. } => {
+    fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
+        match (self, px) {
+            (Engine::Gpu { flow, .. }, Pixels::Small(gray)) => flow.load(slot, &gray),
+            (Engine::Gpu { flow, staged, .. }, Pixels::Staged(k)) => {
+                let buf = staged
+                    .get(k)
+                    .ok_or_else(|| Error::param("movement", "no device gray staged"))?;
+                flow.load_buffer(slot, buf)
+            }
+            (Engine::Opencv { frames, .. }, Pixels::Small(gray)) => {
                 frames[slot] = Some(gray);
                 Ok(())
             }
+            (Engine::Opencv { .. }, Pixels::Staged(_)) => Err(Error::param(
+                "movement",
+                "the opencv engine takes gray images, not device buffers",
+            )),
         }
     }
 
     /// Movement statistic (analysis pixels) from slot `from` to slot `to`.
     fn movement(&mut self, from: usize, to: usize, statistic: Statistic) -> Result<f64> {
         match self {
-            Engine::Gpu { flow, stat } => {
+            Engine::Gpu { flow, stat, .. } => {
                 flow.flow_between(from, to)?;
                 stat.compute(statistic)
             }
@@ -279,7 +322,7 @@ struct MovementPass {
     /// (slot, frame index) of the stationary reference.
     reference: Option<(usize, usize)>,
     /// The last frame, when it is not a stride point: loaded in a slot, or its pixels kept.
-    last: Option<(Option<usize>, usize, Option<Mat>)>,
+    last: Option<(Option<usize>, usize, Option<Pixels>)>,
     accumulated: f64,
     keys: Vec<usize>,
 }
@@ -309,6 +352,7 @@ impl MovementPass {
                 Ok(Engine::Gpu {
                     flow: Box::new(flow),
                     stat,
+                    staged: Vec::new(),
                 })
             });
             match made {
@@ -347,6 +391,20 @@ impl MovementPass {
         }
     }
 
+    /// Whether frames may reach the gpu engine as device buffers resized from `frame` (width,
+    /// height) by resize_area: a gpu engine and an integer downscale (others keep `prepare`).
+    fn can_stage(&self, frame: (u32, u32)) -> bool {
+        matches!(self.engine, Engine::Gpu { .. })
+            && resize_area::factors(frame, (self.size.0 as u32, self.size.1 as u32)).is_some()
+    }
+
+    /// Frames will come as [`Pixels::Staged`] indices into `buffers`.
+    fn use_staged(&mut self, buffers: Vec<wgpu::Buffer>) {
+        if let Engine::Gpu { staged, .. } = &mut self.engine {
+            *staged = buffers;
+        }
+    }
+
     /// A slot holding neither the anchor nor the reference.
     fn free_slot(&self) -> usize {
         let busy = [self.anchor.map(|a| a.0), self.reference.map(|r| r.0)];
@@ -380,7 +438,7 @@ impl MovementPass {
     }
 
     /// Loads the pixels of a restored anchor or reference frame.
-    fn prime(&mut self, index: usize, small: Mat, st: &MovementState) -> Result<()> {
+    fn prime(&mut self, index: usize, small: Pixels, st: &MovementState) -> Result<()> {
         let slot = self.free_slot();
         self.engine.load(slot, small)?;
         if index == st.anchor {
@@ -411,7 +469,7 @@ impl MovementPass {
         }
     }
 
-    fn step(&mut self, i: usize, small: Mat) -> Result<()> {
+    fn step(&mut self, i: usize, small: Pixels) -> Result<()> {
         let active = self
             .stationary
             .filter(|st| (st.first..=st.last).contains(&i));
@@ -476,8 +534,8 @@ impl MovementPass {
 
     /// Movement between two frames (for the `--auto` sample).
     fn pair(&mut self, a: Mat, b: Mat) -> Result<f64> {
-        self.engine.load(0, a)?;
-        self.engine.load(1, b)?;
+        self.engine.load(0, Pixels::Small(a))?;
+        self.engine.load(1, Pixels::Small(b))?;
         Ok(self.engine.movement(0, 1, self.req.statistic)? * self.scale)
     }
 }
@@ -550,11 +608,28 @@ fn load_checkpoint(resume: &Resume, req: &Request) -> Option<Checkpoint> {
     Some(c)
 }
 
+/// Scores the `pending` frames with the staging scorer (which also leaves frame k's resized gray
+/// in its small buffer k) and hands them on with their pixels and scores, in order.
+#[allow(clippy::type_complexity)]
+fn staged_batch(
+    scorer: &mut Scorer,
+    pending: &mut Vec<Frame>,
+) -> Result<Vec<(Frame, Option<Pixels>, Option<Vec<f64>>)>> {
+    let scores = scorer.score(pending)?;
+    Ok(pending
+        .drain(..)
+        .zip(scores)
+        .enumerate()
+        .map(|(k, (f, s))| (f, Some(Pixels::Staged(k)), Some(s)))
+        .collect())
+}
+
 /// Items from the decode thread.
 enum Decoded {
     /// A frame to analyse (`image` is empty when no sharpness is requested).
     Frame(Frame, Option<Mat>),
-    /// An already analysed frame whose pixels a resumed movement state needs again.
+    /// An already analysed frame whose pixels a resumed movement state needs again: its
+    /// analysis gray, or the frame itself when frames are staged on the device.
     Prime(usize, Mat),
 }
 
@@ -587,15 +662,18 @@ fn decode_worker(
                     let gray = small
                         .map(|s| MovementPass::prepare(s, &f.image))
                         .transpose();
-                    gray.and_then(|g| {
+                    gray.map(|g| {
                         if f.index < resume_at {
-                            g.map(|g| Decoded::Prime(f.index, g))
-                                .ok_or_else(|| Error::param("resume", "no movement to prime"))
+                            // Without `small` the frame itself goes (staged on the device).
+                            Decoded::Prime(
+                                f.index,
+                                g.unwrap_or_else(|| std::mem::take(&mut f.image)),
+                            )
                         } else {
                             if !keep_image {
                                 f.image = Mat::default();
                             }
-                            Ok(Decoded::Frame(f, g))
+                            Decoded::Frame(f, g)
                         }
                     })
                 }
@@ -651,7 +729,7 @@ pub fn analyse_with(
         }
         None => None,
     };
-    let scorer = if req.sharpness.is_empty() {
+    let mut scorer = if req.sharpness.is_empty() {
         None
     } else {
         let (s, b) = Scorer::new(backend, ctx, &req.sharpness, &meta)?;
@@ -696,7 +774,25 @@ pub fn analyse_with(
                 .collect();
         }
     }
-    let small = moving.as_ref().map(|m| m.size);
+    // gpu backend, integer downscale: each frame is uploaded once, its gray computed once on the
+    // device for the sharpness kernel and resized there for Farneback; scoring and movement then
+    // run batch by batch on this thread, in frame order.
+    let mut staged = false;
+    if let (Some(s), Some(m)) = (scorer.as_mut(), moving.as_mut()) {
+        if m.can_stage((meta.width, meta.height)) {
+            match s.attach_resize((m.size.0 as u32, m.size.1 as u32)) {
+                Ok(Some(buffers)) => {
+                    m.use_staged(buffers);
+                    staged = true;
+                }
+                Ok(None) => {}
+                Err(e) => log::warn!("{e}; the analysis gray is resized on the CPU"),
+            }
+        }
+    }
+    let small = moving.as_ref().filter(|_| !staged).map(|m| m.size);
+    let mut inline = if staged { scorer.take() } else { None };
+    let inline_batch = inline.as_ref().map_or(1, Scorer::batch);
     let bar = crate::progress::bar(declared, "analyse", quiet);
     bar.set_position(resume_at as u64);
     bar.reset_eta();
@@ -704,7 +800,7 @@ pub fn analyse_with(
     let mut last_save = Instant::now();
     let outcome: Result<()> = std::thread::scope(|scope| {
         let (dtx, drx) = sync_channel::<Result<Decoded>>(DECODE_QUEUE);
-        let keep_image = scorer.is_some();
+        let keep_image = scorer.is_some() || inline.is_some();
         let src_ref = src.as_mut();
         let prime_ref = &prime;
         scope.spawn(move || decode_worker(src_ref, resume_at, prime_ref, small, keep_image, dtx));
@@ -731,52 +827,84 @@ pub fn analyse_with(
             Ok(())
         };
         let run = (|| -> Result<()> {
-            for item in drx {
-                match item? {
-                    Decoded::Prime(i, g) => {
-                        if let (Some(m), Some(c)) = (moving.as_mut(), &restored) {
-                            if let Some(st) = &c.movement {
-                                m.prime(i, g, st)?;
+            let mut pending: Vec<Frame> = Vec::with_capacity(inline_batch);
+            // `None` marks the end of the input (the last staged batch is scored then).
+            for item in drx.into_iter().map(Some).chain(std::iter::once(None)) {
+                let ready: Vec<(Frame, Option<Pixels>, Option<Vec<f64>>)> = match item {
+                    Some(item) => match item? {
+                        Decoded::Prime(i, g) => {
+                            if let (Some(m), Some(c)) = (moving.as_mut(), &restored) {
+                                if let Some(st) = &c.movement {
+                                    let px = match inline.as_mut() {
+                                        Some(sc) => {
+                                            sc.stage(&g)?;
+                                            Pixels::Staged(0)
+                                        }
+                                        None => Pixels::Small(g),
+                                    };
+                                    m.prime(i, px, st)?;
+                                }
                             }
+                            continue;
+                        }
+                        Decoded::Frame(f, g) => match inline.as_mut() {
+                            Some(_) if pending.len() + 1 < inline_batch => {
+                                pending.push(f);
+                                continue;
+                            }
+                            Some(sc) => {
+                                pending.push(f);
+                                staged_batch(sc, &mut pending)?
+                            }
+                            None => vec![(f, g.map(Pixels::Small), None)],
+                        },
+                    },
+                    None => match inline.as_mut() {
+                        Some(sc) if !pending.is_empty() => staged_batch(sc, &mut pending)?,
+                        _ => break,
+                    },
+                };
+                for (f, px, frame_scores) in ready {
+                    let i = f.index;
+                    have_ts &= f.timestamp_s.is_some();
+                    timestamps.extend(f.timestamp_s);
+                    if let (Some(m), Some(px)) = (moving.as_mut(), px) {
+                        m.step(i, px)?;
+                    }
+                    if let Some(fs) = frame_scores {
+                        for (o, v) in scores.iter_mut().zip(fs) {
+                            o.push(v);
                         }
                     }
-                    Decoded::Frame(f, g) => {
-                        let i = f.index;
-                        have_ts &= f.timestamp_s.is_some();
-                        timestamps.extend(f.timestamp_s);
-                        if let (Some(m), Some(g)) = (moving.as_mut(), g) {
-                            m.step(i, g)?;
-                        }
-                        if worker.is_some() {
-                            stx.send(ToScorer::Frame(f))
-                                .map_err(|_| Error::Gpu("the sharpness worker stopped".into()))?;
-                            drain(&mut scores, 0)?;
-                        }
-                        count = i + 1;
-                        bar.set_position(count as u64);
-                        let due = resume.filter(|r| {
-                            r.every_s > 0.0 && last_save.elapsed().as_secs_f64() >= r.every_s
-                        });
-                        if let Some(r) = due {
-                            if moving.as_ref().is_none_or(|m| m.at_stride_point()) {
-                                if worker.is_some() {
-                                    stx.send(ToScorer::Flush).map_err(|_| {
-                                        Error::Gpu("the sharpness worker stopped".into())
-                                    })?;
-                                    drain(&mut scores, count)?;
-                                }
-                                save_checkpoint(
-                                    r,
-                                    req,
-                                    used,
-                                    count,
-                                    &timestamps,
-                                    have_ts,
-                                    &scores,
-                                    moving.as_ref(),
-                                )?;
-                                last_save = Instant::now();
+                    if worker.is_some() {
+                        stx.send(ToScorer::Frame(f))
+                            .map_err(|_| Error::Gpu("the sharpness worker stopped".into()))?;
+                        drain(&mut scores, 0)?;
+                    }
+                    count = i + 1;
+                    bar.set_position(count as u64);
+                    let due = resume.filter(|r| {
+                        r.every_s > 0.0 && last_save.elapsed().as_secs_f64() >= r.every_s
+                    });
+                    if let Some(r) = due {
+                        if moving.as_ref().is_none_or(|m| m.at_stride_point()) {
+                            if worker.is_some() {
+                                stx.send(ToScorer::Flush).map_err(|_| {
+                                    Error::Gpu("the sharpness worker stopped".into())
+                                })?;
+                                drain(&mut scores, count)?;
                             }
+                            save_checkpoint(
+                                r,
+                                req,
+                                used,
+                                count,
+                                &timestamps,
+                                have_ts,
+                                &scores,
+                                moving.as_ref(),
+                            )?;
+                            last_save = Instant::now();
                         }
                     }
                 }

@@ -829,6 +829,32 @@ impl FarnebackGpu {
         Ok(())
     }
 
+    /// Copies an 8-bit gray image of the level-0 size already on the device (4 pixels per u32,
+    /// rows not padded, e.g. from resize_area) into `slot` and computes its expansion pyramid.
+    pub fn load_buffer(&mut self, slot: usize, gray: &wgpu::Buffer) -> Result<()> {
+        if slot >= SLOTS {
+            return Err(Error::param("slot", format!("must be below {SLOTS}")));
+        }
+        let bytes = (u64::from(self.levels[0].width) * u64::from(self.levels[0].height))
+            .next_multiple_of(4);
+        if gray.size() < bytes {
+            return Err(Error::param(
+                "gray buffer",
+                "smaller than the level-0 image",
+            ));
+        }
+        let mut enc = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("farneback pyramid"),
+            });
+        enc.copy_buffer_to_buffer(gray, 0, &self.slots[slot].gray, 0, bytes);
+        self.encode_pyramid(&mut enc, slot);
+        self.ctx.queue.submit([enc.finish()]);
+        Ok(())
+    }
+
     /// Computes the flow from the frame in slot `from` to the frame in slot `to` into
     /// [`FarnebackGpu::flow_buffer`].
     pub fn flow_between(&mut self, from: usize, to: usize) -> Result<()> {
@@ -940,9 +966,8 @@ pub fn to_gray(frame: &Mat) -> Result<Mat> {
 }
 
 /// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).
+/// The twin is `resize_area::opencv`; the gpu backend runs `resize_area` on the device for
+/// integer factors.
 pub fn resize_area(m: &Mat, size: Size) -> Result<Mat> {
-    let mut out = Mat::default();
-    opencv::imgproc::resize(m, &mut out, size, 0.0, 0.0, opencv::imgproc::INTER_AREA)
-        .cv(|| "resize".into())?;
-    Ok(out)
+    super::resize_area::opencv(m, size)
 }

@@ -6,6 +6,7 @@ pub mod farneback;
 pub mod gray;
 pub mod laplacian;
 pub mod movement;
+pub mod resize_area;
 pub mod sharpness;
 pub mod tenengrad;
 pub mod tolerance;
@@ -21,6 +22,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("farneback_matrices", farneback::MATRICES_WGSL),
     ("farneback_flow", farneback::FLOW_WGSL),
     ("movement", movement::WGSL),
+    ("resize_area", resize_area::WGSL),
 ];
 
 /// Words (4 gray pixels each) per row of a packed gray image of `width` pixels.

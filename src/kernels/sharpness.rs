@@ -1,7 +1,10 @@
 //! Sharpness scores per frame (Tenengrad or Laplacian variance) with two backends: the gpu runner
 //! chains gray → metric for a batch of frames in one submission and reads back only the exact
-//! 64-bit totals; the opencv backend runs the OpenCV twins.
+//! 64-bit totals; the opencv backend runs the OpenCV twins. With a resize attached, the same
+//! submission also downsizes each frame's device gray (resize_area) into a small buffer per batch
+//! slot, which the movement pass loads into Farneback without a CPU round trip.
 
+use super::resize_area::ResizeAreaGpu;
 use super::{gray, gray_groups, gray_stride, laplacian, tenengrad, tile_groups};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
@@ -116,6 +119,14 @@ pub struct SharpnessGpu {
     gray_pipe: Arc<wgpu::ComputePipeline>,
     metric_pipe: Arc<wgpu::ComputePipeline>,
     pad: Vec<u8>,
+    resize: Option<AttachedResize>,
+}
+
+/// The resize of each batch slot's gray into its own small buffer.
+struct AttachedResize {
+    gpu: ResizeAreaGpu,
+    small: Vec<wgpu::Buffer>,
+    groups: Vec<wgpu::BindGroup>,
 }
 
 fn uniform(ctx: &GpuContext, label: &str, bytes: &[u8]) -> wgpu::Buffer {
@@ -257,7 +268,38 @@ impl SharpnessGpu {
             gray_pipe,
             metric_pipe,
             pad: Vec::new(),
+            resize: None,
         })
+    }
+
+    /// From now on every scored frame is also resized on the device to `dst` (width, height)
+    /// with INTER_AREA (integer factors only, else an error); returns the small buffers, one per
+    /// batch slot (8-bit, 4 pixels per u32, rows not padded), valid until the next batch.
+    pub fn attach_resize(&mut self, dst: (u32, u32)) -> Result<Vec<wgpu::Buffer>> {
+        let gpu = ResizeAreaGpu::new(self.ctx.clone(), (self.width, self.height), dst)?;
+        let small: Vec<wgpu::Buffer> = (0..self.slots.len())
+            .map(|_| self.ctx.storage_buffer("resized gray", gpu.dst_bytes()))
+            .collect();
+        let groups = small.iter().map(|b| gpu.bind(&self.gray, b)).collect();
+        self.resize = Some(AttachedResize {
+            gpu,
+            small: small.clone(),
+            groups,
+        });
+        Ok(small)
+    }
+
+    /// The device-resized gray of `frame` (needs [`SharpnessGpu::attach_resize`]), row after
+    /// row, for checking against cv::resize.
+    pub fn resized_of(&mut self, frame: &Mat) -> Result<Vec<u8>> {
+        self.scores(&[frame])?;
+        let Some(r) = &self.resize else {
+            return Err(Error::param("resize", "no resize attached"));
+        };
+        let n = r.gpu.dst_bytes();
+        let mut bytes = self.ctx.read_back(&r.small[0], n)?;
+        bytes.truncate(n as usize);
+        Ok(bytes)
     }
 
     /// Frames per submission.
@@ -296,6 +338,9 @@ impl SharpnessGpu {
         pass.set_pipeline(&self.metric_pipe);
         pass.set_bind_group(0, &s.metric_bg, &[]);
         pass.dispatch_workgroups(tx, ty, 1);
+        if let Some(r) = &self.resize {
+            r.gpu.encode(&mut pass, &r.groups[slot]);
+        }
     }
 
     /// Scores of `frames` (8-bit BGR, this runner's size), in order.

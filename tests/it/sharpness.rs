@@ -152,3 +152,96 @@ fn walk_size(p: &std::path::Path) -> u64 {
         std::fs::metadata(p).unwrap().len()
     }
 }
+
+/// Pixels of `ours` that differ from the 8-bit Mat `theirs` (same size, row after row).
+fn differing(ours: &[u8], theirs: &Mat) -> usize {
+    let theirs = theirs.data_bytes().unwrap();
+    assert_eq!(ours.len(), theirs.len(), "sizes differ");
+    ours.iter().zip(theirs).filter(|(a, b)| a != b).count()
+}
+
+/// resize_area on the device against cv::resize(INTER_AREA), pixel-exact, for integer factors:
+/// 3x, 6x, 2x (OpenCV's (sum + 2) >> 2 case), odd and unequal factors, 1 x 2 and 2 x 1 (where
+/// round-half-even decides ties), outputs whose rows do not fill whole u32 words.
+#[test]
+fn resize_area_is_bit_exact() {
+    use keyframer::kernels::resize_area::{opencv as cv_area, ResizeAreaGpu};
+    let ctx = ctx();
+    let cases = [
+        ((1920, 1080), (640, 360)),
+        ((3840, 2160), (640, 360)),
+        ((1280, 720), (640, 360)),
+        ((64, 48), (32, 24)),
+        ((45, 35), (9, 7)),
+        ((21, 40), (7, 8)),
+        ((123, 66), (41, 22)),
+        ((30, 8), (10, 8)),
+        ((640, 720), (640, 360)),
+        ((8, 3), (4, 3)),
+        ((7, 7), (7, 7)),
+    ];
+    for ((sw, sh), (dw, dh)) in cases {
+        let gray = gray::opencv(&synthetic(sw, sh, (sw * 7 + sh) as u64)).unwrap();
+        let size = opencv::core::Size::new(dw, dh);
+        let theirs = cv_area(&gray, size).unwrap();
+        let gpu = ResizeAreaGpu::new(ctx.clone(), (sw as u32, sh as u32), (dw as u32, dh as u32))
+            .unwrap();
+        let ours = gpu.resize_mat(&gray).unwrap();
+        let diff = differing(&ours, &theirs);
+        assert_eq!(
+            diff, 0,
+            "{sw}x{sh} -> {dw}x{dh}: {diff} pixels differ from cv::resize INTER_AREA"
+        );
+        // The rounding rules are exercised: some blocks sum to an exact tie.
+        let (kx, ky) = (sw / dw, sh / dh);
+        if kx * ky == 2 || kx * ky == 4 {
+            let area = (kx * ky) as u32;
+            let ties = (0..dh)
+                .flat_map(|y| (0..dw).map(move |x| (x, y)))
+                .filter(|&(x, y)| {
+                    let mut sum = 0u32;
+                    for j in 0..ky {
+                        for i in 0..kx {
+                            sum += u32::from(*gray.at_2d::<u8>(y * ky + j, x * kx + i).unwrap());
+                        }
+                    }
+                    sum % area == area / 2
+                })
+                .count();
+            assert!(
+                ties > 0,
+                "{sw}x{sh} -> {dw}x{dh}: no tie to check rounding on"
+            );
+        }
+    }
+}
+
+/// The resize attached to the sharpness runner reads the gray the device computed from the BGR
+/// frame: BGR -> gray.wgsl -> resize_area equals cv::cvtColor -> cv::resize(INTER_AREA).
+#[test]
+fn device_gray_resized_matches_opencv() {
+    let ctx = ctx();
+    for ((sw, sh), (dw, dh)) in [
+        ((1920, 1080), (640, 360)),
+        ((99, 63), (33, 21)),
+        ((6, 6), (3, 3)),
+    ] {
+        let mut gpu = SharpnessGpu::new(ctx.clone(), Metric::Tenengrad, sw, sh).unwrap();
+        let small = gpu.attach_resize((dw, dh)).unwrap();
+        assert_eq!(small.len(), gpu.batch_size());
+        for seed in 0..2 {
+            let img = synthetic(sw as i32, sh as i32, seed);
+            let ours = gpu.resized_of(&img).unwrap();
+            let theirs = keyframer::kernels::resize_area::opencv(
+                &gray::opencv(&img).unwrap(),
+                opencv::core::Size::new(dw as i32, dh as i32),
+            )
+            .unwrap();
+            let diff = differing(&ours, &theirs);
+            assert_eq!(
+                diff, 0,
+                "{sw}x{sh} -> {dw}x{dh} seed {seed}: {diff} pixels differ"
+            );
+        }
+    }
+}

@@ -1,0 +1,213 @@
+//! `resize_area`: 8-bit gray downsizing by integer factors on the device, bit-exact with
+//! cv::resize(INTER_AREA) (shaders/resize_area.wgsl); other factors stay on the CPU twin.
+
+use super::gray_stride;
+use crate::error::{CvContext, Error, Result};
+use crate::gpu::GpuContext;
+use bytemuck::{Pod, Zeroable};
+use opencv::core::{Mat, Size};
+use opencv::prelude::*;
+use std::sync::Arc;
+
+/// WGSL source.
+pub const WGSL: &str = include_str!("../../shaders/resize_area.wgsl");
+
+/// Uniform parameters of resize_area.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct ResizeAreaParams {
+    /// Source width.
+    pub src_w: u32,
+    /// Source height.
+    pub src_h: u32,
+    /// u32 words per source row (gray.wgsl's packed layout).
+    pub src_stride: u32,
+    /// Output width.
+    pub dst_w: u32,
+    /// Output height.
+    pub dst_h: u32,
+    /// Horizontal factor.
+    pub kx: u32,
+    /// Vertical factor.
+    pub ky: u32,
+    /// 1 / (kx * ky) in f32, as OpenCV computes it.
+    pub scale: f32,
+}
+
+/// OpenCV twin: `gray` resized to `size` with cv::resize(INTER_AREA).
+pub fn opencv(gray: &Mat, size: Size) -> Result<Mat> {
+    let mut out = Mat::default();
+    opencv::imgproc::resize(gray, &mut out, size, 0.0, 0.0, opencv::imgproc::INTER_AREA)
+        .cv(|| "resize INTER_AREA".into())?;
+    Ok(out)
+}
+
+/// The integer factors (kx, ky) when cv::resize(INTER_AREA) from `src` to `dst` takes its
+/// integer-factor path (the shader's case): OpenCV's test that 1 / (dst / src) is within
+/// f64::EPSILON of an integer on both axes, which for real sizes means `src = k * dst` exactly.
+/// None otherwise (upscaling, fractional factors): the CPU twin handles those.
+pub fn factors(src: (u32, u32), dst: (u32, u32)) -> Option<(u32, u32)> {
+    let axis = |s: u32, d: u32| -> Option<u32> {
+        if s == 0 || d == 0 || d > s {
+            return None;
+        }
+        let scale = 1.0 / (f64::from(d) / f64::from(s));
+        let k = scale.round();
+        ((scale - k).abs() < f64::EPSILON && u64::from(d) * k as u64 == u64::from(s))
+            .then_some(k as u32)
+    };
+    Some((axis(src.0, dst.0)?, axis(src.1, dst.1)?))
+}
+
+/// Workgroups (x, y) covering `words` invocations of 64 (x at most 65535).
+pub fn groups(words: u32) -> (u32, u32) {
+    let g = words.div_ceil(64).max(1);
+    (g.min(65535), g.div_ceil(65535))
+}
+
+/// The device resize from a packed gray image of one size to a packed output of another.
+pub struct ResizeAreaGpu {
+    ctx: Arc<GpuContext>,
+    pipe: Arc<wgpu::ComputePipeline>,
+    params: wgpu::Buffer,
+    p: ResizeAreaParams,
+}
+
+impl ResizeAreaGpu {
+    /// Prepares the resize from `src` to `dst` (width, height); an error unless [`factors`]
+    /// gives integer factors.
+    pub fn new(ctx: Arc<GpuContext>, src: (u32, u32), dst: (u32, u32)) -> Result<Self> {
+        let (kx, ky) = factors(src, dst).ok_or_else(|| {
+            Error::param(
+                "resize_area",
+                format!(
+                    "{}x{} -> {}x{} is not an integer downscale",
+                    src.0, src.1, dst.0, dst.1
+                ),
+            )
+        })?;
+        let p = ResizeAreaParams {
+            src_w: src.0,
+            src_h: src.1,
+            src_stride: gray_stride(src.0),
+            dst_w: dst.0,
+            dst_h: dst.1,
+            kx,
+            ky,
+            scale: 1.0f32 / (kx * ky) as f32,
+        };
+        let pipe = ctx.pipeline("resize_area", WGSL, "main")?;
+        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("resize_area params"),
+            size: std::mem::size_of::<ResizeAreaParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        ctx.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
+        Ok(ResizeAreaGpu {
+            ctx,
+            pipe,
+            params,
+            p,
+        })
+    }
+
+    /// Bytes of the output (before rounding the buffer up to 4).
+    pub fn dst_bytes(&self) -> u64 {
+        u64::from(self.p.dst_w) * u64::from(self.p.dst_h)
+    }
+
+    /// A bind group reading the gray buffer `src` and writing `dst`.
+    pub fn bind(&self, src: &wgpu::Buffer, dst: &wgpu::Buffer) -> wgpu::BindGroup {
+        let entries = [
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: src.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: dst.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: self.params.as_entire_binding(),
+            },
+        ];
+        self.ctx
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("resize_area"),
+                layout: &self.pipe.get_bind_group_layout(0),
+                entries: &entries,
+            })
+    }
+
+    /// Records the resize of one bound (src, dst) pair.
+    pub fn encode(&self, pass: &mut wgpu::ComputePass<'_>, bg: &wgpu::BindGroup) {
+        let (x, y) = groups(self.dst_bytes().div_ceil(4) as u32);
+        pass.set_pipeline(&self.pipe);
+        pass.set_bind_group(0, bg, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+
+    /// Resizes an 8-bit gray `Mat` of the source size (uploaded in gray.wgsl's layout) and reads
+    /// the output back, row after row (for checking against [`opencv`]).
+    pub fn resize_mat(&self, gray: &Mat) -> Result<Vec<u8>> {
+        let (w, h) = (self.p.src_w as usize, self.p.src_h as usize);
+        if gray.typ() != opencv::core::CV_8UC1
+            || (gray.cols() as usize, gray.rows() as usize) != (w, h)
+        {
+            return Err(Error::param(
+                "resize_area",
+                format!("input must be {w}x{h} 8-bit gray"),
+            ));
+        }
+        let row = self.p.src_stride as usize * 4;
+        let mut packed = vec![0u8; row * h];
+        for y in 0..h {
+            let line = gray.at_row::<u8>(y as i32).cv(|| "gray row".into())?;
+            packed[y * row..y * row + w].copy_from_slice(line);
+        }
+        let src = self
+            .ctx
+            .storage_buffer("resize_area src", packed.len() as u64);
+        self.ctx.queue.write_buffer(&src, 0, &packed);
+        let dst = self.ctx.storage_buffer("resize_area dst", self.dst_bytes());
+        let bg = self.bind(&src, &dst);
+        let mut enc = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("resize_area"),
+            });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("resize_area"),
+                timestamp_writes: None,
+            });
+            self.encode(&mut pass, &bg);
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        let mut bytes = self.ctx.read_back(&dst, self.dst_bytes())?;
+        bytes.truncate(self.dst_bytes() as usize);
+        Ok(bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn integer_factors_follow_opencv_rule() {
+        assert_eq!(factors((1920, 1080), (640, 360)), Some((3, 3)));
+        assert_eq!(factors((3840, 2160), (640, 360)), Some((6, 6)));
+        assert_eq!(factors((1280, 720), (640, 360)), Some((2, 2)));
+        assert_eq!(factors((640, 720), (640, 360)), Some((1, 2)));
+        assert_eq!(factors((1440, 1080), (640, 480)), None);
+        assert_eq!(factors((1921, 1080), (640, 360)), None);
+        assert_eq!(factors((320, 180), (640, 360)), None);
+        assert_eq!(groups(900), (15, 1));
+        assert_eq!(groups(65535 * 64 + 1), (65535, 2));
+    }
+}
