@@ -279,7 +279,7 @@ fn process(
         }
         std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
         std::fs::write(tmp.join(MARKER), b"made by keyframer run\n")
-            .map_err(|e| Error::io(&tmp.join(MARKER), e))?;
+            .map_err(|e| Error::io(tmp.join(MARKER), e))?;
         std::fs::rename(&tmp, folder).map_err(|e| Error::io(folder, e))?;
     }
     let _ = std::fs::remove_file(&done_path);
