@@ -202,7 +202,7 @@ pub fn run(s: &Settings) -> Result<String> {
         s.select_args.join(" ")
     );
     report += &format!(
-        "{:<24} {:>6} {:>9} {:>9} {:>8} {:>9} {:>9} {:>9} {:>9}\n",
+        "{:<24} {:>6} {:>9} {:>9} {:>14} {:>9} {:>9} {:>9} {:>9}\n",
         "clip",
         "frames",
         "ffmpeg s",
@@ -221,9 +221,17 @@ pub fn run(s: &Settings) -> Result<String> {
         for b in &s.backends {
             eprintln!("bench: analysing {name} with {b}");
             let project = s.dir.join(format!("{name}.{b}.json"));
-            let (secs, peak) = analysis(path, &project, b, &s.select_args)?;
+            // `NAME-preview`: the keyframe-only preview (`select --preview`) on backend NAME.
+            let (backend, extra) = match b.strip_suffix("-preview") {
+                Some(base) => (
+                    base,
+                    [&s.select_args[..], &["--preview".to_string()]].concat(),
+                ),
+                None => (b.as_str(), s.select_args.clone()),
+            };
+            let (secs, peak) = analysis(path, &project, backend, &extra)?;
             report += &format!(
-                "{:<24} {:>6} {:>9} {:>9.1} {:>8} {:>9.1} {:>9.2} {:>9} {:>9.0}\n",
+                "{:<24} {:>6} {:>9} {:>9.1} {:>14} {:>9.1} {:>9.2} {:>9} {:>9.0}\n",
                 name,
                 frames,
                 ff.map_or("-".into(), |f| format!("{f:.1}")),

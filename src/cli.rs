@@ -218,8 +218,12 @@ pub struct BenchArgs {
     /// `--k4-minutes 0` skips them.
     #[arg(long, value_delimiter = ',', default_value = "1,4")]
     pub k4_minutes: Vec<u32>,
-    /// pipeline: backends to time.
-    #[arg(long, value_delimiter = ',', default_value = "gpu,opencv")]
+    /// pipeline: backends to time (`NAME-preview`: `select --preview` on backend NAME).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "gpu,opencv,opencv-preview"
+    )]
     pub backends: Vec<String>,
     /// pipeline: extra `select` flags for the analysis, e.g. "--analysis-width 320".
     #[arg(long, default_value = "", allow_hyphen_values = true)]
@@ -353,6 +357,11 @@ pub struct SelectArgs {
     /// midway resumes from it); 0 turns them off.
     #[arg(long, value_name = "SECONDS", default_value_t = 15.0)]
     pub checkpoint_every: f64,
+    /// Quick, coarse preview: analyse only the video's codec keyframes (decoded with
+    /// `ffmpeg -skip_frame nokey`) and choose among them; frame counts in the other flags count
+    /// keyframes. The project is marked as a preview and never reused as a cache.
+    #[arg(long)]
+    pub preview: bool,
     /// Blur sampler flags.
     #[command(flatten)]
     pub blur: BlurArgs,
@@ -739,6 +748,7 @@ impl SelectArgs {
                     ))
                 }
             },
+            preview: self.preview,
             quiet,
         })
     }

@@ -16,6 +16,7 @@ pub mod fsutil;
 pub mod gpu;
 pub mod info;
 pub mod kernels;
+pub mod preview;
 pub mod progress;
 pub mod project;
 pub mod report;

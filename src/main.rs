@@ -357,6 +357,7 @@ fn probe(a: &keyframer::cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
         &a.input,
         &source::OpenOptions {
             images_fps: a.images_fps,
+            ..Default::default()
         },
     )?;
     let mut meta = src.metadata().clone();

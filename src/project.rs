@@ -37,6 +37,10 @@ pub struct Project {
     /// Problems met while decoding the input (damaged streams).
     #[serde(default)]
     pub decode_problems: Vec<String>,
+    /// Made by `select --preview` from the codec keyframes only: the cache holds timestamps but
+    /// no scores, and the project is never reused as a cache.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub preview: bool,
 }
 
 /// The input a project refers to.

@@ -157,6 +157,8 @@ pub struct SelectSettings {
     pub force: bool,
     /// Seconds between analysis checkpoints (0: none).
     pub checkpoint_every_s: f64,
+    /// Analyse only the codec's keyframes (a quick, coarse preview; see [`crate::preview`]).
+    pub preview: bool,
     /// No progress bars.
     pub quiet: bool,
 }
@@ -203,8 +205,35 @@ pub fn checkpoint_path(output: &Path) -> PathBuf {
     output.with_file_name(name)
 }
 
-/// Runs `select`.
+/// Runs `select` and writes the project file.
 pub fn select(s: &SelectSettings) -> Result<SelectReport> {
+    if s.preview {
+        return crate::preview::select_preview(s);
+    }
+    let report = build(
+        s,
+        &OpenOptions {
+            images_fps: s.images_fps,
+            keyframes: None,
+        },
+    )?;
+    report.project.save(&s.output, true)?;
+    let checkpoint = checkpoint_path(&s.output);
+    if checkpoint.exists() {
+        if let Err(e) = std::fs::remove_file(&checkpoint) {
+            log::warn!(
+                "{}: could not remove the checkpoint: {e}",
+                checkpoint.display()
+            );
+        }
+    }
+    Ok(report)
+}
+
+/// Analyses (or reuses the cache) and runs the sampler chain; returns the project unsaved. A
+/// keyframe-only source (`open.keyframes`) never reuses or checkpoints a cache.
+pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectReport> {
+    let full = open.keyframes.is_none();
     let (kind, fingerprint) = identify(&s.input)?;
     fsutil::check_overwrite(&s.output, s.force)?;
     let project_dir = fsutil::absolute(&s.output)
@@ -222,15 +251,12 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         .exists()
         .then(|| Project::load(&s.output).ok())
         .flatten()
-        .filter(|p| p.input == input_ref);
+        .filter(|p| full && !p.preview && p.input == input_ref);
     let metrics: Vec<_> = s.blur.iter().map(|b| b.metric).collect();
     let mut decoded = false;
     let (mut cached_meta, mut cache, mut problems) = match reusable {
         Some(p) => (Some(p.metadata), p.cache, p.decode_problems),
         None => (None, Cache::default(), Vec::new()),
-    };
-    let open = OpenOptions {
-        images_fps: s.images_fps,
     };
     let uses_seconds = [s.boundaries.start, s.boundaries.end]
         .iter()
@@ -239,7 +265,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         // The stationary sampler runs during decoding and needs its frame range first.
         let a = analysis::analyse(
             &s.input,
-            &open,
+            open,
             &Request::default(),
             Backend::Opencv,
             None,
@@ -260,10 +286,10 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
     if wants_auto_stationary || s.spacing == Some(Threshold::Auto) {
         let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
         let sample =
-            analysis::sample_movement(&s.input, &open, s.movement, 40, backend, ctx.as_ref())?;
+            analysis::sample_movement(&s.input, open, s.movement, 40, backend, ctx.as_ref())?;
         let meta = match &cached_meta {
             Some(m) => m.clone(),
-            None => source::open(&s.input, &open)?.metadata().clone(),
+            None => source::open(&s.input, open)?.metadata().clone(),
         };
         if wants_auto_stationary {
             let p = samplers::auto::stationary_threshold(&sample);
@@ -282,7 +308,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         Some(st) => {
             let meta = match &cached_meta {
                 Some(m) => m.clone(),
-                None => source::open(&s.input, &open)?.metadata().clone(),
+                None => source::open(&s.input, open)?.metadata().clone(),
             };
             Some(stationary_request(st, &s.boundaries, &meta, &cache)?)
         }
@@ -324,7 +350,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             };
             let a = analysis::analyse_with(
                 &s.input,
-                &open,
+                open,
                 &Request {
                     sharpness: missing,
                     movement: (need_series || need_stationary).then_some(s.movement),
@@ -337,7 +363,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
                 backend,
                 ctx.as_ref(),
                 s.quiet,
-                Some(&resume),
+                full.then_some(&resume),
             )?;
             if cached.is_some_and(|m| m.frame_count != a.metadata.frame_count) {
                 log::warn!(
@@ -501,17 +527,8 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         history,
         cache,
         decode_problems: problems,
+        preview: false,
     };
-    project.save(&s.output, true)?;
-    let checkpoint = checkpoint_path(&s.output);
-    if checkpoint.exists() {
-        if let Err(e) = std::fs::remove_file(&checkpoint) {
-            log::warn!(
-                "{}: could not remove the checkpoint: {e}",
-                checkpoint.display()
-            );
-        }
-    }
     Ok(SelectReport {
         project,
         decoded,

@@ -2,6 +2,7 @@
 //! Frames are produced one at a time in index order, so memory stays bounded on any input length.
 
 mod images;
+pub mod keyframes;
 mod natural;
 mod video;
 
@@ -86,6 +87,9 @@ pub trait FrameSource: Send {
 pub struct OpenOptions {
     /// Frame rate to assume for image folders (they have none of their own).
     pub images_fps: Option<f64>,
+    /// Decode only these codec keyframes of a video (`select --preview`); the source's frame `j`
+    /// is the `j`-th keyframe.
+    pub keyframes: Option<std::sync::Arc<keyframes::KeyframeIndex>>,
 }
 
 /// Opens a video file, an image file or a folder of images.
@@ -94,11 +98,23 @@ pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
         std::io::ErrorKind::NotFound => Error::input(path, "no such file or folder"),
         _ => Error::io(path, e),
     })?;
+    if opts.keyframes.is_some() && (meta.is_dir() || is_image_name(path)) {
+        return Err(Error::input(
+            path,
+            "the keyframe-only preview needs a video (images have no codec keyframes)",
+        ));
+    }
     if meta.is_dir() {
         return Ok(Box::new(ImageSource::open_folder(path, opts.images_fps)?));
     }
     if is_image_name(path) {
         return Ok(Box::new(ImageSource::open_single(path, opts.images_fps)?));
+    }
+    if let Some(index) = &opts.keyframes {
+        return Ok(Box::new(keyframes::KeyframeSource::open(
+            path,
+            index.clone(),
+        )?));
     }
     Ok(Box::new(VideoSource::open(path)?))
 }

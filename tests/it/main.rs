@@ -9,6 +9,7 @@ mod foundation;
 mod movement;
 mod onnx_model;
 mod pipeline;
+mod preview;
 mod report;
 mod scene;
 mod segment;

@@ -1,0 +1,162 @@
+//! `select --preview`: the whole sampler chain run on a video's codec keyframes only (decoded
+//! with `ffmpeg -skip_frame nokey`), mapped back to the video's frame indices. Much faster than a
+//! full analysis when keyframes are sparse; coarse by construction: only codec keyframes can be
+//! chosen, and counts in frames (every N, blur window, reset delta) count keyframes. The project
+//! is marked `preview`, holds no scores, and is never reused as a cache.
+
+use crate::error::{Error, Result};
+use crate::fsutil;
+use crate::project::{Cache, Step};
+use crate::samplers::{self, Bound, Boundaries};
+use crate::select::{self, SelectReport, SelectSettings};
+use crate::source::keyframes::{self, KeyframeIndex};
+use crate::source::{OpenOptions, SourceKind};
+use serde_json::json;
+use std::sync::Arc;
+
+/// Translates frame-index bounds into positions in the keyframe sequence (times stay times:
+/// keyframes carry the video's timestamps).
+pub fn keyframe_bounds(b: &Boundaries, index: &KeyframeIndex) -> Result<Boundaries> {
+    let k = &index.keyframes;
+    let start = match b.start {
+        Some(Bound::Frame(i)) => {
+            let pos = k.partition_point(|&f| f < i);
+            if pos == k.len() {
+                return Err(Error::Plugin {
+                    plugin: "preview",
+                    msg: format!("no codec keyframe at or after --start frame {i}"),
+                });
+            }
+            Some(Bound::Frame(pos))
+        }
+        other => other,
+    };
+    let end = match b.end {
+        Some(Bound::Frame(i)) => match k.partition_point(|&f| f <= i) {
+            0 => {
+                return Err(Error::Plugin {
+                    plugin: "preview",
+                    msg: format!("no codec keyframe at or before --end frame {i}"),
+                })
+            }
+            n => Some(Bound::Frame(n - 1)),
+        },
+        other => other,
+    };
+    Ok(Boundaries { start, end })
+}
+
+/// Runs the preview selection and writes the project.
+pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
+    let (kind, _) = select::identify(&s.input)?;
+    if kind != SourceKind::Video {
+        return Err(Error::input(
+            &s.input,
+            "--preview needs a video (images have no codec keyframes)",
+        ));
+    }
+    fsutil::check_overwrite(&s.output, s.force)?;
+    if let Ok(old) = crate::project::Project::load(&s.output) {
+        if !old.preview && !old.cache.sharpness.is_empty() {
+            log::warn!(
+                "{}: replacing a project whose cache holds full-analysis scores with a preview",
+                s.output.display()
+            );
+        }
+    }
+    let index = Arc::new(keyframes::probe(&s.input)?);
+    let (n_key, n_all) = (index.keyframes.len(), index.frame_count());
+    if n_key == n_all {
+        log::warn!(
+            "{}: every frame is a codec keyframe; the preview decodes every frame (no speed-up)",
+            s.input.display()
+        );
+    } else {
+        log::info!(
+            "preview: analysing the {n_key} codec keyframes of {n_all} frames (one every {:.1})",
+            n_all as f64 / n_key as f64
+        );
+    }
+    // Keyframes are already far apart: measure flow between every consecutive pair.
+    let mut movement = s.movement;
+    movement.stride = 1;
+    let inner = SelectSettings {
+        movement,
+        boundaries: keyframe_bounds(&s.boundaries, &index)?,
+        add: Vec::new(),
+        remove: Vec::new(),
+        preview: false,
+        ..s.clone()
+    };
+    let open = OpenOptions {
+        images_fps: None,
+        keyframes: Some(index.clone()),
+    };
+    let mut report = select::build(&inner, &open)?;
+    let p = &mut report.project;
+    let mut keys: Vec<usize> = p.keyframes.iter().map(|&j| index.keyframes[j]).collect();
+    let mut history = vec![Step {
+        plugin: "preview".into(),
+        params: json!({ "codec_keyframes": n_key, "frames": n_all }),
+        kept: n_key,
+    }];
+    history.append(&mut p.history);
+    if !s.add.is_empty() || !s.remove.is_empty() {
+        keys = samplers::manual(&keys, &s.add, &s.remove, n_all)?;
+        history.push(Step {
+            plugin: "manual".into(),
+            params: json!({ "add": s.add, "remove": s.remove }),
+            kept: keys.len(),
+        });
+    }
+    p.keyframes = keys;
+    p.history = history;
+    p.boundaries = s.boundaries;
+    p.metadata.frame_count = n_all;
+    p.metadata.frame_count_exact = true;
+    p.cache = Cache {
+        timestamps_s: Some(index.timestamps_s.clone()),
+        ..Cache::default()
+    };
+    p.preview = true;
+    p.save(&s.output, true)?;
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn index() -> KeyframeIndex {
+        KeyframeIndex {
+            timestamps_s: (0..30).map(|i| i as f64 / 10.0).collect(),
+            keyframes: vec![0, 10, 20],
+        }
+    }
+
+    #[test]
+    fn frame_bounds_map_to_keyframe_positions() {
+        let b = Boundaries {
+            start: Some(Bound::Frame(5)),
+            end: Some(Bound::Frame(20)),
+        };
+        let k = keyframe_bounds(&b, &index()).unwrap();
+        assert_eq!(k.start, Some(Bound::Frame(1)));
+        assert_eq!(k.end, Some(Bound::Frame(2)));
+        let t = Boundaries {
+            start: Some(Bound::Seconds(1.5)),
+            end: None,
+        };
+        assert_eq!(keyframe_bounds(&t, &index()).unwrap(), t);
+    }
+
+    #[test]
+    fn bounds_without_keyframes_are_errors() {
+        let late = Boundaries {
+            start: Some(Bound::Frame(21)),
+            end: None,
+        };
+        let e = keyframe_bounds(&late, &index()).unwrap_err();
+        assert!(e.to_string().contains("after --start frame 21"), "{e}");
+    }
+}
