@@ -58,6 +58,10 @@ pub struct ColmapArgs {
     /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
     #[arg(long, default_value = "SIMPLE_RADIAL")]
     pub camera_model: String,
+    /// Known intrinsics for the camera model, comma-separated in COLMAP's order (PINHOLE:
+    /// `fx,fy,cx,cy`), e.g. from a synthetic scene's scene.json; the mapper then keeps them fixed.
+    #[arg(long, value_name = "P1,P2,..")]
+    pub camera_params: Option<String>,
     /// Maximum SIFT features per image (COLMAP's default 8192 when not given).
     #[arg(long, value_name = "N")]
     pub max_features: Option<u32>,
@@ -71,6 +75,19 @@ pub struct ColmapArgs {
     /// Print colmap.json to stdout instead of a summary.
     #[arg(long)]
     pub json: bool,
+}
+
+/// Checks `--camera-params`: comma-separated finite numbers.
+fn camera_params(text: &str) -> Result<Vec<f64>> {
+    text.split(',')
+        .map(|v| match v.trim().parse::<f64>() {
+            Ok(x) if x.is_finite() => Ok(x),
+            _ => Err(Error::param(
+                "--camera-params",
+                format!("`{v}` is not a number (give e.g. `448,448,320,180` for PINHOLE)"),
+            )),
+        })
+        .collect()
 }
 
 /// Feature matching strategy.
@@ -249,6 +266,9 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
         ));
     }
     mapper_keys(&a.mapper_option)?;
+    if let Some(params) = &a.camera_params {
+        camera_params(params)?;
+    }
     let colmap = locate()?;
     let export = fsutil::absolute(&a.export);
     let manifest = read_manifest(&export)?;
@@ -328,6 +348,9 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
         if let Some(n) = a.max_features {
             fe.push(("--SiftExtraction.max_num_features", n.to_string()));
         }
+        if let Some(params) = &a.camera_params {
+            fe.push(("--ImageReader.camera_params", params.clone()));
+        }
         rec.stages.push(runner.stage("feature_extractor", &fe)?);
         rec.matcher = Some(a.matcher);
         let (name, mut args) = match a.matcher {
@@ -351,6 +374,17 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
             ("--output_path", p(&sparse)),
         ];
         let keys = mapper_keys(&a.mapper_option)?;
+        if a.camera_params.is_some() {
+            // Known intrinsics stay fixed unless a --mapper-option says otherwise.
+            for k in [
+                "--Mapper.ba_refine_focal_length",
+                "--Mapper.ba_refine_extra_params",
+            ] {
+                if !keys.iter().any(|(key, _)| key == k) {
+                    margs.push((k, "0".into()));
+                }
+            }
+        }
         for (k, v) in &keys {
             margs.push((k.as_str(), v.clone()));
         }
@@ -597,6 +631,9 @@ fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapArgs, masks: b
     if masks {
         set.push(("ImageReader", "mask_path", p("masks")));
     }
+    if let Some(params) = &a.camera_params {
+        set.push(("ImageReader", "camera_params", params.clone()));
+    }
     if let Some(n) = a.max_features {
         set.push(("SiftExtraction", "max_num_features", n.to_string()));
     }
@@ -682,6 +719,16 @@ pub fn render(rec: &Record) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn camera_params_are_numbers() {
+        assert_eq!(
+            camera_params("448, 448,320,180.5").unwrap(),
+            vec![448.0, 448.0, 320.0, 180.5]
+        );
+        let e = camera_params("448,,320").unwrap_err();
+        assert!(e.to_string().contains("`` is not a number"), "{e}");
+    }
 
     #[test]
     fn ini_set_replaces_appends_and_creates() {

@@ -4,6 +4,7 @@ mod batch;
 mod blur;
 mod colmap;
 mod common;
+mod experiment;
 mod flow;
 mod foundation;
 mod movement;

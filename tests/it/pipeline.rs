@@ -127,8 +127,19 @@ fn flow_stride_spreads_the_movement_of_each_step() {
 
 #[test]
 fn a_killed_analysis_resumes_to_the_same_result() {
+    kill_and_resume("opencv", 320, 240);
+}
+
+/// The gpu backend at 640x480 takes the device path (one upload, gray and an integer INTER_AREA
+/// downscale on the device) through checkpoint and resume.
+#[test]
+fn a_killed_gpu_analysis_with_device_downscale_resumes_to_the_same_result() {
+    kill_and_resume("gpu", 640, 480);
+}
+
+fn kill_and_resume(backend: &str, w: u32, h: u32) {
     let d = tempfile::tempdir().unwrap();
-    let clip = varying_pan(d.path(), "pan.mp4", 320, 240, 10);
+    let clip = varying_pan(d.path(), "pan.mp4", w, h, 10);
     let clean = d.path().join("clean.json");
     let resumed = d.path().join("resumed.json");
     let args = |p: &Path| -> Vec<String> {
@@ -136,7 +147,7 @@ fn a_killed_analysis_resumes_to_the_same_result() {
             "select",
             s(&clip),
             "--backend",
-            "opencv",
+            backend,
             "--blur",
             "--stationary",
             "--spacing",
