@@ -135,8 +135,12 @@ impl Timeline {
         let mut panels = Vec::new();
         let mut missing = Vec::new();
 
+        let how = |what: &str| match project.preview {
+            true => "a --preview project keeps no scores; a full select computes them".to_string(),
+            false => format!("select with {what} computes them"),
+        };
         if cache.sharpness.is_empty() {
-            missing.push("sharpness scores (select with --blur computes them)".to_string());
+            missing.push(format!("sharpness scores ({})", how("--blur")));
         } else {
             let several = cache.sharpness.len() > 1;
             let mut curves = Vec::new();
@@ -230,9 +234,10 @@ impl Timeline {
                 curves,
             });
         } else {
-            missing.push(
-                "camera movement (select with --spacing or --stationary computes it)".to_string(),
-            );
+            missing.push(format!(
+                "camera movement ({})",
+                how("--spacing or --stationary")
+            ));
         }
         if cache.timestamps_s.is_none() {
             missing.push("timestamps (an image folder without --images-fps)".to_string());
