@@ -62,6 +62,9 @@ pub struct Analysis {
     /// Frame rate assumed for image folders.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub images_fps: Option<f64>,
+    /// Analyse only the codec keyframes (`select --preview`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub preview: Option<bool>,
     /// Farnebäck parameters.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub farneback: Option<Farneback>,
@@ -520,6 +523,9 @@ fn select_flags(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<(Vec<Strin
                 f("images_fps"),
             );
         }
+        if an.preview == Some(true) {
+            push(&mut a, &mut o, "--preview", None, f("preview"));
+        }
         if let Some(fb) = &an.farneback {
             let g = |k: &str| format!("analysis.farneback.{k}");
             let nums: [(&str, Option<String>); 6] = [
@@ -803,7 +809,7 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
                     serde_json::from_value::<crate::analysis::MovementRequest>(m.clone())
                 {
                     analysis.analysis_width = Some(req.analysis_width);
-                    analysis.flow_stride = (req.stride != 1).then_some(req.stride);
+                    analysis.flow_stride = Some(req.stride);
                     let (name, trim) = req.statistic.to_flag();
                     analysis.movement = Some(name.into());
                     analysis.trim = trim;
@@ -894,6 +900,10 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
                     add: list("add"),
                     remove: list("remove"),
                 }
+            }
+            "preview" => {
+                analysis.preview = Some(true);
+                continue;
             }
             other => return Err(bad(format!("step {k}: unknown plugin `{other}`"))),
         };

@@ -194,3 +194,31 @@ fn preview_errors_are_clear() {
     assert!(err.contains("apt-get install ffmpeg"), "{err}");
     assert!(!d.path().join("q.json").exists());
 }
+
+#[test]
+fn a_preview_saves_as_a_workflow_that_runs_the_same_preview() {
+    let d = tempfile::tempdir().unwrap();
+    let v = clip(d.path(), 10, 4);
+    let pv = d.path().join("preview.json");
+    kf_ok(&[
+        "select",
+        s(&v),
+        "-o",
+        s(&pv),
+        "--preview",
+        "--blur",
+        "--spacing",
+        "6kf",
+        "--backend",
+        "opencv",
+    ]);
+    let wf = d.path().join("preview.toml");
+    kf_ok(&["workflow", "save", s(&pv), "-o", s(&wf)]);
+    let text = std::fs::read_to_string(&wf).unwrap();
+    assert!(text.contains("preview = true"), "{text}");
+    let out = d.path().join("out");
+    kf_ok(&["run", s(&wf), s(&v), "--out", s(&out)]);
+    let project = out.join("g10.mp4").join("project.json");
+    assert_eq!(json(&project)["preview"], true);
+    assert_eq!(keyframes(&project), keyframes(&pv));
+}
