@@ -36,13 +36,8 @@ mkdir -p "$work"
 results="$work/results.jsonl"
 : > "$results"
 
-if [ $smoke = 1 ]; then
-  scene_args=(--size 320x180 --seconds 10 --blur-samples 2)
-  fps_rate=1; stationary_rate=2
-else
-  scene_args=(--size 640x360)
-  fps_rate=1; stationary_rate=2
-fi
+scene_args=(--size 640x360)
+if [ $smoke = 1 ]; then scene_args=(--size 320x180 --seconds 10 --blur-samples 2); fi
 
 # run NAME SEQDIR SELECT-FLAGS...: select, export, COLMAP, eval; one JSON line into results.
 run() {
@@ -71,12 +66,12 @@ for seq in "${seq_list[@]}"; do
   mkdir -p "$dir"
   echo "experiment: rendering $seq" >&2
   "$kf" scene "$dir/scene" --preset "$seq" "${scene_args[@]}" --force --quiet
-  run fps1 "$dir" --fps "$fps_rate"
+  run fps1 "$dir" --fps 1
   n=$(jq '.keyframes | length' "$dir/fps1/project.json")
   run spacing "$dir" --spacing "${n}kf"
   if [ "$seq" = hover-survey ]; then
-    run fps2 "$dir" --fps "$stationary_rate"
-    run fps2-stationary "$dir" --fps "$stationary_rate" --stationary
+    run fps2 "$dir" --fps 2
+    run fps2-stationary "$dir" --fps 2 --stationary
   fi
 done
 

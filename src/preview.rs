@@ -7,7 +7,7 @@
 use crate::error::{Error, Result};
 use crate::fsutil;
 use crate::project::{Cache, Step};
-use crate::samplers::{self, Bound, Boundaries};
+use crate::samplers::{Bound, Boundaries};
 use crate::select::{self, SelectReport, SelectSettings};
 use crate::source::keyframes::{self, KeyframeIndex};
 use crate::source::{OpenOptions, SourceKind};
@@ -101,14 +101,8 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
         kept: n_key,
     }];
     history.append(&mut p.history);
-    if !s.add.is_empty() || !s.remove.is_empty() {
-        keys = samplers::manual(&keys, &s.add, &s.remove, n_all)?;
-        history.push(Step {
-            plugin: "manual".into(),
-            params: json!({ "add": s.add, "remove": s.remove }),
-            kept: keys.len(),
-        });
-    }
+    // Added and removed frames are the video's own indices: applied after the mapping.
+    select::manual_step(&mut keys, &mut history, s, n_all)?;
     p.keyframes = keys;
     p.history = history;
     p.boundaries = s.boundaries;

@@ -230,6 +230,25 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
     Ok(report)
 }
 
+/// The last step of the chain: `--add`/`--remove` of frame indices (when any are given).
+pub(crate) fn manual_step(
+    keys: &mut Vec<usize>,
+    history: &mut Vec<Step>,
+    s: &SelectSettings,
+    frame_count: usize,
+) -> Result<()> {
+    if s.add.is_empty() && s.remove.is_empty() {
+        return Ok(());
+    }
+    *keys = samplers::manual(keys, &s.add, &s.remove, frame_count)?;
+    history.push(Step {
+        plugin: "manual".into(),
+        params: json!({ "add": s.add, "remove": s.remove }),
+        kept: keys.len(),
+    });
+    Ok(())
+}
+
 /// Analyses (or reuses the cache) and runs the sampler chain; returns the project unsaved. A
 /// keyframe-only source (`open.keyframes`) never reuses or checkpoints a cache.
 pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectReport> {
@@ -508,14 +527,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
             kept: keys.len(),
         });
     }
-    if !s.add.is_empty() || !s.remove.is_empty() {
-        keys = samplers::manual(&keys, &s.add, &s.remove, metadata.frame_count)?;
-        history.push(Step {
-            plugin: "manual".into(),
-            params: json!({ "add": s.add, "remove": s.remove }),
-            kept: keys.len(),
-        });
-    }
+    manual_step(&mut keys, &mut history, s, metadata.frame_count)?;
 
     let project = Project {
         schema_version: SCHEMA_VERSION,

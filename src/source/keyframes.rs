@@ -203,7 +203,19 @@ impl FrameSource for KeyframeSource {
     }
 
     fn next_frame(&mut self) -> Result<Option<Frame>> {
-        if self.next >= self.index.keyframes.len() {
+        let total = self.index.keyframes.len();
+        if self.next >= total {
+            // The pairing of decoded frames with listed keyframes holds only if the decoder
+            // delivered exactly as many: anything more would shift every index.
+            if self.next == total {
+                self.next += 1;
+                if matches!(self.pipe.read(&mut [0u8; 1]), Ok(n) if n > 0) {
+                    self.next = total;
+                    return Err(self.fail(format!(
+                        "ffmpeg delivered more frames than the {total} keyframes its packet list marks:"
+                    )));
+                }
+            }
             return Ok(None);
         }
         let (w, h) = (self.meta.width as i32, self.meta.height as i32);
@@ -212,7 +224,6 @@ impl FrameSource for KeyframeSource {
         let bytes = image.data_bytes_mut().cv(|| "Mat::data_bytes_mut".into())?;
         if let Err(e) = self.pipe.read_exact(bytes) {
             let decoded = self.next;
-            let total = self.index.keyframes.len();
             return Err(self.fail(format!(
                 "ffmpeg delivered {decoded} of {total} keyframes ({e}):"
             )));

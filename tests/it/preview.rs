@@ -30,6 +30,22 @@ fn clip(dir: &Path, gop: u32, secs: u32) -> PathBuf {
     p
 }
 
+/// `select --preview --blur --spacing 6kf` (opencv backend) of `v` into `pv`.
+fn preview_args<'a>(v: &'a Path, pv: &'a Path) -> [&'a str; 10] {
+    [
+        "select",
+        s(v),
+        "-o",
+        s(pv),
+        "--preview",
+        "--blur",
+        "--spacing",
+        "6kf",
+        "--backend",
+        "opencv",
+    ]
+}
+
 fn mean_abs_diff(a: &Mat, b: &Mat) -> f64 {
     let mut d = Mat::default();
     core::absdiff(a, b, &mut d).unwrap();
@@ -87,18 +103,7 @@ fn preview_selects_among_codec_keyframes_and_is_never_a_cache() {
     let d = tempfile::tempdir().unwrap();
     let v = clip(d.path(), 10, 4);
     let pv = d.path().join("preview.json");
-    let out = kf_loud(&[
-        "select",
-        s(&v),
-        "-o",
-        s(&pv),
-        "--preview",
-        "--blur",
-        "--spacing",
-        "6kf",
-        "--backend",
-        "opencv",
-    ]);
+    let out = kf_loud(&preview_args(&v, &pv));
     let (code, err) = code_and_stderr(&out);
     assert_eq!(code, 0, "{err}");
     assert!(err.contains("12 codec keyframes of 120 frames"), "{err}");
@@ -200,18 +205,7 @@ fn a_preview_saves_as_a_workflow_that_runs_the_same_preview() {
     let d = tempfile::tempdir().unwrap();
     let v = clip(d.path(), 10, 4);
     let pv = d.path().join("preview.json");
-    kf_ok(&[
-        "select",
-        s(&v),
-        "-o",
-        s(&pv),
-        "--preview",
-        "--blur",
-        "--spacing",
-        "6kf",
-        "--backend",
-        "opencv",
-    ]);
+    kf_ok(&preview_args(&v, &pv));
     let wf = d.path().join("preview.toml");
     kf_ok(&["workflow", "save", s(&pv), "-o", s(&wf)]);
     let text = std::fs::read_to_string(&wf).unwrap();
