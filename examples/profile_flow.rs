@@ -8,7 +8,7 @@ fn main() -> anyhow::Result<()> {
     let b = opencv::imgcodecs::imread("target/testdata/opencv-doc/basketball2.png", 0)?;
     let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None)?);
     let mut f = FarnebackGpu::new(ctx.clone(), FarnebackParams::default(), 640, 480)?;
-    let m = MovementGpu::new(ctx.clone(), f.flow_buffer(), 640 * 480)?;
+    let m = MovementGpu::new(ctx.clone(), f.flow_buffer(), 640, 480, None)?;
     let wait = || {
         ctx.device
             .poll(wgpu::PollType::wait_indefinitely())

@@ -3,8 +3,10 @@
 # known poses, 1 fps sampling against keyframer's movement-based selection with the same number of
 # keyframes (`--spacing Nkf`), each reconstructed with COLMAP and scored by `keyframer eval`
 # (registered ratio, spacing of consecutive camera centres σ/Q0.1/Q0.9 after a similarity
-# alignment, pose RMSE, COLMAP time). On the sequence with hovers it also compares `--fps 2` with
-# and without stationary-frame removal (COLMAP time and registration).
+# alignment, pose RMSE, COLMAP time). Movement-based selection runs twice: on the raw flow
+# (`spacing-raw`, iVS3D's measure) and with the camera rotation subtracted (`spacing`:
+# `--derotate`, with the scene's field of view). On the sequence with hovers it also compares
+# `--fps 2` with and without stationary-frame removal (COLMAP time and registration).
 #
 #   scripts/experiment.sh [--smoke] [--seqs survey,orbit,hover-survey] [WORK]
 #
@@ -68,7 +70,9 @@ for seq in "${seq_list[@]}"; do
   "$kf" scene "$dir/scene" --preset "$seq" "${scene_args[@]}" --force --quiet
   run fps1 "$dir" --fps 1
   n=$(jq '.keyframes | length' "$dir/fps1/project.json")
-  run spacing "$dir" --spacing "${n}kf"
+  hfov=$(jq '2 * ((.width / 2) / .intrinsics.fx | atan) * 180 / 3.141592653589793' "$dir/scene/scene.json")
+  run spacing-raw "$dir" --spacing "${n}kf"
+  run spacing "$dir" --spacing "${n}kf" --derotate --hfov "$hfov"
   if [ "$seq" = hover-survey ]; then
     run fps2 "$dir" --fps 2
     run fps2-stationary "$dir" --fps 2 --stationary

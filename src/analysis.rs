@@ -8,7 +8,7 @@ use crate::error::{Error, Result};
 use crate::fsutil::Fingerprint;
 use crate::gpu::{Backend, GpuContext};
 use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams, SLOTS};
-use crate::kernels::movement::{self, MovementGpu, Statistic};
+use crate::kernels::movement::{self, Derotate, MovementGpu, RotationField, Statistic};
 use crate::kernels::resize_area;
 use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
 use crate::source::{self, Frame, FrameSource, Metadata, OpenOptions};
@@ -45,6 +45,10 @@ pub struct MovementRequest {
     /// the last); each frame in between gets an equal share. 1 measures every pair.
     #[serde(default = "one")]
     pub stride: u32,
+    /// Subtract the flow of the best-fitting camera rotation before taking the statistic (the
+    /// movement then follows translation, which gives reconstructions their baseline).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub derotate: Option<Derotate>,
 }
 
 fn one() -> u32 {
@@ -250,6 +254,7 @@ enum Engine {
     Opencv {
         params: FarnebackParams,
         frames: Vec<Option<Mat>>,
+        field: Option<RotationField>,
     },
 }
 
@@ -281,12 +286,16 @@ impl Engine {
                 flow.flow_between(from, to)?;
                 stat.compute(statistic)
             }
-            Engine::Opencv { params, frames } => {
+            Engine::Opencv {
+                params,
+                frames,
+                field,
+            } => {
                 let (Some(a), Some(b)) = (&frames[from], &frames[to]) else {
                     return Err(Error::param("slots", "frame not loaded"));
                 };
                 let f = farneback::opencv(a, b, params, None)?;
-                movement::cpu(&movement::magnitudes(&f)?, statistic)
+                movement::cpu_flow(&f, statistic, field.as_ref())
             }
         }
     }
@@ -345,10 +354,14 @@ impl MovementPass {
         let mut engine = Engine::Opencv {
             params: req.farneback,
             frames: vec![None; SLOTS],
+            field: req
+                .derotate
+                .map(|d| RotationField::new(w, h, d))
+                .transpose()?,
         };
         if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
             let made = FarnebackGpu::new(ctx.clone(), req.farneback, w, h).and_then(|flow| {
-                let stat = MovementGpu::new(ctx.clone(), flow.flow_buffer(), w * h)?;
+                let stat = MovementGpu::new(ctx.clone(), flow.flow_buffer(), w, h, req.derotate)?;
                 Ok(Engine::Gpu {
                     flow: Box::new(flow),
                     stat,

@@ -5,7 +5,7 @@ use crate::error::{Error, Result};
 use crate::export::{Crop, ExportSettings, Format, Resize};
 use crate::gpu::Backend;
 use crate::kernels::farneback::FarnebackParams;
-use crate::kernels::movement::Statistic;
+use crate::kernels::movement::{Derotate, Statistic};
 use crate::kernels::sharpness::Metric;
 use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
 use crate::segment::{MaskSettings, SegBackend};
@@ -410,6 +410,15 @@ pub struct MovementArgs {
     /// movement; consecutive movement only, the stationary sampler compares every frame).
     #[arg(long, value_name = "K", default_value_t = 2)]
     pub flow_stride: u32,
+    /// Measure movement after subtracting the flow of the best-fitting camera rotation, so
+    /// turning on the spot counts little and travel counts fully (for oblique or forward-looking
+    /// cameras; over flat ground with a straight-down camera, sideways travel looks like a
+    /// rotation and is discounted too).
+    #[arg(long)]
+    pub derotate: bool,
+    /// Horizontal field of view of the camera in degrees, for --derotate.
+    #[arg(long, value_name = "DEG", requires = "derotate")]
+    pub hfov: Option<f64>,
     /// Farneback parameters.
     #[command(flatten)]
     pub farneback: FarnebackArgs,
@@ -441,11 +450,23 @@ impl MovementArgs {
                 "must be at least 16 pixels",
             ));
         }
+        let derotate = self.derotate.then(|| Derotate {
+            hfov_deg: self.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
+        });
+        if let Some(d) = &derotate {
+            d.validate().map_err(|_| {
+                Error::param(
+                    "--hfov",
+                    format!("{} must be between 1 and 179 degrees", d.hfov_deg),
+                )
+            })?;
+        }
         Ok(MovementRequest {
             farneback: self.farneback.params()?,
             statistic,
             analysis_width: self.analysis_width,
             stride: self.flow_stride,
+            derotate,
         })
     }
 }

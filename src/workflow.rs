@@ -65,6 +65,12 @@ pub struct Analysis {
     /// Analyse only the codec keyframes (`select --preview`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub preview: Option<bool>,
+    /// Subtract the camera rotation from the flow (`--derotate`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub derotate: Option<bool>,
+    /// Horizontal field of view in degrees for `derotate` (`--hfov`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hfov: Option<f64>,
     /// Farnebäck parameters.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub farneback: Option<Farneback>,
@@ -526,6 +532,12 @@ fn select_flags(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<(Vec<Strin
         if an.preview == Some(true) {
             push(&mut a, &mut o, "--preview", None, f("preview"));
         }
+        if an.derotate == Some(true) {
+            push(&mut a, &mut o, "--derotate", None, f("derotate"));
+        }
+        if let Some(v) = an.hfov {
+            push(&mut a, &mut o, "--hfov", Some(v.to_string()), f("hfov"));
+        }
         if let Some(fb) = &an.farneback {
             let g = |k: &str| format!("analysis.farneback.{k}");
             let nums: [(&str, Option<String>); 6] = [
@@ -813,6 +825,10 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
                     let (name, trim) = req.statistic.to_flag();
                     analysis.movement = Some(name.into());
                     analysis.trim = trim;
+                    if let Some(d) = req.derotate {
+                        analysis.derotate = Some(true);
+                        analysis.hfov = Some(d.hfov_deg);
+                    }
                     let f = req.farneback;
                     analysis.farneback = Some(Farneback {
                         pyr_scale: Some(f.pyr_scale),

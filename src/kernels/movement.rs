@@ -1,6 +1,8 @@
 //! `movement`: a robust statistic of the per-pixel flow magnitude (median or trimmed mean),
 //! computed on the device by exact radix selection (shaders/movement.wgsl); `cpu` is the twin on
-//! the host (sorting the same f32 magnitudes of OpenCV's flow).
+//! the host (sorting the same f32 magnitudes of OpenCV's flow). With `Derotate`, the flow of the
+//! best-fitting small camera rotation (least squares, `RotationField`) is subtracted first, so
+//! the statistic measures the translation-induced (parallax) part of the motion.
 
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
@@ -58,6 +60,268 @@ impl Statistic {
     }
 }
 
+/// Rotation compensation: the flow is measured after subtracting the flow of the camera rotation
+/// that best explains it, for a pinhole camera with this horizontal field of view and its
+/// principal point at the image centre.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Derotate {
+    /// Horizontal field of view in degrees (the focal length is width / (2 tan(hfov / 2))).
+    pub hfov_deg: f64,
+}
+
+impl Derotate {
+    /// The field of view assumed when none is given: 70 degrees, typical of drone and phone main
+    /// cameras.
+    pub const DEFAULT_HFOV_DEG: f64 = 70.0;
+
+    /// Checks the field of view.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.hfov_deg > 1.0 && self.hfov_deg < 179.0) {
+            return Err(Error::param(
+                "hfov",
+                format!("{} must be between 1 and 179 degrees", self.hfov_deg),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Focal length in pixels for an image `width` pixels wide.
+    pub fn focal(&self, width: u32) -> f64 {
+        f64::from(width) / (2.0 * (self.hfov_deg.to_radians() / 2.0).tan())
+    }
+}
+
+/// A camera rotation between two frames as the 3x3 matrix (rows, f32 as the shader has it) that
+/// maps a normalised ray (x, y, 1) of the first frame to its direction in the second.
+pub type Rotation = [[f32; 3]; 3];
+
+/// The identity rotation.
+pub const IDENTITY: Rotation = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
+/// Gauss-Newton steps after the first linear fit (each one more reduction over the flow).
+pub const ROTATION_REFINEMENTS: usize = 2;
+
+/// The image flow of a camera rotation on a `width` x `height` grid, and its least-squares fit
+/// to a flow field. For normalised coordinates x = (i - cx) / f, y = (j - cy) / f, a rotation R
+/// moves pixel (i, j) to f (R p).xy / (R p).z with p = (x, y, 1), whatever the depth. The fit is
+/// linearised with the first-order fields e_x = (x y, 1 + y^2), e_y = (-(1 + x^2), -x y),
+/// e_z = (y, -x) (normal matrix from the geometry only) and refined by `ROTATION_REFINEMENTS`
+/// Gauss-Newton steps on the exact residual; `residual_magnitudes` is the host twin of the
+/// shader's per-pixel |flow - rotation flow|.
+#[derive(Debug, Clone)]
+pub struct RotationField {
+    width: u32,
+    height: u32,
+    f: f32,
+    cx: f32,
+    cy: f32,
+    /// Inverse of the normal matrix sum(e_k . e_l) over the grid (geometry only).
+    inverse: [[f64; 3]; 3],
+}
+
+impl RotationField {
+    /// The field of a `width` x `height` grid seen with `derotate`'s field of view.
+    pub fn new(width: u32, height: u32, derotate: Derotate) -> Result<RotationField> {
+        derotate.validate()?;
+        if width < 2 || height < 2 {
+            return Err(Error::param("derotate", "the flow field is too small"));
+        }
+        let f = derotate.focal(width) as f32;
+        let (cx, cy) = ((width - 1) as f32 * 0.5, (height - 1) as f32 * 0.5);
+        let mut field = RotationField {
+            width,
+            height,
+            f,
+            cx,
+            cy,
+            inverse: [[0.0; 3]; 3],
+        };
+        let mut m = [[0.0f64; 3]; 3];
+        for j in 0..height {
+            for i in 0..width {
+                let e = field.basis(i, j);
+                for (k, ek) in e.iter().enumerate() {
+                    for (l, el) in e.iter().enumerate() {
+                        m[k][l] += f64::from(ek[0]) * f64::from(el[0])
+                            + f64::from(ek[1]) * f64::from(el[1]);
+                    }
+                }
+            }
+        }
+        field.inverse =
+            invert3(&m).ok_or_else(|| Error::param("derotate", "the rotation fit is singular"))?;
+        Ok(field)
+    }
+
+    /// Width and height of the grid.
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// (f, cx, cy) in grid pixels.
+    pub fn intrinsics(&self) -> (f32, f32, f32) {
+        (self.f, self.cx, self.cy)
+    }
+
+    /// Normalised coordinates of pixel (i, j).
+    fn normalised(&self, i: u32, j: u32) -> (f32, f32) {
+        ((i as f32 - self.cx) / self.f, (j as f32 - self.cy) / self.f)
+    }
+
+    /// First-order rotation fields (e_x, e_y, e_z) at pixel (i, j), in f32 as the shader has them.
+    fn basis(&self, i: u32, j: u32) -> [[f32; 2]; 3] {
+        let (x, y) = self.normalised(i, j);
+        [[x * y, 1.0 + y * y], [-(1.0 + x * x), -(x * y)], [y, -x]]
+    }
+
+    /// The flow (grid pixels) the rotation `r` gives at pixel (i, j) (zero for `IDENTITY`).
+    pub fn rotation_flow(&self, i: u32, j: u32, r: &Rotation) -> [f32; 2] {
+        let (x, y) = self.normalised(i, j);
+        let q = [
+            r[0][0] * x + r[0][1] * y + r[0][2],
+            r[1][0] * x + r[1][1] * y + r[1][2],
+            r[2][0] * x + r[2][1] * y + r[2][2],
+        ];
+        [self.f * (q[0] / q[2] - x), self.f * (q[1] / q[2] - y)]
+    }
+
+    /// Host twin of the shader's `rotation_sums`: sum over pixels of e_k . (flow - rotation
+    /// flow of `r`) / f, from an interleaved (dx, dy) flow in grid pixels.
+    pub fn sums(&self, flow: &[f32], r: &Rotation) -> Result<[f64; 3]> {
+        self.check(flow)?;
+        let mut b = [0.0f64; 3];
+        for j in 0..self.height {
+            for i in 0..self.width {
+                let p = 2 * (j * self.width + i) as usize;
+                let [rx, ry] = self.rotation_flow(i, j, r);
+                let (u, v) = ((flow[p] - rx) / self.f, (flow[p + 1] - ry) / self.f);
+                for (bk, ek) in b.iter_mut().zip(self.basis(i, j)) {
+                    *bk += f64::from(ek[0] * u + ek[1] * v);
+                }
+            }
+        }
+        Ok(b)
+    }
+
+    /// The first-order rotation vector (radians) of the least-squares fit to sums `b`.
+    pub fn solve(&self, b: [f64; 3]) -> [f64; 3] {
+        let r = &self.inverse;
+        std::array::from_fn(|k| r[k][0] * b[0] + r[k][1] * b[1] + r[k][2] * b[2])
+    }
+
+    /// The least-squares rotation, given a function returning `sums` for a rotation (the host
+    /// computes them itself, the device with a reduction): a linear fit, then the refinements.
+    pub fn fit(&self, mut sums: impl FnMut(&Rotation) -> Result<[f64; 3]>) -> Result<Rotation> {
+        let mut omega = self.solve(sums(&IDENTITY)?);
+        for _ in 0..ROTATION_REFINEMENTS {
+            let step = self.solve(sums(&matrix(omega))?);
+            for (o, d) in omega.iter_mut().zip(step) {
+                *o += d;
+            }
+        }
+        Ok(matrix(omega))
+    }
+
+    /// Host fit of the rotation of an interleaved flow.
+    pub fn fit_cpu(&self, flow: &[f32]) -> Result<Rotation> {
+        self.fit(|r| self.sums(flow, r))
+    }
+
+    /// |flow - rotation flow of `r`| per pixel, in f32 as the shader computes it.
+    pub fn residual_magnitudes(&self, flow: &[f32], r: &Rotation) -> Result<Vec<f32>> {
+        self.check(flow)?;
+        let mut out = Vec::with_capacity(flow.len() / 2);
+        for j in 0..self.height {
+            for i in 0..self.width {
+                let p = 2 * (j * self.width + i) as usize;
+                let [rx, ry] = self.rotation_flow(i, j, r);
+                let (dx, dy) = (flow[p] - rx, flow[p + 1] - ry);
+                out.push((dx * dx + dy * dy).sqrt());
+            }
+        }
+        Ok(out)
+    }
+
+    fn check(&self, flow: &[f32]) -> Result<()> {
+        if flow.len() != 2 * (self.width * self.height) as usize {
+            return Err(Error::param(
+                "derotate",
+                format!(
+                    "flow has {} values, the grid {}x{} needs {}",
+                    flow.len(),
+                    self.width,
+                    self.height,
+                    2 * self.width * self.height
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The rotation whose first-order image flow is sum_k omega_k e_k: the rotation by the angle
+/// |omega| about the axis -omega (Rodrigues).
+pub fn matrix(omega: [f64; 3]) -> Rotation {
+    let [a, b, c] = omega.map(|w| -w);
+    let t = (a * a + b * b + c * c).sqrt();
+    let (s, k) = if t < 1e-12 {
+        (1.0, 0.5)
+    } else {
+        (t.sin() / t, (1.0 - t.cos()) / (t * t))
+    };
+    let w = [[0.0, -c, b], [c, 0.0, -a], [-b, a, 0.0]];
+    std::array::from_fn(|i| {
+        std::array::from_fn(|j| {
+            let w2: f64 = (0..3).map(|m| w[i][m] * w[m][j]).sum();
+            let id = if i == j { 1.0 } else { 0.0 };
+            (id + s * w[i][j] + k * w2) as f32
+        })
+    })
+}
+
+/// Inverse of a 3x3 matrix (None when singular).
+fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let c = |r: usize, k: usize| {
+        let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
+        let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+        m[r1][k1] * m[r2][k2] - m[r1][k2] * m[r2][k1]
+    };
+    let det = m[0][0] * c(0, 0) + m[0][1] * c(0, 1) + m[0][2] * c(0, 2);
+    if !det.is_finite() || det.abs() < 1e-12 {
+        return None;
+    }
+    // inverse[k][r] = cofactor(r, k) / det
+    Some(std::array::from_fn(|k| {
+        std::array::from_fn(|r| c(r, k) / det)
+    }))
+}
+
+/// The interleaved (dx, dy) values of a CV_32FC2 flow field.
+pub fn flow_values(flow: &opencv::core::Mat) -> Result<Vec<f32>> {
+    use opencv::prelude::*;
+    let d = flow
+        .data_typed::<opencv::core::Vec2f>()
+        .map_err(|e| Error::param("flow", e.to_string()))?;
+    Ok(d.iter().flat_map(|v| [v[0], v[1]]).collect())
+}
+
+/// Host twin of the whole device statistic: the statistic of the flow magnitudes of `flow`, or
+/// of the residual magnitudes after the fitted rotation when `field` is given.
+pub fn cpu_flow(
+    flow: &opencv::core::Mat,
+    stat: Statistic,
+    field: Option<&RotationField>,
+) -> Result<f64> {
+    match field {
+        None => cpu(&magnitudes(flow)?, stat),
+        Some(field) => {
+            let v = flow_values(flow)?;
+            let r = field.fit_cpu(&v)?;
+            cpu(&field.residual_magnitudes(&v, &r)?, stat)
+        }
+    }
+}
+
 /// Per-pixel magnitudes of a CV_32FC2 flow field, in f32 as the shader computes them.
 pub fn magnitudes(flow: &opencv::core::Mat) -> Result<Vec<f32>> {
     use opencv::prelude::*;
@@ -102,7 +366,16 @@ struct Params {
     prefix1: u32,
     lo_bits: u32,
     hi_bits: u32,
-    pad: [u32; 3],
+    /// 1: subtract the flow of rotation `rot` (grid `width` wide, focal `f`, centre cx, cy).
+    derotate: u32,
+    width: u32,
+    pad0: u32,
+    f: f32,
+    cx: f32,
+    cy: f32,
+    pad1: f32,
+    /// Rows of the rotation, padded to vec4.
+    rot: [[f32; 4]; 3],
 }
 
 const BINS: usize = 4096;
@@ -114,29 +387,45 @@ fn entry(binding: u32, buf: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
     }
 }
 
-/// Device statistic over one flow buffer (2 x f32 per pixel, `n` pixels).
+/// Device statistic over one flow buffer (2 x f32 per pixel, `width` x `height` pixels).
 pub struct MovementGpu {
     ctx: Arc<GpuContext>,
     n: u32,
+    width: u32,
     groups: (u32, u32),
     hist_pipe: Arc<wgpu::ComputePipeline>,
     sums_pipe: Arc<wgpu::ComputePipeline>,
+    rot_pipe: Arc<wgpu::ComputePipeline>,
     params: wgpu::Buffer,
     hist: wgpu::Buffer,
     counts: wgpu::Buffer,
     partials: wgpu::Buffer,
     hist_bg: wgpu::BindGroup,
     sums_bg: wgpu::BindGroup,
+    rot_bg: wgpu::BindGroup,
+    field: Option<RotationField>,
 }
 
 impl MovementGpu {
-    /// Binds the statistic to `flow` holding `n` flow vectors.
-    pub fn new(ctx: Arc<GpuContext>, flow: &wgpu::Buffer, n: u32) -> Result<Self> {
+    /// Binds the statistic to `flow` holding `width` x `height` flow vectors; with `derotate`,
+    /// every statistic is taken after subtracting the fitted rotation flow.
+    pub fn new(
+        ctx: Arc<GpuContext>,
+        flow: &wgpu::Buffer,
+        width: u32,
+        height: u32,
+        derotate: Option<Derotate>,
+    ) -> Result<Self> {
+        let n = width * height;
         if n == 0 {
             return Err(Error::param("flow", "empty flow field"));
         }
+        let field = derotate
+            .map(|d| RotationField::new(width, height, d))
+            .transpose()?;
         let hist_pipe = ctx.pipeline("movement", WGSL, "histogram")?;
         let sums_pipe = ctx.pipeline("movement", WGSL, "sums")?;
+        let rot_pipe = ctx.pipeline("movement", WGSL, "rotation_sums")?;
         let total = n.div_ceil(256);
         let gx = total.min(65_535);
         let groups = (gx, total.div_ceil(gx));
@@ -148,7 +437,8 @@ impl MovementGpu {
         });
         let hist = ctx.storage_buffer("movement histogram", (2 * BINS * 4) as u64);
         let counts = ctx.storage_buffer("movement counts", 16);
-        let partials = ctx.storage_buffer("movement partials", u64::from(groups.0 * groups.1) * 4);
+        let partials =
+            ctx.storage_buffer("movement partials", u64::from(groups.0 * groups.1) * 3 * 4);
         let hist_bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("movement histogram"),
             layout: &hist_pipe.get_bind_group_layout(0),
@@ -164,19 +454,99 @@ impl MovementGpu {
                 entry(4, &params),
             ],
         });
+        let rot_bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("movement rotation sums"),
+            layout: &rot_pipe.get_bind_group_layout(0),
+            entries: &[entry(0, flow), entry(3, &partials), entry(4, &params)],
+        });
         Ok(MovementGpu {
             ctx,
             n,
+            width,
             groups,
             hist_pipe,
             sums_pipe,
+            rot_pipe,
             params,
             hist,
             counts,
             partials,
             hist_bg,
             sums_bg,
+            rot_bg,
+            field,
         })
+    }
+
+    /// Parameters with the grid, the intrinsics and the rotation filled in (derotate set when a
+    /// rotation is given).
+    fn params(&self, rotation: Option<&Rotation>) -> Params {
+        let (f, cx, cy) = self
+            .field
+            .as_ref()
+            .map_or((1.0, 0.0, 0.0), |r| r.intrinsics());
+        let r = rotation.unwrap_or(&IDENTITY);
+        Params {
+            n: self.n,
+            groups_x: self.groups.0,
+            shift: 0,
+            mask: 0,
+            prefix_shift: 31,
+            prefix0: u32::MAX,
+            prefix1: u32::MAX,
+            lo_bits: 0,
+            hi_bits: 0,
+            derotate: u32::from(rotation.is_some()),
+            width: self.width,
+            pad0: 0,
+            f,
+            cx,
+            cy,
+            pad1: 0.0,
+            rot: r.map(|row| [row[0], row[1], row[2], 0.0]),
+        }
+    }
+
+    /// The least-squares rotation of the bound flow (None without derotation).
+    pub fn rotation(&self) -> Result<Option<Rotation>> {
+        let Some(field) = &self.field else {
+            return Ok(None);
+        };
+        field.fit(|r| self.rotation_sums(r)).map(Some)
+    }
+
+    /// Device `sums` of the residual after rotation `r` (per-workgroup partials added in f64).
+    fn rotation_sums(&self, r: &Rotation) -> Result<[f64; 3]> {
+        self.ctx
+            .queue
+            .write_buffer(&self.params, 0, bytemuck::bytes_of(&self.params(Some(r))));
+        let mut enc = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("movement rotation sums"),
+            });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("movement rotation sums"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.rot_pipe);
+            pass.set_bind_group(0, &self.rot_bg, &[]);
+            pass.dispatch_workgroups(self.groups.0, self.groups.1, 1);
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        let parts = self.ctx.read_back(
+            &self.partials,
+            u64::from(self.groups.0 * self.groups.1) * 3 * 4,
+        )?;
+        let mut b = [0.0f64; 3];
+        for chunk in bytemuck::cast_slice::<u8, f32>(&parts).chunks_exact(3) {
+            for (bk, &v) in b.iter_mut().zip(chunk) {
+                *bk += f64::from(v);
+            }
+        }
+        Ok(b)
     }
 
     fn run(&self, p: &Params, histogram: bool) {
@@ -212,23 +582,19 @@ impl MovementGpu {
     }
 
     /// Bit patterns of the values at ranks `lo` and `hi` (0-based, ascending).
-    fn select(&self, lo: u32, hi: u32) -> Result<[u32; 2]> {
+    fn select(&self, lo: u32, hi: u32, rotation: Option<&Rotation>) -> Result<[u32; 2]> {
         // (shift, mask bits, prefix_shift) of the three radix passes over bits 30..0.
         let passes = [(19u32, 12u32, 31u32), (7, 12, 19), (0, 7, 7)];
         let mut prefix = [0u32; 2];
         let mut rank = [lo, hi];
         for (shift, bits, prefix_shift) in passes {
             let p = Params {
-                n: self.n,
-                groups_x: self.groups.0,
                 shift,
                 mask: (1 << bits) - 1,
                 prefix_shift,
                 prefix0: prefix[0],
                 prefix1: prefix[1],
-                lo_bits: 0,
-                hi_bits: 0,
-                pad: [0; 3],
+                ..self.params(rotation)
             };
             self.run(&p, true);
             let bytes = self.ctx.read_back(&self.hist, (2 * BINS * 4) as u64)?;
@@ -253,11 +619,13 @@ impl MovementGpu {
         Ok(prefix)
     }
 
-    /// The statistic of the magnitudes in the bound flow buffer (submitted work must be queued).
+    /// The statistic of the magnitudes in the bound flow buffer (submitted work must be queued),
+    /// after subtracting the fitted rotation flow when derotating.
     pub fn compute(&self, stat: Statistic) -> Result<f64> {
         stat.validate()?;
         let (lo, hi) = stat.ranks(self.n);
-        let [lo_bits, hi_bits] = self.select(lo, hi)?;
+        let rotation = self.rotation()?;
+        let [lo_bits, hi_bits] = self.select(lo, hi, rotation.as_ref())?;
         let (vlo, vhi) = (
             f64::from(f32::from_bits(lo_bits)),
             f64::from(f32::from_bits(hi_bits)),
@@ -269,16 +637,9 @@ impl MovementGpu {
             return Ok(vlo);
         }
         let p = Params {
-            n: self.n,
-            groups_x: self.groups.0,
-            shift: 0,
-            mask: 0,
-            prefix_shift: 31,
-            prefix0: u32::MAX,
-            prefix1: u32::MAX,
             lo_bits,
             hi_bits,
-            pad: [0; 3],
+            ..self.params(rotation.as_ref())
         };
         self.run(&p, false);
         let c = self.ctx.read_back(&self.counts, 16)?;

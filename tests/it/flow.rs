@@ -98,8 +98,14 @@ fn movement_statistic_on_device() {
     let mut gpu =
         FarnebackGpu::new(ctx.clone(), p, prev.cols() as u32, prev.rows() as u32).unwrap();
     let g = gpu.flow(&prev, &next).unwrap();
-    let n = (prev.cols() * prev.rows()) as u32;
-    let stat = MovementGpu::new(ctx, gpu.flow_buffer(), n).unwrap();
+    let stat = MovementGpu::new(
+        ctx,
+        gpu.flow_buffer(),
+        prev.cols() as u32,
+        prev.rows() as u32,
+        None,
+    )
+    .unwrap();
     let cv_flow = farneback::opencv(&prev, &next, &p, None).unwrap();
     let g_mags = movement::magnitudes(&g).unwrap();
     let c_mags = movement::magnitudes(&cv_flow).unwrap();
@@ -122,6 +128,87 @@ fn movement_statistic_on_device() {
         );
         eprintln!("{s:?}: gpu {on_device} opencv {opencv}");
     }
+}
+
+/// Derotation on the device: the fitted rotation and the residual statistic equal the host twin
+/// on the same (device) flow and agree with OpenCV's flow within MOVEMENT_REL; the flow of a known
+/// rotation (plus a local bump) is fitted back and leaves (almost) no residual.
+#[test]
+fn derotated_movement_on_device() {
+    use keyframer::kernels::movement::{self, Derotate, MovementGpu, RotationField, Statistic};
+    use keyframer::kernels::tolerance::{rel_err, MOVEMENT_REL};
+    let prev = gray_of(&testdata("opencv-doc/rubberwhale1.png"));
+    let next = gray_of(&testdata("opencv-doc/rubberwhale2.png"));
+    let (w, h) = (prev.cols() as u32, prev.rows() as u32);
+    let p = FarnebackParams::default();
+    let d = Derotate { hfov_deg: 65.0 };
+    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None).unwrap());
+    let mut gpu = FarnebackGpu::new(ctx.clone(), p, w, h).unwrap();
+    let g = gpu.flow(&prev, &next).unwrap();
+    let stat = MovementGpu::new(ctx.clone(), gpu.flow_buffer(), w, h, Some(d)).unwrap();
+    let field = RotationField::new(w, h, d).unwrap();
+    let cv_flow = farneback::opencv(&prev, &next, &p, None).unwrap();
+    let g_vals = movement::flow_values(&g).unwrap();
+    let close = |a: &movement::Rotation, b: &movement::Rotation, tol: f32| {
+        (0..3).all(|i| (0..3).all(|j| (a[i][j] - b[i][j]).abs() <= tol))
+    };
+    let r_dev = stat.rotation().unwrap().unwrap();
+    let r_host = field.fit_cpu(&g_vals).unwrap();
+    assert!(
+        close(&r_dev, &r_host, 1e-6),
+        "device {r_dev:?} host {r_host:?}"
+    );
+    for s in [Statistic::Median, Statistic::TrimmedMean { trim: 0.1 }] {
+        let on_device = stat.compute(s).unwrap();
+        let host_same = movement::cpu_flow(&g, s, Some(&field)).unwrap();
+        assert!(
+            rel_err(on_device, host_same) < 1e-4,
+            "{s:?}: device {on_device} host {host_same}"
+        );
+        let opencv = movement::cpu_flow(&cv_flow, s, Some(&field)).unwrap();
+        assert!(
+            rel_err(on_device, opencv) <= MOVEMENT_REL,
+            "{s:?}: gpu {on_device} opencv {opencv}"
+        );
+        let raw = movement::cpu(&movement::magnitudes(&g).unwrap(), s).unwrap();
+        eprintln!("{s:?} derotated: gpu {on_device} opencv {opencv} (raw {raw})");
+    }
+
+    // Flow of a rotation of 0.04 rad, plus a 0.5 px bump on 1/8 of the pixels.
+    let truth = movement::matrix([0.01, -0.03, 0.025]);
+    let mut synth = Vec::with_capacity(2 * (w * h) as usize);
+    for j in 0..h {
+        for i in 0..w {
+            let r = field.rotation_flow(i, j, &truth);
+            let bump = if i < w / 4 && j < h / 2 { 0.5 } else { 0.0 };
+            synth.extend_from_slice(&[r[0] + bump, r[1]]);
+        }
+    }
+    let pure: Vec<f32> = (0..h)
+        .flat_map(|j| (0..w).map(move |i| (i, j)))
+        .flat_map(|(i, j)| field.rotation_flow(i, j, &truth))
+        .collect();
+    let exact = field.fit_cpu(&pure).unwrap();
+    assert!(close(&exact, &truth, 1e-5), "{exact:?} vs {truth:?}");
+    ctx.queue
+        .write_buffer(gpu.flow_buffer(), 0, bytemuck::cast_slice(&synth));
+    let fitted = stat.rotation().unwrap().unwrap();
+    let host = field.fit_cpu(&synth).unwrap();
+    assert!(close(&fitted, &host, 1e-6), "{fitted:?} vs {host:?}");
+    let median = stat.compute(Statistic::Median).unwrap();
+    let raw_median = movement::cpu(
+        &synth
+            .chunks(2)
+            .map(|v| (v[0] * v[0] + v[1] * v[1]).sqrt())
+            .collect::<Vec<f32>>(),
+        Statistic::Median,
+    )
+    .unwrap();
+    eprintln!("synthetic rotation: residual median {median}, raw {raw_median}");
+    assert!(
+        median < 0.02 * raw_median,
+        "residual {median} raw {raw_median}"
+    );
 }
 
 fn video_gray(path: &std::path::Path, frames: &[usize]) -> Vec<Mat> {

@@ -468,6 +468,24 @@ fn bad_inputs_fail_cleanly() {
     ]));
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("p.json"), "{err}");
+
+    // A field of view out of range, or one given without --derotate: refused, nothing written.
+    let p = dp.join("hfov.json");
+    for (extra, code_want, msg) in [
+        (
+            &["--derotate", "--hfov", "200"][..],
+            1,
+            "--hfov: 200 must be between 1 and 179",
+        ),
+        (&["--hfov", "60"][..], 1, "--derotate"),
+    ] {
+        let mut args = vec!["select", s(&whole), "--spacing", "20", "-o", s(&p)];
+        args.extend_from_slice(extra);
+        let (code, err) = code_and_stderr(&kf(&args));
+        assert_eq!(code, code_want, "{args:?}: {err}");
+        assert!(err.contains(msg), "{args:?}: {err}");
+        assert!(!p.exists());
+    }
     // Bad parameters.
     for args in [
         vec!["select", s(&whole), "--every", "0", "-o", s(&p), "--force"],

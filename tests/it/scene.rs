@@ -409,3 +409,121 @@ fn scene_same_seed_same_output() {
     }
     assert_ne!(fa[0].data_bytes().unwrap(), fc[0].data_bytes().unwrap());
 }
+
+/// Std of the distances between consecutive keyframes' camera centres (poses.tum).
+fn spacing_std(poses: &[(f64, [f64; 7])], keys: &[usize]) -> f64 {
+    let d: Vec<f64> = keys
+        .windows(2)
+        .map(|w| {
+            let (a, b) = (&poses[w[0]].1, &poses[w[1]].1);
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+        })
+        .collect();
+    let m = d.iter().sum::<f64>() / d.len() as f64;
+    (d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt()
+}
+
+/// On a survey with two fast turns (57°/s yaw), --derotate --spacing puts fewer keyframes into
+/// the turns than spacing on the raw flow, spaces the keyframes' camera centres more evenly than
+/// both raw spacing and a fixed rate with as many keyframes, selects the same keyframes on both
+/// backends, and saves as a workflow that runs the same.
+#[test]
+fn derotated_spacing_discounts_fast_turns() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("scene/survey-turns");
+    // Fresh every run: projects left by an earlier build would be reused as caches.
+    let _ = std::fs::remove_dir_all(&dir);
+    kf_ok(&[
+        "scene",
+        s(&dir),
+        "--force",
+        "--size",
+        "320x180",
+        "--seconds",
+        "12",
+        "--blur-samples",
+        "2",
+    ]);
+    let meta = json(&dir.join("scene.json"));
+    let turns: Vec<(usize, usize)> = meta["fast_turns"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| {
+            (
+                t["start_frame"].as_u64().unwrap() as usize,
+                t["end_frame"].as_u64().unwrap() as usize,
+            )
+        })
+        .collect();
+    assert_eq!(turns.len(), 2, "{turns:?}");
+    let in_turns = |keys: &[usize]| {
+        keys.iter()
+            .filter(|&&k| turns.iter().any(|&(a, b)| k >= a && k <= b))
+            .count()
+    };
+    let fx = meta["intrinsics"]["fx"].as_f64().unwrap();
+    let hfov = format!("{:.3}", 2.0 * (160.0 / fx).atan().to_degrees());
+    let video = dir.join("video.mp4");
+    let select = |name: &str, extra: &[&str]| {
+        let p = dir.join(format!("{name}.json"));
+        let mut args = vec!["select", s(&video), "-o", s(&p), "--force"];
+        args.extend_from_slice(extra);
+        kf_ok(&args);
+        crate::common::keyframes(&p)
+    };
+    let spacing = ["--spacing", "24kf"];
+    let derotate = ["--derotate", "--hfov", &hfov];
+    let raw = select("raw", &[&spacing[..], &["--backend", "opencv"]].concat());
+    let derot_cv = select(
+        "derot-opencv",
+        &[&spacing[..], &derotate, &["--backend", "opencv"]].concat(),
+    );
+    let derot_gpu = select(
+        "derot-gpu",
+        &[&spacing[..], &derotate, &["--backend", "gpu"]].concat(),
+    );
+    let fixed = select("fps", &["--fps", "2"]);
+    assert_eq!(
+        derot_gpu, derot_cv,
+        "gpu and opencv select different keyframes"
+    );
+    assert_eq!(
+        [raw.len(), derot_cv.len(), fixed.len()],
+        [24, 24, 24],
+        "same number of keyframes"
+    );
+    let poses = poses(&dir);
+    let sd = spacing_std(&poses, &derot_cv);
+    let (sr, sf) = (spacing_std(&poses, &raw), spacing_std(&poses, &fixed));
+    let (tr, td, tf) = (in_turns(&raw), in_turns(&derot_cv), in_turns(&fixed));
+    eprintln!(
+        "keyframes in turns / spacing std (m): raw {tr} / {sr:.3}, derotated {td} / {sd:.3}, \
+         fps 2 {tf} / {sf:.3}"
+    );
+    assert!(td < tr, "keyframes in turns: derotated {td}, raw {tr}");
+    assert!(
+        2.0 * sd < sr && sd < sf,
+        "spacing std: derotated {sd}, raw {sr}, fps {sf}"
+    );
+
+    // Saved as a workflow, the derotated selection records its setting and runs the same.
+    let wf = dir.join("derotate.toml");
+    kf_ok(&[
+        "workflow",
+        "save",
+        s(&dir.join("derot-opencv.json")),
+        "-o",
+        s(&wf),
+    ]);
+    let text = std::fs::read_to_string(&wf).unwrap();
+    assert!(
+        text.contains("derotate = true") && text.contains(&format!("hfov = {hfov}")),
+        "{text}"
+    );
+    let out = dir.join("run");
+    kf_ok(&["run", s(&wf), s(&video), "--out", s(&out)]);
+    assert_eq!(
+        crate::common::keyframes(&out.join("video.mp4/project.json")),
+        derot_cv
+    );
+}
