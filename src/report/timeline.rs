@@ -198,8 +198,13 @@ impl Timeline {
             let v = &m.series.values;
             panels.push(Panel {
                 title: format!(
-                    "Camera movement between consecutive frames ({:?} of the flow magnitudes at {} px width)",
-                    m.request.statistic, m.request.analysis_width
+                    "Camera movement between consecutive frames ({:?} of the flow magnitudes{} at {} px width)",
+                    m.request.statistic,
+                    m.request.derotate.map_or(String::new(), |d| format!(
+                        " after subtracting the camera rotation, hfov {}°",
+                        d.hfov_deg
+                    )),
+                    m.request.analysis_width
                 ),
                 unit: "px".into(),
                 curves: vec![Curve {
