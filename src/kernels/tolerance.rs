@@ -27,6 +27,19 @@ pub const FLOW_EPE_P99: f64 = 0.1;
 /// and more.
 pub const MOVEMENT_REL: f64 = 0.01;
 
+/// Derotation: the fitted rotation's matrix entries, device vs host on the same flow (absolute).
+/// Both sum the same f32 per-pixel products; the device adds 256 of them per workgroup in f32
+/// (tree order) before the host adds the partials in f64, the host adds every one in f64. For
+/// fields of ~1e5 pixels and rotations of hundredths of a radian that moves the solved angles by
+/// ~1e-8; three Gauss-Newton rounds keep it there. 1e-6 still catches a wrong pixel coordinate or
+/// field (a one-pixel shift of the centre changes entries by ~1e-4).
+pub const ROTATION_ABS: f32 = 1e-6;
+
+/// Derotated movement, device vs host on the same flow (relative): the residual magnitudes
+/// inherit the rotation's ~1e-8 differences times the focal length (hundreds of pixels), ~1e-5 px
+/// against statistics of tenths of a pixel and more; the selection itself is exact.
+pub const DEROTATED_SAME_FLOW_REL: f64 = 1e-4;
+
 /// Relative error `|a - b| / max(|b|, tiny)`.
 pub fn rel_err(a: f64, b: f64) -> f64 {
     (a - b).abs() / b.abs().max(1e-12)
