@@ -454,12 +454,7 @@ impl MovementArgs {
             hfov_deg: self.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
         });
         if let Some(d) = &derotate {
-            d.validate().map_err(|_| {
-                Error::param(
-                    "--hfov",
-                    format!("{} must be between 1 and 179 degrees", d.hfov_deg),
-                )
-            })?;
+            d.validate()?;
         }
         Ok(MovementRequest {
             farneback: self.farneback.params()?,

@@ -78,7 +78,7 @@ impl Derotate {
     pub fn validate(&self) -> Result<()> {
         if !(self.hfov_deg > 1.0 && self.hfov_deg < 179.0) {
             return Err(Error::param(
-                "hfov",
+                "--hfov",
                 format!("{} must be between 1 and 179 degrees", self.hfov_deg),
             ));
         }
@@ -151,11 +151,6 @@ impl RotationField {
         field.inverse =
             invert3(&m).ok_or_else(|| Error::param("derotate", "the rotation fit is singular"))?;
         Ok(field)
-    }
-
-    /// Width and height of the grid.
-    pub fn size(&self) -> (u32, u32) {
-        (self.width, self.height)
     }
 
     /// (f, cx, cy) in grid pixels.
@@ -387,6 +382,14 @@ fn entry(binding: u32, buf: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
     }
 }
 
+/// The device passes of `MovementGpu` (entry points of shaders/movement.wgsl).
+#[derive(Clone, Copy)]
+enum Pass {
+    Histogram,
+    Sums,
+    RotationSums,
+}
+
 /// Device statistic over one flow buffer (2 x f32 per pixel, `width` x `height` pixels).
 pub struct MovementGpu {
     ctx: Arc<GpuContext>,
@@ -517,25 +520,7 @@ impl MovementGpu {
 
     /// Device `sums` of the residual after rotation `r` (per-workgroup partials added in f64).
     fn rotation_sums(&self, r: &Rotation) -> Result<[f64; 3]> {
-        self.ctx
-            .queue
-            .write_buffer(&self.params, 0, bytemuck::bytes_of(&self.params(Some(r))));
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("movement rotation sums"),
-            });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("movement rotation sums"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.rot_pipe);
-            pass.set_bind_group(0, &self.rot_bg, &[]);
-            pass.dispatch_workgroups(self.groups.0, self.groups.1, 1);
-        }
-        self.ctx.queue.submit([enc.finish()]);
+        self.run(&self.params(Some(r)), Pass::RotationSums);
         let parts = self.ctx.read_back(
             &self.partials,
             u64::from(self.groups.0 * self.groups.1) * 3 * 4,
@@ -549,7 +534,8 @@ impl MovementGpu {
         Ok(b)
     }
 
-    fn run(&self, p: &Params, histogram: bool) {
+    /// Writes `p` and runs one of the three passes over the flow.
+    fn run(&self, p: &Params, which: Pass) {
         self.ctx
             .queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(p));
@@ -559,23 +545,24 @@ impl MovementGpu {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("movement"),
             });
-        if histogram {
-            enc.clear_buffer(&self.hist, 0, None);
-        } else {
-            enc.clear_buffer(&self.counts, 0, None);
-        }
+        let (pipe, bg) = match which {
+            Pass::Histogram => {
+                enc.clear_buffer(&self.hist, 0, None);
+                (&self.hist_pipe, &self.hist_bg)
+            }
+            Pass::Sums => {
+                enc.clear_buffer(&self.counts, 0, None);
+                (&self.sums_pipe, &self.sums_bg)
+            }
+            Pass::RotationSums => (&self.rot_pipe, &self.rot_bg),
+        };
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("movement"),
                 timestamp_writes: None,
             });
-            if histogram {
-                pass.set_pipeline(&self.hist_pipe);
-                pass.set_bind_group(0, &self.hist_bg, &[]);
-            } else {
-                pass.set_pipeline(&self.sums_pipe);
-                pass.set_bind_group(0, &self.sums_bg, &[]);
-            }
+            pass.set_pipeline(pipe);
+            pass.set_bind_group(0, bg, &[]);
             pass.dispatch_workgroups(self.groups.0, self.groups.1, 1);
         }
         self.ctx.queue.submit([enc.finish()]);
@@ -596,7 +583,7 @@ impl MovementGpu {
                 prefix1: prefix[1],
                 ..self.params(rotation)
             };
-            self.run(&p, true);
+            self.run(&p, Pass::Histogram);
             let bytes = self.ctx.read_back(&self.hist, (2 * BINS * 4) as u64)?;
             let h: &[u32] = bytemuck::cast_slice(&bytes);
             for r in 0..2 {
@@ -641,7 +628,7 @@ impl MovementGpu {
             hi_bits,
             ..self.params(rotation.as_ref())
         };
-        self.run(&p, false);
+        self.run(&p, Pass::Sums);
         let c = self.ctx.read_back(&self.counts, 16)?;
         let c: &[u32] = bytemuck::cast_slice(&c);
         let parts = self
