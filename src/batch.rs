@@ -99,23 +99,53 @@ struct Done {
     report: InputReport,
 }
 
-/// Stable sub-folder names: the input's file name, with `-2`, `-3`... for repeats.
-pub fn folder_names(inputs: &[PathBuf]) -> Vec<String> {
-    let mut names: Vec<String> = Vec::new();
-    for p in inputs {
-        let base = p
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "input".into());
-        let mut name = base.clone();
-        let mut k = 2;
-        while names.contains(&name) {
-            name = format!("{base}-{k}");
-            k += 1;
+/// The result folder of one input: its file name (letters, digits, `-`, `_`, `.` kept, anything
+/// else `_`) and 8 hex digits of a hash of its resolved absolute path, so the same input gets the
+/// same folder whatever the other inputs of a run, and two inputs never share one.
+pub fn folder_name(input: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let resolved = crate::output::resolve(input);
+    let base: String = input
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "input".into())
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || "-_.".contains(c) {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    let hash = fsutil::fnv1a64(resolved.as_os_str().as_bytes());
+    format!("{base}-{:08x}", hash & 0xffff_ffff)
+}
+
+/// The result folder names of `inputs`, in order; an input named twice (under two spellings)
+/// is refused.
+pub fn folder_names(inputs: &[PathBuf]) -> Result<Vec<String>> {
+    let names: Vec<String> = inputs.iter().map(|p| folder_name(p)).collect();
+    for (i, n) in names.iter().enumerate() {
+        if let Some(j) = names[..i].iter().position(|m| m == n) {
+            return Err(Error::param(
+                "INPUT",
+                format!(
+                    "{} and {} are the same input",
+                    inputs[j].display(),
+                    inputs[i].display()
+                ),
+            ));
         }
-        names.push(name);
     }
-    names
+    Ok(names)
+}
+
+/// Contents of the `.keyframer-run` marker: the input the folder belongs to.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Marker {
+    tool: String,
+    input: PathBuf,
 }
 
 /// The inputs of `shard`: positions i with i mod N == I in the list sorted by path, so every
@@ -147,8 +177,10 @@ pub fn run(workflow: &Workflow, s: &RunSettings) -> Result<Vec<InputReport>> {
     if sorted.len() != s.inputs.len() {
         return Err(Error::param("INPUT", "an input is listed twice"));
     }
+    let inputs: Vec<&Path> = s.inputs.iter().map(PathBuf::as_path).collect();
+    crate::output::check_not_input(&s.out, "--out", &inputs)?;
+    let names = folder_names(&s.inputs)?;
     std::fs::create_dir_all(&s.out).map_err(|e| Error::io(&s.out, e))?;
-    let names = folder_names(&s.inputs);
     let mine = shard_of(&s.inputs, s.shard);
     let total = mine.len();
     let next = AtomicUsize::new(0);
@@ -255,20 +287,51 @@ fn process(
             }
         }
     }
-    // A folder we did not make is never written into; one we made is ours to redo.
-    if folder.exists() && !folder.join(MARKER).exists() {
+    // A folder we did not make is never written into; one we made for this input is ours to
+    // redo; one recorded for another input needs --force.
+    let marker = Marker {
+        tool: "keyframer run".into(),
+        input: crate::output::resolve(input),
+    };
+    let marker_text = serde_json::to_string_pretty(&marker).map_err(|e| Error::Output {
+        path: folder.join(MARKER),
+        msg: e.to_string(),
+    })? + "\n";
+    if folder.exists() {
+        crate::output::clear_stale_temps_of(folder, None);
         let empty = std::fs::read_dir(folder)
             .map(|mut d| d.next().is_none())
             .unwrap_or(false);
-        if !empty {
-            return Err(Error::Output {
-                path: folder.to_path_buf(),
-                msg: "exists and was not made by `keyframer run`; move it away".into(),
-            });
+        let recorded = std::fs::read_to_string(folder.join(MARKER))
+            .ok()
+            .map(|t| serde_json::from_str::<Marker>(&t).ok().map(|m| m.input));
+        match recorded {
+            None if !empty => {
+                return Err(Error::Output {
+                    path: folder.to_path_buf(),
+                    msg: "exists and was not made by `keyframer run`; move it away".into(),
+                })
+            }
+            Some(Some(other)) if other != marker.input && !s.force => {
+                return Err(Error::Output {
+                    path: folder.to_path_buf(),
+                    msg: format!(
+                        "holds the results of another input ({}); pass --force to replace them",
+                        other.display()
+                    ),
+                })
+            }
+            Some(None) if !s.force => {
+                return Err(Error::Output {
+                    path: folder.to_path_buf(),
+                    msg: format!(
+                        "its {MARKER} does not say which input it belongs to (an older keyframer); pass --force to replace it"
+                    ),
+                })
+            }
+            _ => {}
         }
-    }
-    if folder.exists() {
-        fsutil::write_atomic(&folder.join(MARKER), b"made by keyframer run\n")?;
+        fsutil::write_atomic(&folder.join(MARKER), marker_text.as_bytes())?;
     } else {
         // The folder appears with its marker inside (made under a hidden name, then renamed),
         // so a kill at any moment never leaves an unmarked folder behind.
@@ -278,7 +341,7 @@ fn process(
             std::fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
         }
         std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
-        std::fs::write(tmp.join(MARKER), b"made by keyframer run\n")
+        std::fs::write(tmp.join(MARKER), marker_text.as_bytes())
             .map_err(|e| Error::io(tmp.join(MARKER), e))?;
         std::fs::rename(&tmp, folder).map_err(|e| Error::io(folder, e))?;
     }
@@ -384,12 +447,16 @@ mod tests {
     }
 
     #[test]
-    fn folder_names_are_unique() {
-        let n = folder_names(&[
-            PathBuf::from("a/clip.mp4"),
-            PathBuf::from("b/clip.mp4"),
-            PathBuf::from("c.mp4"),
-        ]);
-        assert_eq!(n, vec!["clip.mp4", "clip.mp4-2", "c.mp4"]);
+    fn folder_names_are_unique_and_stable() {
+        let a = PathBuf::from("/data/a/clip.mp4");
+        let b = PathBuf::from("/data/b/clip.mp4");
+        let n = folder_names(&[a.clone(), b.clone(), PathBuf::from("/data/c d.mp4")]).unwrap();
+        assert!(n[0].starts_with("clip.mp4-") && n[1].starts_with("clip.mp4-"));
+        assert_ne!(n[0], n[1]);
+        assert!(n[2].starts_with("c_d.mp4-"));
+        // The same input, the same folder, whatever else is in the run.
+        assert_eq!(folder_names(std::slice::from_ref(&b)).unwrap()[0], n[1]);
+        assert_eq!(folder_name(Path::new("/data/x/../b/clip.mp4")), n[1]);
+        assert!(folder_names(&[a.clone(), PathBuf::from("/data/a/./clip.mp4")]).is_err());
     }
 }

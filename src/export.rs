@@ -15,8 +15,14 @@ use std::path::{Path, PathBuf};
 
 /// Name of the manifest written into every export folder.
 pub const MANIFEST: &str = "manifest.json";
-/// Sub-folder of an export holding the COLMAP masks.
+/// Sub-folder of an export holding the images.
+pub const IMAGE_DIR: &str = "images";
+/// Sub-folder of an export holding the COLMAP masks (a sibling of the images: COLMAP, nerfstudio
+/// and gsplat read image folders recursively).
 pub const MASK_DIR: &str = "masks";
+/// Layout of the export folder the manifest describes: 2 = `images/`, `masks/`, `overlays/`
+/// beside `manifest.json` (1, images beside the manifest, is no longer written or read).
+pub const LAYOUT: u32 = 2;
 /// Sub-folder of an export holding the overlay previews.
 pub const OVERLAY_DIR: &str = "overlays";
 
@@ -86,12 +92,12 @@ pub struct ExportedFrame {
     pub index: usize,
     /// Presentation time in seconds, when known.
     pub timestamp_s: Option<f64>,
-    /// File name inside the export folder.
+    /// File name inside the export's `images/` folder.
     pub file: String,
-    /// Mask file (`masks/<file>.png`), when masks were requested.
+    /// Mask file name inside `masks/` (`<file>.png`), when masks were requested.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask: Option<String>,
-    /// Overlay preview (`overlays/<file>`), when requested.
+    /// Overlay preview file name inside `overlays/`, when requested.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub overlay: Option<String>,
 }
@@ -103,6 +109,9 @@ pub struct Manifest {
     pub tool: String,
     /// Version of the tool that wrote it.
     pub tool_version: String,
+    /// Folder layout ([`LAYOUT`]); manifests without it are of layout 1.
+    #[serde(default = "layout_one")]
+    pub layout: u32,
     /// Seconds since the Unix epoch when the export finished.
     pub created_unix_s: u64,
     /// The project file exported.
@@ -124,6 +133,10 @@ pub struct Manifest {
     /// Mean network time per image when masks were made (ms).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask_ms_per_image: Option<f64>,
+}
+
+fn layout_one() -> u32 {
+    1
 }
 
 /// A keyframe that could not be exported.
@@ -221,7 +234,53 @@ pub struct ExportReport {
     pub manifest: Manifest,
 }
 
-/// Exports the keyframes of the project at `project_path` into `out`.
+/// Largest exported image side: JPEG stores at most 65535 and libjpeg accepts 65500.
+const MAX_SIDE: u32 = 65_500;
+/// Largest exported image in pixels: OpenCV's own image I/O limit (`CV_IO_MAX_IMAGE_PIXELS`).
+const MAX_PIXELS: u64 = 1 << 30;
+
+/// Refuses an output size the encoders cannot write (before any memory is allocated for it).
+fn check_size(settings: &ExportSettings, size: (u32, u32)) -> Result<()> {
+    let (w, h) = size;
+    if w > MAX_SIDE || h > MAX_SIDE || u64::from(w) * u64::from(h) > MAX_PIXELS {
+        let flag = match settings.resize {
+            Some(Resize::Scale(_)) => "--scale",
+            _ => "--resize",
+        };
+        return Err(Error::param(
+            flag,
+            format!(
+                "the exported images would be {w}x{h}; JPEG and PNG allow at most {MAX_SIDE} px a side and OpenCV at most 2^30 pixels: choose a smaller size"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Where the images of an export go, relative to its folder.
+pub fn image_path(out: &Path, f: &ExportedFrame) -> PathBuf {
+    out.join(IMAGE_DIR).join(&f.file)
+}
+
+/// Every file an export lists, relative to its folder (images, masks, overlays).
+pub fn listed_files(frames: &[ExportedFrame]) -> Vec<PathBuf> {
+    let mut v = Vec::new();
+    for f in frames {
+        v.push(Path::new(IMAGE_DIR).join(&f.file));
+        if let Some(m) = &f.mask {
+            v.push(Path::new(MASK_DIR).join(m));
+        }
+        if let Some(o) = &f.overlay {
+            v.push(Path::new(OVERLAY_DIR).join(o));
+        }
+    }
+    v
+}
+
+/// Exports the keyframes of the project at `project_path` into `out` (`out/images/`,
+/// `out/masks/`, `out/overlays/`, `out/manifest.json`). Everything is written into a hidden
+/// staging folder first and moved into place only when every image succeeded, so a failed export
+/// leaves the folder as it was.
 pub fn export(
     project_path: &Path,
     out: &Path,
@@ -238,145 +297,56 @@ pub fn export(
     let mut src = source::open(&input, &OpenOptions::default())?;
     let meta = src.metadata().clone();
     let size = output_size(settings, meta.width, meta.height)?;
+    check_size(settings, size)?;
+    let is_video = meta.kind == SourceKind::Video;
+    let names = output_names(&project, src.as_ref(), settings, is_video)?;
+    let mut inputs: Vec<&Path> = vec![project_path, &input];
+    if let Some(m) = &settings.masks {
+        inputs.push(&m.model);
+    }
     // The model is loaded and checked before anything is written.
     let mut masker = match &settings.masks {
-        Some(m) => Some(Masker::new(m, out)?),
+        Some(m) => Some(Masker::new(m)?),
         None => None,
     };
-    let old_manifest = read_manifest(&out.join(MANIFEST));
-    fsutil::prepare_output_dir(out, force)?;
-    if let Some(m) = &masker {
-        m.create_dirs()?;
-    }
-
-    let is_video = meta.kind == SourceKind::Video;
-    let transforms = settings.crop.is_some() || settings.resize.is_some();
-    let digits = (project.metadata.frame_count.max(1) - 1)
-        .to_string()
-        .len()
-        .max(6);
-    let timestamps = project.cache.timestamps_s.as_deref();
-    let bar = crate::progress::bar(project.keyframes.len() as u64, "export", quiet);
-    let mut frames = Vec::new();
-    let mut missing = Vec::new();
-
-    // Image files that can be copied as they are never need decoding.
-    let byte_copy = !is_video
-        && !transforms
-        && settings.format.is_none_or(|f| {
-            src.file_of(0)
-                .and_then(|p| p.extension())
-                .map(|e| {
-                    let e = e.to_string_lossy().to_ascii_lowercase();
-                    e == f.ext() || (f == Format::Jpg && e == "jpeg")
-                })
-                .unwrap_or(false)
+    let dir = crate::output::prepare_dir(out, "--out", force, MANIFEST, &inputs)?;
+    let result = (|| {
+        let old = if dir.is_new() {
+            None
+        } else {
+            read_own_manifest(out)?
+        };
+        check_targets(out, old.as_ref(), &names, settings)?;
+        let staging = out.join(format!(".keyframer-staging-{}", std::process::id()));
+        let r = write_staged(
+            &project,
+            &input,
+            src.as_mut(),
+            settings,
+            &names,
+            size,
+            &staging,
+            masker.as_mut(),
+            quiet,
+        )
+        .and_then(|(frames, missing)| {
+            commit(out, &staging, old.as_ref(), &frames)?;
+            Ok((frames, missing))
         });
-    if byte_copy {
-        for &index in &project.keyframes {
-            let from = src
-                .file_of(index)
-                .ok_or_else(|| Error::Frame {
-                    path: input.clone(),
-                    index,
-                    msg: "no such image in the folder".into(),
-                })?
-                .to_path_buf();
-            let name = file_name(&from);
-            fsutil::copy_atomic(&from, &out.join(&name))?;
-            frames.push(ExportedFrame {
-                index,
-                timestamp_s: timestamps.and_then(|t| t.get(index).copied()),
-                file: name.clone(),
-                mask: None,
-                overlay: None,
-            });
-            if let Some(m) = masker.as_mut() {
-                let img = imgcodecs::imread(&from, imgcodecs::IMREAD_COLOR)
-                    .cv(|| format!("read {}", from.display()))?;
-                m.push(name, img, &mut frames)?;
-            }
-            bar.inc(1);
+        let _ = std::fs::remove_dir_all(&staging);
+        r
+    })();
+    let (frames, missing) = match result {
+        Ok(v) => v,
+        Err(e) => {
+            dir.abandon();
+            return Err(e);
         }
-        if let Some(m) = masker.as_mut() {
-            m.flush(&mut frames)?;
-        }
-    } else {
-        let format = settings.format.unwrap_or(Format::Jpg);
-        let names: Vec<String> = project
-            .keyframes
-            .iter()
-            .map(|&i| match src.file_of(i) {
-                Some(p) if !is_video => {
-                    let stem = p.file_stem().unwrap_or_default().to_string_lossy();
-                    let ext = p.extension().unwrap_or_default().to_string_lossy();
-                    let keep = settings.format.is_none()
-                        && matches!(ext.to_ascii_lowercase().as_str(), "jpg" | "jpeg" | "png");
-                    if keep {
-                        file_name(p)
-                    } else {
-                        format!("{stem}.{}", format.ext())
-                    }
-                }
-                _ => format!("frame_{i:0digits$}.{}", format.ext()),
-            })
-            .collect();
-        let mut k = 0;
-        let total = project.keyframes.len();
-        let result = source::read_indices(src.as_mut(), &project.keyframes, |frame| {
-            let img = transform(&frame.image, settings, size)?;
-            let name = &names[k];
-            let fmt = if name.ends_with(".png") {
-                Format::Png
-            } else {
-                Format::Jpg
-            };
-            let bytes = encode(&img, fmt, settings.quality)?;
-            fsutil::write_atomic(&out.join(name), &bytes)?;
-            frames.push(ExportedFrame {
-                index: frame.index,
-                timestamp_s: frame
-                    .timestamp_s
-                    .or_else(|| timestamps.and_then(|t| t.get(frame.index).copied())),
-                file: name.clone(),
-                mask: None,
-                overlay: None,
-            });
-            if let Some(m) = masker.as_mut() {
-                m.push(name.clone(), img, &mut frames)?;
-            }
-            k += 1;
-            bar.inc(1);
-            Ok(())
-        })
-        .and_then(|missing| {
-            if let Some(m) = masker.as_mut() {
-                m.flush(&mut frames)?;
-            }
-            Ok(missing)
-        });
-        let not_read = result.map_err(|e| Error::Output {
-            path: out.to_path_buf(),
-            msg: format!(
-                "{e}; export stopped after {} of {total} images (each written whole), no manifest written",
-                frames.len()
-            ),
-        })?;
-        let reason = src
-            .decode_failure()
-            .map(|(_, m)| m)
-            .unwrap_or_else(|| "the stream ended before this frame".into());
-        missing.extend(not_read.into_iter().map(|index| MissingFrame {
-            index,
-            reason: reason.clone(),
-        }));
-    }
-    bar.finish_and_clear();
-
-    remove_stale(out, old_manifest.as_ref(), &frames);
+    };
     let manifest = Manifest {
         tool: "keyframer".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
+        layout: LAYOUT,
         created_unix_s: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_secs())
@@ -400,11 +370,286 @@ pub fn export(
     Ok(ExportReport { manifest })
 }
 
-fn file_name(p: &Path) -> String {
-    p.file_name()
+/// The file name of every keyframe's image, checked: plain names, no two alike.
+fn output_names(
+    project: &Project,
+    src: &dyn source::FrameSource,
+    settings: &ExportSettings,
+    is_video: bool,
+) -> Result<Vec<String>> {
+    let digits = (project.metadata.frame_count.max(1) - 1)
+        .to_string()
+        .len()
+        .max(6);
+    let format = settings.format.unwrap_or(Format::Jpg);
+    let byte_copy = byte_copy(src, settings, is_video);
+    let mut names = Vec::with_capacity(project.keyframes.len());
+    let mut seen = std::collections::HashMap::new();
+    for &i in &project.keyframes {
+        let name = match src.file_of(i) {
+            Some(p) if !is_video => {
+                let stem = p.file_stem().unwrap_or_default();
+                let ext = p.extension().unwrap_or_default().to_string_lossy();
+                let keep = byte_copy
+                    || (settings.format.is_none()
+                        && matches!(ext.to_ascii_lowercase().as_str(), "jpg" | "jpeg" | "png"));
+                let name = if keep {
+                    p.file_name().unwrap_or_default().to_os_string()
+                } else {
+                    let mut n = stem.to_os_string();
+                    n.push(format!(".{}", format.ext()));
+                    n
+                };
+                name.into_string().map_err(|n| Error::Frame {
+                    path: p.to_path_buf(),
+                    index: i,
+                    msg: format!(
+                        "the file name {} is not valid UTF-8; rename it",
+                        n.to_string_lossy()
+                    ),
+                })?
+            }
+            _ => format!("frame_{i:0digits$}.{}", format.ext()),
+        };
+        crate::output::plain_name(&name, &format!("image of frame {i}"), &project_input(src))?;
+        if let Some(other) = seen.insert(name.clone(), i) {
+            return Err(Error::Output {
+                path: PathBuf::from(&name),
+                msg: format!(
+                    "frames {other} and {i} would both be exported under this name; give --format so that every name differs, or rename one of the files"
+                ),
+            });
+        }
+        names.push(name);
+    }
+    Ok(names)
+}
+
+fn project_input(src: &dyn source::FrameSource) -> PathBuf {
+    src.file_of(0)
+        .and_then(Path::parent)
+        .map(Path::to_path_buf)
         .unwrap_or_default()
-        .to_string_lossy()
-        .into_owned()
+}
+
+/// Whether the image files can be copied as they are (image folder, no crop, resize or format
+/// change).
+fn byte_copy(src: &dyn source::FrameSource, settings: &ExportSettings, is_video: bool) -> bool {
+    !is_video
+        && settings.crop.is_none()
+        && settings.resize.is_none()
+        && settings.format.is_none_or(|f| {
+            src.file_of(0)
+                .and_then(|p| p.extension())
+                .map(|e| {
+                    let e = e.to_string_lossy().to_ascii_lowercase();
+                    e == f.ext() || (f == Format::Jpg && e == "jpeg")
+                })
+                .unwrap_or(false)
+        })
+}
+
+/// Reads the manifest of an existing export folder of keyframer's; a folder whose manifest
+/// cannot be read is refused (keyframer could not tell what it wrote there).
+fn read_own_manifest(out: &Path) -> Result<Option<Manifest>> {
+    let path = out.join(MANIFEST);
+    if !path.exists() {
+        return Ok(None);
+    }
+    Manifest::load(&path).map(Some).map_err(|e| Error::Output {
+        path: out.to_path_buf(),
+        msg: format!(
+            "{e}; keyframer cannot tell what it wrote in this folder, so it replaces nothing: choose a new --out"
+        ),
+    })
+}
+
+/// Refuses to write over any file the earlier manifest does not list (a user's file) or that is
+/// not a regular file.
+fn check_targets(
+    out: &Path,
+    old: Option<&Manifest>,
+    names: &[String],
+    settings: &ExportSettings,
+) -> Result<()> {
+    let ours: Vec<PathBuf> = old.map(|m| listed_files(&m.frames)).unwrap_or_default();
+    let mut targets = Vec::new();
+    for n in names {
+        targets.push(Path::new(IMAGE_DIR).join(n));
+        if let Some(m) = &settings.masks {
+            targets.push(Path::new(MASK_DIR).join(format!("{n}.png")));
+            if m.overlay {
+                targets.push(Path::new(OVERLAY_DIR).join(n));
+            }
+        }
+    }
+    for rel in targets {
+        let p = out.join(&rel);
+        crate::output::check_replaceable(&p)?;
+        if p.exists() && !ours.contains(&rel) {
+            return Err(Error::Output {
+                path: p,
+                msg: "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out".into(),
+            });
+        }
+    }
+    for d in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
+        let p = out.join(d);
+        if p.exists() && !p.is_dir() {
+            return Err(Error::Output {
+                path: p,
+                msg: "exists and is not a folder".into(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Decodes, transforms, encodes (or copies) and segments every keyframe into `staging`.
+#[allow(clippy::too_many_arguments)]
+fn write_staged(
+    project: &Project,
+    input: &Path,
+    src: &mut dyn source::FrameSource,
+    settings: &ExportSettings,
+    names: &[String],
+    size: (u32, u32),
+    staging: &Path,
+    mut masker: Option<&mut Masker>,
+    quiet: bool,
+) -> Result<(Vec<ExportedFrame>, Vec<MissingFrame>)> {
+    let images = staging.join(IMAGE_DIR);
+    std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
+    if let Some(m) = masker.as_deref_mut() {
+        m.create_dirs(staging)?;
+    }
+    let is_video = src.metadata().kind == SourceKind::Video;
+    let timestamps = project.cache.timestamps_s.as_deref();
+    let bar = crate::progress::bar(project.keyframes.len() as u64, "export", quiet);
+    let mut frames = Vec::new();
+    let mut missing = Vec::new();
+    let total = project.keyframes.len();
+    if byte_copy(src, settings, is_video) {
+        for (k, &index) in project.keyframes.iter().enumerate() {
+            let from = src
+                .file_of(index)
+                .ok_or_else(|| Error::Frame {
+                    path: input.to_path_buf(),
+                    index,
+                    msg: "no such image in the folder".into(),
+                })?
+                .to_path_buf();
+            let name = &names[k];
+            fsutil::copy_atomic(&from, &images.join(name))?;
+            frames.push(ExportedFrame {
+                index,
+                timestamp_s: timestamps.and_then(|t| t.get(index).copied()),
+                file: name.clone(),
+                mask: None,
+                overlay: None,
+            });
+            if let Some(m) = masker.as_deref_mut() {
+                let img = imgcodecs::imread(&from, imgcodecs::IMREAD_COLOR)
+                    .cv(|| format!("read {}", from.display()))?;
+                m.push(name.clone(), img, &mut frames)?;
+            }
+            bar.inc(1);
+        }
+        if let Some(m) = masker.as_deref_mut() {
+            m.flush(&mut frames)?;
+        }
+    } else {
+        let mut k = 0;
+        let result = source::read_indices(src, &project.keyframes, |frame| {
+            let img = transform(&frame.image, settings, size)?;
+            let name = &names[k];
+            let fmt = if name.ends_with(".png") {
+                Format::Png
+            } else {
+                Format::Jpg
+            };
+            let bytes = encode(&img, fmt, settings.quality)?;
+            fsutil::write_atomic(&images.join(name), &bytes)?;
+            frames.push(ExportedFrame {
+                index: frame.index,
+                timestamp_s: frame
+                    .timestamp_s
+                    .or_else(|| timestamps.and_then(|t| t.get(frame.index).copied())),
+                file: name.clone(),
+                mask: None,
+                overlay: None,
+            });
+            if let Some(m) = masker.as_deref_mut() {
+                m.push(name.clone(), img, &mut frames)?;
+            }
+            k += 1;
+            bar.inc(1);
+            Ok(())
+        })
+        .and_then(|missing| {
+            if let Some(m) = masker.as_deref_mut() {
+                m.flush(&mut frames)?;
+            }
+            Ok(missing)
+        });
+        let not_read = result.map_err(|e| Error::Output {
+            path: input.to_path_buf(),
+            msg: format!(
+                "{e}; export stopped after {} of {total} images; nothing was written",
+                frames.len()
+            ),
+        })?;
+        let reason = src
+            .decode_failure()
+            .map(|(_, m)| m)
+            .unwrap_or_else(|| "the stream ended before this frame".into());
+        missing.extend(not_read.into_iter().map(|index| MissingFrame {
+            index,
+            reason: reason.clone(),
+        }));
+    }
+    bar.finish_and_clear();
+    Ok((frames, missing))
+}
+
+/// Moves the staged files into place and removes what the earlier manifest listed that this
+/// export did not write.
+fn commit(
+    out: &Path,
+    staging: &Path,
+    old: Option<&Manifest>,
+    frames: &[ExportedFrame],
+) -> Result<()> {
+    let new = listed_files(frames);
+    for rel in &new {
+        let to = out.join(rel);
+        if let Some(parent) = to.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+        }
+        let from = staging.join(rel);
+        std::fs::rename(&from, &to).map_err(|e| Error::io(&to, e))?;
+    }
+    if let Some(old) = old {
+        for rel in listed_files(&old.frames) {
+            if new.contains(&rel) {
+                continue;
+            }
+            let p = out.join(&rel);
+            if crate::output::check_replaceable(&p).is_err() {
+                continue;
+            }
+            match std::fs::remove_file(&p) {
+                Ok(()) => log::info!("removed {} from the earlier export", p.display()),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(e) => log::warn!("{}: cannot remove stale export: {e}", p.display()),
+            }
+        }
+    }
+    for d in [MASK_DIR, OVERLAY_DIR] {
+        // Empty masks/ or overlays/ folders left from an earlier export go.
+        let _ = std::fs::remove_dir(out.join(d));
+    }
+    Ok(())
 }
 
 /// Refuses to export when the input is no longer the one the project was made from.
@@ -419,43 +664,52 @@ pub fn check_fingerprint(project: &Project, input: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Reads an export's manifest, if present and readable.
+/// Reads an export's manifest, if present and valid.
 pub fn read_manifest(path: &Path) -> Option<Manifest> {
-    let text = std::fs::read_to_string(path).ok()?;
-    serde_json::from_str(&text).ok()
+    Manifest::load(path).ok()
 }
 
-/// After a forced re-export, removes the images an earlier export listed in its manifest that the
-/// new export did not write. Files keyframer did not write are left alone.
-fn remove_stale(out: &Path, old: Option<&Manifest>, new: &[ExportedFrame]) {
-    let Some(old) = old else { return };
-    let written: Vec<&str> = new
-        .iter()
-        .flat_map(|n| [Some(&n.file), n.mask.as_ref(), n.overlay.as_ref()])
-        .flatten()
-        .map(String::as_str)
-        .collect();
-    let listed = old
-        .frames
-        .iter()
-        .flat_map(|f| [Some(&f.file), f.mask.as_ref(), f.overlay.as_ref()])
-        .flatten();
-    for file in listed {
-        let name = Path::new(file);
-        // Only plain names or names inside our own masks/ and overlays/ folders.
-        let ours = match name.components().count() {
-            1 => true,
-            2 => name.starts_with(MASK_DIR) || name.starts_with(OVERLAY_DIR),
-            _ => false,
+impl Manifest {
+    /// Reads and checks a manifest: the current layout, every name a plain file name.
+    pub fn load(path: &Path) -> Result<Manifest> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let bad = |field: String, msg: &str| Error::File {
+            path: path.to_path_buf(),
+            line: None,
+            what: "export manifest",
+            field,
+            msg: msg.into(),
         };
-        if ours && !written.contains(&file.as_str()) {
-            let p = out.join(name);
-            match std::fs::remove_file(&p) {
-                Ok(()) => log::info!("removed {} from the earlier export", p.display()),
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                Err(e) => log::warn!("{}: cannot remove stale export: {e}", p.display()),
+        let de = &mut serde_json::Deserializer::from_str(&text);
+        let m: Manifest = serde_path_to_error::deserialize(de).map_err(|e| {
+            let field = e.path().to_string();
+            let inner = e.into_inner();
+            bad(
+                field,
+                &format!("{inner} (line {}, column {})", inner.line(), inner.column()),
+            )
+        })?;
+        if m.layout != LAYOUT {
+            return Err(bad(
+                "layout".into(),
+                "made by an older keyframer (images beside manifest.json, no images/ folder); export again into a new folder",
+            ));
+        }
+        for (k, f) in m.frames.iter().enumerate() {
+            crate::output::plain_name(&f.file, &format!("frames[{k}].file"), path)?;
+            if let Some(x) = &f.mask {
+                crate::output::plain_name(x, &format!("frames[{k}].mask"), path)?;
+            }
+            if let Some(x) = &f.overlay {
+                crate::output::plain_name(x, &format!("frames[{k}].overlay"), path)?;
             }
         }
+        let mut names: Vec<&str> = m.frames.iter().map(|f| f.file.as_str()).collect();
+        names.sort_unstable();
+        if names.windows(2).any(|w| w[0] == w[1]) {
+            return Err(bad("frames".into(), "lists one file twice"));
+        }
+        Ok(m)
     }
 }
 
@@ -464,24 +718,26 @@ fn remove_stale(out: &Path, old: Option<&Manifest>, new: &[ExportedFrame]) {
 struct Masker {
     seg: Segmenter,
     overlay: bool,
+    /// The staging folder receiving `masks/` and `overlays/`.
     out: PathBuf,
     names: Vec<String>,
     images: Vec<Mat>,
 }
 
 impl Masker {
-    fn new(settings: &MaskSettings, out: &Path) -> Result<Masker> {
+    fn new(settings: &MaskSettings) -> Result<Masker> {
         let seg = Segmenter::new(settings)?;
         Ok(Masker {
             seg,
             overlay: settings.overlay,
-            out: out.to_path_buf(),
+            out: PathBuf::new(),
             names: Vec::new(),
             images: Vec::new(),
         })
     }
 
-    fn create_dirs(&self) -> Result<()> {
+    fn create_dirs(&mut self, staging: &Path) -> Result<()> {
+        self.out = staging.to_path_buf();
         let mut dirs = vec![self.out.join(MASK_DIR)];
         if self.overlay {
             dirs.push(self.out.join(OVERLAY_DIR));
@@ -523,12 +779,12 @@ impl Masker {
                 };
                 let bytes = encode(&o, fmt, 90)?;
                 fsutil::write_atomic(&self.out.join(OVERLAY_DIR).join(name), &bytes)?;
-                Some(format!("{OVERLAY_DIR}/{name}"))
+                Some(name.clone())
             } else {
                 None
             };
             if let Some(f) = frames.iter_mut().rev().find(|f| &f.file == name) {
-                f.mask = Some(format!("{MASK_DIR}/{mask_name}"));
+                f.mask = Some(mask_name);
                 f.overlay = overlay;
             }
         }

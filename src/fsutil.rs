@@ -44,44 +44,10 @@ fn temp_sibling(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
-/// Prepares `dir` as an output folder: creates it, refuses a non-empty one unless `force`, and
-/// checks that it is writable before any work starts.
-pub fn prepare_output_dir(dir: &Path, force: bool) -> Result<()> {
-    if dir.exists() && !dir.is_dir() {
-        return Err(Error::Output {
-            path: dir.to_path_buf(),
-            msg: "exists and is not a folder".into(),
-        });
-    }
-    fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let non_empty = fs::read_dir(dir)
-        .map_err(|e| Error::io(dir, e))?
-        .next()
-        .is_some();
-    if non_empty && !force {
-        return Err(Error::Output {
-            path: dir.to_path_buf(),
-            msg: "output folder is not empty; pass --force to overwrite its results".into(),
-        });
-    }
-    let probe = dir.join(format!(".keyframer-write-test-{}", std::process::id()));
-    fs::write(&probe, b"ok").map_err(|e| Error::Output {
-        path: dir.to_path_buf(),
-        msg: format!("output folder is not writable: {e}"),
-    })?;
-    let _ = fs::remove_file(&probe);
-    Ok(())
-}
-
-/// Refuses to replace an existing file unless `force`.
+/// Refuses to replace an existing file unless `force`, and anything that is not a regular file
+/// (the output rule of [`crate::output::check_file`], without inputs to compare).
 pub fn check_overwrite(path: &Path, force: bool) -> Result<()> {
-    if path.exists() && !force {
-        return Err(Error::Output {
-            path: path.to_path_buf(),
-            msg: "exists; pass --force to overwrite it".into(),
-        });
-    }
-    Ok(())
+    crate::output::check_file(path, "output", force, &[])
 }
 
 /// `target` expressed relative to the folder `base`, when both are absolute paths on the same root;

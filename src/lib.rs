@@ -15,6 +15,7 @@ pub mod flo;
 pub mod fsutil;
 pub mod gpu;
 pub mod info;
+pub mod output;
 pub mod kernels;
 pub mod preview;
 pub mod progress;

@@ -239,7 +239,7 @@ fn run(cli: Cli) -> Result<Outcome> {
         }
         Command::Workflow(keyframer::cli::WorkflowCommand::Save(a)) => {
             let text = keyframer::workflow::from_project(&a.project, &a.export)?;
-            keyframer::fsutil::check_overwrite(&a.output, a.force)?;
+            keyframer::output::check_file(&a.output, "-o", a.force, &[&a.project])?;
             keyframer::fsutil::write_atomic(&a.output, text.as_bytes())?;
             // What was written must load again.
             keyframer::workflow::Workflow::load(&a.output)?;
@@ -313,9 +313,13 @@ fn segment(a: &keyframer::cli::SegmentArgs) -> Result<Outcome> {
     use opencv::imgcodecs;
     use opencv::prelude::*;
     let settings = a.settings();
-    fsutil::check_overwrite(&a.output, a.force)?;
+    let inputs: Vec<&std::path::Path> = vec![&a.image, &a.model];
+    keyframer::output::check_file(&a.output, "-o", a.force, &inputs)?;
     if let Some(o) = &a.overlay {
-        fsutil::check_overwrite(o, a.force)?;
+        keyframer::output::check_file(o, "--overlay", a.force, &inputs)?;
+        if keyframer::output::resolve(o) == keyframer::output::resolve(&a.output) {
+            return Err(Error::param("--overlay", "must differ from -o").into());
+        }
     }
     let mut seg = Segmenter::new(&settings)?;
     let image = imgcodecs::imread(&a.image, imgcodecs::IMREAD_COLOR)
@@ -464,7 +468,13 @@ fn score(a: &keyframer::cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
 fn flow(a: &keyframer::cli::FlowArgs) -> Result<Outcome> {
     use keyframer::kernels::{farneback, movement};
     let params = a.farneback.params()?;
-    keyframer::fsutil::check_overwrite(&a.output, a.force)?;
+    {
+        let mut inputs: Vec<&std::path::Path> = vec![&a.a, &a.b];
+        if let Some(i) = &a.initial {
+            inputs.push(i);
+        }
+        keyframer::output::check_file(&a.output, "-o", a.force, &inputs)?;
+    }
     let read = |p: &std::path::Path| -> Result<opencv::core::Mat> {
         use opencv::prelude::*;
         if !p.is_file() {

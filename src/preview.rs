@@ -5,7 +5,6 @@
 //! is marked `preview`, holds no scores, and is never reused as a cache.
 
 use crate::error::{Error, Result};
-use crate::fsutil;
 use crate::project::{Cache, Step};
 use crate::samplers::{Bound, Boundaries};
 use crate::select::{self, SelectReport, SelectSettings};
@@ -55,7 +54,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
             "--preview needs a video (images have no codec keyframes)",
         ));
     }
-    fsutil::check_overwrite(&s.output, s.force)?;
+    select::check_outputs(s)?;
     if let Ok(old) = crate::project::Project::load(&s.output) {
         if !old.preview && !old.cache.sharpness.is_empty() {
             log::warn!(

@@ -198,6 +198,13 @@ pub fn identify(input: &Path) -> Result<(SourceKind, Fingerprint)> {
     Ok((kind, fsutil::fingerprint_file(input)?))
 }
 
+/// The output rule for `select`: the project file and its checkpoint are regular files (or
+/// missing), not the input nor inside it; an existing project needs `--force`.
+pub(crate) fn check_outputs(s: &SelectSettings) -> Result<()> {
+    crate::output::check_file(&s.output, "-o", s.force, &[&s.input])?;
+    crate::output::check_file(&checkpoint_path(&s.output), "-o", true, &[&s.input])
+}
+
 /// The checkpoint file of a running analysis for the project `output`: `output` + `.partial`.
 pub fn checkpoint_path(output: &Path) -> PathBuf {
     let mut name = output.file_name().unwrap_or_default().to_os_string();
@@ -219,7 +226,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
     )?;
     report.project.save(&s.output, true)?;
     let checkpoint = checkpoint_path(&s.output);
-    if checkpoint.exists() {
+    if checkpoint.is_file() {
         if let Err(e) = std::fs::remove_file(&checkpoint) {
             log::warn!(
                 "{}: could not remove the checkpoint: {e}",
@@ -254,7 +261,7 @@ pub(crate) fn manual_step(
 pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectReport> {
     let full = open.keyframes.is_none();
     let (kind, fingerprint) = identify(&s.input)?;
-    fsutil::check_overwrite(&s.output, s.force)?;
+    check_outputs(s)?;
     let project_dir = fsutil::absolute(&s.output)
         .parent()
         .map(Path::to_path_buf)

@@ -698,6 +698,19 @@ fn select_flags(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<(Vec<Strin
     Ok((a, o))
 }
 
+/// Names `keyframer run` uses in each input's folder, which an export may not take.
+pub const RESERVED_NAMES: [&str; 9] = [
+    "project.json",
+    "project.json.partial",
+    crate::batch::DONE,
+    crate::batch::MARKER,
+    crate::export::MANIFEST,
+    crate::export::IMAGE_DIR,
+    crate::export::MASK_DIR,
+    crate::export::OVERLAY_DIR,
+    "colmap",
+];
+
 fn valid_name(n: &str) -> bool {
     !n.is_empty()
         && n != "."
@@ -769,8 +782,15 @@ fn export_flags(
             format!("`{}` is used by an earlier export", e.name),
         ));
     }
-    if e.name == "project.json" {
-        return Err(file.error(&at("name"), "reserved name"));
+    if RESERVED_NAMES.contains(&e.name.as_str()) || e.name.starts_with('.') {
+        return Err(file.error(
+            &at("name"),
+            format!(
+                "`{}` is reserved: `keyframer run` keeps its own files under these names in each input's folder ({}, or any name starting with `.`)",
+                e.name,
+                RESERVED_NAMES.join(", ")
+            ),
+        ));
     }
     let mut a = Vec::new();
     let mut opt = |flag: &str, v: Option<String>| {

@@ -219,6 +219,10 @@ pub struct Record {
     /// Why the run stopped early, when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// Every file keyframer and COLMAP wrote in the workspace, relative to it: what a `--force`
+    /// re-run may replace or remove (and nothing else).
+    #[serde(default)]
+    pub files: Vec<String>,
 }
 
 /// Reads a workspace's `colmap.json`.
@@ -234,7 +238,8 @@ pub fn read_record(workspace: &Path) -> Result<Record> {
     })
 }
 
-/// Reads an export folder's manifest, with a clear error when it is not an export.
+/// Reads an export folder's manifest, with a clear error when it is not an export; every name
+/// in it is checked to be a plain file name.
 pub fn read_manifest(export: &Path) -> Result<Manifest> {
     let p = export.join(MANIFEST);
     if !p.is_file() {
@@ -243,14 +248,7 @@ pub fn read_manifest(export: &Path) -> Result<Manifest> {
             "no manifest.json: not an export folder made by `keyframer export`",
         ));
     }
-    let text = std::fs::read_to_string(&p).map_err(|e| Error::io(&p, e))?;
-    serde_json::from_str(&text).map_err(|e| Error::File {
-        path: p.clone(),
-        line: Some(e.line()),
-        what: "export manifest",
-        field: String::new(),
-        msg: e.to_string(),
-    })
+    Manifest::load(&p)
 }
 
 /// Runs `keyframer colmap`; returns the record as written.
@@ -276,7 +274,15 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
         return Err(Error::input(&export, "the export holds no images"));
     }
     let ws = fsutil::absolute(&a.output.clone().unwrap_or_else(|| export.join("colmap")));
-    if export.starts_with(&ws) {
+    let export_images = export.join(crate::export::IMAGE_DIR);
+    let export_masks = export.join(crate::export::MASK_DIR);
+    let manifest_path = export.join(MANIFEST);
+    crate::output::check_not_input(
+        &ws,
+        "-o",
+        &[&export_images, &export_masks, &manifest_path],
+    )?;
+    if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
         return Err(Error::param(
             "--output",
             format!(
@@ -286,21 +292,40 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
             ),
         ));
     }
-    prepare_workspace(&ws, a.force)?;
+    for f in &manifest.frames {
+        let from = crate::export::image_path(&export, f);
+        if !from.is_file() {
+            return Err(Error::input(
+                &from,
+                "listed in the export's manifest but missing",
+            ));
+        }
+    }
+    let dir = prepare_workspace(&ws, a.force)?;
     let images = ws.join("images");
     let masks_dir = ws.join("masks");
-    std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
-    std::fs::create_dir_all(ws.join("logs")).map_err(|e| Error::io(ws.join("logs"), e))?;
     let mut masks = 0;
-    for f in &manifest.frames {
-        link_or_copy(&export.join(&f.file), &images.join(&f.file))?;
-        if let Some(m) = &f.mask {
-            if masks == 0 {
-                std::fs::create_dir_all(&masks_dir).map_err(|e| Error::io(&masks_dir, e))?;
+    let linked = (|| -> Result<()> {
+        std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
+        std::fs::create_dir_all(ws.join("logs")).map_err(|e| Error::io(ws.join("logs"), e))?;
+        for f in &manifest.frames {
+            link_or_copy(&crate::export::image_path(&export, f), &images.join(&f.file))?;
+            if let Some(m) = &f.mask {
+                if masks == 0 {
+                    std::fs::create_dir_all(&masks_dir).map_err(|e| Error::io(&masks_dir, e))?;
+                }
+                link_or_copy(&export_masks.join(m), &masks_dir.join(format!("{}.png", f.file)))?;
+                masks += 1;
             }
-            link_or_copy(&export.join(m), &masks_dir.join(format!("{}.png", f.file)))?;
-            masks += 1;
         }
+        Ok(())
+    })();
+    if let Err(e) = linked {
+        remove_ours(&ws, &ours_now(&ws));
+        if dir.is_new() {
+            dir.abandon();
+        }
+        return Err(e);
     }
     let has_masks = masks > 0;
     let mut rec = Record {
@@ -319,6 +344,7 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
         stages: Vec::new(),
         models: Vec::new(),
         error: None,
+        files: Vec::new(),
     };
     let runner = Runner {
         colmap: &colmap,
@@ -455,6 +481,7 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
     if let Err(e) = &result {
         rec.error = Some(e.to_string());
     }
+    rec.files = ours_now(&ws);
     write_record(&ws, &rec)?;
     result.map(|()| rec)
 }
@@ -505,40 +532,108 @@ fn write_record(ws: &Path, rec: &Record) -> Result<()> {
     fsutil::write_atomic(&ws.join(RECORD), text.as_bytes())
 }
 
-/// Refuses an existing non-empty workspace unless `force`; with `force` removes what keyframer
-/// made there (and nothing else).
-fn prepare_workspace(ws: &Path, force: bool) -> Result<()> {
-    if ws.exists() && !ws.is_dir() {
+/// Prepares the workspace through the one output rule (a folder without `colmap.json` is not
+/// keyframer's and is refused; `--force` is needed to replace a keyframer workspace). With
+/// `force`, removes exactly the files `colmap.json` lists; any other file inside the places
+/// keyframer and COLMAP write (`images/ masks/ sparse/ dense/ logs/ database.db project.ini`) is a
+/// user's and stops the run before anything is removed.
+fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
+    let dir = crate::output::prepare_dir(ws, "-o", force, RECORD, &[])?;
+    if dir.is_new() || !ws.join(RECORD).is_file() {
+        return Ok(dir);
+    }
+    let record = read_record(ws).map_err(|e| Error::Output {
+        path: ws.to_path_buf(),
+        msg: format!(
+            "{e}; keyframer cannot tell what it wrote in this workspace, so it replaces nothing: choose a new -o"
+        ),
+    })?;
+    let rec_path = ws.join(RECORD);
+    let mut listed = Vec::new();
+    for (i, f) in record.files.iter().enumerate() {
+        listed.push(crate::output::inside(f, &format!("files[{i}]"), &rec_path)?);
+    }
+    let present = ours_now(ws);
+    let foreign: Vec<&String> = present
+        .iter()
+        .filter(|f| !listed.iter().any(|l| l == Path::new(f)))
+        .collect();
+    if let Some(first) = foreign.first() {
         return Err(Error::Output {
-            path: ws.to_path_buf(),
-            msg: "exists and is not a folder".into(),
+            path: ws.join(first),
+            msg: format!(
+                "was not written by keyframer ({RECORD} does not list it{}); keyframer never replaces files it did not write: move it away",
+                if foreign.len() > 1 {
+                    format!(", nor {} other files", foreign.len() - 1)
+                } else {
+                    String::new()
+                }
+            ),
         });
     }
-    let non_empty = ws.is_dir()
-        && std::fs::read_dir(ws)
-            .map_err(|e| Error::io(ws, e))?
-            .next()
-            .is_some();
-    if non_empty && !force {
-        return Err(Error::Output {
-            path: ws.to_path_buf(),
-            msg: "COLMAP workspace exists; pass --force to replace it".into(),
-        });
-    }
-    if non_empty {
-        for name in OURS {
-            let p = ws.join(name);
-            let r = if p.is_dir() {
-                std::fs::remove_dir_all(&p)
-            } else if p.exists() {
-                std::fs::remove_file(&p)
-            } else {
-                Ok(())
-            };
-            r.map_err(|e| Error::io(&p, e))?;
+    remove_ours(ws, &present);
+    Ok(dir)
+}
+
+/// Every regular file (and link) now inside the places keyframer and COLMAP write in `ws`,
+/// relative to `ws`, sorted.
+fn ours_now(ws: &Path) -> Vec<String> {
+    fn walk(dir: &Path, rel: &Path, out: &mut Vec<String>) {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let r = rel.join(e.file_name());
+            match e.file_type() {
+                Ok(t) if t.is_dir() => walk(&e.path(), &r, out),
+                Ok(_) => out.push(r.to_string_lossy().into_owned()),
+                Err(_) => {}
+            }
         }
     }
-    std::fs::create_dir_all(ws).map_err(|e| Error::io(ws, e))
+    let mut out = Vec::new();
+    for name in OURS {
+        if name == RECORD {
+            continue;
+        }
+        let p = ws.join(name);
+        match std::fs::symlink_metadata(&p) {
+            Ok(m) if m.is_dir() => walk(&p, Path::new(name), &mut out),
+            Ok(_) => out.push(name.to_string()),
+            Err(_) => {}
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Removes the listed files (regular files and links only) and then the folders of `OURS` that
+/// are left empty.
+fn remove_ours(ws: &Path, files: &[String]) {
+    for f in files {
+        let p = ws.join(f);
+        if crate::output::check_replaceable(&p).is_ok() || p.is_symlink() {
+            if let Err(e) = std::fs::remove_file(&p) {
+                log::warn!("{}: cannot remove: {e}", p.display());
+            }
+        }
+    }
+    fn prune(dir: &Path) {
+        if let Ok(entries) = std::fs::read_dir(dir) {
+            for e in entries.flatten() {
+                if e.file_type().is_ok_and(|t| t.is_dir()) {
+                    prune(&e.path());
+                }
+            }
+        }
+        let _ = std::fs::remove_dir(dir);
+    }
+    for name in OURS {
+        let p = ws.join(name);
+        if p.is_dir() && !p.is_symlink() {
+            prune(&p);
+        }
+    }
 }
 
 /// Hard-links `from` to `to`, copying (atomically) when a link is impossible (other file system).
@@ -549,6 +644,7 @@ fn link_or_copy(from: &Path, to: &Path) -> Result<()> {
             "listed in the export's manifest but missing",
         ));
     }
+    crate::output::check_replaceable(to)?;
     if std::fs::hard_link(from, to).is_ok() {
         return Ok(());
     }

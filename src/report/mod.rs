@@ -67,14 +67,28 @@ pub fn write_report(
         .timeline
         .clone()
         .unwrap_or_else(|| default_timeline_path(&settings.output));
-    if fsutil::absolute(&png_path) == fsutil::absolute(&settings.output) {
+    if crate::output::resolve(&png_path) == crate::output::resolve(&settings.output) {
         return Err(Error::param(
             "--timeline",
             "must differ from the HTML output",
         ));
     }
-    fsutil::check_overwrite(&settings.output, settings.force)?;
-    fsutil::check_overwrite(&png_path, settings.force)?;
+    // The export is read: its manifest and images are inputs (a report beside them is fine).
+    let export_parts: Vec<std::path::PathBuf> = settings
+        .export
+        .iter()
+        .flat_map(|e| {
+            [
+                e.join(crate::export::MANIFEST),
+                e.join(crate::export::IMAGE_DIR),
+                e.join(crate::export::MASK_DIR),
+            ]
+        })
+        .collect();
+    let mut inputs: Vec<&Path> = vec![project_path];
+    inputs.extend(export_parts.iter().map(|p| p.as_path()));
+    crate::output::check_file(&settings.output, "-o", settings.force, &inputs)?;
+    crate::output::check_file(&png_path, "--timeline", settings.force, &inputs)?;
     let project = Project::load(project_path)?;
     let timeline = Timeline::from_project(&project);
     let mut missing = timeline.missing.clone();

@@ -85,8 +85,7 @@ pub fn from_input(input: &Path, frames: &[usize]) -> Result<(Vec<Thumb>, Vec<usi
 /// frames the export does not hold are returned as the second value.
 pub fn from_export(dir: &Path, frames: &[usize]) -> Result<(Vec<Thumb>, Vec<usize>)> {
     let mpath = dir.join(export::MANIFEST);
-    let manifest = export::read_manifest(&mpath)
-        .ok_or_else(|| Error::input(&mpath, "no readable export manifest"))?;
+    let manifest = export::Manifest::load(&mpath)?;
     let mut thumbs = Vec::new();
     let mut missing = Vec::new();
     for &f in frames {
@@ -94,7 +93,7 @@ pub fn from_export(dir: &Path, frames: &[usize]) -> Result<(Vec<Thumb>, Vec<usiz
             missing.push(f);
             continue;
         };
-        let path = dir.join(&e.file);
+        let path = export::image_path(dir, e);
         let name = path.to_string_lossy().into_owned();
         let image = opencv::imgcodecs::imread(&name, opencv::imgcodecs::IMREAD_COLOR)
             .cv(|| format!("reading {name}"))?;

@@ -292,7 +292,25 @@ pub fn tum_line(t: f64, p: &Pose) -> String {
 /// Generates the sequence described by `s`.
 pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
     let seconds = validate(s)?;
-    crate::fsutil::prepare_output_dir(&s.out, s.force)?;
+    let dir = crate::output::prepare_dir(&s.out, "OUT", s.force, "scene.json", &[&s.textures])?;
+    let r = (|| {
+        for name in ["video.mp4", "poses.tum", "scene.json"] {
+            crate::output::check_replaceable(&s.out.join(name))?;
+        }
+        render_scene(s, seconds)
+    })();
+    if r.is_err() && dir.is_new() {
+        // A folder this run made is removed again with what it holds (only our three files).
+        for name in ["video.mp4", "poses.tum", "scene.json"] {
+            let _ = std::fs::remove_file(s.out.join(name));
+        }
+        dir.abandon();
+    }
+    r
+}
+
+/// Renders the sequence into the prepared folder `s.out`.
+fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let frames = (seconds * s.fps).round() as usize;
     let terrain = Terrain::new(s.seed);
     let flight = Flight::new(s.preset, seconds, s.seed, &|x, y| terrain.height(x, y));

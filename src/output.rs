@@ -1,0 +1,383 @@
+//! The one output-safety rule every writing command goes through. Guarantees: an output is never
+//! an input, nor inside or around one; only regular files (or missing paths) are ever replaced,
+//! never a device, FIFO, socket, symbolic link or folder; names read from files are plain file
+//! names; a folder output is replaced only where keyframer's own record (manifest.json,
+//! colmap.json, scene.json, .keyframer-run) lists what it wrote, a folder without that record is
+//! refused; keyframer's own stale temporaries (of processes that are gone) are cleared; a folder
+//! created by a command that then fails is removed again.
+
+use crate::error::{Error, Result};
+use std::ffi::OsStr;
+use std::fs;
+use std::path::{Component, Path, PathBuf};
+
+/// Marker inside the names of keyframer's temporaries: `.<name>.tmp-<pid>`,
+/// `.keyframer-staging-<pid>`, `.keyframer-write-test-<pid>`.
+const TEMP_PREFIXES: [&str; 2] = [".keyframer-staging-", ".keyframer-write-test-"];
+
+/// Refuses a name read from a file (manifest entry, image file name, workflow export name) that is
+/// not a plain file name: empty, `.`/`..`, containing a path separator or NUL, or absolute.
+/// `what` says where the name came from (`manifest.json frames[3].file`).
+pub fn plain_name(name: &str, what: &str, file: &Path) -> Result<()> {
+    let bad = name.is_empty()
+        || name == "."
+        || name == ".."
+        || name.contains('/')
+        || name.contains('\\')
+        || name.contains('\0');
+    if bad {
+        return Err(Error::File {
+            path: file.to_path_buf(),
+            line: None,
+            what: "name",
+            field: what.to_string(),
+            msg: format!(
+                "`{}` is not a plain file name (no folders, no `..`); keyframer writes only inside its output",
+                name.escape_debug()
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// `path` made absolute with symbolic links of its existing part resolved: the longest existing
+/// ancestor is canonicalised and the rest appended lexically.
+pub fn resolve(path: &Path) -> PathBuf {
+    let abs = crate::fsutil::absolute(path);
+    let mut existing = abs.clone();
+    let mut rest: Vec<std::ffi::OsString> = Vec::new();
+    loop {
+        if let Ok(c) = fs::canonicalize(&existing) {
+            let mut out = c;
+            for r in rest.iter().rev() {
+                out.push(r);
+            }
+            return out;
+        }
+        match (existing.file_name(), existing.parent()) {
+            (Some(n), Some(p)) => {
+                rest.push(n.to_os_string());
+                existing = p.to_path_buf();
+            }
+            _ => return abs,
+        }
+    }
+}
+
+/// Refuses an output that is an input, lies inside an input folder or contains an input.
+/// `flag` names the output (`-o`, `--out`).
+pub fn check_not_input(out: &Path, flag: &str, inputs: &[&Path]) -> Result<()> {
+    let o = resolve(out);
+    for input in inputs {
+        let i = resolve(input);
+        let how = if o == i {
+            "is the input"
+        } else if o.starts_with(&i) {
+            "lies inside the input"
+        } else if i.starts_with(&o) {
+            "contains the input"
+        } else {
+            continue;
+        };
+        return Err(Error::Output {
+            path: out.to_path_buf(),
+            msg: format!(
+                "the output ({flag}) {how} {}; keyframer never writes into its inputs: choose another {flag}",
+                input.display()
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// What exists at `path`, without following a symbolic link.
+fn kind_of(path: &Path) -> Option<&'static str> {
+    let m = fs::symlink_metadata(path).ok()?;
+    let t = m.file_type();
+    Some(if t.is_file() {
+        "file"
+    } else if t.is_dir() {
+        "folder"
+    } else if t.is_symlink() {
+        "symbolic link"
+    } else {
+        "device, FIFO or socket"
+    })
+}
+
+/// Checks a single-file output named by the user (`select -o`, `flow -o`, `report`, ...): not an
+/// input, a regular file or a missing path, replaced only with `force`. Clears this name's stale
+/// temporaries of earlier, killed runs.
+pub fn check_file(path: &Path, flag: &str, force: bool, inputs: &[&Path]) -> Result<()> {
+    check_not_input(path, flag, inputs)?;
+    match kind_of(path) {
+        None => {}
+        Some("file") => {
+            if !force {
+                return Err(Error::Output {
+                    path: path.to_path_buf(),
+                    msg: "exists; pass --force to overwrite it".into(),
+                });
+            }
+        }
+        Some(kind) => {
+            return Err(Error::Output {
+                path: path.to_path_buf(),
+                msg: format!(
+                    "is a {kind}, not a regular file; keyframer replaces only regular files: choose another {flag}"
+                ),
+            })
+        }
+    }
+    if let (Some(dir), Some(name)) = (path.parent(), path.file_name()) {
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        clear_stale_temps_of(dir, Some(name));
+    }
+    Ok(())
+}
+
+/// Refuses to replace `path` unless it is a regular file or missing (for files inside an output
+/// folder that keyframer is about to write).
+pub fn check_replaceable(path: &Path) -> Result<()> {
+    match kind_of(path) {
+        None | Some("file") => Ok(()),
+        Some(kind) => Err(Error::Output {
+            path: path.to_path_buf(),
+            msg: format!("is a {kind}; keyframer replaces only regular files it wrote"),
+        }),
+    }
+}
+
+/// Whether process `pid` is alive (Linux: `/proc/PID` exists).
+fn pid_alive(pid: u32) -> bool {
+    pid == std::process::id() || Path::new("/proc").join(pid.to_string()).exists()
+}
+
+/// The pid a keyframer temporary's name ends with, if `name` is one (of `of`, when given).
+fn temp_pid(name: &str, of: Option<&OsStr>) -> Option<u32> {
+    let digits = |s: &str| s.parse::<u32>().ok().filter(|_| !s.is_empty());
+    if let Some(rest) = name.strip_prefix('.') {
+        if let Some((base, pid)) = rest.rsplit_once(".tmp-") {
+            let same = of.is_none_or(|o| o.to_str() == Some(base));
+            if same {
+                return digits(pid);
+            }
+        }
+    }
+    if of.is_none() {
+        for p in TEMP_PREFIXES {
+            if let Some(pid) = name.strip_prefix(p) {
+                return digits(pid);
+            }
+        }
+    }
+    None
+}
+
+/// Removes keyframer's temporaries in `dir` left by processes that are gone (all of them, or
+/// those of the file `of`). Returns how many were removed.
+pub fn clear_stale_temps_of(dir: &Path, of: Option<&OsStr>) -> usize {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut n = 0;
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(pid) = name.to_str().and_then(|s| temp_pid(s, of)) else {
+            continue;
+        };
+        if pid_alive(pid) {
+            continue;
+        }
+        let p = e.path();
+        let r = match e.file_type() {
+            Ok(t) if t.is_dir() => fs::remove_dir_all(&p),
+            Ok(t) if t.is_file() => fs::remove_file(&p),
+            _ => continue,
+        };
+        match r {
+            Ok(()) => {
+                log::info!("removed a stale temporary of an earlier run: {}", p.display());
+                n += 1;
+            }
+            Err(e) => log::warn!("{}: cannot remove a stale temporary: {e}", p.display()),
+        }
+    }
+    n
+}
+
+/// A folder output being written; created by this command when `created` is not empty (the
+/// folders made, outermost first), which [`OutDir::abandon`] removes again when still empty.
+#[derive(Debug)]
+pub struct OutDir {
+    /// The folder.
+    pub path: PathBuf,
+    created: Vec<PathBuf>,
+}
+
+impl OutDir {
+    /// Whether this command created the folder.
+    pub fn is_new(&self) -> bool {
+        !self.created.is_empty()
+    }
+
+    /// After a failure: removes the folders this command created, when nothing else is in them.
+    pub fn abandon(&self) {
+        for d in self.created.iter().rev() {
+            clear_stale_temps_of(d, None);
+            let _ = fs::remove_dir(d);
+        }
+    }
+}
+
+/// Prepares a folder output named by the user (`export --out`, `colmap -o`, `scene`): refuses an
+/// input, a non-folder and a folder keyframer did not make (non-empty without `record` inside);
+/// a non-empty folder of keyframer's needs `force`. Clears stale temporaries, creates the folder
+/// when missing and checks that it is writable, leaving nothing behind.
+pub fn prepare_dir(
+    dir: &Path,
+    flag: &str,
+    force: bool,
+    record: &str,
+    inputs: &[&Path],
+) -> Result<OutDir> {
+    check_not_input(dir, flag, inputs)?;
+    let mut created = Vec::new();
+    match kind_of(dir) {
+        Some("folder") => {}
+        Some("symbolic link") if dir.is_dir() => {}
+        Some(kind) => {
+            return Err(Error::Output {
+                path: dir.to_path_buf(),
+                msg: format!("exists and is a {kind}, not a folder; choose another {flag}"),
+            })
+        }
+        None => {
+            // Remember every folder made, so a failure removes exactly those.
+            let mut missing = Vec::new();
+            let mut d = dir.to_path_buf();
+            while !d.as_os_str().is_empty() && fs::symlink_metadata(&d).is_err() {
+                missing.push(d.clone());
+                match d.parent() {
+                    Some(p) => d = p.to_path_buf(),
+                    None => break,
+                }
+            }
+            fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+            missing.reverse();
+            created = missing;
+        }
+    }
+    let out = OutDir {
+        path: dir.to_path_buf(),
+        created,
+    };
+    clear_stale_temps_of(dir, None);
+    let non_empty = fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .next()
+        .is_some();
+    if non_empty {
+        if !dir.join(record).is_file() {
+            return Err(Error::Output {
+                path: dir.to_path_buf(),
+                msg: format!(
+                    "is not empty and holds no {record}, so keyframer did not make it; keyframer replaces only its own results: choose a new or empty {flag}"
+                ),
+            });
+        }
+        if !force {
+            return Err(Error::Output {
+                path: dir.to_path_buf(),
+                msg: format!(
+                    "holds earlier results ({record}); pass --force to replace what keyframer wrote there"
+                ),
+            });
+        }
+    }
+    let probe = dir.join(format!(".keyframer-write-test-{}", std::process::id()));
+    let written = fs::write(&probe, b"ok");
+    let _ = fs::remove_file(&probe);
+    if let Err(e) = written {
+        out.abandon();
+        return Err(Error::Output {
+            path: dir.to_path_buf(),
+            msg: format!("output folder is not writable: {e}"),
+        });
+    }
+    Ok(out)
+}
+
+/// A path relative to an output folder, as read from keyframer's own record: relative, made of
+/// plain names only (so it stays inside the folder).
+pub fn inside(rel: &str, what: &str, file: &Path) -> Result<PathBuf> {
+    let p = Path::new(rel);
+    let plain = !rel.is_empty()
+        && p.components().all(|c| matches!(c, Component::Normal(_)))
+        && !rel.contains('\\')
+        && !rel.contains('\0');
+    if !plain {
+        return Err(Error::File {
+            path: file.to_path_buf(),
+            line: None,
+            what: "record",
+            field: what.to_string(),
+            msg: format!(
+                "`{}` is not a path inside the folder; keyframer reads and removes only inside its output",
+                rel.escape_debug()
+            ),
+        });
+    }
+    Ok(p.to_path_buf())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plain_names() {
+        let f = Path::new("m.json");
+        for ok in ["a.jpg", "frame_000001.png", "a b.JPG", ".hidden"] {
+            assert!(plain_name(ok, "x", f).is_ok(), "{ok}");
+        }
+        for bad in ["", ".", "..", "../x", "a/b", "/etc/x", "a\\b", "a\0b"] {
+            assert!(plain_name(bad, "x", f).is_err(), "{bad:?}");
+        }
+        assert!(inside("images/a.jpg", "x", f).is_ok());
+        for bad in ["../a", "/a", "a/../../b", "", "./a"] {
+            assert!(inside(bad, "x", f).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn temp_names() {
+        assert_eq!(temp_pid(".a.jpg.tmp-123", None), Some(123));
+        assert_eq!(temp_pid(".a.jpg.tmp-123", Some(OsStr::new("a.jpg"))), Some(123));
+        assert_eq!(temp_pid(".a.jpg.tmp-123", Some(OsStr::new("b.jpg"))), None);
+        assert_eq!(temp_pid(".keyframer-write-test-9", None), Some(9));
+        assert_eq!(temp_pid(".keyframer-staging-9", None), Some(9));
+        assert_eq!(temp_pid("a.jpg", None), None);
+        assert_eq!(temp_pid(".a.tmp-x", None), None);
+    }
+
+    #[test]
+    fn outputs_never_touch_inputs() {
+        let d = tempfile::tempdir().unwrap();
+        let input = d.path().join("in");
+        fs::create_dir_all(&input).unwrap();
+        let i: &Path = &input;
+        assert!(check_not_input(&input, "-o", &[i]).is_err());
+        assert!(check_not_input(&input.join("x"), "-o", &[i]).is_err());
+        assert!(check_not_input(d.path(), "-o", &[i]).is_err());
+        assert!(check_not_input(&d.path().join("out"), "-o", &[i]).is_ok());
+        // Through a symbolic link too.
+        let link = d.path().join("link");
+        std::os::unix::fs::symlink(&input, &link).unwrap();
+        assert!(check_not_input(&link.join("y"), "-o", &[i]).is_err());
+    }
+}
