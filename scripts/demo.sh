@@ -18,4 +18,4 @@ ffmpeg -loglevel error -f lavfi -i testsrc2=size=640x360:rate=30:duration=10 \
 "$kf" export "$out/sample.kf.json" --out "$out/keyframes" --resize 320x180
 echo
 echo "demo: project file:  $out/sample.kf.json"
-echo "demo: keyframes:     $out/keyframes/ ($(ls "$out/keyframes" | grep -c '\.jpg$') images, manifest.json)"
+echo "demo: keyframes:     $out/keyframes/images/ ($(ls "$out/keyframes/images" | grep -c '\.jpg$') images), $out/keyframes/manifest.json"

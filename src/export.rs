@@ -310,6 +310,9 @@ pub fn export(
         None => None,
     };
     let dir = crate::output::prepare_dir(out, "--out", force, MANIFEST, &inputs)?;
+    for sub in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
+        crate::output::clear_stale_temps_of(&out.join(sub), None);
+    }
     let result = (|| {
         let old = if dir.is_new() {
             None
@@ -587,7 +590,7 @@ fn write_staged(
             Ok(())
         })
         .and_then(|missing| {
-            if let Some(m) = masker.as_deref_mut() {
+            if let Some(m) = masker {
                 m.flush(&mut frames)?;
             }
             Ok(missing)

@@ -112,14 +112,13 @@ pub fn check_file(path: &Path, flag: &str, force: bool, inputs: &[&Path]) -> Res
     check_not_input(path, flag, inputs)?;
     match kind_of(path) {
         None => {}
-        Some("file") => {
-            if !force {
-                return Err(Error::Output {
-                    path: path.to_path_buf(),
-                    msg: "exists; pass --force to overwrite it".into(),
-                });
-            }
+        Some("file") if !force => {
+            return Err(Error::Output {
+                path: path.to_path_buf(),
+                msg: "exists; pass --force to overwrite it".into(),
+            });
         }
+        Some("file") => {}
         Some(kind) => {
             return Err(Error::Output {
                 path: path.to_path_buf(),
@@ -201,7 +200,10 @@ pub fn clear_stale_temps_of(dir: &Path, of: Option<&OsStr>) -> usize {
         };
         match r {
             Ok(()) => {
-                log::info!("removed a stale temporary of an earlier run: {}", p.display());
+                log::info!(
+                    "removed a stale temporary of an earlier run: {}",
+                    p.display()
+                );
                 n += 1;
             }
             Err(e) => log::warn!("{}: cannot remove a stale temporary: {e}", p.display()),
@@ -357,7 +359,10 @@ mod tests {
     #[test]
     fn temp_names() {
         assert_eq!(temp_pid(".a.jpg.tmp-123", None), Some(123));
-        assert_eq!(temp_pid(".a.jpg.tmp-123", Some(OsStr::new("a.jpg"))), Some(123));
+        assert_eq!(
+            temp_pid(".a.jpg.tmp-123", Some(OsStr::new("a.jpg"))),
+            Some(123)
+        );
         assert_eq!(temp_pid(".a.jpg.tmp-123", Some(OsStr::new("b.jpg"))), None);
         assert_eq!(temp_pid(".keyframer-write-test-9", None), Some(9));
         assert_eq!(temp_pid(".keyframer-staging-9", None), Some(9));

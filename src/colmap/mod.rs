@@ -277,11 +277,7 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
     let export_images = export.join(crate::export::IMAGE_DIR);
     let export_masks = export.join(crate::export::MASK_DIR);
     let manifest_path = export.join(MANIFEST);
-    crate::output::check_not_input(
-        &ws,
-        "-o",
-        &[&export_images, &export_masks, &manifest_path],
-    )?;
+    crate::output::check_not_input(&ws, "-o", &[&export_images, &export_masks, &manifest_path])?;
     if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
         return Err(Error::param(
             "--output",
@@ -309,12 +305,18 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
         std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
         std::fs::create_dir_all(ws.join("logs")).map_err(|e| Error::io(ws.join("logs"), e))?;
         for f in &manifest.frames {
-            link_or_copy(&crate::export::image_path(&export, f), &images.join(&f.file))?;
+            link_or_copy(
+                &crate::export::image_path(&export, f),
+                &images.join(&f.file),
+            )?;
             if let Some(m) = &f.mask {
                 if masks == 0 {
                     std::fs::create_dir_all(&masks_dir).map_err(|e| Error::io(&masks_dir, e))?;
                 }
-                link_or_copy(&export_masks.join(m), &masks_dir.join(format!("{}.png", f.file)))?;
+                link_or_copy(
+                    &export_masks.join(m),
+                    &masks_dir.join(format!("{}.png", f.file)),
+                )?;
                 masks += 1;
             }
         }

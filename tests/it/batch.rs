@@ -3,6 +3,7 @@
 //! single-node Slurm job array over shards.
 
 use crate::common::*;
+use keyframer::batch::folder_name;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -74,15 +75,14 @@ fn results(out: &Path, inputs: &[PathBuf]) -> Vec<(Vec<usize>, Files)> {
     inputs
         .iter()
         .map(|i| {
-            let folder = out.join(i.file_name().unwrap());
+            let folder = out.join(folder_name(i));
             let keys = keyframes(&folder.join("project.json"));
             let mut files = Vec::new();
             for export in ["full", "small"] {
-                for f in listing(&folder.join(export)) {
-                    if f != "manifest.json" {
-                        let bytes = std::fs::read(folder.join(export).join(&f)).unwrap();
-                        files.push((format!("{export}/{f}"), bytes));
-                    }
+                let images = folder.join(export).join("images");
+                for f in listing(&images) {
+                    let bytes = std::fs::read(images.join(&f)).unwrap();
+                    files.push((format!("{export}/{f}"), bytes));
                 }
             }
             (keys, files)
@@ -103,7 +103,7 @@ fn example_workflow_runs_headless_and_its_saved_form_selects_the_same() {
     assert_eq!(summary.as_array().unwrap().len(), 3);
     for (clip, r) in clips.iter().zip(summary.as_array().unwrap()) {
         assert_eq!(r["status"], "done", "{r}");
-        let folder = out.join(clip.file_name().unwrap());
+        let folder = out.join(folder_name(clip));
         let keys = keyframes(&folder.join("project.json"));
         assert!(keys.len() >= 2, "{}: {keys:?}", clip.display());
         for export in ["full", "small"] {
@@ -131,7 +131,7 @@ fn example_workflow_runs_headless_and_its_saved_form_selects_the_same() {
     }
 
     // Save the steps of the first project (with its exports), reload, run again: same keyframes.
-    let folder = out.join("a.mp4");
+    let folder = out.join(folder_name(&clips[0]));
     let saved = d.join("saved.toml");
     kf_ok(&[
         "workflow",
@@ -196,8 +196,9 @@ fn a_corrupt_input_fails_alone_and_a_killed_batch_resumes() {
         err.contains("FAILED") && err.contains("broken.mp4"),
         "{err}"
     );
-    assert!(out.join("a.mp4/done.json").exists() && out.join("b.mp4/done.json").exists());
-    assert!(!out.join("broken.mp4/done.json").exists());
+    let done = |out: &Path, input: &Path| out.join(folder_name(input)).join("done.json");
+    assert!(done(&out, &clips[0]).exists() && done(&out, &clips[1]).exists());
+    assert!(!done(&out, &bad).exists());
 
     // Clean run for reference.
     let clean = d.join("clean");
@@ -213,7 +214,7 @@ fn a_corrupt_input_fails_alone_and_a_killed_batch_resumes() {
         .args(["--out", s(&killed), "--quiet"])
         .spawn()
         .unwrap();
-    let first_done = killed.join("a.mp4/done.json");
+    let first_done = done(&killed, &clips[0]);
     let t = std::time::Instant::now();
     while !first_done.exists() {
         assert!(t.elapsed().as_secs() < 300, "first input never finished");
@@ -224,9 +225,9 @@ fn a_corrupt_input_fails_alone_and_a_killed_batch_resumes() {
     }
     child.kill().unwrap();
     child.wait().unwrap();
-    let unfinished = ["b.mp4", "c.mp4"]
+    let unfinished = clips[1..]
         .iter()
-        .filter(|n| !killed.join(n).join("done.json").exists())
+        .filter(|c| !done(&killed, c).exists())
         .count();
     assert!(unfinished >= 1, "the kill came too late to test resuming");
     let (code, stdout, err) = run(&wf, &clips, &killed, &[]);
@@ -415,8 +416,8 @@ fn slurm_job_array_processes_every_input_exactly_once() {
     expected.sort();
     assert_eq!(processed, expected, "every input exactly once");
     for i in &inputs {
-        let folder = out.join(i.file_name().unwrap());
+        let folder = out.join(folder_name(i));
         assert!(folder.join("done.json").exists(), "{}", folder.display());
-        assert_eq!(listing(&folder.join("img")).len(), 4, "3 images + manifest");
+        assert_eq!(listing(&folder.join("img/images")).len(), 3, "3 images");
     }
 }

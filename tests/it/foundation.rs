@@ -67,15 +67,14 @@ fn select_fps_every_and_boundaries_then_export() {
     // Export at 320x180: exactly those frames, that size, listed in the manifest.
     let out = d.path().join("out");
     kf_ok(&["export", s(&p1), "--out", s(&out), "--resize", "320x180"]);
-    let mut expected: Vec<String> = (0..10)
+    let expected: Vec<String> = (0..10)
         .map(|k| format!("frame_{:06}.jpg", k * 30))
         .collect();
-    expected.push("manifest.json".into());
-    expected.sort();
-    assert_eq!(listing(&out), expected);
-    for f in expected.iter().filter(|f| f.ends_with(".jpg")) {
+    assert_eq!(listing(&out), vec!["images", "manifest.json"]);
+    assert_eq!(listing(&out.join("images")), expected);
+    for f in &expected {
         assert_eq!(
-            image::image_dimensions(out.join(f)).unwrap(),
+            image::image_dimensions(out.join("images").join(f)).unwrap(),
             (320, 180),
             "{f}"
         );
@@ -99,8 +98,8 @@ fn select_fps_every_and_boundaries_then_export() {
     assert_eq!(std::fs::read(out.join("manifest.json")).unwrap(), before);
     // With --force the earlier export's images are replaced, not mixed in.
     kf_ok(&["export", s(&p2), "--out", s(&out), "--force"]);
-    let names = listing(&out);
-    assert_eq!(names.len(), 7, "{names:?}");
+    let names = listing(&out.join("images"));
+    assert_eq!(names.len(), 6, "{names:?}");
     assert!(names.contains(&"frame_000055.jpg".to_string()));
 }
 
@@ -127,7 +126,7 @@ fn exported_frames_are_the_selected_ones() {
             ]);
             image::open(&f).unwrap().to_rgb8()
         };
-        let ours = image::open(out.join(format!("frame_{idx:06}.png")))
+        let ours = image::open(out.join(format!("images/frame_{idx:06}.png")))
             .unwrap()
             .to_rgb8();
         let mad = |a: &image::RgbImage, b: &image::RgbImage| {
@@ -305,7 +304,7 @@ fn image_folder_natural_order_and_byte_copy() {
     );
     for f in &files {
         assert_eq!(
-            std::fs::read(out.join(f)).unwrap(),
+            std::fs::read(out.join("images").join(f)).unwrap(),
             std::fs::read(dir.join(f)).unwrap(),
             "{f} copied byte for byte"
         );
@@ -314,7 +313,7 @@ fn image_folder_natural_order_and_byte_copy() {
     let out2 = d.path().join("out2");
     kf_ok(&["export", s(&p), "--out", s(&out2), "--scale", "0.5"]);
     assert_eq!(
-        image::image_dimensions(out2.join("img10.png")).unwrap(),
+        image::image_dimensions(out2.join("images/img10.png")).unwrap(),
         (20, 15)
     );
 }
@@ -339,7 +338,7 @@ fn crop_then_resize() {
         "png",
     ]);
     assert_eq!(
-        image::image_dimensions(out.join("frame_000005.png")).unwrap(),
+        image::image_dimensions(out.join("images/frame_000005.png")).unwrap(),
         (100, 50)
     );
 }
@@ -574,7 +573,7 @@ fn damaged_megamind_stream() {
     assert_eq!(proj["metadata"]["frame_count"].as_u64().unwrap(), counted);
     let out = d.path().join("out");
     kf_ok(&["export", s(&p), "--out", s(&out), "--scale", "0.5"]);
-    assert_eq!(listing(&out).len(), keyframes(&p).len() + 1);
+    assert_eq!(listing(&out.join("images")).len(), keyframes(&p).len());
 }
 
 #[test]
@@ -617,7 +616,7 @@ fn rotation_metadata_is_applied() {
     let out = d.path().join("out");
     kf_ok(&["export", s(&p), "--out", s(&out)]);
     assert_eq!(
-        image::image_dimensions(out.join("frame_000010.jpg")).unwrap(),
+        image::image_dimensions(out.join("images/frame_000010.jpg")).unwrap(),
         (180, 320)
     );
 }
@@ -644,8 +643,8 @@ fn missing_adapter_falls_back_to_opencv() {
     assert_eq!(v["scores"].as_array().unwrap().len(), 30);
 }
 
-/// A full disk: a clear error naming the file, only whole images left, no temporary files, no
-/// manifest. Needs a 256 KiB tmpfs (root); skipped with a message where mounting is not allowed.
+/// A full disk: a clear error naming the file, and the disk as it was: the output folder the
+/// export made is gone again, no temporary or write-test file stays. Needs a 256 KiB tmpfs (root); skipped with a message where mounting is not allowed.
 #[test]
 fn full_disk_fails_cleanly() {
     struct Mount(std::path::PathBuf);
@@ -675,7 +674,9 @@ fn full_disk_fails_cleanly() {
     let (code, err) = code_and_stderr(&kf(&["export", s(&p), "--out", s(&out), "--format", "png"]));
     assert_eq!(code, 1, "{err}");
     assert!(
-        err.contains("No space left") && err.contains(".png") && err.contains("no manifest"),
+        err.contains("No space left")
+            && err.contains(".png")
+            && err.contains("nothing was written"),
         "{err}"
     );
     assert_eq!(
@@ -683,14 +684,12 @@ fn full_disk_fails_cleanly() {
         1,
         "one clear line: {err}"
     );
-    let names = listing(&out);
-    assert!(
-        !names
-            .iter()
-            .any(|n| n.starts_with('.') || n == "manifest.json"),
-        "{names:?}"
-    );
-    for n in &names {
-        image::open(out.join(n)).unwrap_or_else(|e| panic!("{n} is not a whole image: {e}"));
-    }
+    assert!(!out.exists(), "{:?}", listing(&out));
+    assert!(listing(&small).is_empty(), "{:?}", listing(&small));
+    // A smaller export then fits, and leaves no temporary behind either.
+    kf_ok(&["export", s(&p), "--out", s(&out), "--resize", "64x36"]);
+    assert_eq!(listing(&out), vec!["images", "manifest.json"]);
+    assert!(listing(&out.join("images"))
+        .iter()
+        .all(|n| !n.starts_with('.')));
 }

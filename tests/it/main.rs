@@ -12,6 +12,7 @@ mod onnx_model;
 mod pipeline;
 mod preview;
 mod report;
+mod safety;
 mod scene;
 mod segment;
 mod sharpness;

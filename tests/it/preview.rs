@@ -212,7 +212,9 @@ fn a_preview_saves_as_a_workflow_that_runs_the_same_preview() {
     assert!(text.contains("preview = true"), "{text}");
     let out = d.path().join("out");
     kf_ok(&["run", s(&wf), s(&v), "--out", s(&out)]);
-    let project = out.join("g10.mp4").join("project.json");
+    let project = out
+        .join(keyframer::batch::folder_name(&v))
+        .join("project.json");
     assert_eq!(json(&project)["preview"], true);
     assert_eq!(keyframes(&project), keyframes(&pv));
 }

@@ -523,7 +523,10 @@ fn derotated_spacing_discounts_fast_turns() {
     let out = dir.join("run");
     kf_ok(&["run", s(&wf), s(&video), "--out", s(&out)]);
     assert_eq!(
-        crate::common::keyframes(&out.join("video.mp4/project.json")),
+        crate::common::keyframes(
+            &out.join(keyframer::batch::folder_name(&video))
+                .join("project.json")
+        ),
         derot_cv
     );
 }

@@ -366,7 +366,7 @@ fn export_writes_one_colmap_mask_per_image() {
         let mut hidden = 0;
         for f in frames {
             let file = f["file"].as_str().unwrap();
-            assert_eq!(f["mask"].as_str().unwrap(), format!("masks/{file}.png"));
+            assert_eq!(f["mask"].as_str().unwrap(), format!("{file}.png"));
             let (w, h, px) = read_gray(&out_dir.join("masks").join(format!("{file}.png")));
             assert_eq!((w, h), (48, 32), "mask has the exported image's size");
             assert!(
@@ -378,7 +378,7 @@ fn export_writes_one_colmap_mask_per_image() {
             let single = d.join("single.png");
             kf_ort_ok(&[
                 "segment",
-                s(&out_dir.join(file)),
+                s(&out_dir.join("images").join(file)),
                 "--model",
                 s(&desc),
                 "-o",
@@ -403,6 +403,74 @@ fn export_writes_one_colmap_mask_per_image() {
         ]);
         assert!(listing(&out_dir.join("masks")).is_empty());
         assert!(listing(&out_dir.join("overlays")).is_empty());
+    }
+}
+
+/// The export layout is COLMAP-ready as it is: `colmap feature_extractor --image_path OUT/images
+/// --ImageReader.mask_path OUT/masks` (COLMAP reads image folders recursively) puts exactly the
+/// exported images into its database, each with its mask.
+#[test]
+fn colmap_reads_exactly_the_exported_images_beside_their_masks() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let desc = tiny_model(d, "tiny_dyn", false, None, "hide = [\"green\"]");
+    let clip = testsrc(d, "clip.mp4", 320, 240, "10", 2.0);
+    let project = d.join("p.json");
+    kf_ok(&["select", s(&clip), "-o", s(&project), "--every", "5"]);
+    let out = d.join("export");
+    kf_ok(&[
+        "export",
+        s(&project),
+        "--out",
+        s(&out),
+        "--masks",
+        s(&desc),
+        "--mask-backend",
+        "opencv",
+        "--mask-overlay",
+    ]);
+    let exported = listing(&out.join("images"));
+    assert_eq!(exported.len(), 4, "{exported:?}");
+    assert_eq!(
+        listing(&out),
+        vec!["images", "manifest.json", "masks", "overlays"]
+    );
+    let db = d.join("database.db");
+    let o = std::process::Command::new("colmap")
+        .args([
+            "feature_extractor",
+            "--database_path",
+            s(&db),
+            "--image_path",
+        ])
+        .arg(out.join("images"))
+        .arg("--ImageReader.mask_path")
+        .arg(out.join("masks"))
+        .args(["--SiftExtraction.use_gpu", "0"])
+        .output()
+        .expect("colmap is installed (scripts/setup.sh)");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The database's image names, read with Python's sqlite3.
+    let q = std::process::Command::new("python3")
+        .args([
+            "-c",
+            "import sqlite3,sys; print('\\n'.join(r[0] for r in sqlite3.connect(sys.argv[1]).execute('select name from images order by name')))",
+            s(&db),
+        ])
+        .output()
+        .expect("python3");
+    assert!(q.status.success(), "{}", String::from_utf8_lossy(&q.stderr));
+    let names: Vec<String> = String::from_utf8(q.stdout)
+        .unwrap()
+        .lines()
+        .map(str::to_string)
+        .collect();
+    assert_eq!(
+        names, exported,
+        "the database holds exactly the exported images"
+    );
+    for n in &exported {
+        assert!(out.join("masks").join(format!("{n}.png")).is_file(), "{n}");
     }
 }
 
