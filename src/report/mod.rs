@@ -136,8 +136,15 @@ pub fn write_report(
             .map(|n| n.to_string_lossy().into_owned()),
     });
     let png = timeline.png()?;
+    let png_existed = png_path.exists();
     fsutil::write_atomic(&png_path, &png)?;
-    fsutil::write_atomic(&settings.output, page.as_bytes())?;
+    if let Err(e) = fsutil::write_atomic(&settings.output, page.as_bytes()) {
+        // A failed report leaves no half of itself behind.
+        if !png_existed {
+            let _ = std::fs::remove_file(&png_path);
+        }
+        return Err(e);
+    }
     Ok(ReportSummary {
         html: settings.output.clone(),
         timeline: png_path,
