@@ -282,6 +282,18 @@ pub fn export(
                     msg: "no such image in the folder".into(),
                 })?
                 .to_path_buf();
+            // A damaged file is never copied (OpenCV would read a cut JPEG as grey-filled).
+            let damage = match src.damage_of(index) {
+                Some(why) => Some(why.to_string()),
+                None => source::check_image(&from).err().map(|why| {
+                    format!("frame {index} ({}): damaged image: {why}", file_name(&from))
+                }),
+            };
+            if let Some(reason) = damage {
+                missing.push(MissingFrame { index, reason });
+                bar.inc(1);
+                continue;
+            }
             let name = file_name(&from);
             fsutil::copy_atomic(&from, &out.join(&name))?;
             frames.push(ExportedFrame {
@@ -321,10 +333,18 @@ pub fn export(
                 _ => format!("frame_{i:0digits$}.{}", format.ext()),
             })
             .collect();
-        let mut k = 0;
         let total = project.keyframes.len();
         let result = source::read_indices(src.as_mut(), &project.keyframes, |frame| {
             let img = transform(&frame.image, settings, size)?;
+            // Damaged frames are never passed here: find this frame's name by its index.
+            let k = project
+                .keyframes
+                .binary_search(&frame.index)
+                .map_err(|_| Error::Frame {
+                    path: input.clone(),
+                    index: frame.index,
+                    msg: "the source delivered a frame that was not asked for".into(),
+                })?;
             let name = &names[k];
             let fmt = if name.ends_with(".png") {
                 Format::Png
@@ -345,7 +365,6 @@ pub fn export(
             if let Some(m) = masker.as_mut() {
                 m.push(name.clone(), img, &mut frames)?;
             }
-            k += 1;
             bar.inc(1);
             Ok(())
         })
@@ -366,9 +385,13 @@ pub fn export(
             .decode_failure()
             .map(|(_, m)| m)
             .unwrap_or_else(|| "the stream ended before this frame".into());
-        missing.extend(not_read.into_iter().map(|index| MissingFrame {
-            index,
-            reason: reason.clone(),
+        missing.extend(not_read.into_iter().map(|index| {
+            MissingFrame {
+                index,
+                reason: src
+                    .damage_of(index)
+                    .map_or_else(|| reason.clone(), str::to_string),
+            }
         }));
     }
     bar.finish_and_clear();
