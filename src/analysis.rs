@@ -102,8 +102,11 @@ pub struct Analysis {
     pub movement: Option<MovementSeries>,
     /// Keyframes chosen by the stationary sampler, when requested.
     pub stationary: Option<Vec<usize>>,
-    /// Decode problems (damaged stream), one line each.
+    /// Decode problems (damaged stream, damaged images), one line each.
     pub problems: Vec<String>,
+    /// Damaged frames that did not stop the input (image folders): their scores are those of a
+    /// stand-in image, and they must never be selected.
+    pub damaged: Vec<usize>,
     /// Backend that computed the scores.
     pub backend: Backend,
 }
@@ -960,6 +963,7 @@ pub fn analyse_with(
             .filter(|m| m.stationary.is_some())
             .map(|m| m.keys.clone()),
         problems,
+        damaged: damaged_of(src.as_ref()),
         backend: used,
     })
 }
@@ -1030,6 +1034,7 @@ fn scan_only(
         movement: None,
         stationary: None,
         problems,
+        damaged: damaged_of(src),
         backend: Backend::Opencv,
     })
 }
@@ -1062,7 +1067,16 @@ fn problems_of(src: &dyn FrameSource, input: &Path) -> Vec<String> {
     for p in &problems {
         log::warn!("{}: {p}", input.display());
     }
-    problems
+    // Damaged images were logged by the source when met.
+    src.damaged_frames()
+        .into_iter()
+        .map(|(_, m)| m)
+        .chain(problems)
+        .collect()
+}
+
+fn damaged_of(src: &dyn FrameSource) -> Vec<usize> {
+    src.damaged_frames().into_iter().map(|(i, _)| i).collect()
 }
 
 fn with_path(e: crate::Error, input: &Path) -> crate::Error {

@@ -542,6 +542,21 @@ fn write_staged(
                     msg: "no such image in the folder".into(),
                 })?
                 .to_path_buf();
+            // A damaged file is never copied (OpenCV would read a cut JPEG as grey-filled).
+            let damage = match src.damage_of(index) {
+                Some(why) => Some(why.to_string()),
+                None => source::check_image(&from).err().map(|why| {
+                    format!(
+                        "frame {index} ({}): damaged image: {why}",
+                        from.file_name().unwrap_or_default().to_string_lossy()
+                    )
+                }),
+            };
+            if let Some(reason) = damage {
+                missing.push(MissingFrame { index, reason });
+                bar.inc(1);
+                continue;
+            }
             let name = &names[k];
             fsutil::copy_atomic(&from, &images.join(name))?;
             frames.push(ExportedFrame {
@@ -562,9 +577,17 @@ fn write_staged(
             m.flush(&mut frames)?;
         }
     } else {
-        let mut k = 0;
         let result = source::read_indices(src, &project.keyframes, |frame| {
             let img = transform(&frame.image, settings, size)?;
+            // Damaged frames are never passed here: find this frame's name by its index.
+            let k = project
+                .keyframes
+                .binary_search(&frame.index)
+                .map_err(|_| Error::Frame {
+                    path: input.to_path_buf(),
+                    index: frame.index,
+                    msg: "the source delivered a frame that was not asked for".into(),
+                })?;
             let name = &names[k];
             let fmt = if name.ends_with(".png") {
                 Format::Png
@@ -585,7 +608,6 @@ fn write_staged(
             if let Some(m) = masker.as_deref_mut() {
                 m.push(name.clone(), img, &mut frames)?;
             }
-            k += 1;
             bar.inc(1);
             Ok(())
         })
@@ -606,9 +628,13 @@ fn write_staged(
             .decode_failure()
             .map(|(_, m)| m)
             .unwrap_or_else(|| "the stream ended before this frame".into());
-        missing.extend(not_read.into_iter().map(|index| MissingFrame {
-            index,
-            reason: reason.clone(),
+        missing.extend(not_read.into_iter().map(|index| {
+            MissingFrame {
+                index,
+                reason: src
+                    .damage_of(index)
+                    .map_or_else(|| reason.clone(), str::to_string),
+            }
         }));
     }
     bar.finish_and_clear();

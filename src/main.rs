@@ -377,6 +377,7 @@ fn probe(a: &keyframer::cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
                 meta.duration_s = Some(l - f + 1.0 / fps);
             }
         }
+        problems.extend(scan.damaged.into_iter().map(|(_, m)| m));
         problems.extend(scan.failure.map(|(_, m)| m));
     }
     if a.json {

@@ -107,6 +107,12 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     p.boundaries = s.boundaries;
     p.metadata.frame_count = n_all;
     p.metadata.frame_count_exact = true;
+    // As a full decode measures it: first to last frame plus one frame interval (the analysis
+    // saw only the keyframes' times).
+    p.metadata.duration_s = match (index.timestamps_s.last(), p.metadata.fps) {
+        (Some(last), Some(fps)) => Some(last + 1.0 / fps),
+        _ => None,
+    };
     p.cache = Cache {
         timestamps_s: Some(index.timestamps_s.clone()),
         ..Cache::default()

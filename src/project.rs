@@ -34,9 +34,13 @@ pub struct Project {
     pub history: Vec<Step>,
     /// Per-frame data computed from the pixels, reused by later selections.
     pub cache: Cache,
-    /// Problems met while decoding the input (damaged streams).
+    /// Problems met while decoding the input (damaged streams, damaged images).
     #[serde(default)]
     pub decode_problems: Vec<String>,
+    /// Frames that could not be decoded but did not end the input (damaged files of an image
+    /// folder), ascending: never selected, never exported.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub damaged_frames: Vec<usize>,
     /// Made by `select --preview` from the codec keyframes only: the cache holds timestamps but
     /// no scores, and the project is never reused as a cache.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -207,6 +211,14 @@ impl Project {
             return Err((
                 format!("keyframes[{i}]"),
                 format!("frame {k} is beyond the input's {n} frames"),
+            ));
+        }
+        if self.damaged_frames.windows(2).any(|w| w[0] >= w[1])
+            || self.damaged_frames.iter().any(|&k| k >= n)
+        {
+            return Err((
+                "damaged_frames".into(),
+                "must be sorted, distinct frame indices of the input".into(),
             ));
         }
         if let Some(ts) = &self.cache.timestamps_s {

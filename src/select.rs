@@ -280,9 +280,14 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         .filter(|p| full && !p.preview && p.input == input_ref);
     let metrics: Vec<_> = s.blur.iter().map(|b| b.metric).collect();
     let mut decoded = false;
-    let (mut cached_meta, mut cache, mut problems) = match reusable {
-        Some(p) => (Some(p.metadata), p.cache, p.decode_problems),
-        None => (None, Cache::default(), Vec::new()),
+    let (mut cached_meta, mut cache, mut problems, mut damaged) = match reusable {
+        Some(p) => (
+            Some(p.metadata),
+            p.cache,
+            p.decode_problems,
+            p.damaged_frames,
+        ),
+        None => (None, Cache::default(), Vec::new(), Vec::new()),
     };
     let uses_seconds = [s.boundaries.start, s.boundaries.end]
         .iter()
@@ -299,6 +304,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         )?;
         cache.timestamps_s = a.timestamps_s;
         problems = a.problems;
+        damaged = a.damaged;
         cached_meta = Some(a.metadata);
         decoded = true;
     }
@@ -427,6 +433,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
                 cache.timestamps_s = a.timestamps_s;
             }
             problems = a.problems;
+            damaged = a.damaged;
             decoded = true;
             a.metadata
         }
@@ -435,7 +442,9 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let mut history = Vec::new();
     let ts = cache.timestamps_s.as_deref();
     let range = s.boundaries.candidates(metadata.frame_count, ts)?;
+    // Damaged frames (their scores are a stand-in's) are never candidates.
     let mut keys = range.clone();
+    keys.retain(|k| damaged.binary_search(k).is_err());
     history.push(Step {
         plugin: "boundaries".into(),
         params: json!({ "start": s.boundaries.start, "end": s.boundaries.end }),
@@ -535,6 +544,15 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         });
     }
     manual_step(&mut keys, &mut history, s, metadata.frame_count)?;
+    let before = keys.len();
+    keys.retain(|k| damaged.binary_search(k).is_err());
+    if keys.len() < before {
+        log::warn!(
+            "{}: {} damaged frame(s) dropped from the keyframes (moved there by blur replace or --add)",
+            s.input.display(),
+            before - keys.len()
+        );
+    }
 
     let project = Project {
         schema_version: SCHEMA_VERSION,
@@ -546,6 +564,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         history,
         cache,
         decode_problems: problems,
+        damaged_frames: damaged,
         preview: false,
     };
     Ok(SelectReport {

@@ -38,26 +38,31 @@ fn missing_tool(tool: &str, e: std::io::Error) -> Error {
     }
 }
 
-/// Parses `ffprobe -show_entries packet=pts_time,flags -of csv=p=0` output into an index.
-/// Packets without a time are skipped; order is by presentation time.
+/// Parses `ffprobe -show_entries packet=pts_time,dts_time,flags -of csv=p=0` output into an
+/// index. A packet's time is its presentation time, or its decode time when the container
+/// stores none (AVI: only B-frames carry a pts; there display order is decode order). Packets
+/// with neither are skipped; order is by that time (stable: ties keep the packet order).
 pub fn parse_packets(path: &Path, text: &str) -> Result<KeyframeIndex> {
     let mut packets: Vec<(f64, bool)> = Vec::new();
+    let mut untimed = 0usize;
     for (n, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() {
             continue;
         }
         let mut parts = line.split(',');
-        let (Some(t), Some(flags)) = (parts.next(), parts.next()) else {
+        let (Some(pts), Some(dts), Some(flags)) = (parts.next(), parts.next(), parts.next()) else {
             return Err(Error::input(
                 path,
                 format!(
-                    "ffprobe packet line {}: `{line}` is not `time,flags`",
+                    "ffprobe packet line {}: `{line}` is not `pts,dts,flags`",
                     n + 1
                 ),
             ));
         };
+        let t = if pts != "N/A" { pts } else { dts };
         if t == "N/A" {
+            untimed += 1;
             continue;
         }
         let t: f64 = t.parse().map_err(|_| {
@@ -67,6 +72,12 @@ pub fn parse_packets(path: &Path, text: &str) -> Result<KeyframeIndex> {
             )
         })?;
         packets.push((t, flags.starts_with('K')));
+    }
+    if untimed > 0 {
+        log::debug!(
+            "{}: {untimed} packets carry neither a presentation nor a decode time; left out",
+            path.display()
+        );
     }
     if packets.is_empty() {
         return Err(Error::input(path, "ffprobe lists no video packets"));
@@ -92,7 +103,7 @@ pub fn probe(path: &Path) -> Result<KeyframeIndex> {
             "-select_streams",
             "v:0",
             "-show_entries",
-            "packet=pts_time,flags",
+            "packet=pts_time,dts_time,flags",
             "-of",
             "csv=p=0",
         ])
@@ -126,6 +137,8 @@ pub struct KeyframeSource {
     child: Child,
     pipe: ChildStdout,
     next: usize,
+    /// The stream holds fewer frames than its container declares.
+    failure: Option<(usize, String)>,
 }
 
 impl KeyframeSource {
@@ -156,6 +169,14 @@ impl KeyframeSource {
             plugin: "preview",
             msg: "ffmpeg started without an output pipe".into(),
         })?;
+        // The packet list ends where the data does: a stream cut short lists fewer packets than
+        // the container declares frames (the full decode reports the same).
+        let failure = super::video::short_stream(
+            full.frame_count,
+            index.frame_count(),
+            "the stream's packet list holds",
+        )
+        .map(|m| (index.keyframes.len(), m));
         let meta = Metadata {
             frame_count: index.keyframes.len(),
             frame_count_exact: true,
@@ -168,6 +189,7 @@ impl KeyframeSource {
             child,
             pipe,
             next: 0,
+            failure,
         })
     }
 
@@ -241,6 +263,10 @@ impl FrameSource for KeyframeSource {
     fn skip_frame(&mut self) -> Result<Option<(usize, Option<f64>)>> {
         Ok(self.next_frame()?.map(|f| (f.index, f.timestamp_s)))
     }
+
+    fn decode_failure(&self) -> Option<(usize, String)> {
+        self.failure.clone()
+    }
 }
 
 #[cfg(test)]
@@ -250,7 +276,7 @@ mod tests {
     #[test]
     fn packets_sort_by_time_and_keep_key_flags() {
         // Decode order with B-frames: I P B B, presentation 0 3 1 2.
-        let text = "0.0,K__\n0.12,___\n0.04,___\n0.08,___\n0.16,K__\nN/A,___\n";
+        let text = "0.0,-0.04,K__\n0.12,0.0,___\n0.04,0.04,___\n0.08,0.08,___\n0.16,0.12,K__\nN/A,N/A,___\n";
         let ix = parse_packets(Path::new("v.mp4"), text).unwrap();
         assert_eq!(ix.timestamps_s, vec![0.0, 0.04, 0.08, 0.12, 0.16]);
         assert_eq!(ix.keyframes, vec![0, 4]);
@@ -259,9 +285,19 @@ mod tests {
 
     #[test]
     fn malformed_packet_lines_name_the_line() {
-        let e = parse_packets(Path::new("v.mp4"), "0.0,K__\nxyz\n").unwrap_err();
+        let e = parse_packets(Path::new("v.mp4"), "0.0,0.0,K__\nxyz\n").unwrap_err();
         assert!(e.to_string().contains("line 2"), "{e}");
         let e = parse_packets(Path::new("v.mp4"), "").unwrap_err();
         assert!(e.to_string().contains("no video packets"), "{e}");
+    }
+
+    #[test]
+    fn packets_without_pts_use_their_dts() {
+        // AVI (Megamind.avi): I and P packets have no pts, B packets have pts = dts.
+        let text = "N/A,0.000000,K_\nN/A,0.041708,K_\nN/A,0.083417,__\n0.125125,0.125125,__\nN/A,0.166834,K_\n";
+        let ix = parse_packets(Path::new("v.avi"), text).unwrap();
+        assert_eq!(ix.frame_count(), 5);
+        assert_eq!(ix.keyframes, vec![0, 1, 4]);
+        assert!((ix.timestamps_s[3] - 0.125125).abs() < 1e-9);
     }
 }

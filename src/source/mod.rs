@@ -6,7 +6,7 @@ pub mod keyframes;
 mod natural;
 mod video;
 
-pub use images::{is_image_name, list_images, ImageSource};
+pub use images::{check_image, escaped_name, is_image_name, list_images, ImageSource};
 pub use natural::natural_cmp;
 pub use video::VideoSource;
 
@@ -80,6 +80,17 @@ pub trait FrameSource: Send {
     fn decode_failure(&self) -> Option<(usize, String)> {
         None
     }
+    /// Damaged frames met so far that did not stop the input (a damaged file in an image
+    /// folder), ascending: index and a message naming the frame and file. `next_frame` yields
+    /// a stand-in image for them (the previous readable frame), so they must never be exported
+    /// or selected.
+    fn damaged_frames(&self) -> Vec<(usize, String)> {
+        Vec::new()
+    }
+    /// Why frame `index` is damaged, if it is (see [`FrameSource::damaged_frames`]).
+    fn damage_of(&self, _index: usize) -> Option<&str> {
+        None
+    }
 }
 
 /// Options for opening a source.
@@ -121,7 +132,8 @@ pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
 
 /// Reads the frames at the sorted, distinct `indices`, calling `f` for each, in one sequential
 /// pass: skipped frames are only grabbed, never seeked to. Returns the indices that could not be
-/// decoded because the stream ended early.
+/// decoded, ascending: damaged frames (never passed to `f`; see [`FrameSource::damage_of`]) and
+/// those after the stream ended early.
 pub fn read_indices(
     source: &mut dyn FrameSource,
     indices: &[usize],
@@ -131,22 +143,31 @@ pub fn read_indices(
         return Err(Error::param("frame indices", "must be sorted and distinct"));
     }
     let mut pos = 0usize;
+    let mut damaged = Vec::new();
     for (k, &want) in indices.iter().enumerate() {
         while pos < want {
             if source.skip_frame()?.is_none() {
-                return Ok(indices[k..].to_vec());
+                damaged.extend_from_slice(&indices[k..]);
+                return Ok(damaged);
             }
             pos += 1;
         }
         match source.next_frame()? {
             Some(frame) => {
                 pos += 1;
-                f(frame)?;
+                if source.damage_of(frame.index).is_some() {
+                    damaged.push(frame.index);
+                } else {
+                    f(frame)?;
+                }
             }
-            None => return Ok(indices[k..].to_vec()),
+            None => {
+                damaged.extend_from_slice(&indices[k..]);
+                return Ok(damaged);
+            }
         }
     }
-    Ok(Vec::new())
+    Ok(damaged)
 }
 
 /// Result of one pass over every frame without decoding pixels beyond what the codec needs.
@@ -158,6 +179,8 @@ pub struct Scan {
     pub frame_count: usize,
     /// Where and why decoding stopped early, if it did.
     pub failure: Option<(usize, String)>,
+    /// Damaged frames that did not stop the input (see [`FrameSource::damaged_frames`]).
+    pub damaged: Vec<(usize, String)>,
 }
 
 /// Walks the whole input once with `skip_frame`, collecting timestamps and the true frame count.
@@ -177,5 +200,6 @@ pub fn scan(source: &mut dyn FrameSource, mut progress: impl FnMut(usize)) -> Re
         timestamps_s: have_ts.then_some(ts),
         frame_count: count,
         failure: source.decode_failure(),
+        damaged: source.damaged_frames(),
     })
 }

@@ -1,10 +1,17 @@
 //! Video input through OpenCV's VideoCapture with the FFmpeg backend: metadata, sequential decode,
 //! cheap skipping with `grab`, per-frame presentation timestamps, and detection of streams that end
 //! before the container says they should.
+//!
+//! Rotation: frames come out as FFmpeg displays them (`ffmpeg -i v.mp4 f.png` autorotates by the
+//! stream's display matrix). OpenCV 4.6 reads the display-matrix angle but turns the frame the
+//! wrong way for 90 and 270 (clockwise by ffprobe's counter-clockwise angle), so its automatic
+//! rotation is switched off and the frame is turned here. The angle is reported in ffprobe's
+//! convention (`ffprobe -show_streams`, side data `rotation`): counter-clockwise degrees in
+//! [-180, 180), e.g. `-metadata:s:v:0 rotate=270` gives -90 and 180 gives -180.
 
 use super::{Frame, FrameSource, Metadata, SourceKind};
 use crate::error::{CvContext, Error, Result};
-use opencv::core::Mat;
+use opencv::core::{self as cvcore, Mat};
 use opencv::prelude::*;
 use opencv::videoio::{self, VideoCapture};
 use std::path::{Path, PathBuf};
@@ -41,7 +48,27 @@ impl VideoSource {
         let fps = get(videoio::CAP_PROP_FPS);
         let count = get(videoio::CAP_PROP_FRAME_COUNT);
         let fourcc = get(videoio::CAP_PROP_FOURCC) as i64 as u32;
-        let rotation = get(videoio::CAP_PROP_ORIENTATION_META) as i32;
+        let rotation = display_rotation(get(videoio::CAP_PROP_ORIENTATION_META));
+        let mut cap = cap;
+        // Turned here (see the module header), never by OpenCV.
+        let auto_off = cap
+            .set(videoio::CAP_PROP_ORIENTATION_AUTO, 0.0)
+            .cv(|| format!("disable automatic rotation of {}", path.display()))?;
+        if rotation != 0 && !auto_off {
+            return Err(Error::input(
+                path,
+                format!(
+                    "the video is rotated ({rotation} deg) but OpenCV's automatic rotation cannot \
+                     be switched off to apply it correctly"
+                ),
+            ));
+        }
+        if rotation % 90 != 0 {
+            log::warn!(
+                "{}: rotation {rotation} deg is not a multiple of 90; frames are not rotated",
+                path.display()
+            );
+        }
         let codec = fourcc_string(fourcc);
         let fps = (fps.is_finite() && fps > 0.0).then_some(fps);
         let frame_count = if count.is_finite() && count > 0.0 {
@@ -130,18 +157,9 @@ impl VideoSource {
     }
 
     fn note_end(&mut self) {
-        let declared = self.meta.frame_count;
         let got = self.next_index;
-        let slack = 2.max(declared / 100);
-        if declared > got + slack {
-            self.failure = Some((
-                got,
-                format!(
-                    "decoding stopped after {got} frames but the container declares {declared}; \
-                     frames from {got} on could not be decoded (damaged or truncated stream)"
-                ),
-            ));
-        }
+        self.failure =
+            short_stream(self.meta.frame_count, got, "decoding stopped after").map(|m| (got, m));
     }
 
     fn decode_next(&mut self) -> Result<Option<Frame>> {
@@ -159,6 +177,18 @@ impl VideoSource {
                 index,
                 msg: "the decoder returned no image".into(),
             });
+        }
+        let turn = match self.meta.rotation_deg {
+            90 => Some(cvcore::ROTATE_90_COUNTERCLOCKWISE),
+            -90 => Some(cvcore::ROTATE_90_CLOCKWISE),
+            -180 => Some(cvcore::ROTATE_180),
+            _ => None,
+        };
+        if let Some(code) = turn {
+            let mut turned = Mat::default();
+            cvcore::rotate(&image, &mut turned, code)
+                .cv(|| format!("rotate {} frame {index}", self.path.display()))?;
+            image = turned;
         }
         if self.meta.width != 0
             && (image.cols() as u32 != self.meta.width || image.rows() as u32 != self.meta.height)
@@ -211,6 +241,28 @@ impl FrameSource for VideoSource {
     }
 }
 
+/// OpenCV's `CAP_PROP_ORIENTATION_META` (the display matrix's angle, counter-clockwise, as
+/// 0..360 or signed) in ffprobe's convention: [-180, 180), which is how ffprobe prints an exact
+/// half turn (-180).
+fn display_rotation(meta: f64) -> i32 {
+    if !meta.is_finite() {
+        return 0;
+    }
+    (meta.round() as i32 + 180).rem_euclid(360) - 180
+}
+
+/// The problem when a stream holds `got` frames of the `declared` ones (a 1 % or 2-frame slack:
+/// containers round their counts); `what` says how `got` was established.
+pub(crate) fn short_stream(declared: usize, got: usize, what: &str) -> Option<String> {
+    let slack = 2.max(declared / 100);
+    (declared > got + slack).then(|| {
+        format!(
+            "{what} {got} frames but the container declares {declared}; \
+             frames from {got} on could not be decoded (damaged or truncated stream)"
+        )
+    })
+}
+
 fn fourcc_string(code: u32) -> Option<String> {
     if code == 0 {
         return None;
@@ -221,4 +273,22 @@ fn fourcc_string(code: u32) -> Option<String> {
         .map(|&b| if b.is_ascii_graphic() { b as char } else { '?' })
         .collect();
     Some(s.trim_end_matches('?').to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn rotation_follows_ffprobe() {
+        for (meta, want) in [
+            (0.0, 0),
+            (90.0, 90),
+            (-90.0, -90),
+            (270.0, -90),
+            (180.0, -180),
+            (-180.0, -180),
+            (f64::NAN, 0),
+        ] {
+            assert_eq!(super::display_rotation(meta), want, "{meta}");
+        }
+    }
 }

@@ -7,6 +7,7 @@ mod common;
 mod experiment;
 mod flow;
 mod foundation;
+mod inputs;
 mod movement;
 mod onnx_model;
 mod pipeline;
