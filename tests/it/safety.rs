@@ -447,33 +447,8 @@ fn nothing_is_left_behind() {
         "{err}"
     );
     assert!(!big.exists(), "no empty output folder");
-    // A failure after the folder was made (an image that no longer decodes, same size and time
-    // so the fingerprint still matches) removes the folders it made, and writes nothing.
-    let (imgs, iproject) = image_folder_project(d.path());
-    let victim = imgs.join("img2.png");
-    let meta = std::fs::metadata(&victim).unwrap();
-    std::fs::write(&victim, vec![0u8; meta.len() as usize]).unwrap();
-    std::fs::File::options()
-        .write(true)
-        .open(&victim)
-        .unwrap()
-        .set_modified(meta.modified().unwrap())
-        .unwrap();
-    let nested = d.path().join("new/nested/out");
-    let (code, err) = code_and_stderr(&kf(&[
-        "export",
-        s(&iproject),
-        "--out",
-        s(&nested),
-        "--format",
-        "jpg",
-    ]));
-    assert_ne!(code, 0, "{err}");
-    assert!(err.contains("img2.png"), "{err}");
-    assert!(
-        !d.path().join("new").exists(),
-        "created folders removed: {err}"
-    );
+    // A failure after the folder was made (the disk fills up) removes it again: tested as root in
+    // `foundation::full_disk_fails_cleanly`.
     let _ = clip;
 }
 
