@@ -976,7 +976,7 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
             }
             other => return Err(bad(format!("step {k}: unknown plugin `{other}`"))),
         };
-        sample.push(s);
+        sample.push((k, s));
     }
     let mut export = Vec::new();
     for dir in exports {
@@ -1025,7 +1025,21 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
         analysis: (analysis != Analysis::default()).then_some(analysis),
         sample: sample
             .iter()
-            .map(sample_to_table)
+            .map(|(k, s)| {
+                sample_to_table(s).map_err(|e| Error::File {
+                    path: project.to_path_buf(),
+                    line: None,
+                    what: "project file",
+                    field: format!("history[{k}].params"),
+                    msg: format!(
+                        "cannot be written as a workflow step ({}; TOML integers go up to 2^63 - 1)",
+                        match e {
+                            Error::Param { msg, .. } => msg,
+                            other => other.to_string(),
+                        }
+                    ),
+                })
+            })
             .collect::<Result<Vec<_>>>()?,
         export,
     };
