@@ -129,22 +129,22 @@ pub struct ScoreArgs {
 /// tutorial).
 #[derive(Debug, Clone, Args)]
 pub struct FarnebackArgs {
-    /// Scale between pyramid levels.
+    /// Scale between pyramid levels, in (0, 1).
     #[arg(long, default_value_t = 0.5)]
     pub pyr_scale: f64,
-    /// Pyramid levels below full resolution.
+    /// Pyramid levels below full resolution (0 to 32; fewer when the image gets small).
     #[arg(long, default_value_t = 3)]
     pub levels: u32,
-    /// Averaging window size.
+    /// Averaging window size (1 to 1001).
     #[arg(long, default_value_t = 15)]
     pub winsize: u32,
-    /// Iterations per level.
+    /// Iterations per level (1 to 100).
     #[arg(long, default_value_t = 3)]
     pub iterations: u32,
-    /// Polynomial expansion neighbourhood (5 or 7).
+    /// Polynomial expansion neighbourhood: 5 or 7.
     #[arg(long, default_value_t = 5)]
     pub poly_n: u32,
-    /// Polynomial expansion sigma.
+    /// Polynomial expansion sigma (positive; OpenCV suggests 1.1 for 5, 1.5 for 7).
     #[arg(long, default_value_t = 1.2)]
     pub poly_sigma: f64,
     /// Gaussian window instead of a box (OPTFLOW_FARNEBACK_GAUSSIAN).
@@ -332,7 +332,8 @@ pub struct SelectArgs {
     /// Keep every Nth frame.
     #[arg(long, value_name = "N", conflicts_with = "fps")]
     pub every: Option<usize>,
-    /// Resample to F frames per second, by timestamps.
+    /// Resample to F frames per second, by timestamps (F at or above the input's frame rate
+    /// keeps every frame).
     #[arg(long, value_name = "F")]
     pub fps: Option<f64>,
     /// First frame to consider: a frame index (`120`) or a time (`4.5s`).
@@ -727,6 +728,9 @@ fn positive(name: &str, v: Option<f64>) -> Result<Option<f64>> {
 impl SelectArgs {
     /// Validated settings.
     pub fn settings(&self, quiet: bool) -> Result<SelectSettings> {
+        if self.movement.stationary && self.movement.reset_delta == 0 {
+            return Err(Error::param("--reset-delta", "must be at least 1 frame"));
+        }
         let rate = match (self.every, positive("--fps", self.fps)?) {
             (Some(0), _) => return Err(Error::param("--every", "must be at least 1")),
             (Some(n), _) => Some(Rate::Every(n)),
@@ -820,6 +824,14 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     let h: u32 = h.trim().parse().map_err(|_| bad())?;
     if w == 0 || h == 0 {
         return Err(bad());
+    }
+    // OpenCV reads no image above 2^30 pixels or 2^20 a side (CV_IO_MAX_IMAGE_PIXELS): an
+    // export nothing can read back would only exhaust memory.
+    if w > 1 << 20 || h > 1 << 20 || u64::from(w) * u64::from(h) > 1 << 30 {
+        return Err(Error::param(
+            "--resize",
+            format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)"),
+        ));
     }
     Ok((w, h))
 }

@@ -55,8 +55,10 @@ pub enum Error {
     #[error("GPU: {0}")]
     Gpu(String),
 
-    /// An OpenCV call failed; `context` says which one and on what.
-    #[error("OpenCV {context}: {source}")]
+    /// An OpenCV call failed; `context` says which one and on what. OpenCV's own texts that
+    /// mean nothing to a user (size limits, allocation failures) get a sentence saying what to
+    /// do, see [`explain_opencv`].
+    #[error("OpenCV {context}: {}", explain_opencv(source))]
     OpenCv {
         context: String,
         #[source]
@@ -94,6 +96,58 @@ impl Error {
     }
 }
 
+/// OpenCV's message for `e`, preceded by what it means and what to do when it is one of the
+/// texts a user cannot act on: the image size limits of imgcodecs (CV_IO_MAX_IMAGE_PIXELS,
+/// _WIDTH, _HEIGHT) and failed allocations. The raw text follows in brackets.
+pub fn explain_opencv(e: &opencv::Error) -> String {
+    let raw = e.message.trim();
+    let hint = if raw.contains("CV_IO_MAX_IMAGE_PIXELS")
+        || raw.contains("CV_IO_MAX_IMAGE_WIDTH")
+        || raw.contains("CV_IO_MAX_IMAGE_HEIGHT")
+        || raw.contains("validateInputImageSize")
+    {
+        Some(
+            "the image is larger than OpenCV reads (at most 2^30 pixels and 2^20 pixels a side, \
+             from the size in its header): use a smaller image, or raise the limit with the \
+             environment variable OPENCV_IO_MAX_IMAGE_PIXELS"
+                .to_string(),
+        )
+    } else if let Some(bytes) = failed_allocation(raw) {
+        Some(format!(
+            "out of memory: OpenCV could not allocate {} for this: use a smaller input or output \
+             size (export --resize / --scale / --crop, --analysis-width)",
+            human_bytes(bytes)
+        ))
+    } else if raw.contains("Insufficient memory") || raw.contains("out of memory") {
+        Some(
+            "out of memory: use a smaller input or output size (export --resize / --scale / \
+             --crop, --analysis-width)"
+                .to_string(),
+        )
+    } else {
+        None
+    };
+    match hint {
+        Some(h) => format!("{h} [OpenCV: {raw}]"),
+        None => raw.to_string(),
+    }
+}
+
+/// N of OpenCV's "Failed to allocate N bytes".
+fn failed_allocation(raw: &str) -> Option<u64> {
+    let rest = &raw[raw.find("Failed to allocate ")? + "Failed to allocate ".len()..];
+    rest.split_whitespace().next()?.parse().ok()
+}
+
+fn human_bytes(b: u64) -> String {
+    const GIB: f64 = (1u64 << 30) as f64;
+    if b as f64 >= GIB {
+        format!("{:.1} GiB ({b} bytes)", b as f64 / GIB)
+    } else {
+        format!("{b} bytes")
+    }
+}
+
 /// Attaches a description of the failed OpenCV call to an `opencv::Result`.
 pub trait CvContext<T> {
     /// Converts the OpenCV error into [`Error::OpenCv`] with `context`.
@@ -106,5 +160,35 @@ impl<T> CvContext<T> for opencv::Result<T> {
             context: context(),
             source,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cv_err(msg: &str) -> Error {
+        Error::OpenCv {
+            context: "imread big.png".into(),
+            source: opencv::Error::new(opencv::core::StsAssert, msg),
+        }
+    }
+
+    #[test]
+    fn opencv_size_and_memory_errors_say_what_to_do() {
+        let e = cv_err("OpenCV(4.6.0) ./modules/imgcodecs/src/loadsave.cpp:77: error: (-215:Assertion failed) pixels <= CV_IO_MAX_IMAGE_PIXELS in function 'validateInputImageSize'").to_string();
+        assert!(
+            e.starts_with("OpenCV imread big.png: the image is larger than OpenCV reads"),
+            "{e}"
+        );
+        assert!(e.contains("OPENCV_IO_MAX_IMAGE_PIXELS"), "{e}");
+        let e = cv_err("OpenCV(4.6.0) ./modules/core/src/alloc.cpp:73: error: (-4:Insufficient memory) Failed to allocate 30000000000 bytes in function 'OutOfMemoryError'").to_string();
+        assert!(
+            e.contains("could not allocate 27.9 GiB (30000000000 bytes)"),
+            "{e}"
+        );
+        assert!(e.contains("--resize"), "{e}");
+        // Other messages pass through unchanged.
+        assert_eq!(cv_err("odd").to_string(), "OpenCV imread big.png: odd");
     }
 }

@@ -238,11 +238,16 @@ fn run(cli: Cli) -> Result<Outcome> {
             )
         }
         Command::Workflow(keyframer::cli::WorkflowCommand::Save(a)) => {
+            // Build the text, check that it loads (in memory), and only then write it.
             let text = keyframer::workflow::from_project(&a.project, &a.export)?;
+            keyframer::workflow::Workflow::from_text(&a.output, text.clone()).map_err(|e| {
+                anyhow::anyhow!(
+                    "{}: cannot be saved as a workflow: {e}",
+                    a.project.display()
+                )
+            })?;
             keyframer::output::check_file(&a.output, "-o", a.force, &[&a.project])?;
             keyframer::fsutil::write_atomic(&a.output, text.as_bytes())?;
-            // What was written must load again.
-            keyframer::workflow::Workflow::load(&a.output)?;
             eprintln!("workflow -> {}", a.output.display());
             Ok(Outcome::Ok)
         }
@@ -505,6 +510,19 @@ fn flow(a: &keyframer::cli::FlowArgs) -> Result<Outcome> {
             );
         }
     }
+    // The initial flow (OPTFLOW_USE_INITIAL_FLOW): a .flo of the images' size, checked before
+    // any flow is computed.
+    let initial = match &a.initial {
+        Some(p) => {
+            use opencv::prelude::*;
+            Some(keyframer::flo::read_sized(
+                p,
+                ga.cols() as u32,
+                ga.rows() as u32,
+            )?)
+        }
+        None => None,
+    };
     let (backend, ctx) =
         gpu::resolve_backend(a.analysis.backend.into(), a.analysis.adapter.as_deref());
     let field = match (backend, ctx) {
@@ -512,9 +530,9 @@ fn flow(a: &keyframer::cli::FlowArgs) -> Result<Outcome> {
             use opencv::prelude::*;
             let mut f =
                 farneback::FarnebackGpu::new(ctx, params, ga.cols() as u32, ga.rows() as u32)?;
-            f.flow(&ga, &gb)?
+            f.flow_from(&ga, &gb, initial.as_ref())?
         }
-        _ => farneback::opencv(&ga, &gb, &params, None)?,
+        _ => farneback::opencv(&ga, &gb, &params, initial.as_ref())?,
     };
     keyframer::flo::write(&a.output, &field)?;
     let mags = movement::magnitudes(&field)?;

@@ -184,7 +184,12 @@ impl Project {
         Ok(project)
     }
 
-    /// Checks the invariants serde cannot: version, ordering and ranges of indices.
+    /// Checks the invariants serde cannot: version; positive sizes and rates; the frame count
+    /// against every per-frame series; finite, strictly increasing timestamps; sorted keyframes
+    /// within the input; cache keys (Farneback parameters, statistic, analysis width, stride,
+    /// derotation, stationary parameters) in the ranges the flags accept; and the history's
+    /// plugins, backends and parameters, so that everything that reads a loaded project (export,
+    /// report, `workflow save`) can trust it. The error is (field path, message).
     pub fn validate(&self) -> std::result::Result<(), (String, String)> {
         if self.schema_version != SCHEMA_VERSION {
             return Err((
@@ -196,6 +201,7 @@ impl Project {
             ));
         }
         let n = self.metadata.frame_count;
+        self.validate_metadata()?;
         for (i, w) in self.keyframes.windows(2).enumerate() {
             if w[0] >= w[1] {
                 return Err((
@@ -221,6 +227,19 @@ impl Project {
                 "must be sorted, distinct frame indices of the input".into(),
             ));
         }
+        for (name, b) in [
+            ("start", self.boundaries.start),
+            ("end", self.boundaries.end),
+        ] {
+            if let Some(crate::samplers::Bound::Seconds(s)) = b {
+                if !(s.is_finite() && s >= 0.0) {
+                    return Err((
+                        format!("boundaries.{name}.seconds"),
+                        format!("must be a non-negative number of seconds, got {s}"),
+                    ));
+                }
+            }
+        }
         if let Some(ts) = &self.cache.timestamps_s {
             if ts.len() != n {
                 return Err((
@@ -228,11 +247,37 @@ impl Project {
                     format!("{} timestamps for {n} frames", ts.len()),
                 ));
             }
+            if let Some(i) = ts.iter().position(|t| !t.is_finite()) {
+                return Err((
+                    format!("cache.timestamps_s[{i}]"),
+                    format!("must be a finite number of seconds, got {}", ts[i]),
+                ));
+            }
+            if let Some(i) = ts.windows(2).position(|w| w[1] <= w[0]) {
+                return Err((
+                    format!("cache.timestamps_s[{}]", i + 1),
+                    format!(
+                        "{} follows {}: timestamps must increase strictly",
+                        ts[i + 1],
+                        ts[i]
+                    ),
+                ));
+            }
         }
         for (i, series) in self.cache.sharpness.iter().enumerate() {
+            let at = |k: &str| format!("cache.sharpness[{i}].{k}");
+            if series.width == 0 || series.height == 0 {
+                return Err((
+                    at("width"),
+                    format!(
+                        "the analysis size {}x{} must be positive",
+                        series.width, series.height
+                    ),
+                ));
+            }
             if series.scores.len() != n {
                 return Err((
-                    format!("cache.sharpness[{i}].scores"),
+                    at("scores"),
                     format!("{} scores for {n} frames", series.scores.len()),
                 ));
             }
@@ -248,19 +293,105 @@ impl Project {
             }
         }
         for (i, m) in self.cache.movement.iter().enumerate() {
-            if m.series.values.len() != n {
+            let at = |k: &str| format!("cache.movement[{i}].{k}");
+            validate_request(&m.request).map_err(|(k, msg)| (at(&format!("request.{k}")), msg))?;
+            let s = &m.series;
+            if s.width == 0 || s.height == 0 {
                 return Err((
-                    format!("cache.movement[{i}].series.values"),
-                    format!("{} values for {n} frames", m.series.values.len()),
+                    at("series.width"),
+                    format!(
+                        "the analysis size {}x{} must be positive",
+                        s.width, s.height
+                    ),
+                ));
+            }
+            if !(s.scale_to_full.is_finite() && s.scale_to_full > 0.0) {
+                return Err((
+                    at("series.scale_to_full"),
+                    format!("must be a positive number, got {}", s.scale_to_full),
+                ));
+            }
+            if s.values.len() != n {
+                return Err((
+                    at("series.values"),
+                    format!("{} values for {n} frames", s.values.len()),
+                ));
+            }
+            if let Some(j) = s.values.iter().position(|v| !v.is_finite() || *v < 0.0) {
+                return Err((
+                    at(&format!("series.values[{j}]")),
+                    format!(
+                        "movement must be finite and non-negative, got {}",
+                        s.values[j]
+                    ),
                 ));
             }
         }
         for (i, r) in self.cache.stationary.iter().enumerate() {
+            let at = |k: &str| format!("cache.stationary[{i}].{k}");
+            validate_request(&r.request).map_err(|(k, msg)| (at(&format!("request.{k}")), msg))?;
+            let p = &r.params;
+            if !(p.threshold.is_finite() && p.threshold > 0.0) {
+                return Err((
+                    at("params.threshold"),
+                    format!("must be a positive number of pixels, got {}", p.threshold),
+                ));
+            }
+            if p.reset_delta == 0 {
+                return Err((at("params.reset_delta"), "must be at least 1 frame".into()));
+            }
+            if p.first > p.last || p.last >= n {
+                return Err((
+                    at("params.last"),
+                    format!(
+                        "the range {}..={} is not within the input's {n} frames",
+                        p.first, p.last
+                    ),
+                ));
+            }
             if r.keyframes.windows(2).any(|w| w[0] >= w[1]) || r.keyframes.iter().any(|&k| k >= n) {
                 return Err((
-                    format!("cache.stationary[{i}].keyframes"),
+                    at("keyframes"),
                     "must be sorted, distinct frame indices of the input".into(),
                 ));
+            }
+        }
+        for (i, step) in self.history.iter().enumerate() {
+            validate_step(step, n).map_err(|(k, msg)| {
+                let field = if k.is_empty() {
+                    format!("history[{i}]")
+                } else {
+                    format!("history[{i}].{k}")
+                };
+                (field, msg)
+            })?;
+        }
+        Ok(())
+    }
+
+    fn validate_metadata(&self) -> std::result::Result<(), (String, String)> {
+        let m = &self.metadata;
+        let bad = |k: &str, msg: String| Err((format!("metadata.{k}"), msg));
+        if m.frame_count == 0 {
+            return bad("frame_count", "an input has at least one frame".into());
+        }
+        if m.width == 0 || m.height == 0 {
+            return bad(
+                if m.width == 0 { "width" } else { "height" },
+                format!("the frame size {}x{} must be positive", m.width, m.height),
+            );
+        }
+        if let Some(f) = m.fps {
+            if !(f.is_finite() && f > 0.0) {
+                return bad("fps", format!("must be a positive number, got {f}"));
+            }
+        }
+        if let Some(d) = m.duration_s {
+            if !(d.is_finite() && d >= 0.0) {
+                return bad(
+                    "duration_s",
+                    format!("must be a non-negative number of seconds, got {d}"),
+                );
             }
         }
         Ok(())
@@ -279,4 +410,190 @@ impl Project {
         text.push('\n');
         fsutil::write_atomic(path, text.as_bytes())
     }
+}
+
+/// The plugins `select` writes into a project's history.
+const PLUGINS: [&str; 8] = [
+    "boundaries",
+    "preview",
+    "stationary",
+    "spacing",
+    "every-nth",
+    "fps",
+    "blur",
+    "manual",
+];
+
+/// A movement request's fields in the ranges the flags accept; the error's key is relative to
+/// the request (`farneback.pyr_scale`).
+fn validate_request(r: &MovementRequest) -> std::result::Result<(), (String, String)> {
+    let key = |e: Error| match e {
+        Error::Param { name, msg } => {
+            let flag = name.trim_start_matches("--").replace('-', "_");
+            let k = match flag.as_str() {
+                "trim" => "statistic.trimmed_mean.trim".to_string(),
+                "hfov" => "derotate.hfov_deg".to_string(),
+                other => format!("farneback.{other}"),
+            };
+            (k, msg)
+        }
+        other => (String::new(), other.to_string()),
+    };
+    r.farneback.validate().map_err(key)?;
+    r.statistic.validate().map_err(key)?;
+    if let Some(d) = &r.derotate {
+        d.validate().map_err(key)?;
+    }
+    if r.analysis_width < 16 {
+        return Err((
+            "analysis_width".into(),
+            format!("must be at least 16 pixels, got {}", r.analysis_width),
+        ));
+    }
+    if r.stride == 0 {
+        return Err(("stride".into(), "must be at least 1".into()));
+    }
+    Ok(())
+}
+
+/// One history step: a known plugin, a known backend, and the parameters `workflow save` reads
+/// in their ranges. The error's key is relative to the step (`params.fps`).
+fn validate_step(step: &Step, n: usize) -> std::result::Result<(), (String, String)> {
+    let bad = |k: &str, msg: String| Err((k.to_string(), msg));
+    if !PLUGINS.contains(&step.plugin.as_str()) {
+        return bad(
+            "plugin",
+            format!(
+                "unknown plugin `{}` (known: {})",
+                step.plugin,
+                PLUGINS.join(", ")
+            ),
+        );
+    }
+    if step.kept > n {
+        return bad(
+            "kept",
+            format!("{} kept frames of an input of {n} frames", step.kept),
+        );
+    }
+    let v = &step.params;
+    if !(v.is_object() || v.is_null()) {
+        return bad("params", "must be an object".into());
+    }
+    let get = |k: &str| v.get(k).filter(|x| !x.is_null());
+    let positive = |k: &str| -> std::result::Result<(), (String, String)> {
+        match get(k) {
+            None => Ok(()),
+            Some(x) => match x.as_f64() {
+                Some(f) if f.is_finite() && f > 0.0 => Ok(()),
+                _ => Err((
+                    format!("params.{k}"),
+                    format!("must be a positive number, got {x}"),
+                )),
+            },
+        }
+    };
+    let count = |k: &str, min: u64| -> std::result::Result<(), (String, String)> {
+        match get(k) {
+            None => Ok(()),
+            Some(x) => match x.as_u64() {
+                Some(c) if c >= min => Ok(()),
+                _ => Err((
+                    format!("params.{k}"),
+                    format!("must be a whole number of at least {min}, got {x}"),
+                )),
+            },
+        }
+    };
+    if let Some(b) = get("backend") {
+        if serde_json::from_value::<Backend>(b.clone()).is_err() {
+            return bad(
+                "params.backend",
+                format!("unknown backend {b} (known: \"gpu\", \"opencv\")"),
+            );
+        }
+    }
+    if let Some(m) = get("movement") {
+        let r = serde_json::from_value::<MovementRequest>(m.clone())
+            .map_err(|e| ("params.movement".to_string(), e.to_string()))?;
+        validate_request(&r).map_err(|(k, msg)| (format!("params.movement.{k}"), msg))?;
+    }
+    match step.plugin.as_str() {
+        "boundaries" => {
+            for k in ["start", "end"] {
+                if let Some(b) = get(k) {
+                    match serde_json::from_value::<crate::samplers::Bound>(b.clone()) {
+                        Ok(crate::samplers::Bound::Seconds(s)) if !(s.is_finite() && s >= 0.0) => {
+                            return bad(
+                                &format!("params.{k}"),
+                                format!("must be a non-negative time, got {s}"),
+                            )
+                        }
+                        Ok(_) => {}
+                        Err(e) => return bad(&format!("params.{k}"), e.to_string()),
+                    }
+                }
+            }
+        }
+        "stationary" => {
+            positive("threshold_px")?;
+            count("reset_delta", 1)?;
+        }
+        "spacing" => {
+            if get("threshold_px").is_none() {
+                return bad("params.threshold_px", "missing".into());
+            }
+            positive("threshold_px")?;
+        }
+        "every-nth" => {
+            if get("n").is_none() {
+                return bad("params.n", "missing".into());
+            }
+            count("n", 1)?;
+        }
+        "fps" => {
+            if get("fps").is_none() {
+                return bad("params.fps", "missing".into());
+            }
+            positive("fps")?;
+        }
+        "blur" => {
+            positive("ratio")?;
+            count("window", 1)?;
+            if let Some(m) = get("metric") {
+                if serde_json::from_value::<Metric>(m.clone()).is_err() {
+                    return bad(
+                        "params.metric",
+                        format!("unknown metric {m} (tenengrad, laplacian-k1, laplacian-k3)"),
+                    );
+                }
+            }
+            if let Some(m) = get("mode") {
+                if serde_json::from_value::<crate::samplers::BlurMode>(m.clone()).is_err() {
+                    return bad(
+                        "params.mode",
+                        format!("unknown mode {m} (\"filter\", \"replace\")"),
+                    );
+                }
+            }
+        }
+        "manual" => {
+            for k in ["add", "remove"] {
+                if let Some(list) = get(k) {
+                    let ok = list.as_array().is_some_and(|a| {
+                        a.iter()
+                            .all(|x| x.as_u64().is_some_and(|i| (i as usize) < n))
+                    });
+                    if !ok {
+                        return bad(
+                            &format!("params.{k}"),
+                            format!("must be a list of frame indices below {n}"),
+                        );
+                    }
+                }
+            }
+        }
+        _ => {}
+    }
+    Ok(())
 }

@@ -33,6 +33,16 @@ pub fn parse<T: DeserializeOwned>(
         let field = e.path().to_string();
         let inner = e.into_inner();
         let field = if field == "." { String::new() } else { field };
+        // A missing key has no span of its own: name it (under its table) instead.
+        let message = inner.message().trim().to_string();
+        let field = match message
+            .strip_prefix("missing field `")
+            .and_then(|r| r.split('`').next())
+        {
+            Some(key) if field.is_empty() => key.to_string(),
+            Some(key) => format!("{field}.{key}"),
+            None => field,
+        };
         // Errors inside internally tagged tables carry no span: use the key's own line.
         let line = inner
             .span()
@@ -43,7 +53,7 @@ pub fn parse<T: DeserializeOwned>(
             line,
             what,
             field,
-            msg: inner.message().trim().to_string(),
+            msg: message,
         }
     })?;
     Ok(TomlFile {

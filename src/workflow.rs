@@ -315,7 +315,14 @@ impl Workflow {
     /// Reads and checks a workflow: syntax, types, unknown keys and plugins, parameter values,
     /// step order, export names and mask models. Nothing else is touched.
     pub fn load(path: &Path) -> Result<Workflow> {
-        let file = tomlfile::read::<RawFile>(path, "workflow")?;
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::from_text(path, text)
+    }
+
+    /// As [`Workflow::load`], for `text` as if read from `path` (which is not touched; mask
+    /// models are resolved against its folder): checks a workflow before it is written.
+    pub fn from_text(path: &Path, text: String) -> Result<Workflow> {
+        let file = tomlfile::parse::<RawFile>(path, "workflow", text)?;
         let raw = &file.value;
         if raw.version != VERSION {
             return Err(file.error(
@@ -339,6 +346,7 @@ impl Workflow {
             export: raw.export.clone(),
         };
         let w = &content;
+        check_relations(&file, w)?;
         let (select_args, origins) = select_flags(&file, w)?;
         let mut export_args = Vec::new();
         for (i, e) in w.export.iter().enumerate() {
@@ -354,13 +362,13 @@ impl Workflow {
         };
         // Dry validation with placeholder paths: every parameter error surfaces now.
         wf.select_settings(Path::new("input"), Path::new("project.json"), true)
-            .map_err(|e| locate(&file, &origins, e))?;
+            .map_err(|e| locate(&file, &origins, "analysis", e))?;
         for i in 0..wf.export_args.len() {
             let s = wf
                 .export_settings(i, Path::new("project.json"), Path::new("out"))
                 .map_err(|e| {
                     let origins = export_origins(i, &w.export[i]);
-                    locate(&file, &origins, e)
+                    locate(&file, &origins, &format!("export[{i}]"), e)
                 })?;
             if let Some(m) = &s.1.masks {
                 let desc = crate::segment::desc::ModelDesc::load(&m.model)
@@ -414,25 +422,42 @@ impl Workflow {
     }
 }
 
+/// A clap error as a parameter error named by the flag that caused it (the invalid or
+/// conflicting one), with clap's whole message on one line.
 fn clap_error(e: clap::Error) -> Error {
     use clap::error::{ContextKind, ContextValue};
-    let flag = match e.get(ContextKind::InvalidArg) {
-        Some(ContextValue::String(s)) => s.split_whitespace().next().unwrap_or("").to_string(),
-        _ => String::new(),
+    let first = |kind| match e.get(kind) {
+        Some(ContextValue::String(s)) => s.split_whitespace().next().map(str::to_string),
+        Some(ContextValue::Strings(v)) => v
+            .first()
+            .and_then(|s| s.split_whitespace().next())
+            .map(str::to_string),
+        _ => None,
     };
-    let msg = e
-        .render()
-        .to_string()
+    let flag = first(ContextKind::InvalidArg)
+        .or_else(|| first(ContextKind::PriorArg))
+        .unwrap_or_default();
+    let rendered = e.render().to_string();
+    let msg = rendered
         .lines()
-        .next()
-        .unwrap_or("")
+        .map(str::trim)
+        .take_while(|l| !l.starts_with("Usage:") && !l.starts_with("For more information"))
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join(" ")
         .trim_start_matches("error: ")
         .to_string();
     Error::param(flag, msg)
 }
 
-/// Maps a parameter error (named by its flag) back to the workflow key it came from.
-fn locate(file: &TomlFile<RawFile>, origins: &[Origin], e: Error) -> Error {
+/// `--pyr-scale`, `pyr_scale` -> `pyr_scale`.
+fn flag_key(flag: &str) -> String {
+    flag.trim_start_matches("--").replace('-', "_")
+}
+
+/// Maps a parameter error (named by its flag) back to the workflow key it came from; errors no
+/// flag explains are put on `fallback` (the table the flags came from), never on no key.
+fn locate(file: &TomlFile<RawFile>, origins: &[Origin], fallback: &str, e: Error) -> Error {
     if let Error::Plugin { plugin, msg } = &e {
         let id = if *plugin == "every" {
             "every-nth"
@@ -457,14 +482,42 @@ fn locate(file: &TomlFile<RawFile>, origins: &[Origin], e: Error) -> Error {
             };
             return file.error(&format!("sample[{i}].{key}"), msg.clone());
         }
+        return file.error(fallback, format!("{plugin}: {msg}"));
     }
     if let Error::Param { name, msg } = &e {
-        if let Some(o) = origins.iter().find(|o| &o.flag == name) {
+        let key = flag_key(name);
+        if let Some(o) = origins.iter().find(|o| flag_key(&o.flag) == key) {
             return file.error(&o.field, msg.clone());
         }
-        return file.error("", format!("{name}: {msg}"));
+        let msg = if name.is_empty() {
+            msg.clone()
+        } else {
+            format!("{name}: {msg}")
+        };
+        return file.error(fallback, msg);
     }
     e
+}
+
+/// Relations between keys that clap would report without naming the key that caused them.
+fn check_relations(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<()> {
+    if let Some(an) = &w.analysis {
+        if an.hfov.is_some() && an.derotate != Some(true) {
+            return Err(file.error(
+                "analysis.hfov",
+                "the field of view is only used with `derotate = true`: add it, or remove `hfov`",
+            ));
+        }
+    }
+    for (i, e) in w.export.iter().enumerate() {
+        if e.resize.is_some() && e.scale.is_some() {
+            return Err(file.error(
+                &format!("export[{i}].scale"),
+                "give either `resize` or `scale`, not both",
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn push(
@@ -943,7 +996,7 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
             }
             other => return Err(bad(format!("step {k}: unknown plugin `{other}`"))),
         };
-        sample.push(s);
+        sample.push((k, s));
     }
     let mut export = Vec::new();
     for dir in exports {
@@ -992,7 +1045,21 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
         analysis: (analysis != Analysis::default()).then_some(analysis),
         sample: sample
             .iter()
-            .map(sample_to_table)
+            .map(|(k, s)| {
+                sample_to_table(s).map_err(|e| Error::File {
+                    path: project.to_path_buf(),
+                    line: None,
+                    what: "project file",
+                    field: format!("history[{k}].params"),
+                    msg: format!(
+                        "cannot be written as a workflow step ({}; TOML integers go up to 2^63 - 1)",
+                        match e {
+                            Error::Param { msg, .. } => msg,
+                            other => other.to_string(),
+                        }
+                    ),
+                })
+            })
             .collect::<Result<Vec<_>>>()?,
         export,
     };

@@ -58,23 +58,58 @@ impl Default for FarnebackParams {
 }
 
 impl FarnebackParams {
-    /// Checks the ranges OpenCV accepts.
+    /// Most pyramid levels: 2^-32 of any image is below one pixel at the usual scale of 0.5, and
+    /// a scale near 1 with thousands of levels would only allocate buffers.
+    pub const MAX_LEVELS: u32 = 32;
+    /// Largest averaging window: wider than any analysis image worth a window (its cost grows
+    /// with the size, and `winsize²` must stay far from overflowing).
+    pub const MAX_WINSIZE: u32 = 1001;
+    /// Most iterations per level: 30x the usual 3; the flow stops changing long before.
+    pub const MAX_ITERATIONS: u32 = 100;
+
+    /// Checks the ranges OpenCV accepts and keyframer bounds; errors name the flag (`--levels`).
     pub fn validate(&self) -> Result<()> {
-        let bad = |name: &str, msg: &str| Err(Error::param(name, msg));
+        let bad = |name: &str, msg: String| Err(Error::param(name, msg));
         if !(self.pyr_scale > 0.0 && self.pyr_scale < 1.0) {
-            return bad("pyr_scale", "must be in (0, 1)");
+            return bad(
+                "--pyr-scale",
+                format!("must be in (0, 1), got {}", self.pyr_scale),
+            );
         }
-        if self.winsize == 0 {
-            return bad("winsize", "must be at least 1");
+        if self.levels > Self::MAX_LEVELS {
+            return bad(
+                "--levels",
+                format!("must be at most {}, got {}", Self::MAX_LEVELS, self.levels),
+            );
         }
-        if self.iterations == 0 {
-            return bad("iterations", "must be at least 1");
+        if !(1..=Self::MAX_WINSIZE).contains(&self.winsize) {
+            return bad(
+                "--winsize",
+                format!(
+                    "must be between 1 and {}, got {}",
+                    Self::MAX_WINSIZE,
+                    self.winsize
+                ),
+            );
         }
-        if !(1..=10).contains(&self.poly_n) {
-            return bad("poly_n", "must be between 1 and 10 (5 or 7 are usual)");
+        if !(1..=Self::MAX_ITERATIONS).contains(&self.iterations) {
+            return bad(
+                "--iterations",
+                format!(
+                    "must be between 1 and {}, got {}",
+                    Self::MAX_ITERATIONS,
+                    self.iterations
+                ),
+            );
         }
-        if !(self.poly_sigma.is_finite() && self.poly_sigma >= 0.0) {
-            return bad("poly_sigma", "must be a non-negative number");
+        if self.poly_n != 5 && self.poly_n != 7 {
+            return bad("--poly-n", format!("must be 5 or 7, got {}", self.poly_n));
+        }
+        if !(self.poly_sigma.is_finite() && self.poly_sigma > 0.0) {
+            return bad(
+                "--poly-sigma",
+                format!("must be a positive number, got {}", self.poly_sigma),
+            );
         }
         Ok(())
     }

@@ -42,7 +42,10 @@ impl Statistic {
     pub fn validate(&self) -> Result<()> {
         if let Statistic::TrimmedMean { trim } = self {
             if !(0.0..0.5).contains(trim) {
-                return Err(Error::param("trim", "must be in [0, 0.5)"));
+                return Err(Error::param(
+                    "--trim",
+                    format!("must be in [0, 0.5), got {trim}"),
+                ));
             }
         }
         Ok(())

@@ -68,7 +68,7 @@ pub fn blur(
             ),
         });
     }
-    let window = |k: usize| k.saturating_sub(p.window).max(lo)..=(k + p.window).min(hi);
+    let window = |k: usize| k.saturating_sub(p.window).max(lo)..=k.saturating_add(p.window).min(hi);
     Ok(match p.mode {
         BlurMode::Filter => keyframes
             .iter()

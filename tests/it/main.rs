@@ -2,6 +2,7 @@
 
 mod batch;
 mod blur;
+mod checks;
 mod colmap;
 mod common;
 mod experiment;
