@@ -523,3 +523,41 @@ fn run_folders_belong_to_one_input() {
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("contains the input"), "{err}");
 }
+
+#[test]
+fn a_forced_export_never_replaces_a_file_its_manifest_does_not_list() {
+    let d = tempfile::tempdir().unwrap();
+    let (clip, project) = clip_and_project(d.path());
+    let out = d.path().join("out");
+    kf_ok(&["export", s(&project), "--out", s(&out)]);
+    // Another selection would write frame_000003.jpg, where the user has put a file of theirs.
+    let p2 = d.path().join("p2.json");
+    kf_ok(&[
+        "select",
+        s(&clip),
+        "--every",
+        "3",
+        "--backend",
+        "opencv",
+        "-o",
+        s(&p2),
+    ]);
+    std::fs::write(out.join("images/frame_000003.jpg"), "mine").unwrap();
+    let before = snapshot(&out);
+    let (code, err) = code_and_stderr(&kf(&["export", s(&p2), "--out", s(&out), "--force"]));
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("frame_000003.jpg") && err.contains("manifest does not list it"),
+        "{err}"
+    );
+    assert_eq!(snapshot(&out), before, "nothing replaced or removed");
+    // Moved away, the forced export replaces exactly its own files.
+    std::fs::remove_file(out.join("images/frame_000003.jpg")).unwrap();
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    kf_ok(&["export", s(&p2), "--out", s(&out), "--force"]);
+    assert_eq!(listing(&out.join("images")).len(), 10);
+    assert_eq!(
+        std::fs::read_to_string(out.join("notes.txt")).unwrap(),
+        "mine"
+    );
+}
