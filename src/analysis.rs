@@ -592,8 +592,16 @@ pub struct Checkpoint {
 
 const CHECKPOINT_VERSION: u32 = 1;
 
+/// Whether `path` holds a checkpoint of keyframer's (any input, any version it can parse).
+pub fn is_checkpoint(path: &Path) -> bool {
+    crate::output::read_text(path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<Checkpoint>(&t).ok())
+        .is_some()
+}
+
 fn load_checkpoint(resume: &Resume, req: &Request) -> Option<Checkpoint> {
-    let bytes = std::fs::read(&resume.path).ok()?;
+    let bytes = crate::output::read_text(&resume.path).ok()?.into_bytes();
     let c: Checkpoint = match serde_json::from_slice(&bytes) {
         Ok(c) => c,
         Err(e) => {

@@ -100,12 +100,13 @@ struct Done {
 }
 
 /// The result folder of one input: its file name (letters, digits, `-`, `_`, `.` kept, anything
-/// else `_`) and 8 hex digits of a hash of its resolved absolute path, so the same input gets the
+/// else `_`) and the 16 hex digits of a hash of its resolved absolute path, so the same input gets the
 /// same folder whatever the other inputs of a run, and two inputs never share one.
 pub fn folder_name(input: &Path) -> String {
     use std::os::unix::ffi::OsStrExt;
     let resolved = crate::output::resolve(input);
-    let base: String = input
+    // Named by the file it resolves to, so two spellings (or a link) of one input meet.
+    let base: String = resolved
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "input".into())
@@ -119,7 +120,7 @@ pub fn folder_name(input: &Path) -> String {
         })
         .collect();
     let hash = fsutil::fnv1a64(resolved.as_os_str().as_bytes());
-    format!("{base}-{:08x}", hash & 0xffff_ffff)
+    format!("{base}-{hash:016x}")
 }
 
 /// The result folder names of `inputs`, in order; an input named twice (under two spellings)
@@ -298,11 +299,10 @@ fn process(
         msg: e.to_string(),
     })? + "\n";
     if folder.exists() {
-        crate::output::clear_stale_temps_of(folder, None);
         let empty = std::fs::read_dir(folder)
             .map(|mut d| d.next().is_none())
             .unwrap_or(false);
-        let recorded = std::fs::read_to_string(folder.join(MARKER))
+        let recorded = crate::output::read_text(&folder.join(MARKER))
             .ok()
             .map(|t| serde_json::from_str::<Marker>(&t).ok().map(|m| m.input));
         match recorded {
@@ -331,6 +331,7 @@ fn process(
             }
             _ => {}
         }
+        crate::output::clear_stale_temps_of(folder, None);
         fsutil::write_atomic(&folder.join(MARKER), marker_text.as_bytes())?;
     } else {
         // The folder appears with its marker inside (made under a hidden name, then renamed),
@@ -378,7 +379,7 @@ fn process(
 }
 
 fn read_done(path: &Path) -> Option<Done> {
-    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
+    serde_json::from_str(&crate::output::read_text(path).ok()?).ok()
 }
 
 /// The summary as a table for stderr.

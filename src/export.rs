@@ -15,6 +15,9 @@ use std::path::{Path, PathBuf};
 
 /// Name of the manifest written into every export folder.
 pub const MANIFEST: &str = "manifest.json";
+/// Journal written before files are moved into place and removed after the manifest: the files
+/// an interrupted export may have left (earlier and new), so the next export knows them as its own.
+pub const PENDING: &str = ".keyframer-pending.json";
 /// Sub-folder of an export holding the images.
 pub const IMAGE_DIR: &str = "images";
 /// Sub-folder of an export holding the COLMAP masks (a sibling of the images: COLMAP, nerfstudio
@@ -300,27 +303,36 @@ pub fn export(
     check_size(settings, size)?;
     let is_video = meta.kind == SourceKind::Video;
     let names = output_names(&project, src.as_ref(), settings, is_video)?;
+    let network = match &settings.masks {
+        Some(m) => Some(crate::segment::desc::ModelDesc::load(&m.model)?.model),
+        None => None,
+    };
     let mut inputs: Vec<&Path> = vec![project_path, &input];
-    if let Some(m) = &settings.masks {
+    if let (Some(m), Some(n)) = (&settings.masks, &network) {
         inputs.push(&m.model);
+        inputs.push(n);
     }
     // The model is loaded and checked before anything is written.
     let mut masker = match &settings.masks {
         Some(m) => Some(Masker::new(m)?),
         None => None,
     };
-    let dir = crate::output::prepare_dir(out, "--out", force, MANIFEST, &inputs)?;
-    for sub in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
-        crate::output::clear_stale_temps_of(&out.join(sub), None);
-    }
+    let dir = crate::output::prepare_dir(out, "--out", force, &[MANIFEST, PENDING], &inputs)?;
     let result = (|| {
-        let old = if dir.is_new() {
-            None
+        let ours = if dir.is_new() {
+            Vec::new()
         } else {
-            read_own_manifest(out)?
+            own_files(out)?
         };
-        check_targets(out, old.as_ref(), &names, settings)?;
-        let staging = out.join(format!(".keyframer-staging-{}", std::process::id()));
+        check_targets(out, &ours, &names, settings)?;
+        for sub in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
+            crate::output::clear_stale_temps_of(&out.join(sub), None);
+        }
+        let staging = out.join(format!(
+            ".keyframer-staging-{}",
+            crate::output::unique_suffix()
+        ));
+        std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
         let r = write_staged(
             &project,
             &input,
@@ -333,7 +345,7 @@ pub fn export(
             quiet,
         )
         .and_then(|(frames, missing)| {
-            commit(out, &staging, old.as_ref(), &frames)?;
+            commit(out, &staging, &ours, &frames)?;
             Ok((frames, missing))
         });
         let _ = std::fs::remove_dir_all(&staging);
@@ -370,6 +382,8 @@ pub fn export(
     })?;
     text.push('\n');
     fsutil::write_atomic(&out.join(MANIFEST), text.as_bytes())?;
+    // The manifest now lists exactly what is here: the journal has done its work.
+    let _ = std::fs::remove_file(out.join(PENDING));
     Ok(ExportReport { manifest })
 }
 
@@ -452,30 +466,65 @@ fn byte_copy(src: &dyn source::FrameSource, settings: &ExportSettings, is_video:
         })
 }
 
-/// Reads the manifest of an existing export folder of keyframer's; a folder whose manifest
-/// cannot be read is refused (keyframer could not tell what it wrote there).
-fn read_own_manifest(out: &Path) -> Result<Option<Manifest>> {
-    let path = out.join(MANIFEST);
-    if !path.exists() {
-        return Ok(None);
-    }
-    Manifest::load(&path).map(Some).map_err(|e| Error::Output {
+/// The files keyframer's records say it wrote in an existing export folder: the manifest's, and
+/// those of the journal of an interrupted export. A folder whose records cannot be read is refused
+/// (keyframer could not tell what it wrote there).
+fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
+    let refuse = |e: Error| {
+        Error::Output {
         path: out.to_path_buf(),
         msg: format!(
             "{e}; keyframer cannot tell what it wrote in this folder, so it replaces nothing: choose a new --out"
         ),
-    })
+    }
+    };
+    let mut files = Vec::new();
+    let path = out.join(MANIFEST);
+    if path.exists() {
+        files = listed_files(&Manifest::load(&path).map_err(refuse)?.frames);
+    }
+    let journal = out.join(PENDING);
+    if journal.exists() {
+        let text = crate::output::read_text(&journal).map_err(refuse)?;
+        let listed: Vec<String> = serde_json::from_str(&text).map_err(|e| {
+            refuse(Error::File {
+                path: journal.clone(),
+                line: Some(e.line()),
+                what: "export journal",
+                field: String::new(),
+                msg: e.to_string(),
+            })
+        })?;
+        for (i, f) in listed.iter().enumerate() {
+            let rel = crate::output::inside(f, &format!("[{i}]"), &journal).map_err(refuse)?;
+            let top = rel.components().count() == 2
+                && [IMAGE_DIR, MASK_DIR, OVERLAY_DIR]
+                    .iter()
+                    .any(|d| rel.starts_with(d));
+            if !top {
+                return Err(refuse(Error::File {
+                    path: journal.clone(),
+                    line: None,
+                    what: "export journal",
+                    field: format!("[{i}]"),
+                    msg: "not a file of images/, masks/ or overlays/".into(),
+                }));
+            }
+            files.push(rel);
+        }
+    }
+    Ok(files)
 }
 
 /// Refuses to write over any file the earlier manifest does not list (a user's file) or that is
 /// not a regular file.
 fn check_targets(
     out: &Path,
-    old: Option<&Manifest>,
+    ours: &[PathBuf],
     names: &[String],
     settings: &ExportSettings,
 ) -> Result<()> {
-    let ours: Vec<PathBuf> = old.map(|m| listed_files(&m.frames)).unwrap_or_default();
+    let ours: std::collections::HashSet<&PathBuf> = ours.iter().collect();
     let mut targets = Vec::new();
     for n in names {
         targets.push(Path::new(IMAGE_DIR).join(n));
@@ -497,12 +546,16 @@ fn check_targets(
         }
     }
     for d in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
+        // A real folder or nothing: a symbolic link would take the writes (and removals)
+        // somewhere keyframer was not told to write.
         let p = out.join(d);
-        if p.exists() && !p.is_dir() {
-            return Err(Error::Output {
-                path: p,
-                msg: "exists and is not a folder".into(),
-            });
+        if let Ok(m) = std::fs::symlink_metadata(&p) {
+            if !m.file_type().is_dir() {
+                return Err(Error::Output {
+                    path: p,
+                    msg: "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away".into(),
+                });
+            }
         }
     }
     Ok(())
@@ -643,13 +696,22 @@ fn write_staged(
 
 /// Moves the staged files into place and removes what the earlier manifest listed that this
 /// export did not write.
-fn commit(
-    out: &Path,
-    staging: &Path,
-    old: Option<&Manifest>,
-    frames: &[ExportedFrame],
-) -> Result<()> {
+fn commit(out: &Path, staging: &Path, ours: &[PathBuf], frames: &[ExportedFrame]) -> Result<()> {
     let new = listed_files(frames);
+    let new_set: std::collections::HashSet<&PathBuf> = new.iter().collect();
+    // The journal first: a kill while files move leaves records of everything that may be here.
+    let mut journal: Vec<String> = ours
+        .iter()
+        .chain(new.iter())
+        .map(|p| p.to_string_lossy().into_owned())
+        .collect();
+    journal.sort();
+    journal.dedup();
+    let text = serde_json::to_string(&journal).map_err(|e| Error::Output {
+        path: out.join(PENDING),
+        msg: e.to_string(),
+    })?;
+    fsutil::write_atomic(&out.join(PENDING), text.as_bytes())?;
     for rel in &new {
         let to = out.join(rel);
         if let Some(parent) = to.parent() {
@@ -658,20 +720,18 @@ fn commit(
         let from = staging.join(rel);
         std::fs::rename(&from, &to).map_err(|e| Error::io(&to, e))?;
     }
-    if let Some(old) = old {
-        for rel in listed_files(&old.frames) {
-            if new.contains(&rel) {
-                continue;
-            }
-            let p = out.join(&rel);
-            if crate::output::check_replaceable(&p).is_err() {
-                continue;
-            }
-            match std::fs::remove_file(&p) {
-                Ok(()) => log::info!("removed {} from the earlier export", p.display()),
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                Err(e) => log::warn!("{}: cannot remove stale export: {e}", p.display()),
-            }
+    for rel in ours {
+        if new_set.contains(rel) {
+            continue;
+        }
+        let p = out.join(rel);
+        if crate::output::check_replaceable(&p).is_err() {
+            continue;
+        }
+        match std::fs::remove_file(&p) {
+            Ok(()) => log::info!("removed {} from the earlier export", p.display()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => log::warn!("{}: cannot remove stale export: {e}", p.display()),
         }
     }
     for d in [MASK_DIR, OVERLAY_DIR] {
@@ -701,7 +761,7 @@ pub fn read_manifest(path: &Path) -> Option<Manifest> {
 impl Manifest {
     /// Reads and checks a manifest: the current layout, every name a plain file name.
     pub fn load(path: &Path) -> Result<Manifest> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::output::read_text(path)?;
         let bad = |field: String, msg: &str| Error::File {
             path: path.to_path_buf(),
             line: None,

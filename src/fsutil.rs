@@ -8,11 +8,16 @@ use std::io::{Read, Write};
 use std::path::{Component, Path, PathBuf};
 
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so readers
-/// see either the old file or the whole new one. The temporary file is removed on failure.
+/// see either the old file or the whole new one. The temporary is a new file with a unique name
+/// (created exclusively, so a link or FIFO planted under a guessed name is never followed) and is
+/// removed on failure.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let tmp = temp_sibling(path);
     let result = (|| -> std::io::Result<()> {
-        let mut f = fs::File::create(&tmp)?;
+        let mut f = fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
         f.write_all(bytes)?;
         f.sync_data()?;
         Ok(())
@@ -23,7 +28,16 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// Copies `from` to `to` atomically (temporary file + rename), byte for byte.
 pub fn copy_atomic(from: &Path, to: &Path) -> Result<()> {
     let tmp = temp_sibling(to);
-    let result = fs::copy(from, &tmp).map(|_| ());
+    let result = (|| -> std::io::Result<()> {
+        let mut src = fs::File::open(from)?;
+        let mut f = fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
+        std::io::copy(&mut src, &mut f)?;
+        f.sync_data()?;
+        Ok(())
+    })();
     finish_atomic(&tmp, to, result)
 }
 
@@ -41,7 +55,7 @@ fn temp_sibling(path: &Path) -> PathBuf {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+    path.with_file_name(format!(".{name}.tmp-{}", crate::output::unique_suffix()))
 }
 
 /// Refuses to replace an existing file unless `force`, and anything that is not a regular file

@@ -246,7 +246,17 @@ fn run(cli: Cli) -> Result<Outcome> {
                     a.project.display()
                 )
             })?;
-            keyframer::output::check_file(&a.output, "-o", a.force, &[&a.project])?;
+            // Everything the save reads is an input: the project, its video or image folder, and
+            // the export folders' manifests.
+            let source = keyframer::project::Project::load(&a.project)?.input_path(&a.project);
+            let manifests: Vec<std::path::PathBuf> = a
+                .export
+                .iter()
+                .map(|e| e.join(keyframer::export::MANIFEST))
+                .collect();
+            let mut inputs: Vec<&std::path::Path> = vec![&a.project, &source];
+            inputs.extend(manifests.iter().map(|m| m.as_path()));
+            keyframer::output::check_file(&a.output, "-o", a.force, &inputs)?;
             keyframer::fsutil::write_atomic(&a.output, text.as_bytes())?;
             eprintln!("workflow -> {}", a.output.display());
             Ok(Outcome::Ok)
@@ -318,7 +328,12 @@ fn segment(a: &keyframer::cli::SegmentArgs) -> Result<Outcome> {
     use opencv::imgcodecs;
     use opencv::prelude::*;
     let settings = a.settings();
-    let inputs: Vec<&std::path::Path> = vec![&a.image, &a.model];
+    // The description names the network (and config) files: inputs too.
+    let desc = keyframer::segment::desc::ModelDesc::load(&a.model)?;
+    let mut inputs: Vec<&std::path::Path> = vec![&a.image, &a.model, &desc.model];
+    if let Some(c) = &desc.config {
+        inputs.push(c);
+    }
     keyframer::output::check_file(&a.output, "-o", a.force, &inputs)?;
     if let Some(o) = &a.overlay {
         keyframer::output::check_file(o, "--overlay", a.force, &inputs)?;

@@ -40,28 +40,42 @@ pub fn plain_name(name: &str, what: &str, file: &Path) -> Result<()> {
     Ok(())
 }
 
-/// `path` made absolute with symbolic links of its existing part resolved: the longest existing
-/// ancestor is canonicalised and the rest appended lexically.
+/// `path` made absolute the way the kernel walks it: component by component, every symbolic link
+/// of the existing part resolved before a following `..` is applied (so `LINK/../x` is where the
+/// kernel would write, not where the text suggests); the missing rest is appended as written.
 pub fn resolve(path: &Path) -> PathBuf {
-    let abs = crate::fsutil::absolute(path);
-    let mut existing = abs.clone();
-    let mut rest: Vec<std::ffi::OsString> = Vec::new();
-    loop {
-        if let Ok(c) = fs::canonicalize(&existing) {
-            let mut out = c;
-            for r in rest.iter().rev() {
-                out.push(r);
+    let start = if path.is_absolute() {
+        PathBuf::from("/")
+    } else {
+        std::env::current_dir()
+            .and_then(fs::canonicalize)
+            .unwrap_or_else(|_| PathBuf::from("/"))
+    };
+    let mut cur = start;
+    let mut exists = true;
+    for c in path.components() {
+        match c {
+            Component::RootDir | Component::Prefix(_) | Component::CurDir => {}
+            Component::ParentDir => {
+                cur.pop();
             }
-            return out;
-        }
-        match (existing.file_name(), existing.parent()) {
-            (Some(n), Some(p)) => {
-                rest.push(n.to_os_string());
-                existing = p.to_path_buf();
+            Component::Normal(n) => {
+                cur.push(n);
+                if exists {
+                    match fs::symlink_metadata(&cur) {
+                        Ok(m) if m.file_type().is_symlink() => match fs::canonicalize(&cur) {
+                            Ok(c) => cur = c,
+                            // A dangling link: the kernel would create its target.
+                            Err(_) => exists = false,
+                        },
+                        Ok(_) => {}
+                        Err(_) => exists = false,
+                    }
+                }
             }
-            _ => return abs,
         }
     }
+    cur
 }
 
 /// Refuses an output that is an input, lies inside an input folder or contains an input.
@@ -158,7 +172,8 @@ fn pid_alive(pid: u32) -> bool {
 
 /// The pid a keyframer temporary's name ends with, if `name` is one (of `of`, when given).
 fn temp_pid(name: &str, of: Option<&OsStr>) -> Option<u32> {
-    let digits = |s: &str| s.parse::<u32>().ok().filter(|_| !s.is_empty());
+    // `PID` or `PID-UNIQUE`.
+    let digits = |s: &str| s.split('-').next().and_then(|p| p.parse::<u32>().ok());
     if let Some(rest) = name.strip_prefix('.') {
         if let Some((base, pid)) = rest.rsplit_once(".tmp-") {
             let same = of.is_none_or(|o| o.to_str() == Some(base));
@@ -212,6 +227,36 @@ pub fn clear_stale_temps_of(dir: &Path, of: Option<&OsStr>) -> usize {
     n
 }
 
+/// Reads a file keyframer reads as a record or input document (project, manifest, colmap.json,
+/// done.json, .keyframer-run, workflow): only a regular file (following links) is opened, so a FIFO
+/// or device in its place is an error, never a hang.
+pub fn read_text(path: &Path) -> Result<String> {
+    let m = fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !m.file_type().is_file() {
+        return Err(Error::input(
+            path,
+            "is not a regular file (a folder, device, FIFO or socket)",
+        ));
+    }
+    fs::read_to_string(path).map_err(|e| Error::io(path, e))
+}
+
+/// A name suffix unique to this process and call: `PID-N`, so a temporary is always a new file
+/// (never one planted or left under a predictable name).
+pub fn unique_suffix() -> String {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
+    format!(
+        "{}-{}{nanos:09}",
+        std::process::id(),
+        NEXT.fetch_add(1, Ordering::Relaxed)
+    )
+}
+
 /// A folder output being written; created by this command when `created` is not empty (the
 /// folders made, outermost first), which [`OutDir::abandon`] removes again when still empty.
 #[derive(Debug)]
@@ -244,9 +289,10 @@ pub fn prepare_dir(
     dir: &Path,
     flag: &str,
     force: bool,
-    record: &str,
+    records: &[&str],
     inputs: &[&Path],
 ) -> Result<OutDir> {
+    let record = records.first().copied().unwrap_or("record");
     check_not_input(dir, flag, inputs)?;
     let mut created = Vec::new();
     match kind_of(dir) {
@@ -278,13 +324,19 @@ pub fn prepare_dir(
         path: dir.to_path_buf(),
         created,
     };
-    clear_stale_temps_of(dir, None);
+    // Ownership first: keyframer's own temporaries do not count, and are cleared only once the
+    // folder is known to be keyframer's (or holds nothing else).
     let non_empty = fs::read_dir(dir)
         .map_err(|e| Error::io(dir, e))?
-        .next()
-        .is_some();
+        .flatten()
+        .any(|e| {
+            e.file_name()
+                .to_str()
+                .and_then(|n| temp_pid(n, None))
+                .is_none()
+        });
     if non_empty {
-        if !dir.join(record).is_file() {
+        if !records.iter().any(|r| dir.join(r).is_file()) {
             return Err(Error::Output {
                 path: dir.to_path_buf(),
                 msg: format!(
@@ -301,8 +353,13 @@ pub fn prepare_dir(
             });
         }
     }
-    let probe = dir.join(format!(".keyframer-write-test-{}", std::process::id()));
-    let written = fs::write(&probe, b"ok");
+    clear_stale_temps_of(dir, None);
+    let probe = dir.join(format!(".keyframer-write-test-{}", unique_suffix()));
+    let written = fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .and_then(|mut f| std::io::Write::write_all(&mut f, b"ok"));
     let _ = fs::remove_file(&probe);
     if let Err(e) = written {
         out.abandon();
@@ -368,6 +425,8 @@ mod tests {
         assert_eq!(temp_pid(".keyframer-staging-9", None), Some(9));
         assert_eq!(temp_pid("a.jpg", None), None);
         assert_eq!(temp_pid(".a.tmp-x", None), None);
+        assert_eq!(temp_pid(".a.jpg.tmp-123-7", None), Some(123));
+        assert_eq!(temp_pid(".keyframer-staging-9-3", None), Some(9));
     }
 
     #[test]
@@ -380,9 +439,17 @@ mod tests {
         assert!(check_not_input(&input.join("x"), "-o", &[i]).is_err());
         assert!(check_not_input(d.path(), "-o", &[i]).is_err());
         assert!(check_not_input(&d.path().join("out"), "-o", &[i]).is_ok());
-        // Through a symbolic link too.
+        // Through a symbolic link too, and through `LINK/..` (the link's parent, not `.`).
         let link = d.path().join("link");
         std::os::unix::fs::symlink(&input, &link).unwrap();
         assert!(check_not_input(&link.join("y"), "-o", &[i]).is_err());
+        let sub = input.join("sub");
+        fs::create_dir_all(&sub).unwrap();
+        let elsewhere = d.path().join("elsewhere");
+        fs::create_dir_all(&elsewhere).unwrap();
+        let l2 = elsewhere.join("l2");
+        std::os::unix::fs::symlink(&sub, &l2).unwrap();
+        assert_eq!(resolve(&l2.join("../v.mp4")), resolve(&input.join("v.mp4")));
+        assert!(check_not_input(&l2.join("../v.mp4"), "-o", &[i]).is_err());
     }
 }

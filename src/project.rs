@@ -163,7 +163,7 @@ impl Project {
 
     /// Reads and validates a project file.
     pub fn load(path: &Path) -> Result<Project> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::output::read_text(path)?;
         let bad = |field: String, msg: String| Error::File {
             path: path.to_path_buf(),
             line: None,

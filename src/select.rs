@@ -202,7 +202,16 @@ pub fn identify(input: &Path) -> Result<(SourceKind, Fingerprint)> {
 /// missing), not the input nor inside it; an existing project needs `--force`.
 pub(crate) fn check_outputs(s: &SelectSettings) -> Result<()> {
     crate::output::check_file(&s.output, "-o", s.force, &[&s.input])?;
-    crate::output::check_file(&checkpoint_path(&s.output), "-o", true, &[&s.input])
+    let checkpoint = checkpoint_path(&s.output);
+    crate::output::check_file(&checkpoint, "-o", true, &[&s.input])?;
+    // The checkpoint is replaced and removed without --force only when it is keyframer's own.
+    if checkpoint.exists() && !s.force && !crate::analysis::is_checkpoint(&checkpoint) {
+        return Err(Error::Output {
+            path: checkpoint,
+            msg: "exists and is not a keyframer checkpoint; pass --force to replace it".into(),
+        });
+    }
+    Ok(())
 }
 
 /// The checkpoint file of a running analysis for the project `output`: `output` + `.partial`.

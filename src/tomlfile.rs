@@ -17,7 +17,7 @@ pub struct TomlFile<T> {
 
 /// Reads and deserializes `path`; `what` names the kind of file in errors ("workflow").
 pub fn read<T: DeserializeOwned>(path: &Path, what: &'static str) -> Result<TomlFile<T>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::output::read_text(path)?;
     parse(path, what, text)
 }
 

@@ -315,7 +315,7 @@ impl Workflow {
     /// Reads and checks a workflow: syntax, types, unknown keys and plugins, parameter values,
     /// step order, export names and mask models. Nothing else is touched.
     pub fn load(path: &Path) -> Result<Workflow> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::output::read_text(path)?;
         Self::from_text(path, text)
     }
 

@@ -223,12 +223,29 @@ pub struct Record {
     /// re-run may replace or remove (and nothing else).
     #[serde(default)]
     pub files: Vec<String>,
+    /// When the run started (seconds since the Unix epoch).
+    #[serde(default)]
+    pub started_unix_s: u64,
+    /// False while the stages run: a record left unfinished means keyframer was stopped.
+    #[serde(default = "finished_default")]
+    pub finished: bool,
+}
+
+fn finished_default() -> bool {
+    true
+}
+
+fn now_unix_s() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0)
 }
 
 /// Reads a workspace's `colmap.json`.
 pub fn read_record(workspace: &Path) -> Result<Record> {
     let p = workspace.join(RECORD);
-    let text = std::fs::read_to_string(&p).map_err(|e| Error::io(&p, e))?;
+    let text = crate::output::read_text(&p)?;
     serde_json::from_str(&text).map_err(|e| Error::File {
         path: p.clone(),
         line: Some(e.line()),
@@ -347,12 +364,20 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
         models: Vec::new(),
         error: None,
         files: Vec::new(),
+        started_unix_s: now_unix_s(),
+        finished: true,
     };
     let runner = Runner {
         colmap: &colmap,
         ws: &ws,
         quiet,
     };
+    // The record comes first, marked unfinished: a kill during a stage leaves a workspace that a
+    // later `--force` knows as keyframer's (files appearing after `started_unix_s` are COLMAP's).
+    rec.files = ours_now(&ws);
+    rec.finished = false;
+    write_record(&ws, &rec)?;
+    rec.finished = true;
     let result = (|| -> Result<()> {
         write_project_ini(&runner, &mut rec, a, has_masks)?;
         let db = ws.join("database.db");
@@ -540,7 +565,7 @@ fn write_record(ws: &Path, rec: &Record) -> Result<()> {
 /// keyframer and COLMAP write (`images/ masks/ sparse/ dense/ logs/ database.db project.ini`) is a
 /// user's and stops the run before anything is removed.
 fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
-    let dir = crate::output::prepare_dir(ws, "-o", force, RECORD, &[])?;
+    let dir = crate::output::prepare_dir(ws, "-o", force, &[RECORD], &[])?;
     if dir.is_new() || !ws.join(RECORD).is_file() {
         return Ok(dir);
     }
@@ -556,9 +581,19 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
         listed.push(crate::output::inside(f, &format!("files[{i}]"), &rec_path)?);
     }
     let present = ours_now(ws);
+    let listed: std::collections::HashSet<PathBuf> = listed.into_iter().collect();
+    // After an interrupted run, what appeared in keyframer's places since it started is COLMAP's.
+    let since_start = |f: &str| {
+        !record.finished
+            && std::fs::symlink_metadata(ws.join(f))
+                .ok()
+                .and_then(|m| m.modified().ok())
+                .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                .is_some_and(|t| t.as_secs() >= record.started_unix_s)
+    };
     let foreign: Vec<&String> = present
         .iter()
-        .filter(|f| !listed.iter().any(|l| l == Path::new(f)))
+        .filter(|f| !listed.contains(Path::new(f.as_str())) && !since_start(f))
         .collect();
     if let Some(first) = foreign.first() {
         return Err(Error::Output {
@@ -572,6 +607,9 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
                 }
             ),
         });
+    }
+    for f in &present {
+        crate::output::check_replaceable(&ws.join(f))?;
     }
     remove_ours(ws, &present);
     Ok(dir)
@@ -614,7 +652,7 @@ fn ours_now(ws: &Path) -> Vec<String> {
 fn remove_ours(ws: &Path, files: &[String]) {
     for f in files {
         let p = ws.join(f);
-        if crate::output::check_replaceable(&p).is_ok() || p.is_symlink() {
+        if std::fs::symlink_metadata(&p).is_ok_and(|m| m.file_type().is_file()) {
             if let Err(e) = std::fs::remove_file(&p) {
                 log::warn!("{}: cannot remove: {e}", p.display());
             }
@@ -706,7 +744,10 @@ impl Runner<'_> {
 /// (absolute) and settings filled in.
 fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapArgs, masks: bool) -> Result<()> {
     let ws = runner.ws;
-    let tmp = ws.join(format!(".project.ini.tmp-{}", std::process::id()));
+    let tmp = ws.join(format!(
+        ".project.ini.tmp-{}",
+        crate::output::unique_suffix()
+    ));
     let stage = runner.stage(
         "project_generator",
         &[

@@ -85,11 +85,13 @@ pub fn write_report(
             ]
         })
         .collect();
-    let mut inputs: Vec<&Path> = vec![project_path];
+    let project = Project::load(project_path)?;
+    // The project's own input (video or image folder) is read for thumbnails.
+    let source = project.input_path(project_path);
+    let mut inputs: Vec<&Path> = vec![project_path, &source];
     inputs.extend(export_parts.iter().map(|p| p.as_path()));
     crate::output::check_file(&settings.output, "-o", settings.force, &inputs)?;
     crate::output::check_file(&png_path, "--timeline", settings.force, &inputs)?;
-    let project = Project::load(project_path)?;
     let timeline = Timeline::from_project(&project);
     let mut missing = timeline.missing.clone();
 

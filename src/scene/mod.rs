@@ -292,7 +292,7 @@ pub fn tum_line(t: f64, p: &Pose) -> String {
 /// Generates the sequence described by `s`.
 pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
     let seconds = validate(s)?;
-    let dir = crate::output::prepare_dir(&s.out, "OUT", s.force, "scene.json", &[&s.textures])?;
+    let dir = crate::output::prepare_dir(&s.out, "OUT", s.force, &["scene.json"], &[&s.textures])?;
     let r = (|| {
         for name in ["video.mp4", "poses.tum", "scene.json"] {
             crate::output::check_replaceable(&s.out.join(name))?;

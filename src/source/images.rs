@@ -186,7 +186,7 @@ impl ImageSource {
         check_bytes(&bytes)?;
         let buf = opencv::core::Vector::<u8>::from_slice(&bytes);
         let m = imgcodecs::imdecode(&buf, imgcodecs::IMREAD_COLOR)
-            .map_err(|e| format!("OpenCV cannot decode it: {e}"))?;
+            .map_err(|e| crate::error::explain_opencv(&e))?;
         if m.empty() {
             return Err("cannot be decoded as an image (damaged or unsupported file)".into());
         }

@@ -561,3 +561,169 @@ fn a_forced_export_never_replaces_a_file_its_manifest_does_not_list() {
         "mine"
     );
 }
+
+/// The cases a hostile review found after the rule was first built: `LINK/..` spellings, inputs a
+/// command reads indirectly, symbolic links inside keyframer's own folders, special files where
+/// keyframer reads or removes, user files in temporary-looking names, interrupted exports.
+#[test]
+fn hostile_spellings_and_planted_files_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let root = d.path();
+    let deep = root.join("deep/a");
+    std::fs::create_dir_all(deep.join("sub")).unwrap();
+    let (clip, _) = clip_and_project(root);
+    let vid = deep.join("vid.mp4");
+    std::fs::copy(&clip, &vid).unwrap();
+    let pd = root.join("pd.json");
+    kf_ok(&[
+        "select",
+        s(&vid),
+        "--every",
+        "10",
+        "--backend",
+        "opencv",
+        "-o",
+        s(&pd),
+    ]);
+    let link = root.join("L");
+    std::os::unix::fs::symlink(deep.join("sub"), &link).unwrap();
+    let before = snapshot(root);
+    let limit = Duration::from_secs(60);
+    // `L/..` is deep/a (where the kernel goes), so `L/../vid.mp4` is the input.
+    let sneaky = format!("{}/../vid.mp4", link.display());
+    for args in [
+        vec!["select", s(&vid), "--every", "10", "-o", &sneaky, "--force"],
+        vec!["report", s(&pd), "-o", &sneaky, "--force"],
+        vec!["workflow", "save", s(&pd), "-o", &sneaky, "--force"],
+        // The project's own video is an input of the report and of workflow save.
+        vec!["report", s(&pd), "-o", s(&vid), "--force"],
+        vec![
+            "report",
+            s(&pd),
+            "-o",
+            s(&root.join("r.html")),
+            "--timeline",
+            s(&vid),
+            "--force",
+        ],
+        vec!["workflow", "save", s(&pd), "-o", s(&vid), "--force"],
+    ] {
+        let (code, err) = kf_timeout(&args, limit);
+        assert_eq!(code, 1, "{args:?}: {err}");
+        assert!(err.contains("is the input"), "{args:?}: {err}");
+    }
+    assert_eq!(snapshot(root), before, "nothing written");
+
+    // A symbolic link in place of images/ inside keyframer's own export is not written through.
+    let (imgs, ip) = image_folder_project(root);
+    let e = root.join("E");
+    kf_ok(&["export", s(&ip), "--out", s(&e)]);
+    std::fs::remove_dir_all(e.join("images")).unwrap();
+    std::os::unix::fs::symlink(&imgs, e.join("images")).unwrap();
+    let before = snapshot(&imgs);
+    let (code, err) = code_and_stderr(&kf(&["export", s(&ip), "--out", s(&e), "--force"]));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("symbolic links"), "{err}");
+    assert_eq!(snapshot(&imgs), before, "the input folder untouched");
+
+    // A FIFO where COLMAP's record lists a file: refused before anything is removed, no hang.
+    let ev = root.join("EV");
+    kf_ok(&["export", s(&pd), "--out", s(&ev)]);
+    let ws = root.join("WS");
+    kf_ok(&["colmap", s(&ev), "-o", s(&ws)]);
+    std::fs::remove_file(ws.join("project.ini")).unwrap();
+    assert!(Command::new("mkfifo")
+        .arg(ws.join("project.ini"))
+        .status()
+        .unwrap()
+        .success());
+    let before = snapshot(&ws);
+    let (code, err) = kf_timeout(&["colmap", s(&ev), "-o", s(&ws), "--force"], limit);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("project.ini") && err.contains("replaces only regular files"),
+        "{err}"
+    );
+    assert_eq!(snapshot(&ws), before);
+    // FIFOs where keyframer reads its records: an error, never a hang.
+    std::fs::remove_file(ev.join("manifest.json")).unwrap();
+    assert!(Command::new("mkfifo")
+        .arg(ev.join("manifest.json"))
+        .status()
+        .unwrap()
+        .success());
+    let (code, err) = kf_timeout(
+        &[
+            "report",
+            s(&pd),
+            "-o",
+            s(&root.join("r2.html")),
+            "--export",
+            s(&ev),
+        ],
+        limit,
+    );
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("not a regular file"), "{err}");
+
+    // Temporary-looking user files in a folder keyframer did not make are not swept.
+    let u = root.join("U");
+    let pid = dead_pid();
+    std::fs::create_dir_all(u.join(format!(".keyframer-staging-{pid}/sub"))).unwrap();
+    std::fs::write(
+        u.join(format!(".keyframer-staging-{pid}/sub/thesis.tex")),
+        "x",
+    )
+    .unwrap();
+    std::fs::write(u.join(format!(".notes.txt.tmp-{pid}")), "x").unwrap();
+    std::fs::write(u.join("data.csv"), "x").unwrap();
+    let before = snapshot(&u);
+    let (code, err) = code_and_stderr(&kf(&["export", s(&pd), "--out", s(&u), "--force"]));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("keyframer did not make it"), "{err}");
+    assert_eq!(snapshot(&u), before, "nothing swept");
+
+    // A user's file where select keeps its checkpoint is not replaced without --force.
+    let q = root.join("q.json");
+    std::fs::write(root.join("q.json.partial"), "mine").unwrap();
+    let (code, err) = code_and_stderr(&kf(&["select", s(&clip), "--every", "10", "-o", s(&q)]));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("not a keyframer checkpoint"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(root.join("q.json.partial")).unwrap(),
+        "mine"
+    );
+
+    // An export interrupted while moving files into place (journal written, no manifest yet):
+    // the next forced export knows those files as its own and finishes cleanly.
+    let j = root.join("J");
+    kf_ok(&["export", s(&pd), "--out", s(&j)]);
+    std::fs::remove_file(j.join("manifest.json")).unwrap();
+    std::fs::write(j.join("images/frame_000099.jpg"), "half-moved").unwrap();
+    std::fs::write(
+        j.join(".keyframer-pending.json"),
+        r#"["images/frame_000000.jpg","images/frame_000010.jpg","images/frame_000020.jpg","images/frame_000099.jpg"]"#,
+    )
+    .unwrap();
+    kf_ok(&["export", s(&pd), "--out", s(&j), "--force"]);
+    assert_eq!(listing(&j), vec!["images", "manifest.json"]);
+    assert_eq!(
+        listing(&j.join("images")),
+        vec!["frame_000000.jpg", "frame_000010.jpg", "frame_000020.jpg"]
+    );
+
+    // Two spellings of one input (a link) meet in one run folder and are refused together.
+    let alias = root.join("alias.mp4");
+    std::os::unix::fs::symlink(&vid, &alias).unwrap();
+    let w = workflow(root, "small");
+    let (code, err) = code_and_stderr(&kf(&[
+        "run",
+        s(&w),
+        s(&vid),
+        s(&alias),
+        "--out",
+        s(&root.join("o")),
+    ]));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("are the same input"), "{err}");
+}
