@@ -691,6 +691,30 @@ fn link_or_copy(from: &Path, to: &Path) -> Result<()> {
     fsutil::copy_atomic(from, to)
 }
 
+/// Makes the stage's process end when keyframer does (Linux: the parent-death signal), so a killed
+/// keyframer never leaves COLMAP writing into a workspace.
+fn die_with_parent(cmd: &mut Command) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        const PR_SET_PDEATHSIG: std::ffi::c_int = 1;
+        const SIGKILL: std::ffi::c_ulong = 9;
+        extern "C" {
+            fn prctl(option: std::ffi::c_int, arg2: std::ffi::c_ulong, ...) -> std::ffi::c_int;
+        }
+        // SAFETY: prctl(PR_SET_PDEATHSIG) is async-signal-safe and only sets a flag of the child
+        // between fork and exec; nothing is allocated.
+        unsafe {
+            cmd.pre_exec(|| {
+                if prctl(PR_SET_PDEATHSIG, SIGKILL) == -1 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    }
+}
+
 /// Runs COLMAP stages in a workspace.
 struct Runner<'a> {
     colmap: &'a Colmap,
@@ -711,15 +735,15 @@ impl Runner<'_> {
             command.push(v.clone());
         }
         let start = Instant::now();
-        let status = Command::new(&self.colmap.bin)
-            .args(&command[1..])
+        let mut cmd = Command::new(&self.colmap.bin);
+        cmd.args(&command[1..])
             .stdin(Stdio::null())
             .stdout(file)
-            .stderr(err)
-            .status()
-            .map_err(|e| {
-                Error::Colmap(format!("{}: cannot run: {e}", self.colmap.bin.display()))
-            })?;
+            .stderr(err);
+        die_with_parent(&mut cmd);
+        let status = cmd.status().map_err(|e| {
+            Error::Colmap(format!("{}: cannot run: {e}", self.colmap.bin.display()))
+        })?;
         let seconds = start.elapsed().as_secs_f64();
         if !status.success() {
             return Err(Error::Colmap(format!(

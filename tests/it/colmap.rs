@@ -125,7 +125,8 @@ fn workspace_refused_without_force_and_replaced_with_it() {
 }
 
 /// A stand-in for COLMAP: says it has no CUDA, writes a project file, and for `mapper` a text
-/// model of three images under OUTPUT/0; fails the stage named in $FAIL_STAGE with status 3.
+/// model of three images under OUTPUT/0; fails the stage named in $FAIL_STAGE with status 3 and
+/// sleeps (printing its pid) in the stage named in $SLEEP_STAGE.
 fn fake_colmap(dir: &Path) -> PathBuf {
     let p = dir.join("fake-colmap");
     std::fs::write(
@@ -139,6 +140,7 @@ while [ $# -gt 0 ]; do
 done
 echo "fake $stage"
 if [ "$stage" = "$FAIL_STAGE" ]; then echo "boom" >&2; exit 3; fi
+if [ "$stage" = "$SLEEP_STAGE" ]; then echo "pid $$"; exec sleep 120; fi
 case "$stage" in
   help|-h) printf 'COLMAP 3.8 -- fake\n  (Commit Unknown on Unknown without CUDA)\n';;
   project_generator) printf 'database_path=\nimage_path=\n[ImageReader]\nmask_path=\n' > "$out";;
@@ -756,4 +758,60 @@ fn eval_recovers_known_similarity_from_a_text_model() {
     let rmse = r["gt"]["position_rmse"].as_f64().unwrap();
     // Per-axis noise is uniform in ±noise: |e| ≤ √3·noise, scaled by 2.5 into GT units.
     assert!(rmse > 0.0 && rmse <= 2.5 * noise * 3f64.sqrt(), "{rmse}");
+}
+
+/// keyframer killed during a COLMAP stage: the stage's process dies with it, and the workspace,
+/// whose record says the run did not finish, is taken over by the next `--force` run.
+#[test]
+fn a_killed_colmap_run_stops_its_stage_and_recovers_with_force() {
+    let d = tempfile::tempdir().unwrap();
+    let export = small_export(d.path());
+    let fake = fake_colmap(d.path());
+    let ws = d.path().join("ws");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args(["colmap", s(&export), "-o", s(&ws), "--sparse", "--quiet"])
+        .env("KEYFRAMER_COLMAP", &fake)
+        .env("SLEEP_STAGE", "feature_extractor")
+        .spawn()
+        .unwrap();
+    let log = ws.join("logs/feature_extractor.log");
+    let t = std::time::Instant::now();
+    let pid = loop {
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
+        if let Some(p) = text.lines().find_map(|l| l.strip_prefix("pid ")) {
+            break p.trim().to_string();
+        }
+        assert!(t.elapsed().as_secs() < 60, "the stage never started");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert_eq!(json(&ws.join("colmap.json"))["finished"], false);
+    child.kill().unwrap();
+    child.wait().unwrap();
+    // The stage's process is gone (or a zombie waiting for its reaper) within a few seconds.
+    let alive = || {
+        std::fs::read_to_string(format!("/proc/{pid}/status"))
+            .map(|s| {
+                !s.lines()
+                    .any(|l| l.starts_with("State:") && l.contains('Z'))
+            })
+            .unwrap_or(false)
+    };
+    let t = std::time::Instant::now();
+    while alive() && t.elapsed().as_secs() < 10 {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    assert!(!alive(), "COLMAP stage {pid} outlived keyframer");
+    // Without --force refused; with it, the unfinished workspace is replaced and the run ends.
+    let (code, err) = code_and_stderr(&kf(&["colmap", s(&export), "-o", s(&ws)]));
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("--force"), "{err}");
+    let o = kf_env(
+        &["colmap", s(&export), "-o", s(&ws), "--sparse", "--force"],
+        &[("KEYFRAMER_COLMAP", s(&fake))],
+    );
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 0, "{err}");
+    let rec = json(&ws.join("colmap.json"));
+    assert_eq!(rec["finished"], true);
+    assert_eq!(rec["models"][0]["registered_images"], 3);
 }
