@@ -21,19 +21,8 @@ fn kf_env(args: &[&str], env: &[(&str, &str)]) -> Output {
 
 /// A 1 s testsrc2 clip, every 5th frame exported: a small export folder (6 images).
 fn small_export(dir: &Path) -> PathBuf {
-    let clip = testsrc(dir, "clip.mp4", 320, 240, "30", 1.0);
-    let project = dir.join("p.json");
+    let (_, project) = clip_and_project(dir);
     let out = dir.join("export");
-    kf_ok(&[
-        "select",
-        s(&clip),
-        "--every",
-        "5",
-        "--backend",
-        "opencv",
-        "-o",
-        s(&project),
-    ]);
     kf_ok(&["export", s(&project), "--out", s(&out)]);
     out
 }

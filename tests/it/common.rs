@@ -135,3 +135,21 @@ pub fn listing(dir: &Path) -> Vec<String> {
     v.sort();
     v
 }
+
+/// A 1 s 320x240 testsrc2 clip (`dir/clip.mp4`) and a project keeping every 5th frame
+/// (`dir/p.json`, 6 keyframes, opencv backend).
+pub fn clip_and_project(dir: &Path) -> (PathBuf, PathBuf) {
+    let clip = testsrc(dir, "clip.mp4", 320, 240, "30", 1.0);
+    let project = dir.join("p.json");
+    kf_ok(&[
+        "select",
+        s(&clip),
+        "--every",
+        "5",
+        "--backend",
+        "opencv",
+        "-o",
+        s(&project),
+    ]);
+    (clip, project)
+}

@@ -49,17 +49,11 @@ fn rotate180(m: &Mat) -> Mat {
     r
 }
 
-/// The first exported image, found through the manifest (in `OUT/images/` when the export
-/// layout has it, else in `OUT/`).
+/// The first exported image, found through the manifest (in `OUT/images/`).
 fn first_exported(out: &Path) -> PathBuf {
     let m = json(&out.join("manifest.json"));
     let file = m["frames"][0]["file"].as_str().expect("frames[0].file");
-    let images = out.join("images");
-    if images.is_dir() {
-        images.join(file)
-    } else {
-        out.join(file)
-    }
+    out.join("images").join(file)
 }
 
 /// ffprobe's rotation of the first video stream (its display-matrix side data), 0 without one.

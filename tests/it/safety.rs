@@ -35,23 +35,6 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     out
 }
 
-/// A 1 s 320x240 testsrc2 clip and a project keeping every 5th frame (6 keyframes).
-fn clip_and_project(dir: &Path) -> (PathBuf, PathBuf) {
-    let clip = testsrc(dir, "clip.mp4", 320, 240, "30", 1.0);
-    let project = dir.join("p.json");
-    kf_ok(&[
-        "select",
-        s(&clip),
-        "--every",
-        "5",
-        "--backend",
-        "opencv",
-        "-o",
-        s(&project),
-    ]);
-    (clip, project)
-}
-
 /// A folder of 4 PNG images and a project keeping all of them.
 fn image_folder_project(dir: &Path) -> (PathBuf, PathBuf) {
     let imgs = dir.join("imgs");
