@@ -998,6 +998,10 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
         };
         sample.push((k, s));
     }
+    if p.input.kind == crate::source::SourceKind::Images {
+        // The rate given with --images-fps is the folder's rate in the metadata.
+        analysis.images_fps = p.metadata.fps;
+    }
     let mut export = Vec::new();
     for dir in exports {
         let m =

@@ -6,6 +6,7 @@ mod checks;
 mod colmap;
 mod common;
 mod experiment;
+mod fixtures;
 mod flow;
 mod foundation;
 mod inputs;
