@@ -7,9 +7,10 @@ use crate::gpu::Backend;
 use crate::kernels::farneback::FarnebackParams;
 use crate::kernels::movement::{Derotate, Statistic};
 use crate::kernels::sharpness::Metric;
-use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
+use crate::samplers::{BlurMode, Bound};
 use crate::segment::{MaskSettings, SegBackend};
-use crate::select::{Rate, SelectSettings, Stationary, Threshold};
+use crate::select::SelectSettings;
+use crate::steps::{defaults, BoundArg, Step, StepError, Threshold};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 
@@ -153,9 +154,9 @@ pub struct FarnebackArgs {
 }
 
 impl FarnebackArgs {
-    /// Validated parameters.
-    pub fn params(&self) -> Result<FarnebackParams> {
-        let p = FarnebackParams {
+    /// The parameters as given (unchecked).
+    pub fn to_params(&self) -> FarnebackParams {
+        FarnebackParams {
             pyr_scale: self.pyr_scale,
             levels: self.levels,
             winsize: self.winsize,
@@ -163,7 +164,12 @@ impl FarnebackArgs {
             poly_n: self.poly_n,
             poly_sigma: self.poly_sigma,
             gaussian: self.gaussian,
-        };
+        }
+    }
+
+    /// Validated parameters.
+    pub fn params(&self) -> Result<FarnebackParams> {
+        let p = self.to_params();
         p.validate()?;
         Ok(p)
     }
@@ -386,7 +392,7 @@ pub struct MovementArgs {
     pub stationary_threshold: Option<f64>,
     /// Frames after which the stationary reference frame is re-anchored (carrying the movement
     /// accumulated so far), so flow is never asked across a larger gap.
-    #[arg(long, value_name = "N", default_value_t = 15)]
+    #[arg(long, value_name = "N", default_value_t = defaults::RESET_DELTA)]
     pub reset_delta: usize,
     /// Even camera movement: keep a frame each time the movement accumulated since the last
     /// keyframe reaches PX full-resolution pixels (`auto`: proposed from a sample, explained;
@@ -401,15 +407,15 @@ pub struct MovementArgs {
     #[arg(long, value_enum, default_value = "median")]
     pub movement: StatisticArg,
     /// Fraction dropped at each end by --movement trimmed-mean.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = defaults::TRIM)]
     pub trim: f64,
     /// Width of the analysis resolution for flow (never above the input's width). Default from
     /// `keyframer bench pipeline --tradeoffs` (see README).
-    #[arg(long, value_name = "W", default_value_t = 320)]
+    #[arg(long, value_name = "W", default_value_t = defaults::ANALYSIS_WIDTH)]
     pub analysis_width: u32,
     /// Measure flow between frames K apart (each frame in between gets an equal share of the
     /// movement; consecutive movement only, the stationary sampler compares every frame).
-    #[arg(long, value_name = "K", default_value_t = 2)]
+    #[arg(long, value_name = "K", default_value_t = defaults::FLOW_STRIDE)]
     pub flow_stride: u32,
     /// Measure movement after subtracting the flow of the best-fitting camera rotation, so
     /// turning on the spot counts little and travel counts fully (for oblique or forward-looking
@@ -441,29 +447,18 @@ impl MovementArgs {
             StatisticArg::Median => Statistic::Median,
             StatisticArg::TrimmedMean => Statistic::TrimmedMean { trim: self.trim },
         };
-        statistic.validate()?;
-        if self.flow_stride == 0 {
-            return Err(Error::param("--flow-stride", "must be at least 1"));
-        }
-        if self.analysis_width < 16 {
-            return Err(Error::param(
-                "--analysis-width",
-                "must be at least 16 pixels",
-            ));
-        }
         let derotate = self.derotate.then(|| Derotate {
             hfov_deg: self.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
         });
-        if let Some(d) = &derotate {
-            d.validate()?;
-        }
-        Ok(MovementRequest {
-            farneback: self.farneback.params()?,
+        let request = MovementRequest {
+            farneback: self.farneback.to_params(),
             statistic,
             analysis_width: self.analysis_width,
             stride: self.flow_stride,
             derotate,
-        })
+        };
+        crate::steps::check_movement(&request)?;
+        Ok(request)
     }
 }
 
@@ -477,10 +472,10 @@ pub struct BlurArgs {
     #[arg(long, value_name = "METRIC", default_value = "tenengrad")]
     pub blur_metric: Metric,
     /// Half-width of the comparison window, in frames.
-    #[arg(long, value_name = "W", default_value_t = 10)]
+    #[arg(long, value_name = "W", default_value_t = defaults::BLUR_WINDOW)]
     pub blur_window: usize,
     /// Filter mode keeps a frame iff its score >= RATIO x the mean score within the window.
-    #[arg(long, value_name = "RATIO", default_value_t = 0.8)]
+    #[arg(long, value_name = "RATIO", default_value_t = defaults::BLUR_RATIO)]
     pub blur_ratio: f64,
     /// filter: drop blurry keyframes; replace: move each keyframe to the sharpest frame in its
     /// window (never onto or across another keyframe).
@@ -495,26 +490,6 @@ pub enum BlurModeArg {
     Filter,
     /// Move keyframes to the sharpest nearby frame.
     Replace,
-}
-
-impl BlurArgs {
-    /// The blur sampler's parameters when `--blur` is given.
-    pub fn params(&self) -> Result<Option<BlurParams>> {
-        if !self.blur {
-            return Ok(None);
-        }
-        let p = BlurParams {
-            metric: self.blur_metric,
-            window: self.blur_window,
-            ratio: self.blur_ratio,
-            mode: match self.blur_mode {
-                BlurModeArg::Filter => BlurMode::Filter,
-                BlurModeArg::Replace => BlurMode::Replace,
-            },
-        };
-        p.validate()?;
-        Ok(Some(p))
-    }
 }
 
 /// `export` flags.
@@ -726,34 +701,66 @@ fn positive(name: &str, v: Option<f64>) -> Result<Option<f64>> {
 }
 
 impl SelectArgs {
+    /// The sampler chain the flags give, in keyframer's order, checked.
+    pub fn steps(&self) -> Result<Vec<Step>> {
+        let m = &self.movement;
+        let mut steps = Vec::new();
+        if self.start.is_some() || self.end.is_some() {
+            steps.push(Step::Boundaries {
+                start: self.start.map(BoundArg),
+                end: self.end.map(BoundArg),
+            });
+        }
+        if m.stationary {
+            let given = positive("--stationary-threshold", m.stationary_threshold)?;
+            let threshold = match (given, m.auto) {
+                (Some(t), _) => Some(Threshold::Px(t)),
+                (None, true) => Some(Threshold::Auto),
+                (None, false) => None,
+            };
+            steps.push(Step::Stationary {
+                threshold,
+                reset_delta: Some(m.reset_delta),
+            });
+        }
+        if let Some(threshold) = m.spacing {
+            steps.push(Step::Spacing { threshold });
+        }
+        match (self.every, self.fps) {
+            (Some(n), _) => steps.push(Step::EveryNth { n }),
+            (None, Some(fps)) => steps.push(Step::Fps { fps }),
+            (None, None) => {}
+        }
+        if self.blur.blur {
+            let b = &self.blur;
+            steps.push(Step::Blur {
+                metric: Some(b.blur_metric),
+                window: Some(b.blur_window),
+                ratio: Some(b.blur_ratio),
+                mode: Some(match b.blur_mode {
+                    BlurModeArg::Filter => BlurMode::Filter,
+                    BlurModeArg::Replace => BlurMode::Replace,
+                }),
+            });
+        }
+        if !self.add.is_empty() || !self.remove.is_empty() {
+            steps.push(Step::Manual {
+                add: self.add.clone(),
+                remove: self.remove.clone(),
+            });
+        }
+        for step in &steps {
+            step.validate().map_err(step_error)?;
+        }
+        Ok(steps)
+    }
+
     /// Validated settings.
     pub fn settings(&self, quiet: bool) -> Result<SelectSettings> {
-        if self.movement.stationary && self.movement.reset_delta == 0 {
-            return Err(Error::param("--reset-delta", "must be at least 1 frame"));
-        }
-        let rate = match (self.every, positive("--fps", self.fps)?) {
-            (Some(0), _) => return Err(Error::param("--every", "must be at least 1")),
-            (Some(n), _) => Some(Rate::Every(n)),
-            (None, Some(f)) => Some(Rate::Fps(f)),
-            (None, None) => None,
-        };
         Ok(SelectSettings {
             input: self.input.clone(),
             output: self.output.clone(),
-            boundaries: Boundaries {
-                start: self.start,
-                end: self.end,
-            },
-            rate,
-            add: self.add.clone(),
-            remove: self.remove.clone(),
-            blur: self.blur.params()?,
-            stationary: self.movement.stationary.then_some(Stationary {
-                threshold: positive("--stationary-threshold", self.movement.stationary_threshold)?,
-                reset_delta: self.movement.reset_delta,
-            }),
-            spacing: self.movement.spacing,
-            auto: self.movement.auto,
+            steps: self.steps()?,
             movement: self.movement.request()?,
             backend: self.analysis.backend.into(),
             adapter: self.analysis.adapter.clone(),
@@ -772,6 +779,18 @@ impl SelectArgs {
             quiet,
         })
     }
+}
+
+/// A step's parameter error named by its flag (the blur sampler names its parameter itself).
+fn step_error(e: StepError) -> Error {
+    let flag = match (e.plugin, e.key) {
+        ("stationary", "threshold") => "--stationary-threshold",
+        ("stationary", "reset_delta") => "--reset-delta",
+        ("every-nth", _) => "--every",
+        ("fps", _) => "--fps",
+        _ => return e.into(),
+    };
+    Error::param(flag, e.msg)
 }
 
 impl ExportArgs {

@@ -26,6 +26,7 @@ pub mod scene;
 pub mod segment;
 pub mod select;
 pub mod source;
+pub mod steps;
 pub mod synthetic;
 pub mod tomlfile;
 pub mod workflow;

@@ -5,12 +5,12 @@
 //! is marked `preview`, holds no scores, and is never reused as a cache.
 
 use crate::error::{Error, Result};
-use crate::project::{Cache, Step};
+use crate::project::Cache;
 use crate::samplers::{Bound, Boundaries};
 use crate::select::{self, SelectReport, SelectSettings};
 use crate::source::keyframes::{self, KeyframeIndex};
 use crate::source::{OpenOptions, SourceKind};
-use serde_json::json;
+use crate::steps::{Applied, BoundArg, Step};
 use std::sync::Arc;
 
 /// Translates frame-index bounds into positions in the keyframe sequence (times stay times:
@@ -79,11 +79,23 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     // Keyframes are already far apart: measure flow between every consecutive pair.
     let mut movement = s.movement;
     movement.stride = 1;
+    let bounds = keyframe_bounds(&s.boundaries(), &index)?;
+    let mut steps: Vec<Step> = s
+        .steps
+        .iter()
+        .filter(|st| !matches!(st, Step::Boundaries { .. } | Step::Manual { .. }))
+        .cloned()
+        .collect();
+    steps.insert(
+        0,
+        Step::Boundaries {
+            start: bounds.start.map(BoundArg),
+            end: bounds.end.map(BoundArg),
+        },
+    );
     let inner = SelectSettings {
         movement,
-        boundaries: keyframe_bounds(&s.boundaries, &index)?,
-        add: Vec::new(),
-        remove: Vec::new(),
+        steps,
         preview: false,
         ..s.clone()
     };
@@ -94,17 +106,17 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     let mut report = select::build(&inner, &open)?;
     let p = &mut report.project;
     let mut keys: Vec<usize> = p.keyframes.iter().map(|&j| index.keyframes[j]).collect();
-    let mut history = vec![Step {
-        plugin: "preview".into(),
-        params: json!({ "codec_keyframes": n_key, "frames": n_all }),
-        kept: n_key,
-    }];
+    let preview = Applied::Preview {
+        codec_keyframes: n_key,
+        frames: n_all,
+    };
+    let mut history = vec![preview.entry(n_key)];
     history.append(&mut p.history);
     // Added and removed frames are the video's own indices: applied after the mapping.
-    select::manual_step(&mut keys, &mut history, s, n_all)?;
+    select::manual_step(&mut keys, &mut history, &s.steps, n_all)?;
     p.keyframes = keys;
     p.history = history;
-    p.boundaries = s.boundaries;
+    p.boundaries = s.boundaries();
     p.metadata.frame_count = n_all;
     p.metadata.frame_count_exact = true;
     // As a full decode measures it: first to last frame plus one frame interval (the analysis

@@ -31,7 +31,7 @@ pub struct Project {
     /// Selected frame indices, sorted and distinct.
     pub keyframes: Vec<usize>,
     /// The steps that produced `keyframes`, in order.
-    pub history: Vec<Step>,
+    pub history: Vec<HistoryEntry>,
     /// Per-frame data computed from the pixels, reused by later selections.
     pub cache: Cache,
     /// Problems met while decoding the input (damaged streams, damaged images).
@@ -58,9 +58,9 @@ pub struct InputRef {
     pub fingerprint: Fingerprint,
 }
 
-/// One step of the selection history.
+/// One step of the selection history, as stored (typed by [`crate::steps::Applied`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Step {
+pub struct HistoryEntry {
     /// Stable plugin id (`boundaries`, `every-nth`, `fps`, `manual`, ...).
     pub plugin: String,
     /// The step's parameters as given.
@@ -412,18 +412,6 @@ impl Project {
     }
 }
 
-/// The plugins `select` writes into a project's history.
-const PLUGINS: [&str; 8] = [
-    "boundaries",
-    "preview",
-    "stationary",
-    "spacing",
-    "every-nth",
-    "fps",
-    "blur",
-    "manual",
-];
-
 /// A movement request's fields in the ranges the flags accept; the error's key is relative to
 /// the request (`farneback.pyr_scale`).
 fn validate_request(r: &MovementRequest) -> std::result::Result<(), (String, String)> {
@@ -458,142 +446,72 @@ fn validate_request(r: &MovementRequest) -> std::result::Result<(), (String, Str
 
 /// One history step: a known plugin, a known backend, and the parameters `workflow save` reads
 /// in their ranges. The error's key is relative to the step (`params.fps`).
-fn validate_step(step: &Step, n: usize) -> std::result::Result<(), (String, String)> {
+fn validate_step(step: &HistoryEntry, n: usize) -> std::result::Result<(), (String, String)> {
+    use crate::steps::Applied;
     let bad = |k: &str, msg: String| Err((k.to_string(), msg));
-    if !PLUGINS.contains(&step.plugin.as_str()) {
-        return bad(
-            "plugin",
-            format!(
-                "unknown plugin `{}` (known: {})",
-                step.plugin,
-                PLUGINS.join(", ")
-            ),
-        );
-    }
     if step.kept > n {
         return bad(
             "kept",
             format!("{} kept frames of an input of {n} frames", step.kept),
         );
     }
-    let v = &step.params;
-    if !(v.is_object() || v.is_null()) {
-        return bad("params", "must be an object".into());
-    }
-    let get = |k: &str| v.get(k).filter(|x| !x.is_null());
-    let positive = |k: &str| -> std::result::Result<(), (String, String)> {
-        match get(k) {
-            None => Ok(()),
-            Some(x) => match x.as_f64() {
-                Some(f) if f.is_finite() && f > 0.0 => Ok(()),
-                _ => Err((
-                    format!("params.{k}"),
-                    format!("must be a positive number, got {x}"),
-                )),
-            },
-        }
+    let applied = Applied::from_entry(step)?;
+    let positive = |k: &str, v: Option<f64>| match v {
+        Some(f) if !(f.is_finite() && f > 0.0) => bad(
+            &format!("params.{k}"),
+            format!("must be a positive number, got {f}"),
+        ),
+        _ => Ok(()),
     };
-    let count = |k: &str, min: u64| -> std::result::Result<(), (String, String)> {
-        match get(k) {
-            None => Ok(()),
-            Some(x) => match x.as_u64() {
-                Some(c) if c >= min => Ok(()),
-                _ => Err((
-                    format!("params.{k}"),
-                    format!("must be a whole number of at least {min}, got {x}"),
-                )),
-            },
-        }
+    let count = |k: &str, v: Option<usize>| match v {
+        Some(0) => bad(
+            &format!("params.{k}"),
+            "must be a whole number of at least 1, got 0".into(),
+        ),
+        _ => Ok(()),
     };
-    if let Some(b) = get("backend") {
-        if serde_json::from_value::<Backend>(b.clone()).is_err() {
-            return bad(
-                "params.backend",
-                format!("unknown backend {b} (known: \"gpu\", \"opencv\")"),
-            );
-        }
-    }
-    if let Some(m) = get("movement") {
-        let r = serde_json::from_value::<MovementRequest>(m.clone())
-            .map_err(|e| ("params.movement".to_string(), e.to_string()))?;
+    if let (_, Some(r)) = applied.analysis() {
         validate_request(&r).map_err(|(k, msg)| (format!("params.movement.{k}"), msg))?;
     }
-    match step.plugin.as_str() {
-        "boundaries" => {
-            for k in ["start", "end"] {
-                if let Some(b) = get(k) {
-                    match serde_json::from_value::<crate::samplers::Bound>(b.clone()) {
-                        Ok(crate::samplers::Bound::Seconds(s)) if !(s.is_finite() && s >= 0.0) => {
-                            return bad(
-                                &format!("params.{k}"),
-                                format!("must be a non-negative time, got {s}"),
-                            )
-                        }
-                        Ok(_) => {}
-                        Err(e) => return bad(&format!("params.{k}"), e.to_string()),
-                    }
-                }
-            }
-        }
-        "stationary" => {
-            positive("threshold_px")?;
-            count("reset_delta", 1)?;
-        }
-        "spacing" => {
-            if get("threshold_px").is_none() {
-                return bad("params.threshold_px", "missing".into());
-            }
-            positive("threshold_px")?;
-        }
-        "every-nth" => {
-            if get("n").is_none() {
-                return bad("params.n", "missing".into());
-            }
-            count("n", 1)?;
-        }
-        "fps" => {
-            if get("fps").is_none() {
-                return bad("params.fps", "missing".into());
-            }
-            positive("fps")?;
-        }
-        "blur" => {
-            positive("ratio")?;
-            count("window", 1)?;
-            if let Some(m) = get("metric") {
-                if serde_json::from_value::<Metric>(m.clone()).is_err() {
-                    return bad(
-                        "params.metric",
-                        format!("unknown metric {m} (tenengrad, laplacian-k1, laplacian-k3)"),
-                    );
-                }
-            }
-            if let Some(m) = get("mode") {
-                if serde_json::from_value::<crate::samplers::BlurMode>(m.clone()).is_err() {
-                    return bad(
-                        "params.mode",
-                        format!("unknown mode {m} (\"filter\", \"replace\")"),
-                    );
-                }
-            }
-        }
-        "manual" => {
-            for k in ["add", "remove"] {
-                if let Some(list) = get(k) {
-                    let ok = list.as_array().is_some_and(|a| {
-                        a.iter()
-                            .all(|x| x.as_u64().is_some_and(|i| (i as usize) < n))
-                    });
-                    if !ok {
+    match &applied {
+        Applied::Boundaries { start, end } => {
+            for (k, b) in [("start", start), ("end", end)] {
+                if let Some(crate::samplers::Bound::Seconds(s)) = b {
+                    if !(s.is_finite() && *s >= 0.0) {
                         return bad(
                             &format!("params.{k}"),
-                            format!("must be a list of frame indices below {n}"),
+                            format!("must be a non-negative time, got {s}"),
                         );
                     }
                 }
             }
         }
-        _ => {}
+        Applied::Stationary {
+            threshold_px,
+            reset_delta,
+            ..
+        } => {
+            positive("threshold_px", *threshold_px)?;
+            count("reset_delta", *reset_delta)?;
+        }
+        Applied::Spacing { threshold_px, .. } => positive("threshold_px", Some(*threshold_px))?,
+        Applied::EveryNth { n } => count("n", Some(*n))?,
+        Applied::Fps { fps } => positive("fps", Some(*fps))?,
+        Applied::Blur { ratio, window, .. } => {
+            positive("ratio", *ratio)?;
+            count("window", *window)?;
+        }
+        Applied::Manual { add, remove } => {
+            for (k, list) in [("add", add), ("remove", remove)] {
+                if list.iter().any(|&i| i >= n) {
+                    return bad(
+                        &format!("params.{k}"),
+                        format!("must be a list of frame indices below {n}"),
+                    );
+                }
+            }
+        }
+        Applied::Preview { .. } => {}
     }
     Ok(())
 }

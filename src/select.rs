@@ -8,59 +8,20 @@ use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu::{self, Backend};
 use crate::project::{
-    Cache, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache, Step, SCHEMA_VERSION,
+    Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
+    SCHEMA_VERSION,
 };
-use crate::samplers::{self, BlurParams, Boundaries};
+use crate::samplers::{self, Boundaries};
 use crate::source::{self, OpenOptions, SourceKind};
-use serde_json::json;
+use crate::steps::{Applied, Step};
 use std::path::{Path, PathBuf};
 
-/// The rate sampler to apply after the boundaries.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Rate {
-    /// Keep every Nth candidate.
-    Every(usize),
-    /// Resample to this many frames per second by timestamps.
-    Fps(f64),
-}
+pub use crate::steps::Threshold;
 
-/// A movement threshold: pixels, or proposed from a sample of the input.
+/// Stationary sampler settings with `auto` resolved (the threshold defaults to 1 % of the frame
+/// width).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Threshold {
-    /// Full-resolution pixels.
-    Px(f64),
-    /// Proposed by `--auto` logic from a sample.
-    Auto,
-    /// The threshold that keeps this many keyframes (`60kf`), found from the movement series.
-    Count(usize),
-}
-
-impl std::str::FromStr for Threshold {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        if s == "auto" {
-            return Ok(Threshold::Auto);
-        }
-        if let Some(n) = s.strip_suffix("kf") {
-            return match n.parse::<usize>() {
-                Ok(n) if n >= 1 => Ok(Threshold::Count(n)),
-                _ => Err(format!(
-                    "`{s}`: give a keyframe count of 1 or more, e.g. `60kf`"
-                )),
-            };
-        }
-        match s.parse::<f64>() {
-            Ok(v) if v.is_finite() && v > 0.0 => Ok(Threshold::Px(v)),
-            _ => Err(format!(
-                "`{s}` is neither a positive number of pixels, a keyframe count (`60kf`) nor `auto`"
-            )),
-        }
-    }
-}
-
-/// Stationary sampler settings as given (the threshold defaults to 1 % of the frame width).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Stationary {
+struct Stationary {
     /// Movement in full-resolution pixels since the last keyframe that makes a new one.
     pub threshold: Option<f64>,
     /// Frames after which the reference frame is re-anchored.
@@ -129,22 +90,8 @@ pub struct SelectSettings {
     pub input: PathBuf,
     /// Project file to write.
     pub output: PathBuf,
-    /// Part of the input to sample.
-    pub boundaries: Boundaries,
-    /// Rate sampler, if any.
-    pub rate: Option<Rate>,
-    /// Frames to add after sampling.
-    pub add: Vec<usize>,
-    /// Frames to remove after sampling.
-    pub remove: Vec<usize>,
-    /// Blur sampler, if any (runs after the rate sampler).
-    pub blur: Option<BlurParams>,
-    /// Stationary sampler, if any (runs first, after the boundaries).
-    pub stationary: Option<Stationary>,
-    /// Spacing sampler threshold in full-resolution pixels, if any (after stationary).
-    pub spacing: Option<Threshold>,
-    /// Propose the stationary threshold from a sample of the input when none is given.
-    pub auto: bool,
+    /// The sampler chain, in keyframer's order (see [`crate::steps::check_order`]).
+    pub steps: Vec<Step>,
     /// How movement is measured for the stationary and spacing samplers.
     pub movement: MovementRequest,
     /// Kernel backend for the analysis.
@@ -161,6 +108,35 @@ pub struct SelectSettings {
     pub preview: bool,
     /// No progress bars.
     pub quiet: bool,
+}
+
+impl SelectSettings {
+    /// The part of the input to sample.
+    pub fn boundaries(&self) -> Boundaries {
+        crate::steps::boundaries(&self.steps)
+    }
+
+    /// The stationary step: threshold as given and reset delta.
+    fn stationary(&self) -> Option<(Option<Threshold>, usize)> {
+        self.steps.iter().find_map(|s| match s {
+            Step::Stationary {
+                threshold,
+                reset_delta,
+            } => Some((
+                *threshold,
+                reset_delta.unwrap_or(crate::steps::defaults::RESET_DELTA),
+            )),
+            _ => None,
+        })
+    }
+
+    /// The spacing step's threshold as given.
+    fn spacing(&self) -> Option<Threshold> {
+        self.steps.iter().find_map(|s| match s {
+            Step::Spacing { threshold } => Some(*threshold),
+            _ => None,
+        })
+    }
 }
 
 /// What `select` did.
@@ -246,22 +222,23 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
     Ok(report)
 }
 
-/// The last step of the chain: `--add`/`--remove` of frame indices (when any are given).
+/// The manual step of `steps` (frames added and removed by index), when there is one.
 pub(crate) fn manual_step(
     keys: &mut Vec<usize>,
-    history: &mut Vec<Step>,
-    s: &SelectSettings,
+    history: &mut Vec<HistoryEntry>,
+    steps: &[Step],
     frame_count: usize,
 ) -> Result<()> {
-    if s.add.is_empty() && s.remove.is_empty() {
-        return Ok(());
+    for step in steps {
+        if let Step::Manual { add, remove } = step {
+            *keys = samplers::manual(keys, add, remove, frame_count)?;
+            let applied = Applied::Manual {
+                add: add.clone(),
+                remove: remove.clone(),
+            };
+            history.push(applied.entry(keys.len()));
+        }
     }
-    *keys = samplers::manual(keys, &s.add, &s.remove, frame_count)?;
-    history.push(Step {
-        plugin: "manual".into(),
-        params: json!({ "add": s.add, "remove": s.remove }),
-        kept: keys.len(),
-    });
     Ok(())
 }
 
@@ -287,7 +264,13 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         .then(|| Project::load(&s.output).ok())
         .flatten()
         .filter(|p| full && !p.preview && p.input == input_ref);
-    let metrics: Vec<_> = s.blur.iter().map(|b| b.metric).collect();
+    let metrics: Vec<_> = s
+        .steps
+        .iter()
+        .filter_map(|b| b.blur_params())
+        .map(|b| b.metric)
+        .collect();
+    let boundaries = s.boundaries();
     let mut decoded = false;
     let (mut cached_meta, mut cache, mut problems, mut damaged) = match reusable {
         Some(p) => (
@@ -298,10 +281,10 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         ),
         None => (None, Cache::default(), Vec::new(), Vec::new()),
     };
-    let uses_seconds = [s.boundaries.start, s.boundaries.end]
+    let uses_seconds = [boundaries.start, boundaries.end]
         .iter()
         .any(|b| matches!(b, Some(samplers::Bound::Seconds(_))));
-    if s.stationary.is_some() && cached_meta.is_none() && uses_seconds {
+    if s.stationary().is_some() && cached_meta.is_none() && uses_seconds {
         // The stationary sampler runs during decoding and needs its frame range first.
         let a = analysis::analyse(
             &s.input,
@@ -318,13 +301,19 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         decoded = true;
     }
     let mut proposals = Vec::new();
-    let wants_auto_stationary = s.auto && s.stationary.is_some_and(|st| st.threshold.is_none());
-    let mut stationary_setting = s.stationary;
-    let mut spacing = match s.spacing {
+    let wants_auto_stationary = matches!(s.stationary(), Some((Some(Threshold::Auto), _)));
+    let mut stationary_setting = s.stationary().map(|(t, reset_delta)| Stationary {
+        threshold: match t {
+            Some(Threshold::Px(v)) => Some(v),
+            _ => None,
+        },
+        reset_delta,
+    });
+    let mut spacing = match s.spacing() {
         Some(Threshold::Px(v)) => Some(v),
         _ => None,
     };
-    if wants_auto_stationary || s.spacing == Some(Threshold::Auto) {
+    if wants_auto_stationary || s.spacing() == Some(Threshold::Auto) {
         let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
         let sample =
             analysis::sample_movement(&s.input, open, s.movement, 40, backend, ctx.as_ref())?;
@@ -339,7 +328,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
             }
             proposals.push(format!("stationary --auto: {}", p.explanation));
         }
-        if s.spacing == Some(Threshold::Auto) {
+        if s.spacing() == Some(Threshold::Auto) {
             let p = samplers::auto::spacing_threshold(&sample, meta.width, meta.frame_count);
             spacing = Some(p.threshold);
             proposals.push(format!("spacing auto: {}", p.explanation));
@@ -351,7 +340,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
                 Some(m) => m.clone(),
                 None => source::open(&s.input, open)?.metadata().clone(),
             };
-            Some(stationary_request(st, &s.boundaries, &meta, &cache)?)
+            Some(stationary_request(st, &boundaries, &meta, &cache)?)
         }
         None => None,
     };
@@ -363,7 +352,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
             .collect(),
         None => metrics.clone(),
     };
-    let need_series = s.spacing.is_some() && cache.movement(&s.movement).is_none();
+    let need_series = s.spacing().is_some() && cache.movement(&s.movement).is_none();
     let need_stationary =
         stationary_req.is_some_and(|st| cache.stationary(&s.movement, &st).is_none());
     let complete = missing.is_empty() && !need_series && !need_stationary;
@@ -448,111 +437,15 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         }
     };
 
-    let mut history = Vec::new();
-    let ts = cache.timestamps_s.as_deref();
-    let range = s.boundaries.candidates(metadata.frame_count, ts)?;
-    // Damaged frames (their scores are a stand-in's) are never candidates.
-    let mut keys = range.clone();
-    keys.retain(|k| damaged.binary_search(k).is_err());
-    history.push(Step {
-        plugin: "boundaries".into(),
-        params: json!({ "start": s.boundaries.start, "end": s.boundaries.end }),
-        kept: keys.len(),
-    });
-    if let Some(st) = stationary_setting {
-        let req = stationary_request(st, &s.boundaries, &metadata, &cache)?;
-        let run = cache
-            .stationary(&s.movement, &req)
-            .ok_or_else(|| Error::Plugin {
-                plugin: "stationary",
-                msg: "no stationary run was computed".into(),
-            })?;
-        keys.retain(|k| run.keyframes.binary_search(k).is_ok());
-        history.push(Step {
-            plugin: "stationary".into(),
-            params: json!({
-                "threshold_px": req.threshold, "reset_delta": req.reset_delta,
-                "movement": s.movement, "backend": run.backend,
-                "auto": wants_auto_stationary,
-            }),
-            kept: keys.len(),
-        });
-    }
-    if s.spacing.is_some() {
-        let series = cache.movement(&s.movement).ok_or_else(|| Error::Plugin {
-            plugin: "spacing",
-            msg: "no movement was computed".into(),
-        })?;
-        let threshold = match (s.spacing, spacing) {
-            (Some(Threshold::Count(n)), _) => {
-                let t = samplers::spacing_for_count(&keys, &series.series.values, n)?;
-                log::info!("spacing {n}kf: threshold {t:.2} px");
-                t
-            }
-            (_, Some(t)) => t,
-            _ => {
-                return Err(Error::Plugin {
-                    plugin: "spacing",
-                    msg: "no threshold".into(),
-                })
-            }
-        };
-        keys = samplers::spacing(&keys, &series.series.values, threshold)?;
-        history.push(Step {
-            plugin: "spacing".into(),
-            params: json!({
-                "threshold_px": threshold, "movement": s.movement, "backend": series.backend,
-                "auto": s.spacing == Some(Threshold::Auto),
-                "count": match s.spacing { Some(Threshold::Count(n)) => Some(n), _ => None },
-            }),
-            kept: keys.len(),
-        });
-    }
-    match s.rate {
-        Some(Rate::Every(n)) => {
-            keys = samplers::every_nth(&keys, n)?;
-            history.push(Step {
-                plugin: "every-nth".into(),
-                params: json!({ "n": n }),
-                kept: keys.len(),
-            });
-        }
-        Some(Rate::Fps(f)) => {
-            let ts = ts.ok_or_else(|| Error::Plugin {
-                plugin: "fps",
-                msg:
-                    "the input has no timestamps (an image folder: give its rate with --images-fps)"
-                        .into(),
-            })?;
-            keys = samplers::fps(&keys, ts, f)?;
-            history.push(Step {
-                plugin: "fps".into(),
-                params: json!({ "fps": f }),
-                kept: keys.len(),
-            });
-        }
-        None => {}
-    }
-    if let Some(b) = &s.blur {
-        let series = cache
-            .sharpness(b.metric, metadata.width, metadata.height)
-            .ok_or_else(|| Error::Plugin {
-                plugin: "blur",
-                msg: format!("no {} scores were computed", b.metric),
-            })?;
-        let lo = range.first().copied().unwrap_or(0);
-        let hi = range.last().copied().unwrap_or(0);
-        keys = samplers::blur(&keys, &series.scores, b, lo, hi)?;
-        history.push(Step {
-            plugin: "blur".into(),
-            params: json!({
-                "metric": b.metric, "window": b.window, "ratio": b.ratio, "mode": b.mode,
-                "backend": series.backend,
-            }),
-            kept: keys.len(),
-        });
-    }
-    manual_step(&mut keys, &mut history, s, metadata.frame_count)?;
+    let chain = Chain {
+        s,
+        cache: &cache,
+        metadata: &metadata,
+        stationary: stationary_setting,
+        spacing,
+        auto_stationary: wants_auto_stationary,
+    };
+    let (mut keys, history) = chain.apply(&damaged)?;
     let before = keys.len();
     keys.retain(|k| damaged.binary_search(k).is_err());
     if keys.len() < before {
@@ -568,7 +461,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         tool_version: env!("CARGO_PKG_VERSION").into(),
         input: input_ref,
         metadata,
-        boundaries: s.boundaries,
+        boundaries,
         keyframes: keys,
         history,
         cache,
@@ -581,4 +474,144 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         decoded,
         proposals,
     })
+}
+
+/// The sampler chain over the analysed (or cached) input: `select`'s interpreter of its steps.
+struct Chain<'a> {
+    s: &'a SelectSettings,
+    cache: &'a Cache,
+    metadata: &'a crate::source::Metadata,
+    /// The stationary step with `auto` resolved.
+    stationary: Option<Stationary>,
+    /// The spacing threshold in pixels when known before the chain runs (given, or `auto`).
+    spacing: Option<f64>,
+    auto_stationary: bool,
+}
+
+impl Chain<'_> {
+    /// Runs every step in order on the candidates (damaged frames never are); returns the
+    /// keyframes and the history.
+    fn apply(&self, damaged: &[usize]) -> Result<(Vec<usize>, Vec<HistoryEntry>)> {
+        let boundaries = self.s.boundaries();
+        let ts = self.cache.timestamps_s.as_deref();
+        let range = boundaries.candidates(self.metadata.frame_count, ts)?;
+        let mut keys = range.clone();
+        keys.retain(|k| damaged.binary_search(k).is_err());
+        let mut history = vec![Applied::Boundaries {
+            end: boundaries.end,
+            start: boundaries.start,
+        }
+        .entry(keys.len())];
+        let lo = range.first().copied().unwrap_or(0);
+        let hi = range.last().copied().unwrap_or(0);
+        for step in &self.s.steps {
+            let applied = match step {
+                Step::Boundaries { .. } | Step::Manual { .. } => continue,
+                Step::Stationary { .. } => self.stationary(&mut keys, &boundaries)?,
+                Step::Spacing { threshold } => self.spacing(&mut keys, *threshold)?,
+                Step::EveryNth { n } => {
+                    keys = samplers::every_nth(&keys, *n)?;
+                    Applied::EveryNth { n: *n }
+                }
+                Step::Fps { fps } => {
+                    let ts = ts.ok_or_else(|| Error::Plugin {
+                        plugin: "fps",
+                        msg: "the input has no timestamps (an image folder: give its rate with --images-fps)"
+                            .into(),
+                    })?;
+                    keys = samplers::fps(&keys, ts, *fps)?;
+                    Applied::Fps { fps: *fps }
+                }
+                Step::Blur { .. } => self.blur(&mut keys, step, lo, hi)?,
+            };
+            history.push(applied.entry(keys.len()));
+        }
+        manual_step(
+            &mut keys,
+            &mut history,
+            &self.s.steps,
+            self.metadata.frame_count,
+        )?;
+        Ok((keys, history))
+    }
+
+    fn stationary(&self, keys: &mut Vec<usize>, boundaries: &Boundaries) -> Result<Applied> {
+        let st = self.stationary.ok_or_else(|| Error::Plugin {
+            plugin: "stationary",
+            msg: "no threshold".into(),
+        })?;
+        let req = stationary_request(st, boundaries, self.metadata, self.cache)?;
+        let run = self
+            .cache
+            .stationary(&self.s.movement, &req)
+            .ok_or_else(|| Error::Plugin {
+                plugin: "stationary",
+                msg: "no stationary run was computed".into(),
+            })?;
+        keys.retain(|k| run.keyframes.binary_search(k).is_ok());
+        Ok(Applied::Stationary {
+            auto: self.auto_stationary,
+            backend: Some(run.backend),
+            movement: Some(self.s.movement),
+            reset_delta: Some(req.reset_delta),
+            threshold_px: Some(req.threshold),
+        })
+    }
+
+    fn spacing(&self, keys: &mut Vec<usize>, given: Threshold) -> Result<Applied> {
+        let series = self
+            .cache
+            .movement(&self.s.movement)
+            .ok_or_else(|| Error::Plugin {
+                plugin: "spacing",
+                msg: "no movement was computed".into(),
+            })?;
+        let threshold = match (given, self.spacing) {
+            (Threshold::Count(n), _) => {
+                let t = samplers::spacing_for_count(keys, &series.series.values, n)?;
+                log::info!("spacing {n}kf: threshold {t:.2} px");
+                t
+            }
+            (_, Some(t)) => t,
+            _ => {
+                return Err(Error::Plugin {
+                    plugin: "spacing",
+                    msg: "no threshold".into(),
+                })
+            }
+        };
+        *keys = samplers::spacing(keys, &series.series.values, threshold)?;
+        Ok(Applied::Spacing {
+            auto: given == Threshold::Auto,
+            backend: Some(series.backend),
+            count: match given {
+                Threshold::Count(n) => Some(n),
+                _ => None,
+            },
+            movement: Some(self.s.movement),
+            threshold_px: threshold,
+        })
+    }
+
+    fn blur(&self, keys: &mut Vec<usize>, step: &Step, lo: usize, hi: usize) -> Result<Applied> {
+        let b = step.blur_params().ok_or_else(|| Error::Plugin {
+            plugin: "blur",
+            msg: "not a blur step".into(),
+        })?;
+        let series = self
+            .cache
+            .sharpness(b.metric, self.metadata.width, self.metadata.height)
+            .ok_or_else(|| Error::Plugin {
+                plugin: "blur",
+                msg: format!("no {} scores were computed", b.metric),
+            })?;
+        *keys = samplers::blur(keys, &series.scores, &b, lo, hi)?;
+        Ok(Applied::Blur {
+            backend: Some(series.backend),
+            metric: Some(b.metric),
+            mode: Some(b.mode),
+            ratio: Some(b.ratio),
+            window: Some(b.window),
+        })
+    }
 }

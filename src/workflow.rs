@@ -2,11 +2,16 @@
 //! exports, checked completely (file:line and key for every error) before any input is touched,
 //! and turned into the same validated settings the `select` / `export` flags produce.
 
-use crate::cli::{ExportArgs, SelectArgs};
+use crate::analysis::MovementRequest;
+use crate::cli::ExportArgs;
 use crate::error::{Error, Result};
 use crate::export::ExportSettings;
+use crate::gpu::Backend;
+use crate::kernels::farneback::FarnebackParams;
+use crate::kernels::movement::{Derotate, Statistic};
 use crate::project::Project;
 use crate::select::SelectSettings;
+use crate::steps::{Applied, Step};
 use crate::tomlfile::{self, TomlFile};
 use clap::Parser;
 use serde::{Deserialize, Serialize};
@@ -14,28 +19,6 @@ use std::path::{Path, PathBuf};
 
 /// The workflow format version this build reads and writes.
 pub const VERSION: u32 = 1;
-
-/// A TOML value that is either a number or a string (`120`, `4.5s`, `auto`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum NumOrText {
-    /// An integer.
-    Int(i64),
-    /// A float.
-    Float(f64),
-    /// A string.
-    Text(String),
-}
-
-impl NumOrText {
-    fn flag_value(&self) -> String {
-        match self {
-            NumOrText::Int(i) => i.to_string(),
-            NumOrText::Float(f) => f.to_string(),
-            NumOrText::Text(s) => s.clone(),
-        }
-    }
-}
 
 /// `[analysis]`: how frames are analysed (shared by every sampler).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -96,80 +79,6 @@ pub struct Farneback {
     pub gaussian: Option<bool>,
 }
 
-/// One `[[sample]]` step; `plugin` is the stable id. In the file the id is the `plugin` key of
-/// the table; in serde it is the variant name (so errors keep the key path).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case", deny_unknown_fields)]
-pub enum Sample {
-    /// Part of the input to consider: frame index or `"4.5s"`, both ends inclusive.
-    Boundaries {
-        #[serde(skip_serializing_if = "Option::is_none")]
-        start: Option<NumOrText>,
-        #[serde(skip_serializing_if = "Option::is_none")]
-        end: Option<NumOrText>,
-    },
-    /// Drop frames where the camera stands still (reference mode).
-    Stationary {
-        /// Pixels of movement since the last keyframe; `"auto"` proposes one; default 1 % of width.
-        #[serde(skip_serializing_if = "Option::is_none")]
-        threshold: Option<NumOrText>,
-        #[serde(skip_serializing_if = "Option::is_none")]
-        reset_delta: Option<usize>,
-    },
-    /// A keyframe every `threshold` pixels of accumulated movement (or `"auto"`).
-    Spacing { threshold: NumOrText },
-    /// Every n-th frame.
-    #[serde(alias = "every")]
-    EveryNth { n: usize },
-    /// Resample to `fps` frames per second by timestamps.
-    Fps { fps: f64 },
-    /// Drop (`filter`) or `replace` blurry keyframes.
-    Blur {
-        #[serde(skip_serializing_if = "Option::is_none")]
-        metric: Option<String>,
-        #[serde(skip_serializing_if = "Option::is_none")]
-        window: Option<usize>,
-        #[serde(skip_serializing_if = "Option::is_none")]
-        ratio: Option<f64>,
-        #[serde(skip_serializing_if = "Option::is_none")]
-        mode: Option<String>,
-    },
-    /// Add or remove frames by index.
-    Manual {
-        #[serde(default, skip_serializing_if = "Vec::is_empty")]
-        add: Vec<usize>,
-        #[serde(default, skip_serializing_if = "Vec::is_empty")]
-        remove: Vec<usize>,
-    },
-}
-
-impl Sample {
-    /// The stable plugin id.
-    pub fn id(&self) -> &'static str {
-        match self {
-            Sample::Boundaries { .. } => "boundaries",
-            Sample::Stationary { .. } => "stationary",
-            Sample::Spacing { .. } => "spacing",
-            Sample::EveryNth { .. } => "every-nth",
-            Sample::Fps { .. } => "fps",
-            Sample::Blur { .. } => "blur",
-            Sample::Manual { .. } => "manual",
-        }
-    }
-
-    /// Position in keyframer's fixed chain (every-nth and fps share one slot).
-    fn rank(&self) -> usize {
-        match self {
-            Sample::Boundaries { .. } => 0,
-            Sample::Stationary { .. } => 1,
-            Sample::Spacing { .. } => 2,
-            Sample::EveryNth { .. } | Sample::Fps { .. } => 3,
-            Sample::Blur { .. } => 4,
-            Sample::Manual { .. } => 5,
-        }
-    }
-}
-
 /// `[export.masks]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -218,7 +127,7 @@ pub struct WorkflowFile {
     /// `[analysis]`.
     pub analysis: Option<Analysis>,
     /// `[[sample]]` steps in order.
-    pub sample: Vec<Sample>,
+    pub sample: Vec<Step>,
     /// `[[export]]`s.
     pub export: Vec<Export>,
 }
@@ -236,8 +145,8 @@ struct RawFile {
     export: Vec<Export>,
 }
 
-/// `{plugin = "fps", fps = 1.0}` -> `Sample::Fps`, errors naming `sample[i].<key>`.
-fn sample_from_table(file: &TomlFile<RawFile>, i: usize, table: &toml::Table) -> Result<Sample> {
+/// `{plugin = "fps", fps = 1.0}` -> `Step::Fps`, errors naming `sample[i].<key>`.
+fn sample_from_table(file: &TomlFile<RawFile>, i: usize, table: &toml::Table) -> Result<Step> {
     let mut rest = table.clone();
     let plugin = match rest.remove("plugin") {
         Some(toml::Value::String(p)) => p,
@@ -246,7 +155,7 @@ fn sample_from_table(file: &TomlFile<RawFile>, i: usize, table: &toml::Table) ->
     };
     let mut wrapped = toml::Table::new();
     wrapped.insert(plugin, toml::Value::Table(rest));
-    serde_path_to_error::deserialize::<_, Sample>(toml::Value::Table(wrapped)).map_err(|e| {
+    serde_path_to_error::deserialize::<_, Step>(toml::Value::Table(wrapped)).map_err(|e| {
         let path = e.path().to_string();
         let inner = e.into_inner().to_string();
         let msg = inner.lines().next().unwrap_or("").trim().to_string();
@@ -263,8 +172,8 @@ fn sample_from_table(file: &TomlFile<RawFile>, i: usize, table: &toml::Table) ->
     })
 }
 
-/// `Sample::Fps` -> `{plugin = "fps", fps = 1.0}`.
-fn sample_to_table(s: &Sample) -> Result<toml::Table> {
+/// `Step::Fps` -> `{plugin = "fps", fps = 1.0}`.
+fn sample_to_table(s: &Step) -> Result<toml::Table> {
     let v = toml::Value::try_from(s).map_err(|e| Error::param("sample", e.to_string()))?;
     let mut out = toml::Table::new();
     out.insert("plugin".into(), toml::Value::String(s.id().into()));
@@ -287,28 +196,11 @@ pub struct Workflow {
     pub file: WorkflowFile,
     /// FNV-1a hash of the file's text: a changed workflow redoes finished inputs.
     pub hash: u64,
-    select_args: Vec<String>,
+    /// How movement is measured (from `[analysis]`, defaults filled in).
+    movement: MovementRequest,
+    /// `[analysis]` backend.
+    backend: Backend,
     export_args: Vec<Vec<String>>,
-}
-
-#[derive(Parser)]
-#[command(no_binary_name = true)]
-struct SelectCmd {
-    #[command(flatten)]
-    args: SelectArgs,
-}
-
-#[derive(Parser)]
-#[command(no_binary_name = true)]
-struct ExportCmd {
-    #[command(flatten)]
-    args: ExportArgs,
-}
-
-/// Which workflow key a command-line flag came from.
-struct Origin {
-    flag: String,
-    field: String,
 }
 
 impl Workflow {
@@ -347,7 +239,25 @@ impl Workflow {
         };
         let w = &content;
         check_relations(&file, w)?;
-        let (select_args, origins) = select_flags(&file, w)?;
+        check_steps(&file, &w.sample)?;
+        let an = w.analysis.clone().unwrap_or_default();
+        let movement = movement_request(&an).map_err(|e| locate(&file, e))?;
+        let backend = match an.backend.as_deref() {
+            None | Some("gpu") => Backend::Gpu,
+            Some("opencv") => Backend::Opencv,
+            Some(other) => {
+                return Err(file.error(
+                    "analysis.backend",
+                    format!("invalid value '{other}' for '--backend <BACKEND>' [possible values: gpu, opencv]"),
+                ))
+            }
+        };
+        if let Some(f) = an.images_fps.filter(|f| !(f.is_finite() && *f > 0.0)) {
+            return Err(file.error(
+                "analysis.images_fps",
+                format!("must be a positive number, got {f}"),
+            ));
+        }
         let mut export_args = Vec::new();
         for (i, e) in w.export.iter().enumerate() {
             export_args.push(export_flags(&file, w, i, e)?);
@@ -357,18 +267,16 @@ impl Workflow {
             path: path.to_path_buf(),
             file: content.clone(),
             hash,
-            select_args,
+            movement,
+            backend,
             export_args,
         };
-        // Dry validation with placeholder paths: every parameter error surfaces now.
-        wf.select_settings(Path::new("input"), Path::new("project.json"), true)
-            .map_err(|e| locate(&file, &origins, "analysis", e))?;
         for i in 0..wf.export_args.len() {
             let s = wf
                 .export_settings(i, Path::new("project.json"), Path::new("out"))
                 .map_err(|e| {
                     let origins = export_origins(i, &w.export[i]);
-                    locate(&file, &origins, &format!("export[{i}]"), e)
+                    locate_export(&file, &origins, &format!("export[{i}]"), e)
                 })?;
             if let Some(m) = &s.1.masks {
                 let desc = crate::segment::desc::ModelDesc::load(&m.model)
@@ -388,15 +296,20 @@ impl Workflow {
         project: &Path,
         quiet: bool,
     ) -> Result<SelectSettings> {
-        let mut argv: Vec<String> = vec![
-            input.to_string_lossy().into_owned(),
-            "-o".into(),
-            project.to_string_lossy().into_owned(),
-            "--force".into(),
-        ];
-        argv.extend(self.select_args.iter().cloned());
-        let cmd = SelectCmd::try_parse_from(&argv).map_err(clap_error)?;
-        cmd.args.settings(quiet)
+        let an = self.file.analysis.clone().unwrap_or_default();
+        Ok(SelectSettings {
+            input: input.to_path_buf(),
+            output: project.to_path_buf(),
+            steps: self.file.sample.clone(),
+            movement: self.movement,
+            backend: self.backend,
+            adapter: an.adapter,
+            images_fps: an.images_fps,
+            force: true,
+            checkpoint_every_s: CHECKPOINT_EVERY_S,
+            preview: an.preview == Some(true),
+            quiet,
+        })
     }
 
     /// Export `i`: its folder name and settings.
@@ -455,48 +368,116 @@ fn flag_key(flag: &str) -> String {
     flag.trim_start_matches("--").replace('-', "_")
 }
 
-/// Maps a parameter error (named by its flag) back to the workflow key it came from; errors no
-/// flag explains are put on `fallback` (the table the flags came from), never on no key.
-fn locate(file: &TomlFile<RawFile>, origins: &[Origin], fallback: &str, e: Error) -> Error {
-    if let Error::Plugin { plugin, msg } = &e {
-        let id = if *plugin == "every" {
-            "every-nth"
-        } else {
-            plugin
-        };
-        let step = file
-            .value
-            .sample
-            .iter()
-            .position(|t| t.get("plugin").and_then(|p| p.as_str()) == Some(id));
-        if let Some(i) = step {
-            // Messages start with the parameter they are about ("ratio must be ...").
-            let word: String = msg
-                .chars()
-                .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-                .collect();
-            let key = if file.value.sample[i].contains_key(&word) {
-                word
+/// Puts a parameter error of `[analysis]` (named by its flag, as the library names it) on the
+/// key it came from.
+fn locate(file: &TomlFile<RawFile>, e: Error) -> Error {
+    match e {
+        Error::Param { name, msg } => {
+            let key = flag_key(&name);
+            let table = if FARNEBACK_KEYS.contains(&key.as_str()) {
+                "analysis.farneback"
             } else {
-                "plugin".into()
+                "analysis"
             };
-            return file.error(&format!("sample[{i}].{key}"), msg.clone());
+            file.error(&format!("{table}.{key}"), msg)
         }
-        return file.error(fallback, format!("{plugin}: {msg}"));
+        other => other,
     }
-    if let Error::Param { name, msg } = &e {
-        let key = flag_key(name);
-        if let Some(o) = origins.iter().find(|o| flag_key(&o.flag) == key) {
-            return file.error(&o.field, msg.clone());
+}
+
+#[derive(Parser)]
+#[command(no_binary_name = true)]
+struct ExportCmd {
+    #[command(flatten)]
+    args: ExportArgs,
+}
+
+/// Which workflow key an export flag came from.
+struct Origin {
+    flag: String,
+    field: String,
+}
+
+/// Puts an export's parameter error (named by its flag) on the key it came from, or on
+/// `fallback` (the export's table).
+fn locate_export(file: &TomlFile<RawFile>, origins: &[Origin], fallback: &str, e: Error) -> Error {
+    match e {
+        Error::Param { name, msg } => {
+            let key = flag_key(&name);
+            match origins.iter().find(|o| flag_key(&o.flag) == key) {
+                Some(o) => file.error(&o.field, msg),
+                None if name.is_empty() => file.error(fallback, msg),
+                None => file.error(fallback, format!("{name}: {msg}")),
+            }
         }
-        let msg = if name.is_empty() {
-            msg.clone()
-        } else {
-            format!("{name}: {msg}")
-        };
-        return file.error(fallback, msg);
+        other => other,
     }
-    e
+}
+
+/// The keys of `[analysis.farneback]`.
+const FARNEBACK_KEYS: [&str; 7] = [
+    "pyr_scale",
+    "levels",
+    "winsize",
+    "iterations",
+    "poly_n",
+    "poly_sigma",
+    "gaussian",
+];
+
+/// Seconds between checkpoints of a workflow's analyses (`select --checkpoint-every`'s default).
+const CHECKPOINT_EVERY_S: f64 = 15.0;
+
+/// Every step's parameters and the chain's order, errors on `sample[i].<key>`.
+fn check_steps(file: &TomlFile<RawFile>, steps: &[Step]) -> Result<()> {
+    crate::steps::check_order(steps)
+        .map_err(|(i, msg)| file.error(&format!("sample[{i}].plugin"), msg))?;
+    for (i, step) in steps.iter().enumerate() {
+        step.validate()
+            .map_err(|e| file.error(&format!("sample[{i}].{}", e.key), e.msg))?;
+    }
+    Ok(())
+}
+
+/// `[analysis]` as a movement request: the flags' defaults for what is not given.
+fn movement_request(an: &Analysis) -> Result<MovementRequest> {
+    let d = FarnebackParams::default();
+    let fb = an.farneback.clone().unwrap_or_default();
+    let statistic = match an.movement.as_deref() {
+        None | Some("median") => Statistic::Median,
+        Some("trimmed-mean") => Statistic::TrimmedMean {
+            trim: an.trim.unwrap_or(crate::steps::defaults::TRIM),
+        },
+        Some(other) => {
+            return Err(Error::param(
+                "--movement",
+                format!("invalid value '{other}' [possible values: median, trimmed-mean]"),
+            ))
+        }
+    };
+    let request = MovementRequest {
+        farneback: FarnebackParams {
+            pyr_scale: fb.pyr_scale.unwrap_or(d.pyr_scale),
+            levels: fb.levels.unwrap_or(d.levels),
+            winsize: fb.winsize.unwrap_or(d.winsize),
+            iterations: fb.iterations.unwrap_or(d.iterations),
+            poly_n: fb.poly_n.unwrap_or(d.poly_n),
+            poly_sigma: fb.poly_sigma.unwrap_or(d.poly_sigma),
+            gaussian: fb.gaussian.unwrap_or(d.gaussian),
+        },
+        statistic,
+        analysis_width: an
+            .analysis_width
+            .unwrap_or(crate::steps::defaults::ANALYSIS_WIDTH),
+        stride: an
+            .flow_stride
+            .unwrap_or(crate::steps::defaults::FLOW_STRIDE),
+        derotate: (an.derotate == Some(true)).then(|| Derotate {
+            hfov_deg: an.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
+        }),
+    };
+    crate::steps::check_movement(&request)?;
+    Ok(request)
 }
 
 /// Relations between keys that clap would report without naming the key that caused them.
@@ -518,237 +499,6 @@ fn check_relations(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<()> {
         }
     }
     Ok(())
-}
-
-fn push(
-    args: &mut Vec<String>,
-    origins: &mut Vec<Origin>,
-    flag: &str,
-    value: Option<String>,
-    field: String,
-) {
-    // `--flag=value`, so values starting with `-` stay values.
-    match value {
-        Some(v) => args.push(format!("{flag}={v}")),
-        None => args.push(flag.to_string()),
-    }
-    origins.push(Origin {
-        flag: flag.to_string(),
-        field,
-    });
-}
-
-fn select_flags(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<(Vec<String>, Vec<Origin>)> {
-    let mut a = Vec::new();
-    let mut o = Vec::new();
-    if let Some(an) = &w.analysis {
-        let f = |k: &str| format!("analysis.{k}");
-        if let Some(v) = &an.backend {
-            push(&mut a, &mut o, "--backend", Some(v.clone()), f("backend"));
-        }
-        if let Some(v) = &an.adapter {
-            push(&mut a, &mut o, "--adapter", Some(v.clone()), f("adapter"));
-        }
-        if let Some(v) = an.analysis_width {
-            push(
-                &mut a,
-                &mut o,
-                "--analysis-width",
-                Some(v.to_string()),
-                f("analysis_width"),
-            );
-        }
-        if let Some(v) = an.flow_stride {
-            push(
-                &mut a,
-                &mut o,
-                "--flow-stride",
-                Some(v.to_string()),
-                f("flow_stride"),
-            );
-        }
-        if let Some(v) = &an.movement {
-            push(&mut a, &mut o, "--movement", Some(v.clone()), f("movement"));
-        }
-        if let Some(v) = an.trim {
-            push(&mut a, &mut o, "--trim", Some(v.to_string()), f("trim"));
-        }
-        if let Some(v) = an.images_fps {
-            push(
-                &mut a,
-                &mut o,
-                "--images-fps",
-                Some(v.to_string()),
-                f("images_fps"),
-            );
-        }
-        if an.preview == Some(true) {
-            push(&mut a, &mut o, "--preview", None, f("preview"));
-        }
-        if an.derotate == Some(true) {
-            push(&mut a, &mut o, "--derotate", None, f("derotate"));
-        }
-        if let Some(v) = an.hfov {
-            push(&mut a, &mut o, "--hfov", Some(v.to_string()), f("hfov"));
-        }
-        if let Some(fb) = &an.farneback {
-            let g = |k: &str| format!("analysis.farneback.{k}");
-            let nums: [(&str, Option<String>); 6] = [
-                ("pyr_scale", fb.pyr_scale.map(|v| v.to_string())),
-                ("levels", fb.levels.map(|v| v.to_string())),
-                ("winsize", fb.winsize.map(|v| v.to_string())),
-                ("iterations", fb.iterations.map(|v| v.to_string())),
-                ("poly_n", fb.poly_n.map(|v| v.to_string())),
-                ("poly_sigma", fb.poly_sigma.map(|v| v.to_string())),
-            ];
-            for (k, v) in nums {
-                if let Some(v) = v {
-                    push(
-                        &mut a,
-                        &mut o,
-                        &format!("--{}", k.replace('_', "-")),
-                        Some(v),
-                        g(k),
-                    );
-                }
-            }
-            if fb.gaussian == Some(true) {
-                push(&mut a, &mut o, "--gaussian", None, g("gaussian"));
-            }
-        }
-    }
-    let mut last_rank = 0;
-    let mut seen: Vec<&'static str> = Vec::new();
-    for (i, s) in w.sample.iter().enumerate() {
-        let at = |k: &str| format!("sample[{i}].{k}");
-        if seen.contains(&s.id())
-            || (s.rank() == 3 && seen.iter().any(|x| *x == "every-nth" || *x == "fps"))
-        {
-            return Err(file.error(
-                &format!("sample[{i}].plugin"),
-                format!(
-                    "`{}`: at most one step per sampler (and one of every-nth / fps)",
-                    s.id()
-                ),
-            ));
-        }
-        if s.rank() < last_rank {
-            return Err(file.error(
-                &format!("sample[{i}].plugin"),
-                format!(
-                    "`{}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → every-nth/fps → blur → manual",
-                    s.id(),
-                    seen.last().copied().unwrap_or("")
-                ),
-            ));
-        }
-        last_rank = s.rank();
-        seen.push(s.id());
-        match s {
-            Sample::Boundaries { start, end } => {
-                if let Some(v) = start {
-                    push(&mut a, &mut o, "--start", Some(v.flag_value()), at("start"));
-                }
-                if let Some(v) = end {
-                    push(&mut a, &mut o, "--end", Some(v.flag_value()), at("end"));
-                }
-            }
-            Sample::Stationary {
-                threshold,
-                reset_delta,
-            } => {
-                push(&mut a, &mut o, "--stationary", None, at("plugin"));
-                match threshold {
-                    Some(NumOrText::Text(t)) if t == "auto" => {
-                        push(&mut a, &mut o, "--auto", None, at("threshold"))
-                    }
-                    Some(v) => push(
-                        &mut a,
-                        &mut o,
-                        "--stationary-threshold",
-                        Some(v.flag_value()),
-                        at("threshold"),
-                    ),
-                    None => {}
-                }
-                if let Some(r) = reset_delta {
-                    push(
-                        &mut a,
-                        &mut o,
-                        "--reset-delta",
-                        Some(r.to_string()),
-                        at("reset_delta"),
-                    );
-                }
-            }
-            Sample::Spacing { threshold } => push(
-                &mut a,
-                &mut o,
-                "--spacing",
-                Some(threshold.flag_value()),
-                at("threshold"),
-            ),
-            Sample::EveryNth { n } => push(&mut a, &mut o, "--every", Some(n.to_string()), at("n")),
-            Sample::Fps { fps } => push(&mut a, &mut o, "--fps", Some(fps.to_string()), at("fps")),
-            Sample::Blur {
-                metric,
-                window,
-                ratio,
-                mode,
-            } => {
-                push(&mut a, &mut o, "--blur", None, at("plugin"));
-                if let Some(v) = metric {
-                    push(
-                        &mut a,
-                        &mut o,
-                        "--blur-metric",
-                        Some(v.clone()),
-                        at("metric"),
-                    );
-                }
-                if let Some(v) = window {
-                    push(
-                        &mut a,
-                        &mut o,
-                        "--blur-window",
-                        Some(v.to_string()),
-                        at("window"),
-                    );
-                }
-                if let Some(v) = ratio {
-                    push(
-                        &mut a,
-                        &mut o,
-                        "--blur-ratio",
-                        Some(v.to_string()),
-                        at("ratio"),
-                    );
-                }
-                if let Some(v) = mode {
-                    push(&mut a, &mut o, "--blur-mode", Some(v.clone()), at("mode"));
-                }
-            }
-            Sample::Manual { add, remove } => {
-                if !add.is_empty() {
-                    let v = add
-                        .iter()
-                        .map(|x| x.to_string())
-                        .collect::<Vec<_>>()
-                        .join(",");
-                    push(&mut a, &mut o, "--add", Some(v), at("add"));
-                }
-                if !remove.is_empty() {
-                    let v = remove
-                        .iter()
-                        .map(|x| x.to_string())
-                        .collect::<Vec<_>>()
-                        .join(",");
-                    push(&mut a, &mut o, "--remove", Some(v), at("remove"));
-                }
-            }
-        }
-    }
-    Ok((a, o))
 }
 
 /// Names `keyframer run` uses in each input's folder, which an export may not take.
@@ -872,6 +622,29 @@ fn export_flags(
     Ok(a)
 }
 
+/// `[analysis]` keys that reproduce the movement measure `req`.
+fn record_movement(analysis: &mut Analysis, req: &MovementRequest) {
+    analysis.analysis_width = Some(req.analysis_width);
+    analysis.flow_stride = Some(req.stride);
+    let (name, trim) = req.statistic.to_flag();
+    analysis.movement = Some(name.into());
+    analysis.trim = trim;
+    if let Some(d) = req.derotate {
+        analysis.derotate = Some(true);
+        analysis.hfov = Some(d.hfov_deg);
+    }
+    let f = req.farneback;
+    analysis.farneback = Some(Farneback {
+        pyr_scale: Some(f.pyr_scale),
+        levels: Some(f.levels),
+        winsize: Some(f.winsize),
+        iterations: Some(f.iterations),
+        poly_n: Some(f.poly_n),
+        poly_sigma: Some(f.poly_sigma),
+        gaussian: Some(f.gaussian),
+    });
+}
+
 /// The workflow that reproduces a project's selection (its history), plus exports like the ones
 /// whose folders are given (read from their manifests).
 pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
@@ -885,118 +658,25 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
     };
     let mut analysis = Analysis::default();
     let mut sample = Vec::new();
-    for (k, step) in p.history.iter().enumerate() {
-        let v = &step.params;
-        let num = |key: &str| v.get(key).and_then(|x| x.as_f64());
-        let movement = |analysis: &mut Analysis| {
-            if let Some(m) = v.get("movement") {
-                if let Ok(req) =
-                    serde_json::from_value::<crate::analysis::MovementRequest>(m.clone())
-                {
-                    analysis.analysis_width = Some(req.analysis_width);
-                    analysis.flow_stride = Some(req.stride);
-                    let (name, trim) = req.statistic.to_flag();
-                    analysis.movement = Some(name.into());
-                    analysis.trim = trim;
-                    if let Some(d) = req.derotate {
-                        analysis.derotate = Some(true);
-                        analysis.hfov = Some(d.hfov_deg);
-                    }
-                    let f = req.farneback;
-                    analysis.farneback = Some(Farneback {
-                        pyr_scale: Some(f.pyr_scale),
-                        levels: Some(f.levels),
-                        winsize: Some(f.winsize),
-                        iterations: Some(f.iterations),
-                        poly_n: Some(f.poly_n),
-                        poly_sigma: Some(f.poly_sigma),
-                        gaussian: Some(f.gaussian),
-                    });
-                }
-            }
-            if let Some(b) = v.get("backend").and_then(|b| b.as_str()) {
-                analysis.backend = Some(b.to_string());
-            }
-        };
-        let s = match step.plugin.as_str() {
-            "boundaries" => {
-                let bound = |key: &str| -> Option<NumOrText> {
-                    serde_json::from_value::<Option<crate::samplers::Bound>>(v.get(key)?.clone())
-                        .ok()
-                        .flatten()
-                        .map(|b| match b {
-                            crate::samplers::Bound::Frame(f) => NumOrText::Int(f as i64),
-                            crate::samplers::Bound::Seconds(s) => NumOrText::Text(format!("{s}s")),
-                        })
-                };
-                let (start, end) = (bound("start"), bound("end"));
-                if start.is_none() && end.is_none() {
-                    continue;
-                }
-                Sample::Boundaries { start, end }
-            }
-            "stationary" => {
-                movement(&mut analysis);
-                Sample::Stationary {
-                    threshold: num("threshold_px").map(NumOrText::Float),
-                    reset_delta: v
-                        .get("reset_delta")
-                        .and_then(|x| x.as_u64())
-                        .map(|x| x as usize),
-                }
-            }
-            "spacing" => {
-                movement(&mut analysis);
-                Sample::Spacing {
-                    threshold: NumOrText::Float(
-                        num("threshold_px")
-                            .ok_or_else(|| bad(format!("step {k}: no threshold_px")))?,
-                    ),
-                }
-            }
-            "every-nth" => Sample::EveryNth {
-                n: v.get("n")
-                    .and_then(|x| x.as_u64())
-                    .ok_or_else(|| bad(format!("step {k}: no n")))? as usize,
-            },
-            "fps" => Sample::Fps {
-                fps: num("fps").ok_or_else(|| bad(format!("step {k}: no fps")))?,
-            },
-            "blur" => {
-                if let Some(b) = v.get("backend").and_then(|b| b.as_str()) {
-                    analysis.backend = Some(b.to_string());
-                }
-                Sample::Blur {
-                    metric: v.get("metric").and_then(|x| x.as_str()).map(String::from),
-                    window: v.get("window").and_then(|x| x.as_u64()).map(|x| x as usize),
-                    ratio: num("ratio"),
-                    mode: v.get("mode").and_then(|x| x.as_str()).map(String::from),
-                }
-            }
-            "manual" => {
-                let list = |key: &str| -> Vec<usize> {
-                    v.get(key)
-                        .and_then(|x| x.as_array())
-                        .map(|a| {
-                            a.iter()
-                                .filter_map(|x| x.as_u64())
-                                .map(|x| x as usize)
-                                .collect()
-                        })
-                        .unwrap_or_default()
-                };
-                Sample::Manual {
-                    add: list("add"),
-                    remove: list("remove"),
-                }
-            }
-            "preview" => {
-                analysis.preview = Some(true);
-                continue;
-            }
-            other => return Err(bad(format!("step {k}: unknown plugin `{other}`"))),
-        };
-        sample.push((k, s));
+    for (k, entry) in p.history.iter().enumerate() {
+        // Project::load checked every entry.
+        let applied = Applied::from_entry(entry)
+            .map_err(|(key, msg)| bad(format!("step {k}: {key}: {msg}")))?;
+        let (backend, movement) = applied.analysis();
+        if let Some(req) = movement {
+            record_movement(&mut analysis, &req);
+        }
+        if let Some(b) = backend {
+            analysis.backend = Some(b.to_string());
+        }
+        match applied.step() {
+            Some(Step::Boundaries {
+                start: None,
+                end: None,
+            }) => {}
+            Some(step) => sample.push((k, step)),
+            None => analysis.preview = Some(true),
+        }
     }
     if p.input.kind == crate::source::SourceKind::Images {
         // The rate given with --images-fps is the folder's rate in the metadata.

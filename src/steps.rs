@@ -1,0 +1,566 @@
+//! The typed pipeline description. A [`Step`] is one sampler with its parameters as a user gives
+//! them (command-line flags and a workflow's `[[sample]]` tables both become `Vec<Step>`); an
+//! [`Applied`] step is what `select` ran (thresholds resolved, the backend and movement measure
+//! that fed it), which is what a project's history holds and what `workflow save` writes back as
+//! steps. No step is ever turned into text to be parsed again.
+
+use crate::analysis::MovementRequest;
+use crate::error::Error;
+use crate::gpu::Backend;
+use crate::kernels::sharpness::Metric;
+use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
+use serde::{Deserialize, Serialize};
+
+/// Defaults of the optional step parameters (the flags' defaults too).
+pub mod defaults {
+    /// Frames after which the stationary reference is re-anchored.
+    pub const RESET_DELTA: usize = 15;
+    /// Half-width of the blur sampler's window in frames.
+    pub const BLUR_WINDOW: usize = 10;
+    /// The blur filter keeps a frame whose score is at least this times the window mean.
+    pub const BLUR_RATIO: f64 = 0.8;
+    /// Width of the analysis resolution for flow (from `bench pipeline --tradeoffs`).
+    pub const ANALYSIS_WIDTH: u32 = 320;
+    /// Flow is measured between frames this many apart.
+    pub const FLOW_STRIDE: u32 = 2;
+    /// Fraction dropped at each end by the trimmed-mean statistic.
+    pub const TRIM: f64 = 0.1;
+}
+
+/// Checks how movement is to be measured (every sampler that reads movement shares it); errors
+/// name the flag.
+pub fn check_movement(r: &MovementRequest) -> crate::error::Result<()> {
+    r.statistic.validate()?;
+    if r.stride == 0 {
+        return Err(Error::param("--flow-stride", "must be at least 1"));
+    }
+    if r.analysis_width < 16 {
+        return Err(Error::param(
+            "--analysis-width",
+            "must be at least 16 pixels",
+        ));
+    }
+    if let Some(d) = &r.derotate {
+        d.validate()?;
+    }
+    r.farneback.validate()
+}
+
+/// A movement threshold as given: pixels, proposed from a sample (`auto`), or the threshold
+/// that keeps a number of keyframes (`60kf`). In files: a number or one of those strings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "NumOrText", into = "NumOrText")]
+pub enum Threshold {
+    /// Full-resolution pixels.
+    Px(f64),
+    /// Proposed from a sample of the input.
+    Auto,
+    /// The threshold that keeps this many keyframes.
+    Count(usize),
+}
+
+impl std::str::FromStr for Threshold {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        if s == "auto" {
+            return Ok(Threshold::Auto);
+        }
+        if let Some(n) = s.strip_suffix("kf") {
+            return match n.parse::<usize>() {
+                Ok(n) if n >= 1 => Ok(Threshold::Count(n)),
+                _ => Err(format!(
+                    "`{s}`: give a keyframe count of 1 or more, e.g. `60kf`"
+                )),
+            };
+        }
+        match s.parse::<f64>() {
+            Ok(v) if v.is_finite() && v > 0.0 => Ok(Threshold::Px(v)),
+            _ => Err(format!(
+                "`{s}` is neither a positive number of pixels, a keyframe count (`60kf`) nor `auto`"
+            )),
+        }
+    }
+}
+
+/// A number or a string in a file (`120`, `4.5s`, `auto`, `60kf`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum NumOrText {
+    /// An integer.
+    Int(i64),
+    /// A float.
+    Float(f64),
+    /// A string.
+    Text(String),
+}
+
+impl NumOrText {
+    fn text(&self) -> String {
+        match self {
+            NumOrText::Int(i) => i.to_string(),
+            NumOrText::Float(f) => f.to_string(),
+            NumOrText::Text(s) => s.clone(),
+        }
+    }
+}
+
+impl TryFrom<NumOrText> for Threshold {
+    type Error = String;
+    fn try_from(v: NumOrText) -> std::result::Result<Self, String> {
+        let text = v.text();
+        text.parse()
+            .map_err(|e| format!("invalid value '{text}': {e}"))
+    }
+}
+
+impl From<Threshold> for NumOrText {
+    fn from(t: Threshold) -> NumOrText {
+        match t {
+            Threshold::Px(v) => NumOrText::Float(v),
+            Threshold::Auto => NumOrText::Text("auto".into()),
+            Threshold::Count(n) => NumOrText::Text(format!("{n}kf")),
+        }
+    }
+}
+
+/// A frame bound as a user writes it: a frame index `120` or a time `"4.5s"`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "NumOrText", into = "NumOrText")]
+pub struct BoundArg(pub Bound);
+
+impl TryFrom<NumOrText> for BoundArg {
+    type Error = String;
+    fn try_from(v: NumOrText) -> std::result::Result<Self, String> {
+        let text = v.text();
+        text.parse()
+            .map(BoundArg)
+            .map_err(|e| format!("invalid value '{text}': {e}"))
+    }
+}
+
+impl From<BoundArg> for NumOrText {
+    fn from(b: BoundArg) -> NumOrText {
+        match b.0 {
+            Bound::Frame(i) => NumOrText::Int(i64::try_from(i).unwrap_or(i64::MAX)),
+            Bound::Seconds(_) => NumOrText::Text(b.0.to_string()),
+        }
+    }
+}
+
+/// One sampler and its parameters as given. In a workflow's `[[sample]]` table the `plugin` key
+/// names the variant; in serde the variant is the outer key, so errors keep the parameter's path.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields)]
+pub enum Step {
+    /// Part of the input to consider, both ends inclusive.
+    Boundaries {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        start: Option<BoundArg>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        end: Option<BoundArg>,
+    },
+    /// Drop frames where the camera stands still (reference mode).
+    Stationary {
+        /// Pixels of movement since the last keyframe, or `auto`; default 1 % of the width.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        threshold: Option<Threshold>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        reset_delta: Option<usize>,
+    },
+    /// A keyframe every `threshold` pixels of accumulated movement.
+    Spacing { threshold: Threshold },
+    /// Every n-th candidate.
+    #[serde(alias = "every")]
+    EveryNth { n: usize },
+    /// Resample to `fps` frames per second by timestamps.
+    Fps { fps: f64 },
+    /// Drop (`filter`) or `replace` blurry keyframes.
+    Blur {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        metric: Option<Metric>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        window: Option<usize>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        ratio: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        mode: Option<BlurMode>,
+    },
+    /// Add or remove frames by index.
+    Manual {
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        add: Vec<usize>,
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        remove: Vec<usize>,
+    },
+}
+
+/// A step's parameter that is out of range: `key` is the parameter's name in the step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepError {
+    /// Stable plugin id.
+    pub plugin: &'static str,
+    /// The parameter (`window`), or `plugin` for the step as a whole.
+    pub key: &'static str,
+    /// What is wrong, starting with the parameter's name as a user reads it.
+    pub msg: String,
+}
+
+impl From<StepError> for Error {
+    fn from(e: StepError) -> Error {
+        Error::Plugin {
+            plugin: e.plugin,
+            msg: e.msg,
+        }
+    }
+}
+
+impl Step {
+    /// The stable plugin id.
+    pub fn id(&self) -> &'static str {
+        match self {
+            Step::Boundaries { .. } => "boundaries",
+            Step::Stationary { .. } => "stationary",
+            Step::Spacing { .. } => "spacing",
+            Step::EveryNth { .. } => "every-nth",
+            Step::Fps { .. } => "fps",
+            Step::Blur { .. } => "blur",
+            Step::Manual { .. } => "manual",
+        }
+    }
+
+    /// Position in keyframer's chain (every-nth and fps share one slot).
+    fn rank(&self) -> usize {
+        match self {
+            Step::Boundaries { .. } => 0,
+            Step::Stationary { .. } => 1,
+            Step::Spacing { .. } => 2,
+            Step::EveryNth { .. } | Step::Fps { .. } => 3,
+            Step::Blur { .. } => 4,
+            Step::Manual { .. } => 5,
+        }
+    }
+
+    /// The blur step's parameters with the defaults filled in.
+    pub fn blur_params(&self) -> Option<BlurParams> {
+        match *self {
+            Step::Blur {
+                metric,
+                window,
+                ratio,
+                mode,
+            } => Some(BlurParams {
+                metric: metric.unwrap_or(Metric::Tenengrad),
+                window: window.unwrap_or(defaults::BLUR_WINDOW),
+                ratio: ratio.unwrap_or(defaults::BLUR_RATIO),
+                mode: mode.unwrap_or(BlurMode::Filter),
+            }),
+            _ => None,
+        }
+    }
+
+    /// Checks the parameters' ranges (the input is not needed).
+    pub fn validate(&self) -> std::result::Result<(), StepError> {
+        let plugin = self.id();
+        let bad = |key: &'static str, msg: String| Err(StepError { plugin, key, msg });
+        match self {
+            Step::Stationary {
+                threshold,
+                reset_delta,
+            } => {
+                if *reset_delta == Some(0) {
+                    return bad("reset_delta", "must be at least 1 frame".into());
+                }
+                if let Some(Threshold::Count(_)) = threshold {
+                    return bad(
+                        "threshold",
+                        "give pixels or `auto` (a keyframe count is for spacing)".into(),
+                    );
+                }
+            }
+            Step::EveryNth { n: 0 } => return bad("n", "must be at least 1".into()),
+            Step::Fps { fps } if !(fps.is_finite() && *fps > 0.0) => {
+                return bad("fps", format!("must be a positive number, got {fps}"))
+            }
+            Step::Blur { .. } => {
+                if let Some(p) = self.blur_params() {
+                    if let Err(e) = p.validate() {
+                        let key = if p.window == 0 { "window" } else { "ratio" };
+                        let msg = match e {
+                            Error::Plugin { msg, .. } => msg,
+                            other => other.to_string(),
+                        };
+                        return bad(key, msg);
+                    }
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+}
+
+/// Checks that `steps` follow keyframer's chain (boundaries → stationary → spacing →
+/// every-nth/fps → blur → manual), at most one of each: the error names the step's index.
+pub fn check_order(steps: &[Step]) -> std::result::Result<(), (usize, String)> {
+    let mut last: Option<&Step> = None;
+    for (i, s) in steps.iter().enumerate() {
+        if steps[..i].iter().any(|p| p.rank() == s.rank()) {
+            return Err((
+                i,
+                format!(
+                    "`{}`: at most one step per sampler (and one of every-nth / fps)",
+                    s.id()
+                ),
+            ));
+        }
+        if let Some(p) = last.filter(|p| p.rank() > s.rank()) {
+            return Err((
+                i,
+                format!(
+                    "`{}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → every-nth/fps → blur → manual",
+                    s.id(),
+                    p.id()
+                ),
+            ));
+        }
+        last = Some(s);
+    }
+    Ok(())
+}
+
+/// The boundaries of a step list (none: the whole input).
+pub fn boundaries(steps: &[Step]) -> Boundaries {
+    steps
+        .iter()
+        .find_map(|s| match s {
+            Step::Boundaries { start, end } => Some(Boundaries {
+                start: start.map(|b| b.0),
+                end: end.map(|b| b.0),
+            }),
+            _ => None,
+        })
+        .unwrap_or_default()
+}
+
+/// A step as `select` applied it: one entry of a project's history (`plugin`, `params`).
+/// Parameters absent from projects of older versions are optional.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "plugin", content = "params", rename_all = "kebab-case")]
+pub enum Applied {
+    /// The candidate range.
+    Boundaries {
+        end: Option<Bound>,
+        start: Option<Bound>,
+    },
+    /// `select --preview`: the chain ran on the codec keyframes.
+    Preview {
+        codec_keyframes: usize,
+        frames: usize,
+    },
+    /// The stationary sampler with its resolved threshold.
+    Stationary {
+        #[serde(default)]
+        auto: bool,
+        #[serde(default)]
+        backend: Option<Backend>,
+        #[serde(default)]
+        movement: Option<MovementRequest>,
+        #[serde(default)]
+        reset_delta: Option<usize>,
+        #[serde(default)]
+        threshold_px: Option<f64>,
+    },
+    /// The spacing sampler with its resolved threshold.
+    Spacing {
+        #[serde(default)]
+        auto: bool,
+        #[serde(default)]
+        backend: Option<Backend>,
+        #[serde(default)]
+        count: Option<usize>,
+        #[serde(default)]
+        movement: Option<MovementRequest>,
+        threshold_px: f64,
+    },
+    /// Every n-th candidate.
+    EveryNth { n: usize },
+    /// Resampled by timestamps.
+    Fps { fps: f64 },
+    /// The blur sampler.
+    Blur {
+        #[serde(default)]
+        backend: Option<Backend>,
+        metric: Option<Metric>,
+        mode: Option<BlurMode>,
+        ratio: Option<f64>,
+        window: Option<usize>,
+    },
+    /// Frames added and removed by index.
+    Manual {
+        #[serde(default)]
+        add: Vec<usize>,
+        #[serde(default)]
+        remove: Vec<usize>,
+    },
+}
+
+impl Applied {
+    /// The step that repeats this one on another input (resolved thresholds, not `auto`).
+    pub fn step(&self) -> Option<Step> {
+        Some(match self {
+            Applied::Boundaries { start, end } => Step::Boundaries {
+                start: start.map(BoundArg),
+                end: end.map(BoundArg),
+            },
+            Applied::Preview { .. } => return None,
+            Applied::Stationary {
+                threshold_px,
+                reset_delta,
+                ..
+            } => Step::Stationary {
+                threshold: threshold_px.map(Threshold::Px),
+                reset_delta: *reset_delta,
+            },
+            Applied::Spacing { threshold_px, .. } => Step::Spacing {
+                threshold: Threshold::Px(*threshold_px),
+            },
+            Applied::EveryNth { n } => Step::EveryNth { n: *n },
+            Applied::Fps { fps } => Step::Fps { fps: *fps },
+            Applied::Blur {
+                metric,
+                mode,
+                ratio,
+                window,
+                ..
+            } => Step::Blur {
+                metric: *metric,
+                window: *window,
+                ratio: *ratio,
+                mode: *mode,
+            },
+            Applied::Manual { add, remove } => Step::Manual {
+                add: add.clone(),
+                remove: remove.clone(),
+            },
+        })
+    }
+
+    /// The backend and movement measure the step read (for a workflow's `[analysis]`).
+    pub fn analysis(&self) -> (Option<Backend>, Option<MovementRequest>) {
+        match self {
+            Applied::Stationary {
+                backend, movement, ..
+            }
+            | Applied::Spacing {
+                backend, movement, ..
+            } => (*backend, *movement),
+            Applied::Blur { backend, .. } => (*backend, None),
+            _ => (None, None),
+        }
+    }
+
+    /// The history entry recording this step and how many frames it kept. Parameters are
+    /// written in key order, as every project so far has them.
+    pub fn entry(&self, kept: usize) -> crate::project::HistoryEntry {
+        let value = serde_json::to_value(self).unwrap_or_default();
+        crate::project::HistoryEntry {
+            plugin: value["plugin"].as_str().unwrap_or_default().to_string(),
+            params: value["params"].clone(),
+            kept,
+        }
+    }
+
+    /// Reads a history entry; the error names the parameter (`params.fps`).
+    pub fn from_entry(
+        e: &crate::project::HistoryEntry,
+    ) -> std::result::Result<Applied, (String, String)> {
+        const PLUGINS: [&str; 8] = [
+            "boundaries",
+            "preview",
+            "stationary",
+            "spacing",
+            "every-nth",
+            "fps",
+            "blur",
+            "manual",
+        ];
+        if !PLUGINS.contains(&e.plugin.as_str()) {
+            let known = PLUGINS.join(", ");
+            let msg = format!("unknown plugin `{}` (known: {known})", e.plugin);
+            return Err(("plugin".into(), msg));
+        }
+        if let Some(b) = e.params.get("backend").filter(|b| !b.is_null()) {
+            if serde_json::from_value::<Backend>(b.clone()).is_err() {
+                let msg = format!("unknown backend {b} (known: \"gpu\", \"opencv\")");
+                return Err(("params.backend".into(), msg));
+            }
+        }
+        let v = serde_json::json!({ "plugin": e.plugin, "params": e.params });
+        serde_path_to_error::deserialize(v).map_err(|err| {
+            let path = err.path().to_string();
+            let key = match path.as_str() {
+                "." | "" => "plugin".to_string(),
+                p => p.to_string(),
+            };
+            (key, err.into_inner().to_string())
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn steps_read_from_tables_as_a_workflow_writes_them() {
+        let t: toml::Table = toml::from_str("[spacing]\nthreshold = \"60kf\"").unwrap();
+        let s: Step = toml::Value::Table(t).try_into().unwrap();
+        assert_eq!(
+            s,
+            Step::Spacing {
+                threshold: Threshold::Count(60)
+            }
+        );
+        let t: toml::Table = toml::from_str("[boundaries]\nstart = 3\nend = \"4.5s\"").unwrap();
+        let s: Step = toml::Value::Table(t).try_into().unwrap();
+        assert_eq!(boundaries(&[s.clone()]).end, Some(Bound::Seconds(4.5)));
+        let back = toml::Value::try_from(&s).unwrap();
+        assert_eq!(back["boundaries"]["start"].as_integer(), Some(3));
+        assert_eq!(back["boundaries"]["end"].as_str(), Some("4.5s"));
+    }
+
+    #[test]
+    fn order_and_ranges_are_checked() {
+        let every = Step::EveryNth { n: 2 };
+        let fps = Step::Fps { fps: 1.0 };
+        assert!(check_order(&[every.clone(), fps.clone()]).is_err());
+        let blur = Step::Blur {
+            metric: None,
+            window: Some(0),
+            ratio: None,
+            mode: None,
+        };
+        assert_eq!(
+            check_order(&[blur.clone(), every.clone()]).unwrap_err().0,
+            1
+        );
+        assert_eq!(blur.validate().unwrap_err().key, "window");
+        assert_eq!(Step::EveryNth { n: 0 }.validate().unwrap_err().key, "n");
+    }
+
+    #[test]
+    fn history_entries_round_trip_with_sorted_parameters() {
+        let a = Applied::Blur {
+            backend: Some(Backend::Opencv),
+            metric: Some(Metric::Tenengrad),
+            mode: Some(BlurMode::Replace),
+            ratio: Some(0.8),
+            window: Some(2),
+        };
+        let e = a.entry(4);
+        assert_eq!(e.plugin, "blur");
+        let keys: Vec<_> = e.params.as_object().unwrap().keys().cloned().collect();
+        assert_eq!(keys, ["backend", "metric", "mode", "ratio", "window"]);
+        assert_eq!(Applied::from_entry(&e).unwrap(), a);
+    }
+}
