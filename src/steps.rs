@@ -523,7 +523,10 @@ mod tests {
         );
         let t: toml::Table = toml::from_str("[boundaries]\nstart = 3\nend = \"4.5s\"").unwrap();
         let s: Step = toml::Value::Table(t).try_into().unwrap();
-        assert_eq!(boundaries(&[s.clone()]).end, Some(Bound::Seconds(4.5)));
+        assert_eq!(
+            boundaries(std::slice::from_ref(&s)).end,
+            Some(Bound::Seconds(4.5))
+        );
         let back = toml::Value::try_from(&s).unwrap();
         assert_eq!(back["boundaries"]["start"].as_integer(), Some(3));
         assert_eq!(back["boundaries"]["end"].as_str(), Some("4.5s"));
