@@ -2,7 +2,7 @@
 
 use crate::analysis::MovementRequest;
 use crate::error::{Error, Result};
-use crate::export::{Crop, ExportSettings, Format, Resize};
+use crate::export::{ExportSettings, Format};
 use crate::gpu::Backend;
 use crate::kernels::farneback::FarnebackParams;
 use crate::kernels::movement::{Derotate, Statistic};
@@ -796,88 +796,22 @@ fn step_error(e: StepError) -> Error {
 impl ExportArgs {
     /// Validated settings (the crop is checked against the frame later, when its size is known).
     pub fn settings(&self) -> Result<ExportSettings> {
-        let resize = match (&self.resize, positive("--scale", self.scale)?) {
-            (Some(s), _) => {
-                let (w, h) = parse_size(s)?;
-                Some(Resize::Size {
-                    width: w,
-                    height: h,
-                })
-            }
-            (None, Some(f)) => Some(Resize::Scale(f)),
-            (None, None) => None,
-        };
-        let crop = self.crop.as_deref().map(parse_crop).transpose()?;
-        if !(1..=100).contains(&self.quality) {
-            return Err(Error::param("--quality", "must be between 1 and 100"));
-        }
-        Ok(ExportSettings {
-            resize,
-            crop,
-            format: self.format.map(|f| match f {
+        ExportSettings::from_parts(
+            self.resize.as_deref(),
+            self.scale,
+            self.crop.as_deref(),
+            self.format.map(|f| match f {
                 FormatArg::Jpg => Format::Jpg,
                 FormatArg::Png => Format::Png,
             }),
-            quality: self.quality,
-            masks: self.masks.masks.as_ref().map(|model| MaskSettings {
+            self.quality,
+            self.masks.masks.as_ref().map(|model| MaskSettings {
                 model: model.clone(),
                 classes: self.masks.mask_classes.clone(),
                 dilate: self.masks.mask_dilate,
                 backend: self.masks.mask_backend.into(),
                 overlay: self.masks.mask_overlay,
             }),
-        })
-    }
-}
-
-/// Parses `WxH` with both positive.
-pub fn parse_size(s: &str) -> Result<(u32, u32)> {
-    let bad = || {
-        Error::param(
-            "--resize",
-            format!("`{s}` is not WIDTHxHEIGHT like 1280x720"),
         )
-    };
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
-    let w: u32 = w.trim().parse().map_err(|_| bad())?;
-    let h: u32 = h.trim().parse().map_err(|_| bad())?;
-    if w == 0 || h == 0 {
-        return Err(bad());
     }
-    // OpenCV reads no image above 2^30 pixels or 2^20 a side (CV_IO_MAX_IMAGE_PIXELS): an
-    // export nothing can read back would only exhaust memory.
-    if w > 1 << 20 || h > 1 << 20 || u64::from(w) * u64::from(h) > 1 << 30 {
-        return Err(Error::param(
-            "--resize",
-            format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)"),
-        ));
-    }
-    Ok((w, h))
-}
-
-/// Parses `X,Y,W,H`.
-pub fn parse_crop(s: &str) -> Result<Crop> {
-    let bad = || {
-        Error::param(
-            "--crop",
-            format!("`{s}` is not X,Y,W,H like 0,40,1920,1000"),
-        )
-    };
-    let v: Vec<u32> = s
-        .split(',')
-        .map(|p| p.trim().parse::<u32>())
-        .collect::<std::result::Result<_, _>>()
-        .map_err(|_| bad())?;
-    let [x, y, width, height] = v[..] else {
-        return Err(bad());
-    };
-    if width == 0 || height == 0 {
-        return Err(Error::param("--crop", "width and height must be positive"));
-    }
-    Ok(Crop {
-        x,
-        y,
-        width,
-        height,
-    })
 }

@@ -88,6 +88,97 @@ pub struct ExportSettings {
     pub masks: Option<MaskSettings>,
 }
 
+impl ExportSettings {
+    /// Checked settings from their parts as a user writes them (`--resize 1280x720`, `--crop
+    /// x,y,w,h`, or the same keys of a workflow's `[[export]]`); errors name the flag.
+    pub fn from_parts(
+        resize: Option<&str>,
+        scale: Option<f64>,
+        crop: Option<&str>,
+        format: Option<Format>,
+        quality: u8,
+        masks: Option<MaskSettings>,
+    ) -> Result<ExportSettings> {
+        let resize = match (resize, scale) {
+            (Some(s), _) => {
+                let (width, height) = parse_size(s)?;
+                Some(Resize::Size { width, height })
+            }
+            (None, Some(f)) if !(f.is_finite() && f > 0.0) => {
+                return Err(Error::param(
+                    "--scale",
+                    format!("must be a positive number, got {f}"),
+                ))
+            }
+            (None, Some(f)) => Some(Resize::Scale(f)),
+            (None, None) => None,
+        };
+        let crop = crop.map(parse_crop).transpose()?;
+        if !(1..=100).contains(&quality) {
+            return Err(Error::param("--quality", "must be between 1 and 100"));
+        }
+        Ok(ExportSettings {
+            resize,
+            crop,
+            format,
+            quality,
+            masks,
+        })
+    }
+}
+
+/// Parses `WxH` with both positive.
+pub fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let bad = || {
+        Error::param(
+            "--resize",
+            format!("`{s}` is not WIDTHxHEIGHT like 1280x720"),
+        )
+    };
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let w: u32 = w.trim().parse().map_err(|_| bad())?;
+    let h: u32 = h.trim().parse().map_err(|_| bad())?;
+    if w == 0 || h == 0 {
+        return Err(bad());
+    }
+    // OpenCV reads no image above 2^30 pixels or 2^20 a side (CV_IO_MAX_IMAGE_PIXELS): an
+    // export nothing can read back would only exhaust memory.
+    if w > 1 << 20 || h > 1 << 20 || u64::from(w) * u64::from(h) > 1 << 30 {
+        return Err(Error::param(
+            "--resize",
+            format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)"),
+        ));
+    }
+    Ok((w, h))
+}
+
+/// Parses `X,Y,W,H`.
+pub fn parse_crop(s: &str) -> Result<Crop> {
+    let bad = || {
+        Error::param(
+            "--crop",
+            format!("`{s}` is not X,Y,W,H like 0,40,1920,1000"),
+        )
+    };
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<u32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad())?;
+    let [x, y, width, height] = v[..] else {
+        return Err(bad());
+    };
+    if width == 0 || height == 0 {
+        return Err(Error::param("--crop", "width and height must be positive"));
+    }
+    Ok(Crop {
+        x,
+        y,
+        width,
+        height,
+    })
+}
+
 /// One exported image in the manifest.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ExportedFrame {
