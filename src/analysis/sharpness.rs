@@ -143,13 +143,13 @@ impl<'scope> Worker<'scope> {
         self.tx
             .send(ToWorker::Frame(frame))
             .map_err(|_| stopped())?;
-        self.drain(scores, 0)
+        drain(&self.rx, scores, 0)
     }
 
     /// Scores every queued frame; `scores` then hold `upto` frames.
     pub(crate) fn flush(&self, scores: &mut [Vec<f64>], upto: usize) -> Result<()> {
         self.tx.send(ToWorker::Flush).map_err(|_| stopped())?;
-        self.drain(scores, upto)
+        drain(&self.rx, scores, upto)
     }
 
     /// Ends the worker after the frame loop (`run`), then takes the last scores: `scores` hold
@@ -167,10 +167,6 @@ impl<'scope> Worker<'scope> {
             .unwrap_or_else(|_| Err(Error::Gpu("the sharpness worker panicked".into())));
         run?;
         worked?;
-        drain(&self.rx, scores, upto)
-    }
-
-    fn drain(&self, scores: &mut [Vec<f64>], upto: usize) -> Result<()> {
         drain(&self.rx, scores, upto)
     }
 }

@@ -234,6 +234,20 @@ fn bits(v: &[f64]) -> Vec<u64> {
     v.iter().map(|x| x.to_bits()).collect()
 }
 
+/// Checkpoints to `path` at every stride point.
+fn resume_to(path: PathBuf) -> Resume {
+    let fingerprint = Fingerprint {
+        size: 1,
+        mtime_s: 2,
+        prefix_hash: "h".into(),
+    };
+    Resume {
+        path,
+        fingerprint,
+        every_s: 1e-9,
+    }
+}
+
 const STATIONARY: StationaryRequest = StationaryRequest {
     threshold: 6.0,
     reset_delta: 3,
@@ -306,15 +320,7 @@ fn resume_from_a_checkpoint_mid_way_equals_an_uninterrupted_run() {
         let whole = fake_run(&mut FakeSource::new(n, &[7], None), &req, None)
             .0
             .unwrap();
-        let resume = Resume {
-            path: dir.path().join(format!("c{stride}.json")),
-            fingerprint: Fingerprint {
-                size: 1,
-                mtime_s: 2,
-                prefix_hash: "h".into(),
-            },
-            every_s: 1e-9,
-        };
+        let resume = resume_to(dir.path().join(format!("c{stride}.json")));
         let mut killed = FakeSource::new(n, &[7], Some(kill));
         let e = fake_run(&mut killed, &req, Some(&resume)).0.unwrap_err();
         assert!(e.to_string().starts_with("in: frame"), "{e}");
@@ -355,15 +361,7 @@ fn resume_from_a_checkpoint_mid_way_equals_an_uninterrupted_run() {
 #[test]
 fn a_checkpoint_of_another_request_or_backend_is_not_resumed() {
     let dir = tempfile::tempdir().unwrap();
-    let resume = Resume {
-        path: dir.path().join("c.json"),
-        fingerprint: Fingerprint {
-            size: 1,
-            mtime_s: 2,
-            prefix_hash: "h".into(),
-        },
-        every_s: 1e-9,
-    };
+    let resume = resume_to(dir.path().join("c.json"));
     let req = request(2, None);
     let _ = fake_run(&mut FakeSource::new(12, &[], Some(8)), &req, Some(&resume));
     assert!(checkpoint::restore(Some(&resume), &req, Backend::Opencv, Path::new("in")).is_some());
