@@ -788,7 +788,7 @@ fn step_error(e: StepError) -> Error {
         ("stationary", "reset_delta") => "--reset-delta",
         ("every-nth", _) => "--every",
         ("fps", _) => "--fps",
-        _ => return e.into(),
+        _ => return e.into_error(),
     };
     Error::param(flag, e.msg)
 }

@@ -205,11 +205,12 @@ pub struct StepError {
     pub msg: String,
 }
 
-impl From<StepError> for Error {
-    fn from(e: StepError) -> Error {
+impl StepError {
+    /// As the library's error: the plugin and the message.
+    pub fn into_error(self) -> Error {
         Error::Plugin {
-            plugin: e.plugin,
-            msg: e.msg,
+            plugin: self.plugin,
+            msg: self.msg,
         }
     }
 }
