@@ -8,6 +8,7 @@ mod every_nth;
 mod fps;
 mod manual;
 mod spacing;
+mod stationary;
 
 pub use blur::{blur, BlurMode, BlurParams};
 pub use boundaries::{Bound, Boundaries};
@@ -15,3 +16,4 @@ pub use every_nth::every_nth;
 pub use fps::fps;
 pub use manual::manual;
 pub use spacing::{spacing, spacing_for_count};
+pub use stationary::Stationary;

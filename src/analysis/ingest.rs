@@ -1,0 +1,186 @@
+//! Frame ingest: a decode thread reads the input in order through a queue of a few frames (memory
+//! stays bounded; frames before a resume point are only grabbed), and the hand-off gives each frame
+//! its analysis pixels: a gray resized on the CPU in the decode thread, or, with a staging
+//! sharpness engine, a device buffer resized from the gray the engine computed on the device.
+
+use super::sharpness::SharpnessEngine;
+use crate::error::Result;
+use crate::kernels::farneback;
+use crate::source::{Frame, FrameSource};
+use opencv::core::Mat;
+use opencv::prelude::*;
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
+use std::thread::Scope;
+
+/// Frames queued between the decode thread and the analysis (bounds memory with the batch).
+const DECODE_QUEUE: usize = 2;
+
+/// One frame's pixels at the analysis resolution: an 8-bit gray Mat, or the index of the
+/// device buffer the staging engine resized it into (valid until its next batch).
+pub(crate) enum Pixels {
+    Small(Mat),
+    Staged(usize),
+}
+
+/// Items from the decode thread.
+pub(crate) enum Decoded {
+    /// A frame to analyse (`image` is empty when no sharpness is requested) and its analysis
+    /// gray when the CPU prepares it.
+    Frame(Frame, Option<Mat>),
+    /// An already analysed frame whose pixels a resumed movement state needs again: its
+    /// analysis gray, or the frame itself when frames are staged on the device.
+    Prime(usize, Mat),
+}
+
+/// Gray at the analysis resolution (cv::cvtColor, then INTER_AREA unless the size matches).
+pub(crate) fn prepare(size: (i32, i32), image: &Mat) -> Result<Mat> {
+    let gray = crate::kernels::gray::opencv(image)?;
+    if (gray.cols(), gray.rows()) == size {
+        Ok(gray)
+    } else {
+        farneback::resize_area(&gray, opencv::core::Size::new(size.0, size.1))
+    }
+}
+
+/// Starts the decode thread over `src`: frames before `resume_at` are skipped (grabbed) except
+/// those in `prime`; every frame gets its analysis gray when `small` (the analysis size) is given;
+/// frames keep their image only when `keep_image`.
+pub(crate) fn spawn_decoder<'scope>(
+    scope: &'scope Scope<'scope, '_>,
+    src: &'scope mut dyn FrameSource,
+    resume_at: usize,
+    prime: &'scope [usize],
+    small: Option<(i32, i32)>,
+    keep_image: bool,
+) -> Receiver<Result<Decoded>> {
+    let (tx, rx) = sync_channel::<Result<Decoded>>(DECODE_QUEUE);
+    scope.spawn(move || decode(src, resume_at, prime, small, keep_image, tx));
+    rx
+}
+
+fn decode(
+    src: &mut dyn FrameSource,
+    resume_at: usize,
+    prime: &[usize],
+    small: Option<(i32, i32)>,
+    keep_image: bool,
+    tx: SyncSender<Result<Decoded>>,
+) {
+    let mut next = 0usize;
+    loop {
+        let item = if next < resume_at && !prime.contains(&next) {
+            match src.skip_frame() {
+                Ok(Some(_)) => {
+                    next += 1;
+                    continue;
+                }
+                Ok(None) => return,
+                Err(e) => Err(e),
+            }
+        } else {
+            match src.next_frame() {
+                Ok(None) => return,
+                Ok(Some(mut f)) => {
+                    next = f.index + 1;
+                    let gray = small.map(|s| prepare(s, &f.image)).transpose();
+                    gray.map(|g| {
+                        if f.index < resume_at {
+                            // Without `small` the frame itself goes (staged on the device).
+                            Decoded::Prime(
+                                f.index,
+                                g.unwrap_or_else(|| std::mem::take(&mut f.image)),
+                            )
+                        } else {
+                            if !keep_image {
+                                f.image = Mat::default();
+                            }
+                            Decoded::Frame(f, g)
+                        }
+                    })
+                }
+                Err(e) => Err(e),
+            }
+        };
+        let stop = item.is_err();
+        if tx.send(item).is_err() || stop {
+            return;
+        }
+    }
+}
+
+/// A frame ready for the analysis, in frame order: its analysis pixels (when movement is
+/// measured) and its scores when the staging engine computed them.
+pub(crate) struct Ready {
+    pub frame: Frame,
+    pub pixels: Option<Pixels>,
+    pub scores: Option<Vec<f64>>,
+}
+
+/// How decoded frames reach the analysis.
+pub(crate) enum HandOff {
+    /// The decode thread prepared the gray; frames go one by one.
+    Cpu,
+    /// The staging engine scores frames in batches and leaves frame k's resized gray in its
+    /// small buffer k (gpu backend, integer downscale: each frame is uploaded once).
+    Staged {
+        engine: Box<dyn SharpnessEngine>,
+        pending: Vec<Frame>,
+    },
+}
+
+impl HandOff {
+    /// The frames ready after `frame` arrives (none while a staged batch fills).
+    pub(crate) fn frame(&mut self, frame: Frame, gray: Option<Mat>) -> Result<Vec<Ready>> {
+        match self {
+            HandOff::Cpu => Ok(vec![Ready {
+                frame,
+                pixels: gray.map(Pixels::Small),
+                scores: None,
+            }]),
+            HandOff::Staged { engine, pending } => {
+                pending.push(frame);
+                if pending.len() < engine.batch() {
+                    return Ok(Vec::new());
+                }
+                staged_batch(engine.as_mut(), pending)
+            }
+        }
+    }
+
+    /// The pixels of a primed frame (`image` is its gray, or the frame when staged).
+    pub(crate) fn prime(&mut self, image: Mat) -> Result<Pixels> {
+        match self {
+            HandOff::Cpu => Ok(Pixels::Small(image)),
+            HandOff::Staged { engine, .. } => {
+                engine.stage(&image)?;
+                Ok(Pixels::Staged(0))
+            }
+        }
+    }
+
+    /// The frames still pending at the end of the input.
+    pub(crate) fn end(&mut self) -> Result<Vec<Ready>> {
+        match self {
+            HandOff::Staged { engine, pending } if !pending.is_empty() => {
+                staged_batch(engine.as_mut(), pending)
+            }
+            _ => Ok(Vec::new()),
+        }
+    }
+}
+
+/// Scores the `pending` frames with the staging engine and hands them on with their pixels and
+/// scores, in order.
+fn staged_batch(engine: &mut dyn SharpnessEngine, pending: &mut Vec<Frame>) -> Result<Vec<Ready>> {
+    let scores = engine.score(pending)?;
+    Ok(pending
+        .drain(..)
+        .zip(scores)
+        .enumerate()
+        .map(|(k, (frame, s))| Ready {
+            frame,
+            pixels: Some(Pixels::Staged(k)),
+            scores: Some(s),
+        })
+        .collect())
+}

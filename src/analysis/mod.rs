@@ -1,0 +1,457 @@
+//! Analysis: one decode pass over an input that yields the exact frame count, every frame's
+//! timestamp and the requested per-frame scores: sharpness, camera movement between consecutive
+//! frames, and the stationary sampler's keyframes (its reference mode needs movement between
+//! frame pairs that depend on the threshold, so the movement pass feeds it while decoding).
+//! Frames stream through in small batches (bounded memory); when nothing needs pixels, frames are
+//! only grabbed, never converted. The parts: `ingest` (decode thread, frame hand-off),
+//! `sharpness` and `movement` (engines behind traits), `checkpoint`; this module wires them.
+
+mod checkpoint;
+mod ingest;
+mod movement;
+mod sharpness;
+#[cfg(test)]
+mod tests;
+
+pub use checkpoint::{is_checkpoint, Checkpoint, MovementState, Resume};
+pub use movement::sample_movement;
+
+use checkpoint::{Collected, Saver};
+use ingest::{Decoded, HandOff, Ready};
+use movement::MovementPass;
+use sharpness::{SharpnessEngine, Worker};
+
+use crate::error::{Error, Result};
+use crate::gpu::{Backend, GpuContext};
+use crate::kernels::farneback::FarnebackParams;
+use crate::kernels::movement::{Derotate, Statistic};
+use crate::kernels::sharpness::Metric;
+use crate::source::{self, FrameSource, Metadata, OpenOptions};
+use indicatif::ProgressBar;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::sync::mpsc::Receiver;
+use std::sync::Arc;
+
+/// What to compute.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Request {
+    /// Sharpness metrics to score every frame with.
+    pub sharpness: Vec<Metric>,
+    /// Camera movement between consecutive frames.
+    pub movement: Option<MovementRequest>,
+    /// The stationary sampler's reference-mode run (requires `movement`).
+    pub stationary: Option<StationaryRequest>,
+}
+
+/// How movement is measured.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MovementRequest {
+    /// Farneback parameters.
+    pub farneback: FarnebackParams,
+    /// Statistic of the flow magnitudes.
+    pub statistic: Statistic,
+    /// Width of the analysis resolution (frames are converted to gray and resized with
+    /// INTER_AREA; never upscaled).
+    pub analysis_width: u32,
+    /// Flow is measured between frames `stride` apart (every frame index divisible by it, and
+    /// the last); each frame in between gets an equal share. 1 measures every pair.
+    #[serde(default = "one")]
+    pub stride: u32,
+    /// Subtract the flow of the best-fitting camera rotation before taking the statistic (the
+    /// movement then follows translation, which gives reconstructions their baseline).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub derotate: Option<Derotate>,
+}
+
+fn one() -> u32 {
+    1
+}
+
+/// The stationary sampler's parameters (reference mode).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StationaryRequest {
+    /// Movement (full-resolution pixels) since the last keyframe that makes a new keyframe.
+    pub threshold: f64,
+    /// Frames after which the reference is re-anchored, carrying the accumulated movement.
+    pub reset_delta: usize,
+    /// First candidate frame.
+    pub first: usize,
+    /// Last candidate frame (inclusive).
+    pub last: usize,
+}
+
+/// Movement between consecutive frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MovementSeries {
+    /// Analysis width.
+    pub width: u32,
+    /// Analysis height.
+    pub height: u32,
+    /// Factor from analysis pixels to full-resolution pixels.
+    pub scale_to_full: f64,
+    /// values[i] = movement from frame i-1 to frame i in full-resolution pixels; values[0] = 0.
+    pub values: Vec<f64>,
+}
+
+/// The analysis size for a `width` x `height` input: `analysis_width` wide (never wider than the
+/// input), height scaled and rounded.
+pub fn analysis_size(width: u32, height: u32, analysis_width: u32) -> (u32, u32) {
+    let w = analysis_width.clamp(1, width.max(1));
+    let h = ((f64::from(height) * f64::from(w) / f64::from(width.max(1))).round() as u32).max(1);
+    (w, h)
+}
+
+/// What one pass produced.
+#[derive(Debug, Clone)]
+pub struct Analysis {
+    /// Metadata with the decoded frame count.
+    pub metadata: Metadata,
+    /// Timestamp of every frame (None for image folders without a rate).
+    pub timestamps_s: Option<Vec<f64>>,
+    /// Scores per requested metric, one per frame.
+    pub sharpness: Vec<(Metric, Vec<f64>)>,
+    /// Movement between consecutive frames, when requested.
+    pub movement: Option<MovementSeries>,
+    /// Keyframes chosen by the stationary sampler, when requested.
+    pub stationary: Option<Vec<usize>>,
+    /// Decode problems (damaged stream, damaged images), one line each.
+    pub problems: Vec<String>,
+    /// Damaged frames that did not stop the input (image folders): their scores are those of a
+    /// stand-in image, and they must never be selected.
+    pub damaged: Vec<usize>,
+    /// Backend that computed the scores.
+    pub backend: Backend,
+}
+
+/// Runs one pass over `input`. `ctx` is the GPU context when the gpu backend is in use.
+pub fn analyse(
+    input: &Path,
+    opts: &OpenOptions,
+    req: &Request,
+    backend: Backend,
+    ctx: Option<&Arc<GpuContext>>,
+    quiet: bool,
+) -> Result<Analysis> {
+    analyse_with(input, opts, req, backend, ctx, quiet, None)
+}
+
+/// As [`analyse`], saving a checkpoint to `resume` periodically and resuming from it when it
+/// matches the input and request. The decode thread, the sharpness worker and the movement
+/// pass (this thread) overlap; queues between them are a few frames long.
+pub fn analyse_with(
+    input: &Path,
+    opts: &OpenOptions,
+    req: &Request,
+    backend: Backend,
+    ctx: Option<&Arc<GpuContext>>,
+    quiet: bool,
+    resume: Option<&Resume>,
+) -> Result<Analysis> {
+    let mut src = source::open(input, opts)?;
+    if req.stationary.is_some() && req.movement.is_none() {
+        return Err(Error::param("stationary", "needs a movement request"));
+    }
+    if req.sharpness.is_empty() && req.movement.is_none() {
+        return scan_only(src.as_mut(), input, quiet);
+    }
+    let engines = Engines::new(req, backend, ctx, src.metadata())?;
+    run(src.as_mut(), input, req, engines, quiet, resume)
+}
+
+/// The engines of one analysis and the backend its scores are said to come from.
+struct Engines {
+    movement: Option<MovementPass>,
+    sharpness: Option<Box<dyn SharpnessEngine>>,
+    backend: Backend,
+}
+
+impl Engines {
+    /// The engines `req` needs on `backend` (each falls back to opencv on its own; the scores
+    /// are then said to be opencv's).
+    fn new(
+        req: &Request,
+        backend: Backend,
+        ctx: Option<&Arc<GpuContext>>,
+        meta: &Metadata,
+    ) -> Result<Engines> {
+        let mut used = Backend::Opencv;
+        let movement = match req.movement {
+            Some(m) => {
+                let (pass, b) = MovementPass::open(m, req.stationary, backend, ctx, meta)?;
+                used = b;
+                Some(pass)
+            }
+            None => None,
+        };
+        let sharpness = (!req.sharpness.is_empty()).then(|| {
+            let (s, b) = sharpness::engine(backend, ctx, &req.sharpness, meta);
+            if movement.is_none() || b == Backend::Opencv {
+                used = b;
+            }
+            s
+        });
+        Ok(Engines {
+            movement,
+            sharpness,
+            backend: used,
+        })
+    }
+}
+
+/// The pass over `src` with `engines`: resumes from a fitting checkpoint, streams the frames
+/// through the decode thread, the hand-off, the movement pass and the sharpness worker.
+fn run(
+    src: &mut dyn FrameSource,
+    input: &Path,
+    req: &Request,
+    engines: Engines,
+    quiet: bool,
+    resume: Option<&Resume>,
+) -> Result<Analysis> {
+    let declared = src.metadata().frame_count as u64;
+    let Engines {
+        movement: mut moving,
+        sharpness,
+        backend,
+    } = engines;
+    let (mut done, state) = checkpoint::restore(resume, req, backend, input)
+        .unwrap_or_else(|| (Collected::new(req.sharpness.len()), None));
+    let prime = match (moving.as_mut(), &state) {
+        (Some(m), Some(st)) => {
+            m.restore(st);
+            st.primed()
+        }
+        _ => Vec::new(),
+    };
+    let size = (src.metadata().width, src.metadata().height);
+    let (hand_off, worker_engine) = hand_off(sharpness, moving.as_mut(), size);
+    let small = moving
+        .as_ref()
+        .filter(|_| matches!(hand_off, HandOff::Cpu))
+        .map(|m| m.size);
+    let bar = crate::progress::bar(declared, "analyse", quiet);
+    bar.set_position(done.frames as u64);
+    bar.reset_eta();
+    let saver = Saver::new(resume);
+    let outcome = std::thread::scope(|scope| {
+        let resume_at = done.frames;
+        let keep_image = !req.sharpness.is_empty();
+        let frames = ingest::spawn_decoder(scope, src, resume_at, &prime, small, keep_image);
+        let worker = worker_engine.map(|e| Worker::spawn(scope, e));
+        let mut pump = Pump {
+            req,
+            backend,
+            moving: moving.as_mut(),
+            state: state.as_ref(),
+            worker: worker.as_ref(),
+            hand_off,
+            done: &mut done,
+            saver,
+            bar: &bar,
+        };
+        let run = pump.run(frames);
+        match worker {
+            Some(w) => w.finish(run, &mut done.scores, done.frames),
+            None => run,
+        }
+    });
+    let outcome = outcome.map_err(|e| with_path(e, input));
+    bar.finish_and_clear();
+    outcome?;
+    if let Some(m) = moving.as_mut() {
+        m.finish().map_err(|e| with_path(e, input))?;
+    }
+    Ok(conclude(src, input, req, done, moving, backend))
+}
+
+/// How frames reach the movement pass: staged on the device when the sharpness engine can
+/// resize there for a movement engine on the device (integer downscale of the frame `size`),
+/// else prepared on the CPU. Returns the hand-off and the engine left for the worker thread.
+fn hand_off(
+    mut sharpness: Option<Box<dyn SharpnessEngine>>,
+    moving: Option<&mut MovementPass>,
+    size: (u32, u32),
+) -> (HandOff, Option<Box<dyn SharpnessEngine>>) {
+    if let (Some(s), Some(m)) = (sharpness.as_mut(), moving) {
+        if m.can_stage(size) {
+            match s.attach_resize((m.size.0 as u32, m.size.1 as u32)) {
+                Ok(Some(buffers)) => {
+                    m.use_staged(buffers);
+                    if let Some(engine) = sharpness.take() {
+                        let pending = Vec::with_capacity(engine.batch());
+                        return (HandOff::Staged { engine, pending }, None);
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => log::warn!("{e}; the analysis gray is resized on the CPU"),
+            }
+        }
+    }
+    (HandOff::Cpu, sharpness)
+}
+
+/// The analysis thread while frames stream through: every frame in order to the movement pass
+/// and the sharpness worker, checkpoints when due.
+struct Pump<'a, 'scope> {
+    req: &'a Request,
+    backend: Backend,
+    moving: Option<&'a mut MovementPass>,
+    /// The restored movement state whose frames are primed.
+    state: Option<&'a MovementState>,
+    worker: Option<&'a Worker<'scope>>,
+    hand_off: HandOff,
+    done: &'a mut Collected,
+    saver: Saver<'a>,
+    bar: &'a ProgressBar,
+}
+
+impl Pump<'_, '_> {
+    fn run(&mut self, frames: Receiver<Result<Decoded>>) -> Result<()> {
+        for item in frames {
+            match item? {
+                Decoded::Prime(i, image) => {
+                    if let (Some(m), Some(st)) = (self.moving.as_deref_mut(), self.state) {
+                        m.prime(i, self.hand_off.prime(image)?, st)?;
+                    }
+                }
+                Decoded::Frame(f, gray) => {
+                    for r in self.hand_off.frame(f, gray)? {
+                        self.take(r)?;
+                    }
+                }
+            }
+        }
+        for r in self.hand_off.end()? {
+            self.take(r)?;
+        }
+        Ok(())
+    }
+
+    fn take(&mut self, r: Ready) -> Result<()> {
+        let i = r.frame.index;
+        self.done.push_timestamp(r.frame.timestamp_s);
+        if let (Some(m), Some(px)) = (self.moving.as_deref_mut(), r.pixels) {
+            m.step(i, px)?;
+        }
+        if let Some(s) = r.scores {
+            sharpness::push_scores(&mut self.done.scores, s);
+        }
+        if let Some(w) = self.worker {
+            w.send(r.frame, &mut self.done.scores)?;
+        }
+        self.done.frames = i + 1;
+        self.bar.set_position(self.done.frames as u64);
+        let complete = self.moving.as_ref().is_none_or(|m| m.at_stride_point());
+        if !(self.saver.due() && complete) {
+            return Ok(());
+        }
+        if let Some(w) = self.worker {
+            w.flush(&mut self.done.scores, self.done.frames)?;
+        }
+        let movement = self.moving.as_ref().and_then(|m| m.state());
+        self.saver.save(self.req, self.backend, self.done, movement)
+    }
+}
+
+/// The analysis of what `done` and `moving` hold, with the source's problems.
+fn conclude(
+    src: &dyn FrameSource,
+    input: &Path,
+    req: &Request,
+    done: Collected,
+    moving: Option<MovementPass>,
+    backend: Backend,
+) -> Analysis {
+    let mut metadata = src.metadata().clone();
+    finish_metadata(&mut metadata, input, &done);
+    let (movement, stationary) = match moving {
+        Some(m) => (
+            Some(MovementSeries {
+                width: m.size.0 as u32,
+                height: m.size.1 as u32,
+                scale_to_full: m.scale,
+                values: m.values,
+            }),
+            m.stationary.map(|s| s.keys().to_vec()),
+        ),
+        None => (None, None),
+    };
+    Analysis {
+        metadata,
+        timestamps_s: done.have_ts.then_some(done.timestamps),
+        sharpness: req.sharpness.iter().copied().zip(done.scores).collect(),
+        movement,
+        stationary,
+        problems: problems_of(src, input),
+        damaged: src.damaged_frames().into_iter().map(|(i, _)| i).collect(),
+        backend,
+    }
+}
+
+/// Frame count and timestamps only: frames are grabbed, never converted.
+fn scan_only(src: &mut dyn FrameSource, input: &Path, quiet: bool) -> Result<Analysis> {
+    let bar = crate::progress::bar(src.metadata().frame_count as u64, "scan", quiet);
+    let mut done = Collected::new(0);
+    while let Some((_, t)) = src.skip_frame()? {
+        done.push_timestamp(t);
+        done.frames += 1;
+        bar.set_position(done.frames as u64);
+    }
+    bar.finish_and_clear();
+    Ok(conclude(
+        src,
+        input,
+        &Request::default(),
+        done,
+        None,
+        Backend::Opencv,
+    ))
+}
+
+fn finish_metadata(metadata: &mut Metadata, input: &Path, done: &Collected) {
+    let count = done.frames;
+    if metadata.frame_count != count {
+        log::info!(
+            "{}: the container declares {} frames, decoding found {count}",
+            input.display(),
+            metadata.frame_count
+        );
+        metadata.frame_count = count;
+    }
+    metadata.frame_count_exact = true;
+    if let (true, Some(fps), Some(first), Some(last)) = (
+        done.have_ts,
+        metadata.fps,
+        done.timestamps.first(),
+        done.timestamps.last(),
+    ) {
+        metadata.duration_s = Some(last - first + 1.0 / fps);
+    }
+}
+
+fn problems_of(src: &dyn FrameSource, input: &Path) -> Vec<String> {
+    let problems: Vec<String> = src.decode_failure().into_iter().map(|(_, m)| m).collect();
+    for p in &problems {
+        log::warn!("{}: {p}", input.display());
+    }
+    // Damaged images were logged by the source when met.
+    src.damaged_frames()
+        .into_iter()
+        .map(|(_, m)| m)
+        .chain(problems)
+        .collect()
+}
+
+fn with_path(e: crate::Error, input: &Path) -> crate::Error {
+    match e {
+        crate::Error::Frame { path, index, msg } if path.as_os_str().is_empty() => {
+            crate::Error::Frame {
+                path: input.to_path_buf(),
+                index,
+                msg,
+            }
+        }
+        other => other,
+    }
+}

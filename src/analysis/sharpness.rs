@@ -1,0 +1,232 @@
+//! Sharpness: one engine (gpu or opencv, behind [`SharpnessEngine`]) scores frames in batches,
+//! in a worker thread that hands `(frame, scores per metric)` back in frame order.
+
+use crate::error::{Error, Result};
+use crate::gpu::{Backend, GpuContext};
+use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
+use crate::source::{Frame, Metadata};
+use opencv::core::Mat;
+use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
+use std::sync::Arc;
+use std::thread::{Scope, ScopedJoinHandle};
+
+/// Frames held at most at once by the opencv engine before scoring.
+const CPU_BATCH: usize = 4;
+
+/// Scores frames with every requested metric.
+pub(crate) trait SharpnessEngine: Send {
+    /// Frames scored together.
+    fn batch(&self) -> usize;
+    /// The scores of `frames`: one vector per frame with one score per metric.
+    fn score(&mut self, frames: &[Frame]) -> Result<Vec<Vec<f64>>>;
+    /// Also resizes every frame's device gray to `size` (resize_area) into small device buffers,
+    /// one per batch position; `None` when the engine keeps no frames on a device.
+    fn attach_resize(&mut self, _size: (u32, u32)) -> Result<Option<Vec<wgpu::Buffer>>> {
+        Ok(None)
+    }
+    /// Uploads one frame and computes its gray and resized gray (into small buffer 0) without
+    /// keeping its scores (priming a resumed movement state).
+    fn stage(&mut self, _image: &Mat) -> Result<()> {
+        Ok(())
+    }
+}
+
+/// The engine for `backend`: the gpu one when it can be made (else a warning and opencv).
+pub(crate) fn engine(
+    backend: Backend,
+    ctx: Option<&Arc<GpuContext>>,
+    metrics: &[Metric],
+    meta: &Metadata,
+) -> (Box<dyn SharpnessEngine>, Backend) {
+    if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
+        let runners = metrics
+            .iter()
+            .map(|&m| SharpnessGpu::new(ctx.clone(), m, meta.width, meta.height))
+            .collect::<Result<Vec<_>>>();
+        match runners {
+            Ok(r) => return (Box::new(Gpu(r)), Backend::Gpu),
+            Err(e) => log::warn!("{e}; using the opencv backend"),
+        }
+    }
+    (Box::new(Opencv(metrics.to_vec())), Backend::Opencv)
+}
+
+/// The WGSL kernels, one runner per metric.
+struct Gpu(Vec<SharpnessGpu>);
+
+impl SharpnessEngine for Gpu {
+    fn batch(&self) -> usize {
+        self.0.iter().map(|g| g.batch_size()).min().unwrap_or(1)
+    }
+
+    fn score(&mut self, frames: &[Frame]) -> Result<Vec<Vec<f64>>> {
+        let mut out = vec![Vec::new(); frames.len()];
+        let mats: Vec<&Mat> = frames.iter().map(|f| &f.image).collect();
+        for r in self.0.iter_mut() {
+            for (o, v) in out.iter_mut().zip(r.scores(&mats)?) {
+                o.push(v);
+            }
+        }
+        Ok(out)
+    }
+
+    fn attach_resize(&mut self, size: (u32, u32)) -> Result<Option<Vec<wgpu::Buffer>>> {
+        match self.0.first_mut() {
+            Some(r) => r.attach_resize(size).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    fn stage(&mut self, image: &Mat) -> Result<()> {
+        if let Some(r) = self.0.first_mut() {
+            r.scores(&[image])?;
+        }
+        Ok(())
+    }
+}
+
+/// OpenCV's twins of the kernels, frame by frame.
+struct Opencv(Vec<Metric>);
+
+impl SharpnessEngine for Opencv {
+    fn batch(&self) -> usize {
+        CPU_BATCH
+    }
+
+    fn score(&mut self, frames: &[Frame]) -> Result<Vec<Vec<f64>>> {
+        frames
+            .iter()
+            .map(|f| {
+                self.0
+                    .iter()
+                    .map(|&m| {
+                        score_opencv(&f.image, m).map_err(|e| Error::Frame {
+                            path: Default::default(),
+                            index: f.index,
+                            msg: e.to_string(),
+                        })
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+}
+
+/// Messages to the worker.
+enum ToWorker {
+    Frame(Frame),
+    /// Score what is queued now (a checkpoint waits for it).
+    Flush,
+}
+
+/// The worker thread scoring frames in batches, and the scores per metric collected from it.
+pub(crate) struct Worker<'scope> {
+    tx: SyncSender<ToWorker>,
+    rx: Receiver<(usize, Vec<f64>)>,
+    thread: ScopedJoinHandle<'scope, Result<()>>,
+}
+
+impl<'scope> Worker<'scope> {
+    /// Starts the worker; its queue holds one batch.
+    pub(crate) fn spawn<'env>(
+        scope: &'scope Scope<'scope, 'env>,
+        engine: Box<dyn SharpnessEngine>,
+    ) -> Worker<'scope> {
+        let (tx, wrx) = sync_channel::<ToWorker>(engine.batch());
+        let (wtx, rx) = channel::<(usize, Vec<f64>)>();
+        let thread = scope.spawn(move || work(engine, wrx, wtx));
+        Worker { tx, rx, thread }
+    }
+
+    /// Queues `frame` and takes the scores that are ready into `scores`.
+    pub(crate) fn send(&self, frame: Frame, scores: &mut [Vec<f64>]) -> Result<()> {
+        self.tx
+            .send(ToWorker::Frame(frame))
+            .map_err(|_| stopped())?;
+        drain(&self.rx, scores, 0)
+    }
+
+    /// Scores every queued frame; `scores` then hold `upto` frames.
+    pub(crate) fn flush(&self, scores: &mut [Vec<f64>], upto: usize) -> Result<()> {
+        self.tx.send(ToWorker::Flush).map_err(|_| stopped())?;
+        drain(&self.rx, scores, upto)
+    }
+
+    /// Ends the worker after the frame loop (`run`), then takes the last scores: `scores` hold
+    /// `upto` frames. The loop's error comes first, then the worker's.
+    pub(crate) fn finish(
+        self,
+        run: Result<()>,
+        scores: &mut [Vec<f64>],
+        upto: usize,
+    ) -> Result<()> {
+        drop(self.tx);
+        let worked = self
+            .thread
+            .join()
+            .unwrap_or_else(|_| Err(Error::Gpu("the sharpness worker panicked".into())));
+        run?;
+        worked?;
+        drain(&self.rx, scores, upto)
+    }
+}
+
+/// Takes scores from the worker until `scores` hold `upto` frames, then whatever is ready.
+fn drain(rx: &Receiver<(usize, Vec<f64>)>, scores: &mut [Vec<f64>], upto: usize) -> Result<()> {
+    if scores.is_empty() {
+        return Ok(());
+    }
+    while scores.first().map_or(0, Vec::len) < upto {
+        let Ok((_, s)) = rx.recv() else {
+            return Err(stopped());
+        };
+        push_scores(scores, s);
+    }
+    while let Ok((_, s)) = rx.try_recv() {
+        push_scores(scores, s);
+    }
+    Ok(())
+}
+
+/// Appends one frame's scores (one per metric) to the per-metric series.
+pub(crate) fn push_scores(scores: &mut [Vec<f64>], frame: Vec<f64>) {
+    for (o, v) in scores.iter_mut().zip(frame) {
+        o.push(v);
+    }
+}
+
+fn stopped() -> Error {
+    Error::Gpu("the sharpness worker stopped".into())
+}
+
+/// The worker's loop: scores frames in batches, in index order, and sends
+/// `(frame index, scores per metric)` back.
+fn work(
+    mut engine: Box<dyn SharpnessEngine>,
+    rx: Receiver<ToWorker>,
+    tx: Sender<(usize, Vec<f64>)>,
+) -> Result<()> {
+    let batch = engine.batch();
+    let mut pending: Vec<Frame> = Vec::with_capacity(batch);
+    loop {
+        let (full, end) = match rx.recv() {
+            Ok(ToWorker::Frame(f)) => {
+                pending.push(f);
+                (pending.len() >= batch, false)
+            }
+            Ok(ToWorker::Flush) => (true, false),
+            Err(_) => (true, true),
+        };
+        if full && !pending.is_empty() {
+            let scores = engine.score(&pending)?;
+            for (f, s) in pending.drain(..).zip(scores) {
+                if tx.send((f.index, s)).is_err() {
+                    return Ok(());
+                }
+            }
+        }
+        if end {
+            return Ok(());
+        }
+    }
+}
