@@ -170,7 +170,7 @@ pub fn run(workflow: &Workflow, s: &RunSettings) -> Result<Vec<InputReport>> {
         return Err(Error::param("INPUT", "give at least one input"));
     }
     if s.jobs == 0 {
-        return Err(Error::param("--jobs", "must be at least 1"));
+        return Err(Error::param("jobs", "must be at least 1"));
     }
     let mut sorted = s.inputs.clone();
     sorted.sort();
@@ -358,10 +358,9 @@ fn process(
         .iter()
         .map(|p| p.to_string())
         .collect();
-    for i in 0..w.exports() {
-        let (name, es) = w.export_settings(i, &project, &folder.join("x"))?;
-        let out = folder.join(&name);
-        let r = export::export(&project, &out, &es, true, true)?;
+    for (name, es) in w.exports() {
+        let out = folder.join(name);
+        let r = export::export(&project, &out, es, true, true)?;
         report.exported.push(r.manifest.frames.len());
         partial.extend(
             r.manifest

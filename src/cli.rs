@@ -1,17 +1,17 @@
 //! Command-line flags (clap derive) and their conversion into validated settings, in one place.
 
-use crate::analysis::MovementRequest;
-use crate::error::{Error, Result};
-use crate::export::{ExportSettings, Format};
-use crate::gpu::Backend;
-use crate::kernels::farneback::FarnebackParams;
-use crate::kernels::movement::{Derotate, Statistic};
-use crate::kernels::sharpness::Metric;
-use crate::samplers::{BlurMode, Bound};
-use crate::segment::{MaskSettings, SegBackend};
-use crate::select::SelectSettings;
-use crate::steps::{defaults, BoundArg, Step, StepError, Threshold};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use keyframer::analysis::MovementRequest;
+use keyframer::error::{Error, Result};
+use keyframer::export::{ExportSettings, Format};
+use keyframer::gpu::Backend;
+use keyframer::kernels::farneback::FarnebackParams;
+use keyframer::kernels::movement::{Derotate, Statistic};
+use keyframer::kernels::sharpness::Metric;
+use keyframer::samplers::{BlurMode, Bound};
+use keyframer::segment::{MaskSettings, SegBackend};
+use keyframer::select::SelectSettings;
+use keyframer::steps::{defaults, BoundArg, Step, StepError, Threshold};
 use std::path::PathBuf;
 
 /// Turns videos and image sequences into well-chosen keyframes for 3D reconstruction.
@@ -62,13 +62,13 @@ pub enum Command {
     /// Side-by-side timings of the gpu and opencv backends (ratios from one run).
     Bench(BenchArgs),
     /// COLMAP workspace from an export (images, masks, database, project.ini); --sparse runs it.
-    Colmap(crate::colmap::ColmapArgs),
+    Colmap(ColmapArgs),
     /// Evaluate a COLMAP model: registered images, reprojection error, spacing, GT pose error.
-    Eval(crate::eval::EvalArgs),
+    Eval(EvalArgs),
     /// Self-contained HTML report of a project (timeline, thumbnails, steps) plus a PNG timeline.
     Report(ReportArgs),
     /// Dev tool: render a synthetic drone sequence (video.mp4, poses.tum, scene.json).
-    Scene(crate::scene::cli::SceneArgs),
+    Scene(keyframer::scene::cli::SceneArgs),
 }
 
 /// `report` flags.
@@ -99,8 +99,8 @@ pub struct ReportArgs {
 
 impl ReportArgs {
     /// The report settings.
-    pub fn settings(&self) -> crate::report::ReportSettings {
-        crate::report::ReportSettings {
+    pub fn settings(&self) -> keyframer::report::ReportSettings {
+        keyframer::report::ReportSettings {
             output: self.output.clone(),
             timeline: self.timeline.clone(),
             export: self.export.clone(),
@@ -241,8 +241,8 @@ pub struct BenchArgs {
 
 impl BenchArgs {
     /// Settings of `bench pipeline`.
-    pub fn pipeline_settings(&self) -> crate::bench_pipeline::Settings {
-        crate::bench_pipeline::Settings {
+    pub fn pipeline_settings(&self) -> keyframer::bench_pipeline::Settings {
+        keyframer::bench_pipeline::Settings {
             dir: self.dir.clone(),
             seconds: self.seconds.max(1),
             k4_fps: self.k4_fps.max(1),
@@ -457,7 +457,7 @@ impl MovementArgs {
             stride: self.flow_stride,
             derotate,
         };
-        crate::steps::check_movement(&request)?;
+        keyframer::steps::check_movement(&request)?;
         Ok(request)
     }
 }
@@ -513,7 +513,7 @@ pub struct ExportArgs {
     #[arg(long, value_enum)]
     pub format: Option<FormatArg>,
     /// JPEG quality, 1 to 100.
-    #[arg(long, default_value_t = 95)]
+    #[arg(long, default_value_t = keyframer::export::DEFAULT_QUALITY)]
     pub quality: u8,
     /// Write into a non-empty folder, replacing an earlier export.
     #[arg(long)]
@@ -626,7 +626,7 @@ pub struct RunArgs {
     /// Handle only shard I of N (0-based): inputs at positions i mod N == I of the list sorted by
     /// path. For Slurm job arrays: --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT.
     #[arg(long, value_name = "I/N")]
-    pub shard: Option<crate::batch::Shard>,
+    pub shard: Option<keyframer::batch::Shard>,
     /// Print the summary as JSON on stdout (the table goes to stderr either way).
     #[arg(long)]
     pub json: bool,
@@ -782,6 +782,42 @@ impl SelectArgs {
 }
 
 /// A step's parameter error named by its flag (the blur sampler names its parameter itself).
+/// The flag of `command` (a subcommand path like `["workflow", "save"]`) that sets the library's
+/// parameter `key` (`levels`, `farneback.levels`, `masks.classes`, `quality`), as the user typed
+/// it (`--levels`, `--mask-classes` for `export` and `--classes` for `segment`); None when no flag
+/// sets it (the library's name is then shown as it is).
+pub fn flag_for(command: &[&str], key: &str) -> Option<String> {
+    use clap::CommandFactory;
+    let mut cmd = Cli::command();
+    for name in command {
+        cmd = cmd.find_subcommand(name)?.clone();
+    }
+    let leaf = key.rsplit('.').next().unwrap_or(key);
+    let mut ids = vec![key.replace('.', "_"), leaf.to_string()];
+    if let Some(rest) = key.strip_prefix("masks.") {
+        ids.insert(0, format!("mask_{rest}"));
+    }
+    ids.iter().find_map(|id| {
+        let arg = cmd.get_arguments().find(|a| a.get_id().as_str() == id)?;
+        match (arg.get_long(), arg.get_short()) {
+            (Some(l), _) => Some(format!("--{l}")),
+            (None, Some(c)) => Some(format!("-{c}")),
+            _ => None,
+        }
+    })
+}
+
+/// The subcommand path of a parsed command line (`["select"]`, `["workflow", "save"]`).
+pub fn command_path(m: &clap::ArgMatches) -> Vec<&str> {
+    let mut path = Vec::new();
+    let mut at = m;
+    while let Some((name, sub)) = at.subcommand() {
+        path.push(name);
+        at = sub;
+    }
+    path
+}
+
 fn step_error(e: StepError) -> Error {
     let flag = match (e.plugin, e.key) {
         ("stationary", "threshold") => "--stationary-threshold",
@@ -813,5 +849,108 @@ impl ExportArgs {
                 overlay: self.masks.mask_overlay,
             }),
         )
+    }
+}
+
+/// `colmap` flags.
+#[derive(Debug, Args)]
+pub struct ColmapArgs {
+    /// Export folder made by `keyframer export` (holds manifest.json).
+    pub export: PathBuf,
+    /// Workspace folder (default: EXPORT/colmap).
+    #[arg(short, long, value_name = "WORKSPACE")]
+    pub output: Option<PathBuf>,
+    /// Run feature extraction, matching and the mapper (sparse model under sparse/N).
+    #[arg(long)]
+    pub sparse: bool,
+    /// Then densify (image_undistorter, patch_match_stereo, stereo_fusion); needs a CUDA COLMAP.
+    #[arg(long)]
+    pub dense: bool,
+    /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
+    #[arg(long, value_enum, default_value = "sequential")]
+    pub matcher: MatcherArg,
+    /// Sequential matching: match each image with this many following images.
+    #[arg(long, default_value_t = 10)]
+    pub overlap: u32,
+    /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
+    #[arg(long, default_value = "SIMPLE_RADIAL")]
+    pub camera_model: String,
+    /// Known intrinsics for the camera model, comma-separated in COLMAP's order (PINHOLE:
+    /// `fx,fy,cx,cy`), e.g. from a synthetic scene's scene.json; the mapper then keeps them fixed.
+    #[arg(long, value_name = "P1,P2,..")]
+    pub camera_params: Option<String>,
+    /// Maximum SIFT features per image (COLMAP's default 8192 when not given).
+    #[arg(long, value_name = "N")]
+    pub max_features: Option<u32>,
+    /// Extra mapper option `KEY=VALUE`, passed as `--Mapper.KEY VALUE` (repeatable), e.g.
+    /// `init_min_tri_angle=4` for short baselines.
+    #[arg(long, value_name = "KEY=VALUE")]
+    pub mapper_option: Vec<String>,
+    /// Replace the keyframer-made content of an existing workspace.
+    #[arg(long)]
+    pub force: bool,
+    /// Print colmap.json to stdout instead of a summary.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Feature matching strategies.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum MatcherArg {
+    /// `sequential_matcher`: neighbours in file-name (video) order.
+    Sequential,
+    /// `exhaustive_matcher`: every pair.
+    Exhaustive,
+}
+
+impl ColmapArgs {
+    /// The library's settings.
+    pub fn settings(&self) -> keyframer::colmap::ColmapSettings {
+        use keyframer::colmap::Matcher;
+        keyframer::colmap::ColmapSettings {
+            export: self.export.clone(),
+            output: self.output.clone(),
+            sparse: self.sparse,
+            dense: self.dense,
+            matcher: match self.matcher {
+                MatcherArg::Sequential => Matcher::Sequential,
+                MatcherArg::Exhaustive => Matcher::Exhaustive,
+            },
+            overlap: self.overlap,
+            camera_model: self.camera_model.clone(),
+            camera_params: self.camera_params.clone(),
+            max_features: self.max_features,
+            mapper_option: self.mapper_option.clone(),
+            force: self.force,
+        }
+    }
+}
+
+/// `eval` flags.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// A COLMAP model folder (.bin or .txt), a `sparse/` folder of models 0/ 1/ …, or a workspace
+    /// made by `keyframer colmap`.
+    pub model: PathBuf,
+    /// The export folder (its manifest orders images by frame and gives their timestamps);
+    /// default: the workspace's export.
+    #[arg(long, value_name = "EXPORT_DIR")]
+    pub export: Option<PathBuf>,
+    /// Ground-truth camera-to-world poses in TUM format (`t tx ty tz qx qy qz qw`).
+    #[arg(long, value_name = "POSES")]
+    pub gt: Option<PathBuf>,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl EvalArgs {
+    /// The library's settings.
+    pub fn settings(&self) -> keyframer::eval::EvalSettings {
+        keyframer::eval::EvalSettings {
+            model: self.model.clone(),
+            export: self.export.clone(),
+            gt: self.gt.clone(),
+        }
     }
 }

@@ -9,26 +9,20 @@ use crate::colmap::model::{self, Format, Model};
 use crate::colmap::{self as cm, read_manifest};
 use crate::error::{Error, Result};
 use crate::export::Manifest;
-use clap::Args;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-/// `eval` flags.
-#[derive(Debug, Args)]
-pub struct EvalArgs {
+/// What `eval` reads.
+#[derive(Debug, Clone)]
+pub struct EvalSettings {
     /// A COLMAP model folder (.bin or .txt), a `sparse/` folder of models 0/ 1/ …, or a workspace
     /// made by `keyframer colmap`.
     pub model: PathBuf,
     /// The export folder (its manifest orders images by frame and gives their timestamps);
     /// default: the workspace's export.
-    #[arg(long, value_name = "EXPORT_DIR")]
     pub export: Option<PathBuf>,
     /// Ground-truth camera-to-world poses in TUM format (`t tx ty tz qx qy qz qw`).
-    #[arg(long, value_name = "POSES")]
     pub gt: Option<PathBuf>,
-    /// Print JSON instead of a table.
-    #[arg(long)]
-    pub json: bool,
 }
 
 /// Summary statistics of a list of distances.
@@ -248,7 +242,7 @@ fn resolve(path: &Path) -> Result<Resolved> {
 }
 
 /// Evaluates the model at `a.model`.
-pub fn evaluate(a: &EvalArgs) -> Result<Report> {
+pub fn evaluate(a: &EvalSettings) -> Result<Report> {
     let r = resolve(&a.model)?;
     let (m, format) = model::read(&r.model_dir)?;
     let export = a.export.clone().or(r.export);

@@ -52,6 +52,9 @@ pub struct Crop {
     pub height: u32,
 }
 
+/// JPEG quality when none is given.
+pub const DEFAULT_QUALITY: u8 = 95;
+
 /// Image file format of the export.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -90,7 +93,7 @@ pub struct ExportSettings {
 
 impl ExportSettings {
     /// Checked settings from their parts as a user writes them (`--resize 1280x720`, `--crop
-    /// x,y,w,h`, or the same keys of a workflow's `[[export]]`); errors name the flag.
+    /// x,y,w,h`, or the same keys of a workflow's `[[export]]`); errors name the parameter (`resize`, `crop`, ...).
     pub fn from_parts(
         resize: Option<&str>,
         scale: Option<f64>,
@@ -106,7 +109,7 @@ impl ExportSettings {
             }
             (None, Some(f)) if !(f.is_finite() && f > 0.0) => {
                 return Err(Error::param(
-                    "--scale",
+                    "scale",
                     format!("must be a positive number, got {f}"),
                 ))
             }
@@ -115,7 +118,7 @@ impl ExportSettings {
         };
         let crop = crop.map(parse_crop).transpose()?;
         if !(1..=100).contains(&quality) {
-            return Err(Error::param("--quality", "must be between 1 and 100"));
+            return Err(Error::param("quality", "must be between 1 and 100"));
         }
         Ok(ExportSettings {
             resize,
@@ -129,12 +132,7 @@ impl ExportSettings {
 
 /// Parses `WxH` with both positive.
 pub fn parse_size(s: &str) -> Result<(u32, u32)> {
-    let bad = || {
-        Error::param(
-            "--resize",
-            format!("`{s}` is not WIDTHxHEIGHT like 1280x720"),
-        )
-    };
+    let bad = || Error::param("resize", format!("`{s}` is not WIDTHxHEIGHT like 1280x720"));
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let w: u32 = w.trim().parse().map_err(|_| bad())?;
     let h: u32 = h.trim().parse().map_err(|_| bad())?;
@@ -145,7 +143,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     // export nothing can read back would only exhaust memory.
     if w > 1 << 20 || h > 1 << 20 || u64::from(w) * u64::from(h) > 1 << 30 {
         return Err(Error::param(
-            "--resize",
+            "resize",
             format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)"),
         ));
     }
@@ -154,12 +152,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
 
 /// Parses `X,Y,W,H`.
 pub fn parse_crop(s: &str) -> Result<Crop> {
-    let bad = || {
-        Error::param(
-            "--crop",
-            format!("`{s}` is not X,Y,W,H like 0,40,1920,1000"),
-        )
-    };
+    let bad = || Error::param("crop", format!("`{s}` is not X,Y,W,H like 0,40,1920,1000"));
     let v: Vec<u32> = s
         .split(',')
         .map(|p| p.trim().parse::<u32>())
@@ -169,7 +162,7 @@ pub fn parse_crop(s: &str) -> Result<Crop> {
         return Err(bad());
     };
     if width == 0 || height == 0 {
-        return Err(Error::param("--crop", "width and height must be positive"));
+        return Err(Error::param("crop", "width and height must be positive"));
     }
     Ok(Crop {
         x,
@@ -247,13 +240,13 @@ pub fn output_size(settings: &ExportSettings, width: u32, height: u32) -> Result
     let (w, h) = match settings.crop {
         Some(c) => {
             if c.width == 0 || c.height == 0 {
-                return Err(Error::param("--crop", "width and height must be positive"));
+                return Err(Error::param("crop", "width and height must be positive"));
             }
             if u64::from(c.x) + u64::from(c.width) > u64::from(width)
                 || u64::from(c.y) + u64::from(c.height) > u64::from(height)
             {
                 return Err(Error::param(
-                    "--crop",
+                    "crop",
                     format!(
                         "{},{},{},{} reaches outside the {width}x{height} frame",
                         c.x, c.y, c.width, c.height
@@ -272,7 +265,7 @@ pub fn output_size(settings: &ExportSettings, width: u32, height: u32) -> Result
             let sh = (f64::from(h) * s).round() as u32;
             if sw == 0 || sh == 0 {
                 return Err(Error::param(
-                    "--scale",
+                    "scale",
                     format!("{s} makes a {w}x{h} frame empty"),
                 ));
             }
@@ -338,8 +331,8 @@ fn check_size(settings: &ExportSettings, size: (u32, u32)) -> Result<()> {
     let (w, h) = size;
     if w > MAX_SIDE || h > MAX_SIDE || u64::from(w) * u64::from(h) > MAX_PIXELS {
         let flag = match settings.resize {
-            Some(Resize::Scale(_)) => "--scale",
-            _ => "--resize",
+            Some(Resize::Scale(_)) => "scale",
+            _ => "resize",
         };
         return Err(Error::param(
             flag,
@@ -386,7 +379,7 @@ pub fn export(
     let input = project.input_path(project_path);
     check_fingerprint(&project, &input)?;
     if !(1..=100).contains(&settings.quality) {
-        return Err(Error::param("--quality", "must be between 1 and 100"));
+        return Err(Error::param("quality", "must be between 1 and 100"));
     }
     let mut src = source::open(&input, &OpenOptions::default())?;
     let meta = src.metadata().clone();

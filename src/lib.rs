@@ -6,7 +6,6 @@ pub mod analysis;
 pub mod batch;
 pub mod bench;
 pub mod bench_pipeline;
-pub mod cli;
 pub mod colmap;
 pub mod error;
 pub mod eval;

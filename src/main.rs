@@ -2,8 +2,9 @@
 //! exit code (0 ok, 1 usage or input error, 2 partial failure).
 
 use anyhow::Result;
-use clap::Parser;
-use keyframer::cli::{Cli, Command};
+mod cli;
+
+use cli::{Cli, Command};
 use keyframer::{analysis, export, gpu, info, select, source};
 use std::process::ExitCode;
 
@@ -17,7 +18,13 @@ enum Outcome {
 fn main() -> ExitCode {
     keep_frame_buffers();
     quiet_native_logs();
-    let cli = match Cli::try_parse() {
+    let parsed = {
+        use clap::{CommandFactory, FromArgMatches};
+        Cli::command()
+            .try_get_matches()
+            .and_then(|m| Ok((Cli::from_arg_matches(&m)?, m)))
+    };
+    let (cli, matches) = match parsed {
         Ok(c) => c,
         Err(e) => {
             let _ = e.print();
@@ -40,7 +47,17 @@ fn main() -> ExitCode {
         Ok(Outcome::Ok) => ExitCode::SUCCESS,
         Ok(Outcome::Partial) => ExitCode::from(2),
         Err(e) => {
-            // Library errors already carry their cause in the message; print it once.
+            // Library errors already carry their cause in the message; print it once. A
+            // parameter the library names by its key is shown as the flag that set it.
+            let e = match e.downcast::<keyframer::Error>() {
+                Ok(keyframer::Error::Param { name, msg }) => {
+                    let path = cli::command_path(&matches);
+                    let name = cli::flag_for(&path, &name).unwrap_or(name);
+                    anyhow::Error::new(keyframer::Error::Param { name, msg })
+                }
+                Ok(other) => anyhow::Error::new(other),
+                Err(e) => e,
+            };
             eprintln!("error: {e}");
             ExitCode::from(1)
         }
@@ -127,7 +144,7 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Score(a) => score(&a, quiet),
         Command::Flow(a) => flow(&a),
         Command::Bench(a) => {
-            if let keyframer::cli::BenchWhat::Pipeline = a.what {
+            if let cli::BenchWhat::Pipeline = a.what {
                 print!(
                     "{}",
                     keyframer::bench_pipeline::run(&a.pipeline_settings())?
@@ -136,8 +153,8 @@ fn run(cli: Cli) -> Result<Outcome> {
             }
             let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(a.adapter.as_deref())?);
             match a.what {
-                keyframer::cli::BenchWhat::Pipeline => {}
-                keyframer::cli::BenchWhat::Flow => {
+                cli::BenchWhat::Pipeline => {}
+                cli::BenchWhat::Flow => {
                     let pairs = a.frames.min(8);
                     let rows = keyframer::bench::flow(&ctx, pairs)?;
                     print!(
@@ -145,7 +162,7 @@ fn run(cli: Cli) -> Result<Outcome> {
                         keyframer::bench::render_flow(&ctx.info.name, pairs, &rows)
                     );
                 }
-                keyframer::cli::BenchWhat::Sharpness => {
+                cli::BenchWhat::Sharpness => {
                     let rows = keyframer::bench::sharpness(&ctx, a.frames)?;
                     print!(
                         "{}",
@@ -237,7 +254,7 @@ fn run(cli: Cli) -> Result<Outcome> {
                 },
             )
         }
-        Command::Workflow(keyframer::cli::WorkflowCommand::Save(a)) => {
+        Command::Workflow(cli::WorkflowCommand::Save(a)) => {
             // Build the text, check that it loads (in memory), and only then write it.
             let text = keyframer::workflow::from_project(&a.project, &a.export)?;
             keyframer::workflow::Workflow::from_text(&a.output, text.clone()).map_err(|e| {
@@ -261,13 +278,13 @@ fn run(cli: Cli) -> Result<Outcome> {
             eprintln!("workflow -> {}", a.output.display());
             Ok(Outcome::Ok)
         }
-        Command::Workflow(keyframer::cli::WorkflowCommand::Check(a)) => {
+        Command::Workflow(cli::WorkflowCommand::Check(a)) => {
             let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
             eprintln!(
                 "{}: ok ({} sampler steps, {} exports)",
                 a.workflow.display(),
                 wf.file.sample.len(),
-                wf.exports()
+                wf.exports().len()
             );
             Ok(Outcome::Ok)
         }
@@ -302,8 +319,8 @@ fn run(cli: Cli) -> Result<Outcome> {
     }
 }
 
-fn colmap(a: &keyframer::colmap::ColmapArgs, quiet: bool) -> Result<Outcome> {
-    let rec = keyframer::colmap::run(a, quiet)?;
+fn colmap(a: &cli::ColmapArgs, quiet: bool) -> Result<Outcome> {
+    let rec = keyframer::colmap::run(&a.settings(), quiet)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&rec)?);
     } else {
@@ -312,8 +329,8 @@ fn colmap(a: &keyframer::colmap::ColmapArgs, quiet: bool) -> Result<Outcome> {
     Ok(Outcome::Ok)
 }
 
-fn eval(a: &keyframer::eval::EvalArgs) -> Result<Outcome> {
-    let r = keyframer::eval::evaluate(a)?;
+fn eval(a: &cli::EvalArgs) -> Result<Outcome> {
+    let r = keyframer::eval::evaluate(&a.settings())?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
@@ -322,7 +339,7 @@ fn eval(a: &keyframer::eval::EvalArgs) -> Result<Outcome> {
     Ok(Outcome::Ok)
 }
 
-fn segment(a: &keyframer::cli::SegmentArgs) -> Result<Outcome> {
+fn segment(a: &cli::SegmentArgs) -> Result<Outcome> {
     use keyframer::segment::Segmenter;
     use keyframer::{fsutil, Error};
     use opencv::imgcodecs;
@@ -376,7 +393,7 @@ fn segment(a: &keyframer::cli::SegmentArgs) -> Result<Outcome> {
     Ok(Outcome::Ok)
 }
 
-fn probe(a: &keyframer::cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
+fn probe(a: &cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
     let mut src = source::open(
         &a.input,
         &source::OpenOptions {
@@ -440,7 +457,7 @@ fn probe(a: &keyframer::cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
     })
 }
 
-fn score(a: &keyframer::cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
+fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
     let (backend, ctx) =
         gpu::resolve_backend(a.analysis.backend.into(), a.analysis.adapter.as_deref());
     let r = analysis::analyse(
@@ -486,7 +503,7 @@ fn score(a: &keyframer::cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
     })
 }
 
-fn flow(a: &keyframer::cli::FlowArgs) -> Result<Outcome> {
+fn flow(a: &cli::FlowArgs) -> Result<Outcome> {
     use keyframer::kernels::{farneback, movement};
     let params = a.farneback.params()?;
     {

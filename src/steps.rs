@@ -28,17 +28,14 @@ pub mod defaults {
 }
 
 /// Checks how movement is to be measured (every sampler that reads movement shares it); errors
-/// name the flag.
+/// name the parameter (`flow_stride`).
 pub fn check_movement(r: &MovementRequest) -> crate::error::Result<()> {
     r.statistic.validate()?;
     if r.stride == 0 {
-        return Err(Error::param("--flow-stride", "must be at least 1"));
+        return Err(Error::param("flow_stride", "must be at least 1"));
     }
     if r.analysis_width < 16 {
-        return Err(Error::param(
-            "--analysis-width",
-            "must be at least 16 pixels",
-        ));
+        return Err(Error::param("analysis_width", "must be at least 16 pixels"));
     }
     if let Some(d) = &r.derotate {
         d.validate()?;

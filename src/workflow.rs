@@ -3,17 +3,16 @@
 //! and turned into the same validated settings the `select` / `export` flags produce.
 
 use crate::analysis::MovementRequest;
-use crate::cli::ExportArgs;
 use crate::error::{Error, Result};
-use crate::export::ExportSettings;
+use crate::export::{ExportSettings, Format};
 use crate::gpu::Backend;
 use crate::kernels::farneback::FarnebackParams;
 use crate::kernels::movement::{Derotate, Statistic};
 use crate::project::Project;
+use crate::segment::{MaskSettings, SegBackend};
 use crate::select::SelectSettings;
 use crate::steps::{Applied, Step};
 use crate::tomlfile::{self, TomlFile};
-use clap::Parser;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -200,7 +199,8 @@ pub struct Workflow {
     movement: MovementRequest,
     /// `[analysis]` backend.
     backend: Backend,
-    export_args: Vec<Vec<String>>,
+    /// Each `[[export]]`: its folder name and checked settings.
+    exports: Vec<(String, ExportSettings)>,
 }
 
 impl Workflow {
@@ -258,9 +258,21 @@ impl Workflow {
                 format!("must be a positive number, got {f}"),
             ));
         }
-        let mut export_args = Vec::new();
+        let mut exports = Vec::new();
         for (i, e) in w.export.iter().enumerate() {
-            export_args.push(export_flags(&file, w, i, e)?);
+            let settings = export_settings(&file, w, i, e)?;
+            if let Some(m) = &settings.masks {
+                let desc = crate::segment::desc::ModelDesc::load(&m.model)
+                    .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
+                desc.class_ids(&m.classes).map_err(|e| {
+                    let msg = match e {
+                        Error::Param { msg, .. } => msg,
+                        other => other.to_string(),
+                    };
+                    file.error(&format!("export[{i}].masks.classes"), msg)
+                })?;
+            }
+            exports.push((e.name.clone(), settings));
         }
         let hash = crate::fsutil::fnv1a64(file.text().as_bytes());
         let wf = Workflow {
@@ -269,23 +281,8 @@ impl Workflow {
             hash,
             movement,
             backend,
-            export_args,
+            exports,
         };
-        for i in 0..wf.export_args.len() {
-            let s = wf
-                .export_settings(i, Path::new("project.json"), Path::new("out"))
-                .map_err(|e| {
-                    let origins = export_origins(i, &w.export[i]);
-                    locate_export(&file, &origins, &format!("export[{i}]"), e)
-                })?;
-            if let Some(m) = &s.1.masks {
-                let desc = crate::segment::desc::ModelDesc::load(&m.model)
-                    .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
-                desc.class_ids(&m.classes).map_err(|e| {
-                    file.error(&format!("export[{i}].masks.classes"), e.to_string())
-                })?;
-            }
-        }
         Ok(wf)
     }
 
@@ -312,55 +309,10 @@ impl Workflow {
         })
     }
 
-    /// Export `i`: its folder name and settings.
-    pub fn export_settings(
-        &self,
-        i: usize,
-        project: &Path,
-        out: &Path,
-    ) -> Result<(String, ExportSettings)> {
-        let mut argv: Vec<String> = vec![
-            project.to_string_lossy().into_owned(),
-            "--out".into(),
-            out.to_string_lossy().into_owned(),
-        ];
-        argv.extend(self.export_args[i].iter().cloned());
-        let cmd = ExportCmd::try_parse_from(&argv).map_err(clap_error)?;
-        Ok((self.file.export[i].name.clone(), cmd.args.settings()?))
+    /// The exports in order: folder name and checked settings.
+    pub fn exports(&self) -> &[(String, ExportSettings)] {
+        &self.exports
     }
-
-    /// Number of exports.
-    pub fn exports(&self) -> usize {
-        self.export_args.len()
-    }
-}
-
-/// A clap error as a parameter error named by the flag that caused it (the invalid or
-/// conflicting one), with clap's whole message on one line.
-fn clap_error(e: clap::Error) -> Error {
-    use clap::error::{ContextKind, ContextValue};
-    let first = |kind| match e.get(kind) {
-        Some(ContextValue::String(s)) => s.split_whitespace().next().map(str::to_string),
-        Some(ContextValue::Strings(v)) => v
-            .first()
-            .and_then(|s| s.split_whitespace().next())
-            .map(str::to_string),
-        _ => None,
-    };
-    let flag = first(ContextKind::InvalidArg)
-        .or_else(|| first(ContextKind::PriorArg))
-        .unwrap_or_default();
-    let rendered = e.render().to_string();
-    let msg = rendered
-        .lines()
-        .map(str::trim)
-        .take_while(|l| !l.starts_with("Usage:") && !l.starts_with("For more information"))
-        .filter(|l| !l.is_empty())
-        .collect::<Vec<_>>()
-        .join(" ")
-        .trim_start_matches("error: ")
-        .to_string();
-    Error::param(flag, msg)
 }
 
 /// `--pyr-scale`, `pyr_scale` -> `pyr_scale`.
@@ -368,7 +320,7 @@ fn flag_key(flag: &str) -> String {
     flag.trim_start_matches("--").replace('-', "_")
 }
 
-/// Puts a parameter error of `[analysis]` (named by its flag, as the library names it) on the
+/// Puts a parameter error of `[analysis]` (named by its parameter key) on the
 /// key it came from.
 fn locate(file: &TomlFile<RawFile>, e: Error) -> Error {
     match e {
@@ -380,35 +332,6 @@ fn locate(file: &TomlFile<RawFile>, e: Error) -> Error {
                 "analysis"
             };
             file.error(&format!("{table}.{key}"), msg)
-        }
-        other => other,
-    }
-}
-
-#[derive(Parser)]
-#[command(no_binary_name = true)]
-struct ExportCmd {
-    #[command(flatten)]
-    args: ExportArgs,
-}
-
-/// Which workflow key an export flag came from.
-struct Origin {
-    flag: String,
-    field: String,
-}
-
-/// Puts an export's parameter error (named by its flag) on the key it came from, or on
-/// `fallback` (the export's table).
-fn locate_export(file: &TomlFile<RawFile>, origins: &[Origin], fallback: &str, e: Error) -> Error {
-    match e {
-        Error::Param { name, msg } => {
-            let key = flag_key(&name);
-            match origins.iter().find(|o| flag_key(&o.flag) == key) {
-                Some(o) => file.error(&o.field, msg),
-                None if name.is_empty() => file.error(fallback, msg),
-                None => file.error(fallback, format!("{name}: {msg}")),
-            }
         }
         other => other,
     }
@@ -450,7 +373,7 @@ fn movement_request(an: &Analysis) -> Result<MovementRequest> {
         },
         Some(other) => {
             return Err(Error::param(
-                "--movement",
+                "movement",
                 format!("invalid value '{other}' [possible values: median, trimmed-mean]"),
             ))
         }
@@ -522,53 +445,13 @@ fn valid_name(n: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
 }
 
-fn export_origins(i: usize, e: &Export) -> Vec<Origin> {
-    let at = |k: &str| format!("export[{i}].{k}");
-    let mut o = vec![
-        Origin {
-            flag: "--format".into(),
-            field: at("format"),
-        },
-        Origin {
-            flag: "--quality".into(),
-            field: at("quality"),
-        },
-        Origin {
-            flag: "--resize".into(),
-            field: at("resize"),
-        },
-        Origin {
-            flag: "--scale".into(),
-            field: at("scale"),
-        },
-        Origin {
-            flag: "--crop".into(),
-            field: at("crop"),
-        },
-    ];
-    if e.masks.is_some() {
-        o.push(Origin {
-            flag: "--mask-backend".into(),
-            field: at("masks.backend"),
-        });
-        o.push(Origin {
-            flag: "--mask-classes".into(),
-            field: at("masks.classes"),
-        });
-        o.push(Origin {
-            flag: "--mask-dilate".into(),
-            field: at("masks.dilate"),
-        });
-    }
-    o
-}
-
-fn export_flags(
+/// `[[export]]` `i` as checked settings, errors on `export[i].<key>`.
+fn export_settings(
     file: &TomlFile<RawFile>,
     w: &WorkflowFile,
     i: usize,
     e: &Export,
-) -> Result<Vec<String>> {
+) -> Result<ExportSettings> {
     let at = |k: &str| format!("export[{i}].{k}");
     if !valid_name(&e.name) {
         return Err(file.error(
@@ -595,31 +478,53 @@ fn export_flags(
             ),
         ));
     }
-    let mut a = Vec::new();
-    let mut opt = |flag: &str, v: Option<String>| {
-        if let Some(v) = v {
-            a.push(format!("{flag}={v}"));
+    let format = match e.format.as_deref() {
+        None => None,
+        Some("jpg") => Some(Format::Jpg),
+        Some("png") => Some(Format::Png),
+        Some(other) => {
+            return Err(file.error(
+                &at("format"),
+                format!("invalid value '{other}' [possible values: jpg, png]"),
+            ))
         }
     };
-    opt("--format", e.format.clone());
-    opt("--quality", e.quality.map(|q| q.to_string()));
-    opt("--resize", e.resize.clone());
-    opt("--scale", e.scale.map(|s| s.to_string()));
-    opt("--crop", e.crop.clone());
-    if let Some(m) = &e.masks {
-        let dir = file.path().parent().unwrap_or(Path::new("."));
-        let model = crate::fsutil::absolute(&dir.join(&m.model));
-        opt("--masks", Some(model.to_string_lossy().into_owned()));
-        if !m.classes.is_empty() {
-            opt("--mask-classes", Some(m.classes.join(",")));
+    let masks = match &e.masks {
+        None => None,
+        Some(m) => {
+            let backend = match m.backend.as_deref() {
+                None | Some("opencv") => SegBackend::Opencv,
+                Some("ort") => SegBackend::Ort,
+                Some(other) => {
+                    return Err(file.error(
+                        &at("masks.backend"),
+                        format!("invalid value '{other}' [possible values: opencv, ort]"),
+                    ))
+                }
+            };
+            let dir = file.path().parent().unwrap_or(Path::new("."));
+            Some(MaskSettings {
+                model: crate::fsutil::absolute(&dir.join(&m.model)),
+                classes: m.classes.clone(),
+                dilate: m.dilate.unwrap_or(0),
+                backend,
+                overlay: m.overlay == Some(true),
+            })
         }
-        opt("--mask-dilate", m.dilate.map(|d| d.to_string()));
-        opt("--mask-backend", m.backend.clone());
-        if m.overlay == Some(true) {
-            a.push("--mask-overlay".into());
-        }
-    }
-    Ok(a)
+    };
+    ExportSettings::from_parts(
+        e.resize.as_deref(),
+        e.scale,
+        e.crop.as_deref(),
+        format,
+        e.quality.unwrap_or(crate::export::DEFAULT_QUALITY),
+        masks,
+    )
+    .map_err(|err| match err {
+        // from_parts names its parameters by key (`resize`, `scale`, `crop`, `quality`).
+        Error::Param { name, msg } => file.error(&at(&flag_key(&name)), msg),
+        other => other,
+    })
 }
 
 /// `[analysis]` keys that reproduce the movement measure `req`.

@@ -11,7 +11,6 @@ pub mod model;
 use crate::error::{Error, Result};
 use crate::export::{Manifest, MANIFEST};
 use crate::fsutil;
-use clap::{Args, ValueEnum};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -35,46 +34,34 @@ const OURS: [&str; 10] = [
     RECORD,
 ];
 
-/// `colmap` flags.
-#[derive(Debug, Args)]
-pub struct ColmapArgs {
+/// What `colmap` does: the export to reconstruct and COLMAP's options (the binary's flags map
+/// onto these fields one to one).
+#[derive(Debug, Clone)]
+pub struct ColmapSettings {
     /// Export folder made by `keyframer export` (holds manifest.json).
     pub export: PathBuf,
     /// Workspace folder (default: EXPORT/colmap).
-    #[arg(short, long, value_name = "WORKSPACE")]
     pub output: Option<PathBuf>,
     /// Run feature extraction, matching and the mapper (sparse model under sparse/N).
-    #[arg(long)]
     pub sparse: bool,
     /// Then densify (image_undistorter, patch_match_stereo, stereo_fusion); needs a CUDA COLMAP.
-    #[arg(long)]
     pub dense: bool,
     /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
-    #[arg(long, value_enum, default_value = "sequential")]
     pub matcher: Matcher,
     /// Sequential matching: match each image with this many following images.
-    #[arg(long, default_value_t = 10)]
     pub overlap: u32,
     /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
-    #[arg(long, default_value = "SIMPLE_RADIAL")]
     pub camera_model: String,
     /// Known intrinsics for the camera model, comma-separated in COLMAP's order (PINHOLE:
     /// `fx,fy,cx,cy`), e.g. from a synthetic scene's scene.json; the mapper then keeps them fixed.
-    #[arg(long, value_name = "P1,P2,..")]
     pub camera_params: Option<String>,
     /// Maximum SIFT features per image (COLMAP's default 8192 when not given).
-    #[arg(long, value_name = "N")]
     pub max_features: Option<u32>,
     /// Extra mapper option `KEY=VALUE`, passed as `--Mapper.KEY VALUE` (repeatable), e.g.
     /// `init_min_tri_angle=4` for short baselines.
-    #[arg(long, value_name = "KEY=VALUE")]
     pub mapper_option: Vec<String>,
     /// Replace the keyframer-made content of an existing workspace.
-    #[arg(long)]
     pub force: bool,
-    /// Print colmap.json to stdout instead of a summary.
-    #[arg(long)]
-    pub json: bool,
 }
 
 /// Checks `--camera-params`: comma-separated finite numbers.
@@ -83,7 +70,7 @@ fn camera_params(text: &str) -> Result<Vec<f64>> {
         .map(|v| match v.trim().parse::<f64>() {
             Ok(x) if x.is_finite() => Ok(x),
             _ => Err(Error::param(
-                "--camera-params",
+                "camera_params",
                 format!("`{v}` is not a number (give e.g. `448,448,320,180` for PINHOLE)"),
             )),
         })
@@ -91,7 +78,7 @@ fn camera_params(text: &str) -> Result<Vec<f64>> {
 }
 
 /// Feature matching strategy.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Matcher {
     /// `sequential_matcher`: neighbours in file-name (video) order.
@@ -269,14 +256,14 @@ pub fn read_manifest(export: &Path) -> Result<Manifest> {
 }
 
 /// Runs `keyframer colmap`; returns the record as written.
-pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
+pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
     if a.overlap == 0 {
-        return Err(Error::param("--overlap", "must be at least 1"));
+        return Err(Error::param("overlap", "must be at least 1"));
     }
     if !model::CAMERA_MODELS.iter().any(|m| m.1 == a.camera_model) {
         let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
         return Err(Error::param(
-            "--camera-model",
+            "camera_model",
             format!("`{}` is not one of {}", a.camera_model, names.join(", ")),
         ));
     }
@@ -297,7 +284,7 @@ pub fn run(a: &ColmapArgs, quiet: bool) -> Result<Record> {
     crate::output::check_not_input(&ws, "-o", &[&export_images, &export_masks, &manifest_path])?;
     if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
         return Err(Error::param(
-            "--output",
+            "output",
             format!(
                 "the workspace {} must not be or contain the export folder {}",
                 ws.display(),
@@ -523,7 +510,7 @@ fn mapper_keys(options: &[String]) -> Result<Vec<(String, String)>> {
                 Ok((format!("--Mapper.{k}"), v.trim().to_string()))
             }
             _ => Err(Error::param(
-                "--mapper-option",
+                "mapper_option",
                 format!("`{o}` is not KEY=VALUE"),
             )),
         })
@@ -766,7 +753,12 @@ impl Runner<'_> {
 
 /// Writes `project.ini` from `colmap project_generator`'s defaults with this workspace's paths
 /// (absolute) and settings filled in.
-fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapArgs, masks: bool) -> Result<()> {
+fn write_project_ini(
+    runner: &Runner,
+    rec: &mut Record,
+    a: &ColmapSettings,
+    masks: bool,
+) -> Result<()> {
     let ws = runner.ws;
     let tmp = ws.join(format!(
         ".project.ini.tmp-{}",

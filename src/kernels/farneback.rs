@@ -67,24 +67,24 @@ impl FarnebackParams {
     /// Most iterations per level: 30x the usual 3; the flow stops changing long before.
     pub const MAX_ITERATIONS: u32 = 100;
 
-    /// Checks the ranges OpenCV accepts and keyframer bounds; errors name the flag (`--levels`).
+    /// Checks the ranges OpenCV accepts and keyframer bounds; errors name the parameter (`levels`; the binary shows its flag).
     pub fn validate(&self) -> Result<()> {
         let bad = |name: &str, msg: String| Err(Error::param(name, msg));
         if !(self.pyr_scale > 0.0 && self.pyr_scale < 1.0) {
             return bad(
-                "--pyr-scale",
+                "pyr_scale",
                 format!("must be in (0, 1), got {}", self.pyr_scale),
             );
         }
         if self.levels > Self::MAX_LEVELS {
             return bad(
-                "--levels",
+                "levels",
                 format!("must be at most {}, got {}", Self::MAX_LEVELS, self.levels),
             );
         }
         if !(1..=Self::MAX_WINSIZE).contains(&self.winsize) {
             return bad(
-                "--winsize",
+                "winsize",
                 format!(
                     "must be between 1 and {}, got {}",
                     Self::MAX_WINSIZE,
@@ -94,7 +94,7 @@ impl FarnebackParams {
         }
         if !(1..=Self::MAX_ITERATIONS).contains(&self.iterations) {
             return bad(
-                "--iterations",
+                "iterations",
                 format!(
                     "must be between 1 and {}, got {}",
                     Self::MAX_ITERATIONS,
@@ -103,11 +103,11 @@ impl FarnebackParams {
             );
         }
         if self.poly_n != 5 && self.poly_n != 7 {
-            return bad("--poly-n", format!("must be 5 or 7, got {}", self.poly_n));
+            return bad("poly_n", format!("must be 5 or 7, got {}", self.poly_n));
         }
         if !(self.poly_sigma.is_finite() && self.poly_sigma > 0.0) {
             return bad(
-                "--poly-sigma",
+                "poly_sigma",
                 format!("must be a positive number, got {}", self.poly_sigma),
             );
         }

@@ -43,7 +43,7 @@ impl Statistic {
         if let Statistic::TrimmedMean { trim } = self {
             if !(0.0..0.5).contains(trim) {
                 return Err(Error::param(
-                    "--trim",
+                    "trim",
                     format!("must be in [0, 0.5), got {trim}"),
                 ));
             }
@@ -81,7 +81,7 @@ impl Derotate {
     pub fn validate(&self) -> Result<()> {
         if !(self.hfov_deg > 1.0 && self.hfov_deg < 179.0) {
             return Err(Error::param(
-                "--hfov",
+                "hfov",
                 format!("{} must be between 1 and 179 degrees", self.hfov_deg),
             ));
         }

@@ -68,10 +68,7 @@ pub fn write_report(
         .clone()
         .unwrap_or_else(|| default_timeline_path(&settings.output));
     if crate::output::resolve(&png_path) == crate::output::resolve(&settings.output) {
-        return Err(Error::param(
-            "--timeline",
-            "must differ from the HTML output",
-        ));
+        return Err(Error::param("timeline", "must differ from the HTML output"));
     }
     // The export is read: its manifest and images are inputs (a report beside them is fine).
     let export_parts: Vec<std::path::PathBuf> = settings

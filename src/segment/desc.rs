@@ -290,7 +290,7 @@ impl ModelDesc {
         };
         if names.is_empty() {
             return Err(Error::param(
-                "--mask-classes",
+                "masks.classes",
                 format!(
                     "name the classes to hide ({} has no `hide` list); classes: {}",
                     self.path.display(),
@@ -306,7 +306,7 @@ impl ModelDesc {
                     .position(|c| c.eq_ignore_ascii_case(n.trim()))
                     .ok_or_else(|| {
                         Error::param(
-                            "--mask-classes",
+                            "masks.classes",
                             format!(
                                 "`{n}` is not a class of {} (classes: {})",
                                 self.path.display(),

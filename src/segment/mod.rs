@@ -77,7 +77,7 @@ impl Segmenter {
             batch = check_onnx_signature(&desc)?;
         } else if settings.backend == SegBackend::Ort {
             return Err(Error::param(
-                "--mask-backend",
+                "masks.backend",
                 format!(
                     "ONNX Runtime reads only ONNX models; {} is a {} model (use the opencv backend)",
                     desc.model.display(),
