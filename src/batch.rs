@@ -11,10 +11,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
 
-/// File written last into an input's folder when every step of the workflow succeeded.
-pub const DONE: &str = "done.json";
-/// Marks a folder as made by `keyframer run` (so a re-run may replace its partial content).
-pub const MARKER: &str = ".keyframer-run";
+pub use crate::output::{DONE, MARKER};
 
 /// Which part of a batch this process handles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

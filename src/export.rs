@@ -2,12 +2,13 @@
 //! (INTER_AREA), writes them atomically with sortable names (or the original names for image
 //! folders, copied byte for byte when nothing changes them), and writes a manifest last.
 
+pub use crate::encode::{encode, Format};
 use crate::error::{CvContext, Error, Result};
 use crate::fsutil;
 use crate::project::Project;
 use crate::segment::{MaskSettings, Segmenter};
 use crate::source::{self, OpenOptions, SourceKind};
-use opencv::core::{Mat, Rect, Size, Vector};
+use opencv::core::{Mat, Rect, Size};
 use opencv::prelude::*;
 use opencv::{imgcodecs, imgproc};
 use serde::{Deserialize, Serialize};
@@ -54,26 +55,6 @@ pub struct Crop {
 
 /// JPEG quality when none is given.
 pub const DEFAULT_QUALITY: u8 = 95;
-
-/// Image file format of the export.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Format {
-    /// JPEG with a quality setting.
-    Jpg,
-    /// Lossless PNG.
-    Png,
-}
-
-impl Format {
-    /// File extension.
-    pub fn ext(self) -> &'static str {
-        match self {
-            Format::Jpg => "jpg",
-            Format::Png => "png",
-        }
-    }
-}
 
 /// Validated export settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -300,19 +281,6 @@ pub fn transform(image: &Mat, settings: &ExportSettings, out: (u32, u32)) -> Res
     )
     .cv(|| format!("resize to {}x{}", out.0, out.1))?;
     Ok(resized)
-}
-
-/// Encodes an image as JPEG (with `quality`) or PNG.
-pub fn encode(image: &Mat, format: Format, quality: u8) -> Result<Vec<u8>> {
-    let mut params = Vector::<i32>::new();
-    if format == Format::Jpg {
-        params.push(imgcodecs::IMWRITE_JPEG_QUALITY);
-        params.push(i32::from(quality));
-    }
-    let mut buf = Vector::<u8>::new();
-    imgcodecs::imencode(&format!(".{}", format.ext()), image, &mut buf, &params)
-        .cv(|| format!("encode {}", format.ext()))?;
-    Ok(buf.to_vec())
 }
 
 /// Outcome of an export.

@@ -11,6 +11,11 @@ use std::ffi::OsStr;
 use std::fs;
 use std::path::{Component, Path, PathBuf};
 
+/// File written last into an input's folder when every step of the workflow succeeded.
+pub const DONE: &str = "done.json";
+/// Marks a folder as made by `keyframer run` (so a re-run may replace its partial content).
+pub const MARKER: &str = ".keyframer-run";
+
 /// Marker inside the names of keyframer's temporaries: `.<name>.tmp-<pid>`,
 /// `.keyframer-staging-<pid>`, `.keyframer-write-test-<pid>`.
 const TEMP_PREFIXES: [&str; 2] = [".keyframer-staging-", ".keyframer-write-test-"];

@@ -12,6 +12,8 @@ use crate::source::{Metadata, SourceKind};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+pub use crate::steps::HistoryEntry;
+
 /// Version of the project file layout this build reads and writes.
 pub const SCHEMA_VERSION: u32 = 1;
 
@@ -56,17 +58,6 @@ pub struct InputRef {
     pub kind: SourceKind,
     /// Detects a changed or replaced input.
     pub fingerprint: Fingerprint,
-}
-
-/// One step of the selection history, as stored (typed by [`crate::steps::Applied`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HistoryEntry {
-    /// Stable plugin id (`boundaries`, `every-nth`, `fps`, `manual`, ...).
-    pub plugin: String,
-    /// The step's parameters as given.
-    pub params: serde_json::Value,
-    /// Number of frames the step kept.
-    pub kept: usize,
 }
 
 /// Per-frame numbers computed from the input.

@@ -459,9 +459,9 @@ impl Applied {
 
     /// The history entry recording this step and how many frames it kept. Parameters are
     /// written in key order, as every project so far has them.
-    pub fn entry(&self, kept: usize) -> crate::project::HistoryEntry {
+    pub fn entry(&self, kept: usize) -> HistoryEntry {
         let value = serde_json::to_value(self).unwrap_or_default();
-        crate::project::HistoryEntry {
+        HistoryEntry {
             plugin: value["plugin"].as_str().unwrap_or_default().to_string(),
             params: value["params"].clone(),
             kept,
@@ -469,9 +469,7 @@ impl Applied {
     }
 
     /// Reads a history entry; the error names the parameter (`params.fps`).
-    pub fn from_entry(
-        e: &crate::project::HistoryEntry,
-    ) -> std::result::Result<Applied, (String, String)> {
+    pub fn from_entry(e: &HistoryEntry) -> std::result::Result<Applied, (String, String)> {
         const PLUGINS: [&str; 8] = [
             "boundaries",
             "preview",
@@ -564,4 +562,15 @@ mod tests {
         assert_eq!(keys, ["backend", "metric", "mode", "ratio", "window"]);
         assert_eq!(Applied::from_entry(&e).unwrap(), a);
     }
+}
+
+/// One step of the selection history, as stored (typed by [`Applied`]; the project file stores a list of these).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HistoryEntry {
+    /// Stable plugin id (`boundaries`, `every-nth`, `fps`, `manual`, ...).
+    pub plugin: String,
+    /// The step's parameters as given.
+    pub params: serde_json::Value,
+    /// Number of frames the step kept.
+    pub kept: usize,
 }

@@ -428,8 +428,8 @@ fn check_relations(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<()> {
 pub const RESERVED_NAMES: [&str; 9] = [
     "project.json",
     "project.json.partial",
-    crate::batch::DONE,
-    crate::batch::MARKER,
+    crate::output::DONE,
+    crate::output::MARKER,
     crate::export::MANIFEST,
     crate::export::IMAGE_DIR,
     crate::export::MASK_DIR,

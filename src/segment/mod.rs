@@ -328,7 +328,7 @@ fn check_onnx_signature(desc: &ModelDesc) -> Result<usize> {
 /// Writes `mask` as `<dir>/<image_name>.png` (COLMAP's naming) atomically.
 pub fn write_mask(dir: &Path, image_name: &str, mask: &Mat) -> Result<String> {
     let name = format!("{image_name}.png");
-    let bytes = crate::export::encode(mask, crate::export::Format::Png, 100)?;
+    let bytes = crate::encode::encode(mask, crate::encode::Format::Png, 100)?;
     crate::fsutil::write_atomic(&dir.join(&name), &bytes)?;
     Ok(name)
 }

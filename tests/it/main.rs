@@ -10,6 +10,7 @@ mod fixtures;
 mod flow;
 mod foundation;
 mod inputs;
+mod layers;
 mod movement;
 mod onnx_model;
 mod pipeline;

@@ -3,6 +3,8 @@
 //! the samplers in a fixed chain: boundaries → every-nth | fps → blur → manual add/remove.
 //! Writes the project file atomically.
 
+pub mod preview;
+
 use crate::analysis::{self, MovementRequest, Request, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
@@ -104,7 +106,7 @@ pub struct SelectSettings {
     pub force: bool,
     /// Seconds between analysis checkpoints (0: none).
     pub checkpoint_every_s: f64,
-    /// Analyse only the codec's keyframes (a quick, coarse preview; see [`crate::preview`]).
+    /// Analyse only the codec's keyframes (a quick, coarse preview; see [`preview`]).
     pub preview: bool,
     /// No progress bars.
     pub quiet: bool,
@@ -200,7 +202,7 @@ pub fn checkpoint_path(output: &Path) -> PathBuf {
 /// Runs `select` and writes the project file.
 pub fn select(s: &SelectSettings) -> Result<SelectReport> {
     if s.preview {
-        return crate::preview::select_preview(s);
+        return preview::select_preview(s);
     }
     let report = build(
         s,

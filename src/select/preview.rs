@@ -4,10 +4,10 @@
 //! chosen, and counts in frames (every N, blur window, reset delta) count keyframes. The project
 //! is marked `preview`, holds no scores, and is never reused as a cache.
 
+use super::{self as select, SelectReport, SelectSettings};
 use crate::error::{Error, Result};
 use crate::project::Cache;
 use crate::samplers::{Bound, Boundaries};
-use crate::select::{self, SelectReport, SelectSettings};
 use crate::source::keyframes::{self, KeyframeIndex};
 use crate::source::{OpenOptions, SourceKind};
 use crate::steps::{Applied, BoundArg, Step};
