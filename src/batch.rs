@@ -346,7 +346,7 @@ fn process(
     let _ = std::fs::remove_file(&done_path);
 
     let project = folder.join("project.json");
-    let settings = w.select_settings(input, &project, true)?;
+    let settings = select::SelectSettings::from_workflow(w, input, &project, true);
     let sel = select::select(&settings)?;
     report.keyframes = Some(sel.project.keyframes.len());
     let mut partial: Vec<String> = sel

@@ -9,7 +9,7 @@ use keyframer::kernels::farneback::FarnebackParams;
 use keyframer::kernels::movement::{Derotate, Statistic};
 use keyframer::kernels::sharpness::Metric;
 use keyframer::samplers::{BlurMode, Bound};
-use keyframer::segment::{MaskSettings, SegBackend};
+use keyframer::segment::{MaskSettings, SegRuntime};
 use keyframer::select::SelectSettings;
 use keyframer::steps::{defaults, BoundArg, Step, StepError, Threshold};
 use std::path::PathBuf;
@@ -362,7 +362,7 @@ pub struct SelectArgs {
     pub force: bool,
     /// Seconds between checkpoints of a running analysis (`PROJECT.json.partial`; a run killed
     /// midway resumes from it); 0 turns them off.
-    #[arg(long, value_name = "SECONDS", default_value_t = 15.0)]
+    #[arg(long, value_name = "SECONDS", default_value_t = SelectSettings::CHECKPOINT_EVERY_S)]
     pub checkpoint_every: f64,
     /// Quick, coarse preview: analyse only the video's codec keyframes (decoded with
     /// `ffmpeg -skip_frame nokey`) and choose among them; frame counts in the other flags count
@@ -538,7 +538,7 @@ pub struct MaskArgs {
     pub mask_dilate: u32,
     /// Runtime for the network.
     #[arg(long, value_enum, default_value = "opencv", requires = "masks")]
-    pub mask_backend: SegBackendArg,
+    pub mask_backend: SegRuntimeArg,
     /// Also write colour previews of the classes under `overlays/`.
     #[arg(long, requires = "masks")]
     pub mask_overlay: bool,
@@ -546,18 +546,18 @@ pub struct MaskArgs {
 
 /// Segmentation runtimes.
 #[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum SegBackendArg {
+pub enum SegRuntimeArg {
     /// OpenCV DNN (every format OpenCV reads).
     Opencv,
     /// ONNX Runtime (ONNX models; library from ORT_DYLIB_PATH).
     Ort,
 }
 
-impl From<SegBackendArg> for SegBackend {
-    fn from(b: SegBackendArg) -> SegBackend {
+impl From<SegRuntimeArg> for SegRuntime {
+    fn from(b: SegRuntimeArg) -> SegRuntime {
         match b {
-            SegBackendArg::Opencv => SegBackend::Opencv,
-            SegBackendArg::Ort => SegBackend::Ort,
+            SegRuntimeArg::Opencv => SegRuntime::Opencv,
+            SegRuntimeArg::Ort => SegRuntime::Ort,
         }
     }
 }
@@ -584,7 +584,7 @@ pub struct SegmentArgs {
     pub dilate: u32,
     /// Runtime for the network.
     #[arg(long, value_enum, default_value = "opencv")]
-    pub backend: SegBackendArg,
+    pub backend: SegRuntimeArg,
     /// Replace existing output files.
     #[arg(long)]
     pub force: bool,

@@ -2,30 +2,10 @@
 //! the one encoder export, segment and the report share.
 
 use crate::error::{CvContext, Result};
+use crate::manifest::Format;
 use opencv::core::{Mat, Vector};
 use opencv::imgcodecs;
 use opencv::prelude::*;
-use serde::{Deserialize, Serialize};
-
-/// Image file format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Format {
-    /// JPEG with a quality setting.
-    Jpg,
-    /// Lossless PNG.
-    Png,
-}
-
-impl Format {
-    /// File extension.
-    pub fn ext(self) -> &'static str {
-        match self {
-            Format::Jpg => "jpg",
-            Format::Png => "png",
-        }
-    }
-}
 
 /// Encodes an image as JPEG (with `quality`) or PNG.
 pub fn encode(image: &Mat, format: Format, quality: u8) -> Result<Vec<u8>> {

@@ -2,11 +2,9 @@
 //! per-frame cache (timestamps, scores) and the history of steps. Loading validates every field and
 //! names the offending one; saving is atomic.
 
-use crate::analysis::{MovementRequest, MovementSeries, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
-use crate::gpu::Backend;
-use crate::kernels::sharpness::Metric;
+use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
 use crate::samplers::Boundaries;
 use crate::source::{Metadata, SourceKind};
 use serde::{Deserialize, Serialize};

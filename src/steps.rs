@@ -4,10 +4,8 @@
 //! that fed it), which is what a project's history holds and what `workflow save` writes back as
 //! steps. No step is ever turned into text to be parsed again.
 
-use crate::analysis::MovementRequest;
 use crate::error::Error;
-use crate::gpu::Backend;
-use crate::kernels::sharpness::Metric;
+use crate::params::{Backend, Metric, MovementRequest};
 use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
 use serde::{Deserialize, Serialize};
 

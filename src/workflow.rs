@@ -2,15 +2,11 @@
 //! exports, checked completely (file:line and key for every error) before any input is touched,
 //! and turned into the same validated settings the `select` / `export` flags produce.
 
-use crate::analysis::MovementRequest;
 use crate::error::{Error, Result};
-use crate::export::{ExportSettings, Format};
-use crate::gpu::Backend;
-use crate::kernels::farneback::FarnebackParams;
-use crate::kernels::movement::{Derotate, Statistic};
+use crate::manifest::{ExportSettings, Format};
+use crate::params::{Backend, Derotate, FarnebackParams, MovementRequest, Statistic};
 use crate::project::Project;
-use crate::segment::{MaskSettings, SegBackend};
-use crate::select::SelectSettings;
+use crate::segment::{MaskSettings, SegRuntime};
 use crate::steps::{Applied, Step};
 use crate::tomlfile::{self, TomlFile};
 use serde::{Deserialize, Serialize};
@@ -286,27 +282,14 @@ impl Workflow {
         Ok(wf)
     }
 
-    /// Settings for `select` on `input`, writing `project`.
-    pub fn select_settings(
-        &self,
-        input: &Path,
-        project: &Path,
-        quiet: bool,
-    ) -> Result<SelectSettings> {
-        let an = self.file.analysis.clone().unwrap_or_default();
-        Ok(SelectSettings {
-            input: input.to_path_buf(),
-            output: project.to_path_buf(),
-            steps: self.file.sample.clone(),
-            movement: self.movement,
-            backend: self.backend,
-            adapter: an.adapter,
-            images_fps: an.images_fps,
-            force: true,
-            checkpoint_every_s: CHECKPOINT_EVERY_S,
-            preview: an.preview == Some(true),
-            quiet,
-        })
+    /// How movement is measured (from `[analysis]`, defaults filled in).
+    pub fn movement(&self) -> MovementRequest {
+        self.movement
+    }
+
+    /// The `[analysis]` backend.
+    pub fn backend(&self) -> Backend {
+        self.backend
     }
 
     /// The exports in order: folder name and checked settings.
@@ -347,9 +330,6 @@ const FARNEBACK_KEYS: [&str; 7] = [
     "poly_sigma",
     "gaussian",
 ];
-
-/// Seconds between checkpoints of a workflow's analyses (`select --checkpoint-every`'s default).
-const CHECKPOINT_EVERY_S: f64 = 15.0;
 
 /// Every step's parameters and the chain's order, errors on `sample[i].<key>`.
 fn check_steps(file: &TomlFile<RawFile>, steps: &[Step]) -> Result<()> {
@@ -430,10 +410,10 @@ pub const RESERVED_NAMES: [&str; 9] = [
     "project.json.partial",
     crate::output::DONE,
     crate::output::MARKER,
-    crate::export::MANIFEST,
-    crate::export::IMAGE_DIR,
-    crate::export::MASK_DIR,
-    crate::export::OVERLAY_DIR,
+    crate::manifest::MANIFEST,
+    crate::manifest::IMAGE_DIR,
+    crate::manifest::MASK_DIR,
+    crate::manifest::OVERLAY_DIR,
     "colmap",
 ];
 
@@ -493,8 +473,8 @@ fn export_settings(
         None => None,
         Some(m) => {
             let backend = match m.backend.as_deref() {
-                None | Some("opencv") => SegBackend::Opencv,
-                Some("ort") => SegBackend::Ort,
+                None | Some("opencv") => SegRuntime::Opencv,
+                Some("ort") => SegRuntime::Ort,
                 Some(other) => {
                     return Err(file.error(
                         &at("masks.backend"),
@@ -517,7 +497,7 @@ fn export_settings(
         e.scale,
         e.crop.as_deref(),
         format,
-        e.quality.unwrap_or(crate::export::DEFAULT_QUALITY),
+        e.quality.unwrap_or(crate::manifest::DEFAULT_QUALITY),
         masks,
     )
     .map_err(|err| match err {
@@ -589,13 +569,14 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
     }
     let mut export = Vec::new();
     for dir in exports {
-        let m =
-            crate::export::read_manifest(&dir.join(crate::export::MANIFEST)).ok_or_else(|| {
+        let m = crate::manifest::read_manifest(&dir.join(crate::manifest::MANIFEST)).ok_or_else(
+            || {
                 Error::input(
                     dir,
                     "no readable manifest.json: not a keyframer export folder",
                 )
-            })?;
+            },
+        )?;
         let s = &m.settings;
         export.push(Export {
             name: dir
@@ -605,13 +586,13 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
             format: s.format.map(|f| f.ext().to_string()),
             quality: Some(s.quality),
             resize: match s.resize {
-                Some(crate::export::Resize::Size { width, height }) => {
+                Some(crate::manifest::Resize::Size { width, height }) => {
                     Some(format!("{width}x{height}"))
                 }
                 _ => None,
             },
             scale: match s.resize {
-                Some(crate::export::Resize::Scale(f)) => Some(f),
+                Some(crate::manifest::Resize::Scale(f)) => Some(f),
                 _ => None,
             },
             crop: s
@@ -622,8 +603,8 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
                 classes: mk.classes.clone(),
                 dilate: Some(mk.dilate),
                 backend: Some(match mk.backend {
-                    crate::segment::SegBackend::Opencv => "opencv".into(),
-                    crate::segment::SegBackend::Ort => "ort".into(),
+                    crate::segment::SegRuntime::Opencv => "opencv".into(),
+                    crate::segment::SegRuntime::Ort => "ort".into(),
                 }),
                 overlay: Some(mk.overlay),
             }),

@@ -16,6 +16,7 @@ mod tests;
 pub use checkpoint::{is_checkpoint, Checkpoint, MovementState, Resume};
 pub use movement::sample_movement;
 
+pub use crate::params::{MovementRequest, MovementSeries, StationaryRequest};
 use checkpoint::{Collected, Saver};
 use ingest::{Decoded, HandOff, Ready};
 use movement::MovementPass;
@@ -23,8 +24,6 @@ use sharpness::{SharpnessEngine, Worker};
 
 use crate::error::{Error, Result};
 use crate::gpu::{Backend, GpuContext};
-use crate::kernels::farneback::FarnebackParams;
-use crate::kernels::movement::{Derotate, Statistic};
 use crate::kernels::sharpness::Metric;
 use crate::source::{self, FrameSource, Metadata, OpenOptions};
 use indicatif::ProgressBar;
@@ -42,56 +41,6 @@ pub struct Request {
     pub movement: Option<MovementRequest>,
     /// The stationary sampler's reference-mode run (requires `movement`).
     pub stationary: Option<StationaryRequest>,
-}
-
-/// How movement is measured.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct MovementRequest {
-    /// Farneback parameters.
-    pub farneback: FarnebackParams,
-    /// Statistic of the flow magnitudes.
-    pub statistic: Statistic,
-    /// Width of the analysis resolution (frames are converted to gray and resized with
-    /// INTER_AREA; never upscaled).
-    pub analysis_width: u32,
-    /// Flow is measured between frames `stride` apart (every frame index divisible by it, and
-    /// the last); each frame in between gets an equal share. 1 measures every pair.
-    #[serde(default = "one")]
-    pub stride: u32,
-    /// Subtract the flow of the best-fitting camera rotation before taking the statistic (the
-    /// movement then follows translation, which gives reconstructions their baseline).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub derotate: Option<Derotate>,
-}
-
-fn one() -> u32 {
-    1
-}
-
-/// The stationary sampler's parameters (reference mode).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct StationaryRequest {
-    /// Movement (full-resolution pixels) since the last keyframe that makes a new keyframe.
-    pub threshold: f64,
-    /// Frames after which the reference is re-anchored, carrying the accumulated movement.
-    pub reset_delta: usize,
-    /// First candidate frame.
-    pub first: usize,
-    /// Last candidate frame (inclusive).
-    pub last: usize,
-}
-
-/// Movement between consecutive frames.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MovementSeries {
-    /// Analysis width.
-    pub width: u32,
-    /// Analysis height.
-    pub height: u32,
-    /// Factor from analysis pixels to full-resolution pixels.
-    pub scale_to_full: f64,
-    /// values[i] = movement from frame i-1 to frame i in full-resolution pixels; values[0] = 0.
-    pub values: Vec<f64>,
 }
 
 /// The analysis size for a `width` x `height` input: `analysis_width` wide (never wider than the

@@ -8,6 +8,7 @@ use super::sharpness::SharpnessEngine;
 use super::*;
 use crate::fsutil::Fingerprint;
 use crate::kernels::farneback::SLOTS;
+use crate::params::Statistic;
 use crate::samplers::Stationary;
 use crate::source::{Frame, SourceKind};
 use opencv::core::{Scalar, Vec3b, CV_8UC3};

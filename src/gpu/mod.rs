@@ -3,30 +3,12 @@
 //! adapter allows, caches compute pipelines by name, and uploads / reads back buffers.
 
 use crate::error::{Error, Result};
+pub use crate::params::Backend;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 /// Environment variable naming the adapter to use (case-insensitive substring of its name).
 pub const ADAPTER_ENV: &str = "KEYFRAMER_ADAPTER";
-
-/// Which implementation runs the per-frame kernels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Backend {
-    /// WGSL compute shaders through wgpu.
-    Gpu,
-    /// OpenCV's CPU functions (the reference).
-    Opencv,
-}
-
-impl std::fmt::Display for Backend {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Backend::Gpu => "gpu",
-            Backend::Opencv => "opencv",
-        })
-    }
-}
 
 /// A device and queue plus the adapter facts `keyframer info` reports.
 pub struct GpuContext {

@@ -6,10 +6,10 @@
 
 use crate::error::{CvContext, Error, Result};
 use crate::gpu::GpuContext;
+pub use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
-use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
 /// WGSL sources of the stages.
@@ -23,103 +23,12 @@ pub const MATRICES_WGSL: &str = include_str!("../../shaders/farneback_matrices.w
 /// Flow update.
 pub const FLOW_WGSL: &str = include_str!("../../shaders/farneback_flow.wgsl");
 
-/// Parameters of cv::calcOpticalFlowFarneback.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct FarnebackParams {
-    /// Scale between pyramid levels (< 1).
-    pub pyr_scale: f64,
-    /// Number of pyramid levels below the full resolution (fewer when the image gets small).
-    pub levels: u32,
-    /// Averaging window size.
-    pub winsize: u32,
-    /// Iterations per level.
-    pub iterations: u32,
-    /// Neighbourhood of the polynomial expansion (5 or 7).
-    pub poly_n: u32,
-    /// Gaussian sigma of the polynomial expansion.
-    pub poly_sigma: f64,
-    /// Gaussian window (OPTFLOW_FARNEBACK_GAUSSIAN) instead of a box.
-    pub gaussian: bool,
-}
-
-impl Default for FarnebackParams {
-    /// The parameters of OpenCV's Farneback tutorial: 0.5, 3, 15, 3, 5, 1.2, box window.
-    fn default() -> Self {
-        FarnebackParams {
-            pyr_scale: 0.5,
-            levels: 3,
-            winsize: 15,
-            iterations: 3,
-            poly_n: 5,
-            poly_sigma: 1.2,
-            gaussian: false,
-        }
-    }
-}
-
-impl FarnebackParams {
-    /// Most pyramid levels: 2^-32 of any image is below one pixel at the usual scale of 0.5, and
-    /// a scale near 1 with thousands of levels would only allocate buffers.
-    pub const MAX_LEVELS: u32 = 32;
-    /// Largest averaging window: wider than any analysis image worth a window (its cost grows
-    /// with the size, and `winsize²` must stay far from overflowing).
-    pub const MAX_WINSIZE: u32 = 1001;
-    /// Most iterations per level: 30x the usual 3; the flow stops changing long before.
-    pub const MAX_ITERATIONS: u32 = 100;
-
-    /// Checks the ranges OpenCV accepts and keyframer bounds; errors name the parameter (`levels`; the binary shows its flag).
-    pub fn validate(&self) -> Result<()> {
-        let bad = |name: &str, msg: String| Err(Error::param(name, msg));
-        if !(self.pyr_scale > 0.0 && self.pyr_scale < 1.0) {
-            return bad(
-                "pyr_scale",
-                format!("must be in (0, 1), got {}", self.pyr_scale),
-            );
-        }
-        if self.levels > Self::MAX_LEVELS {
-            return bad(
-                "levels",
-                format!("must be at most {}, got {}", Self::MAX_LEVELS, self.levels),
-            );
-        }
-        if !(1..=Self::MAX_WINSIZE).contains(&self.winsize) {
-            return bad(
-                "winsize",
-                format!(
-                    "must be between 1 and {}, got {}",
-                    Self::MAX_WINSIZE,
-                    self.winsize
-                ),
-            );
-        }
-        if !(1..=Self::MAX_ITERATIONS).contains(&self.iterations) {
-            return bad(
-                "iterations",
-                format!(
-                    "must be between 1 and {}, got {}",
-                    Self::MAX_ITERATIONS,
-                    self.iterations
-                ),
-            );
-        }
-        if self.poly_n != 5 && self.poly_n != 7 {
-            return bad("poly_n", format!("must be 5 or 7, got {}", self.poly_n));
-        }
-        if !(self.poly_sigma.is_finite() && self.poly_sigma > 0.0) {
-            return bad(
-                "poly_sigma",
-                format!("must be a positive number, got {}", self.poly_sigma),
-            );
-        }
-        Ok(())
-    }
-
-    fn flags(&self) -> i32 {
-        if self.gaussian {
-            opencv::video::OPTFLOW_FARNEBACK_GAUSSIAN
-        } else {
-            0
-        }
+/// OpenCV's flags for the window type.
+fn flags(p: &FarnebackParams) -> i32 {
+    if p.gaussian {
+        opencv::video::OPTFLOW_FARNEBACK_GAUSSIAN
+    } else {
+        0
     }
 }
 
@@ -131,7 +40,7 @@ pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>
         Some(f) => f.try_clone().cv(|| "copy initial flow".into())?,
         None => Mat::default(),
     };
-    let flags = p.flags()
+    let flags = flags(p)
         | if initial.is_some() {
             opencv::video::OPTFLOW_USE_INITIAL_FLOW
         } else {

@@ -6,93 +6,12 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
+pub use crate::params::{Derotate, Statistic};
 use bytemuck::{Pod, Zeroable};
-use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
 /// WGSL source.
 pub const WGSL: &str = include_str!("../../shaders/movement.wgsl");
-
-/// Which robust statistic of the flow magnitudes measures movement.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Statistic {
-    /// The median (mean of the two middle values for an even count), as iVS3D's code uses.
-    Median,
-    /// The mean after dropping the `trim` fraction of smallest and of largest values, as the
-    /// iVS3D paper describes.
-    TrimmedMean {
-        /// Fraction dropped at each end, in [0, 0.5).
-        trim: f64,
-    },
-}
-
-impl Statistic {
-    /// The `--movement` flag value and `--trim` for this statistic.
-    pub fn to_flag(self) -> (&'static str, Option<f64>) {
-        match self {
-            Statistic::Median => ("median", None),
-            Statistic::TrimmedMean { trim } => ("trimmed-mean", Some(trim)),
-        }
-    }
-}
-
-impl Statistic {
-    /// Checks the trim fraction.
-    pub fn validate(&self) -> Result<()> {
-        if let Statistic::TrimmedMean { trim } = self {
-            if !(0.0..0.5).contains(trim) {
-                return Err(Error::param(
-                    "trim",
-                    format!("must be in [0, 0.5), got {trim}"),
-                ));
-            }
-        }
-        Ok(())
-    }
-
-    /// The 0-based ranks (lo, hi inclusive) the statistic needs among `n` sorted values.
-    fn ranks(&self, n: u32) -> (u32, u32) {
-        match self {
-            Statistic::Median => ((n - 1) / 2, n / 2),
-            Statistic::TrimmedMean { trim } => {
-                let cut = (f64::from(n) * trim).floor() as u32;
-                (cut, n - cut - 1)
-            }
-        }
-    }
-}
-
-/// Rotation compensation: the flow is measured after subtracting the flow of the camera rotation
-/// that best explains it, for a pinhole camera with this horizontal field of view and its
-/// principal point at the image centre.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Derotate {
-    /// Horizontal field of view in degrees (the focal length is width / (2 tan(hfov / 2))).
-    pub hfov_deg: f64,
-}
-
-impl Derotate {
-    /// The field of view assumed when none is given: 70 degrees, typical of drone and phone main
-    /// cameras.
-    pub const DEFAULT_HFOV_DEG: f64 = 70.0;
-
-    /// Checks the field of view.
-    pub fn validate(&self) -> Result<()> {
-        if !(self.hfov_deg > 1.0 && self.hfov_deg < 179.0) {
-            return Err(Error::param(
-                "hfov",
-                format!("{} must be between 1 and 179 degrees", self.hfov_deg),
-            ));
-        }
-        Ok(())
-    }
-
-    /// Focal length in pixels for an image `width` pixels wide.
-    pub fn focal(&self, width: u32) -> f64 {
-        f64::from(width) / (2.0 * (self.hfov_deg.to_radians() / 2.0).tan())
-    }
-}
 
 /// A camera rotation between two frames as the 3x3 matrix (rows, f32 as the shader has it) that
 /// maps a normalised ray (x, y, 1) of the first frame to its direction in the second.

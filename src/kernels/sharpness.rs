@@ -8,70 +8,15 @@ use super::resize_area::ResizeAreaGpu;
 use super::{gray, gray_groups, gray_stride, laplacian, tenengrad, tile_groups};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
+pub use crate::params::Metric;
 use opencv::core::Mat;
-use serde::{Deserialize, Serialize};
-use std::fmt;
-use std::str::FromStr;
 use std::sync::Arc;
 
-/// A sharpness measure.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(try_from = "String", into = "String")]
-pub enum Metric {
-    /// Mean of Gx² + Gy² of the 3x3 Sobel gradients.
-    Tenengrad,
-    /// Variance of the Laplacian with OpenCV aperture `ksize` (1 or 3).
-    Laplacian {
-        /// 1 (4-neighbour kernel) or 3.
-        ksize: u32,
-    },
-}
-
-impl fmt::Display for Metric {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Metric::Tenengrad => f.write_str("tenengrad"),
-            Metric::Laplacian { ksize } => write!(f, "laplacian-k{ksize}"),
-        }
-    }
-}
-
-impl FromStr for Metric {
-    type Err = String;
-
-    /// `tenengrad`, `laplacian` (ksize 1), `laplacian-k1`, `laplacian-k3`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "tenengrad" => Ok(Metric::Tenengrad),
-            "laplacian" | "laplacian-k1" => Ok(Metric::Laplacian { ksize: 1 }),
-            "laplacian-k3" => Ok(Metric::Laplacian { ksize: 3 }),
-            _ => Err(format!(
-                "unknown metric `{s}` (tenengrad, laplacian, laplacian-k1, laplacian-k3)"
-            )),
-        }
-    }
-}
-
-impl TryFrom<String> for Metric {
-    type Error = String;
-    fn try_from(s: String) -> Result<Self, String> {
-        s.parse()
-    }
-}
-
-impl From<Metric> for String {
-    fn from(m: Metric) -> String {
-        m.to_string()
-    }
-}
-
-impl Metric {
-    /// Number of 64-bit totals the metric's shader accumulates.
-    fn totals(self) -> u64 {
-        match self {
-            Metric::Tenengrad => 1,
-            Metric::Laplacian { .. } => 2,
-        }
+/// Number of 64-bit totals the metric's shader accumulates.
+fn totals_of(metric: Metric) -> u64 {
+    match metric {
+        Metric::Tenengrad => 1,
+        Metric::Laplacian { .. } => 2,
     }
 }
 
@@ -231,7 +176,7 @@ impl SharpnessGpu {
                 let totals_slot = wgpu::BufferBinding {
                     buffer: &totals,
                     offset: TOTALS_SLOT * i as u64,
-                    size: wgpu::BufferSize::new(metric.totals() * 8),
+                    size: wgpu::BufferSize::new(totals_of(metric) * 8),
                 };
                 Slot {
                     gray_bg: bind(
@@ -326,7 +271,7 @@ impl SharpnessGpu {
         enc.clear_buffer(
             &self.totals,
             TOTALS_SLOT * slot as u64,
-            Some(self.metric.totals() * 8),
+            Some(totals_of(self.metric) * 8),
         );
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("sharpness"),

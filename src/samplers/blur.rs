@@ -5,7 +5,7 @@
 //! nearest the original, then the earlier one).
 
 use crate::error::{Error, Result};
-use crate::kernels::sharpness::Metric;
+use crate::params::Metric;
 use serde::{Deserialize, Serialize};
 
 /// What to do with blurry keyframes.

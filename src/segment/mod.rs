@@ -13,35 +13,10 @@ use desc::{Framework, Layout, ModelDesc};
 use opencv::core::{Mat, Point, Size, Vec3b, CV_16U, CV_8U, CV_8UC3};
 use opencv::imgproc;
 use opencv::prelude::*;
-use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-/// Which runtime executes the network.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum SegBackend {
-    /// OpenCV DNN on the CPU (every format OpenCV reads).
-    #[default]
-    Opencv,
-    /// ONNX Runtime through the `ort` crate (ONNX models only; library loaded at run time).
-    Ort,
-}
-
-/// User settings of the transform.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MaskSettings {
-    /// Model description file.
-    pub model: std::path::PathBuf,
-    /// Class names whose pixels are hidden.
-    pub classes: Vec<String>,
-    /// Grow the hidden area by this many pixels (of the exported image).
-    pub dilate: u32,
-    /// Runtime.
-    pub backend: SegBackend,
-    /// Also write colour overlays of the class map.
-    pub overlay: bool,
-}
+pub use crate::manifest::{MaskSettings, SegRuntime};
 
 enum Runner {
     Dnn(dnn::DnnRunner),
@@ -75,7 +50,7 @@ impl Segmenter {
         let mut batch = desc.input.batch;
         if desc.framework == Framework::Onnx {
             batch = check_onnx_signature(&desc)?;
-        } else if settings.backend == SegBackend::Ort {
+        } else if settings.backend == SegRuntime::Ort {
             return Err(Error::param(
                 "masks.backend",
                 format!(
@@ -86,8 +61,8 @@ impl Segmenter {
             ));
         }
         let runner = match settings.backend {
-            SegBackend::Opencv => Runner::Dnn(dnn::DnnRunner::load(&desc)?),
-            SegBackend::Ort => Runner::Ort(onnxrt::OrtRunner::load(&desc)?),
+            SegRuntime::Opencv => Runner::Dnn(dnn::DnnRunner::load(&desc)?),
+            SegRuntime::Ort => Runner::Ort(onnxrt::OrtRunner::load(&desc)?),
         };
         let mut s = Segmenter {
             desc,
@@ -328,7 +303,7 @@ fn check_onnx_signature(desc: &ModelDesc) -> Result<usize> {
 /// Writes `mask` as `<dir>/<image_name>.png` (COLMAP's naming) atomically.
 pub fn write_mask(dir: &Path, image_name: &str, mask: &Mat) -> Result<String> {
     let name = format!("{image_name}.png");
-    let bytes = crate::encode::encode(mask, crate::encode::Format::Png, 100)?;
+    let bytes = crate::encode::encode(mask, crate::manifest::Format::Png, 100)?;
     crate::fsutil::write_atomic(&dir.join(&name), &bytes)?;
     Ok(name)
 }

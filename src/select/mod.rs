@@ -113,6 +113,33 @@ pub struct SelectSettings {
 }
 
 impl SelectSettings {
+    /// Seconds between checkpoints of a running analysis unless told otherwise.
+    pub const CHECKPOINT_EVERY_S: f64 = 15.0;
+
+    /// Settings for a workflow's `select` on `input`, writing `project` (replaced: `run` owns
+    /// its folders).
+    pub fn from_workflow(
+        w: &crate::workflow::Workflow,
+        input: &Path,
+        project: &Path,
+        quiet: bool,
+    ) -> SelectSettings {
+        let an = w.file.analysis.clone().unwrap_or_default();
+        SelectSettings {
+            input: input.to_path_buf(),
+            output: project.to_path_buf(),
+            steps: w.file.sample.clone(),
+            movement: w.movement(),
+            backend: w.backend(),
+            adapter: an.adapter,
+            images_fps: an.images_fps,
+            force: true,
+            checkpoint_every_s: Self::CHECKPOINT_EVERY_S,
+            preview: an.preview == Some(true),
+            quiet,
+        }
+    }
+
     /// The part of the input to sample.
     pub fn boundaries(&self) -> Boundaries {
         crate::steps::boundaries(&self.steps)

@@ -1,5 +1,7 @@
-//! The library's layers point one way: no import cycle between its top-level modules, and clap
-//! (the command line) only in the binary (`src/main.rs` and the modules it declares).
+//! The library's layers point one way: no import cycle between its top-level modules; the file
+//! formats (project, workflow, manifest, the step list and the parameters they record) are plain
+//! data that reach no GPU, kernel or analysis code; clap (the command line) only in the binary
+//! (`src/main.rs` and the modules it declares).
 //! Read from the sources, the way a reviewer reads `use crate::…` lines.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -133,6 +135,20 @@ fn cycle_from(g: &BTreeMap<String, BTreeSet<String>>, start: &str) -> Option<Vec
     walk(g, start, start, &mut path, &mut BTreeSet::new()).then_some(path)
 }
 
+/// Every module `from` imports, directly or through others.
+fn reachable(g: &BTreeMap<String, BTreeSet<String>>, from: &str) -> BTreeSet<String> {
+    let mut seen = BTreeSet::new();
+    let mut todo = vec![from.to_string()];
+    while let Some(m) = todo.pop() {
+        for next in g.get(&m).into_iter().flatten() {
+            if seen.insert(next.clone()) {
+                todo.push(next.clone());
+            }
+        }
+    }
+    seen
+}
+
 #[test]
 fn the_import_graph_finds_groups_and_paths() {
     let got = imports("use crate::{a::X, b, c::{d, e}};\nfn f() { crate::g::h(); }");
@@ -161,6 +177,17 @@ fn library_modules_import_in_one_direction_and_clap_stays_in_the_binary() {
         .map(|c| c.join(" -> "))
         .collect();
     assert!(cycles.is_empty(), "import cycles:\n{}", cycles.join("\n"));
+    for format in ["project", "workflow", "manifest", "steps", "params"] {
+        let reached = reachable(&g, format);
+        let engines: Vec<&str> = ["gpu", "kernels", "analysis", "select", "export"]
+            .into_iter()
+            .filter(|m| reached.contains(*m))
+            .collect();
+        assert!(
+            engines.is_empty(),
+            "the file format `{format}` reaches engine code {engines:?} (it reaches {reached:?})"
+        );
+    }
     assert!(
         clap_in_library.is_empty(),
         "clap used by library files: {clap_in_library:?}"

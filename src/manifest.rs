@@ -1,0 +1,306 @@
+//! The export folder's record as plain data: `manifest.json` (what was exported from what, with
+//! which settings), the folder's names and layout, and the export settings with their parsing and
+//! checks. No decoding, encoding or network code: `workflow`, `colmap`, `eval` and `report` read
+//! these without depending on the exporter.
+
+use crate::error::{Error, Result};
+use crate::source::SourceKind;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Name of the manifest written into every export folder.
+pub const MANIFEST: &str = "manifest.json";
+/// Journal written before files are moved into place and removed after the manifest: the files
+/// an interrupted export may have left (earlier and new), so the next export knows them as its own.
+pub const PENDING: &str = ".keyframer-pending.json";
+/// Sub-folder of an export holding the images.
+pub const IMAGE_DIR: &str = "images";
+/// Sub-folder of an export holding the COLMAP masks (a sibling of the images: COLMAP, nerfstudio
+/// and gsplat read image folders recursively).
+pub const MASK_DIR: &str = "masks";
+/// Layout of the export folder the manifest describes: 2 = `images/`, `masks/`, `overlays/`
+/// beside `manifest.json` (1, images beside the manifest, is no longer written or read).
+pub const LAYOUT: u32 = 2;
+/// Sub-folder of an export holding the overlay previews.
+pub const OVERLAY_DIR: &str = "overlays";
+
+/// How to size the exported images.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Resize {
+    /// Exact output size in pixels.
+    Size { width: u32, height: u32 },
+    /// Scale factor applied to the (cropped) frame.
+    Scale(f64),
+}
+
+/// A crop rectangle in source-frame pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Crop {
+    /// Left edge.
+    pub x: u32,
+    /// Top edge.
+    pub y: u32,
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+}
+
+/// JPEG quality when none is given.
+pub const DEFAULT_QUALITY: u8 = 95;
+
+/// Validated export settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ExportSettings {
+    /// Output size (after the crop).
+    pub resize: Option<Resize>,
+    /// Part of the source frame to keep; applied before the resize.
+    pub crop: Option<Crop>,
+    /// Output format; `None` keeps an image folder's files as they are and uses JPEG for video.
+    pub format: Option<Format>,
+    /// JPEG quality 1..=100.
+    pub quality: u8,
+    /// Segmentation masks written beside the images (`masks/<image name>.png`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub masks: Option<MaskSettings>,
+}
+
+impl ExportSettings {
+    /// Checked settings from their parts as a user writes them (`--resize 1280x720`, `--crop
+    /// x,y,w,h`, or the same keys of a workflow's `[[export]]`); errors name the parameter (`resize`, `crop`, ...).
+    pub fn from_parts(
+        resize: Option<&str>,
+        scale: Option<f64>,
+        crop: Option<&str>,
+        format: Option<Format>,
+        quality: u8,
+        masks: Option<MaskSettings>,
+    ) -> Result<ExportSettings> {
+        let resize = match (resize, scale) {
+            (Some(s), _) => {
+                let (width, height) = parse_size(s)?;
+                Some(Resize::Size { width, height })
+            }
+            (None, Some(f)) if !(f.is_finite() && f > 0.0) => {
+                return Err(Error::param(
+                    "scale",
+                    format!("must be a positive number, got {f}"),
+                ))
+            }
+            (None, Some(f)) => Some(Resize::Scale(f)),
+            (None, None) => None,
+        };
+        let crop = crop.map(parse_crop).transpose()?;
+        if !(1..=100).contains(&quality) {
+            return Err(Error::param("quality", "must be between 1 and 100"));
+        }
+        Ok(ExportSettings {
+            resize,
+            crop,
+            format,
+            quality,
+            masks,
+        })
+    }
+}
+
+/// Parses `WxH` with both positive.
+pub fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let bad = || Error::param("resize", format!("`{s}` is not WIDTHxHEIGHT like 1280x720"));
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let w: u32 = w.trim().parse().map_err(|_| bad())?;
+    let h: u32 = h.trim().parse().map_err(|_| bad())?;
+    if w == 0 || h == 0 {
+        return Err(bad());
+    }
+    // OpenCV reads no image above 2^30 pixels or 2^20 a side (CV_IO_MAX_IMAGE_PIXELS): an
+    // export nothing can read back would only exhaust memory.
+    if w > 1 << 20 || h > 1 << 20 || u64::from(w) * u64::from(h) > 1 << 30 {
+        return Err(Error::param(
+            "resize",
+            format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)"),
+        ));
+    }
+    Ok((w, h))
+}
+
+/// Parses `X,Y,W,H`.
+pub fn parse_crop(s: &str) -> Result<Crop> {
+    let bad = || Error::param("crop", format!("`{s}` is not X,Y,W,H like 0,40,1920,1000"));
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<u32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad())?;
+    let [x, y, width, height] = v[..] else {
+        return Err(bad());
+    };
+    if width == 0 || height == 0 {
+        return Err(Error::param("crop", "width and height must be positive"));
+    }
+    Ok(Crop {
+        x,
+        y,
+        width,
+        height,
+    })
+}
+
+/// One exported image in the manifest.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ExportedFrame {
+    /// Frame index in the input.
+    pub index: usize,
+    /// Presentation time in seconds, when known.
+    pub timestamp_s: Option<f64>,
+    /// File name inside the export's `images/` folder.
+    pub file: String,
+    /// Mask file name inside `masks/` (`<file>.png`), when masks were requested.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask: Option<String>,
+    /// Overlay preview file name inside `overlays/`, when requested.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub overlay: Option<String>,
+}
+
+/// The manifest: what was exported from what, with which settings and which tool.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    /// Always "keyframer".
+    pub tool: String,
+    /// Version of the tool that wrote it.
+    pub tool_version: String,
+    /// Folder layout ([`LAYOUT`]); manifests without it are of layout 1.
+    #[serde(default = "layout_one")]
+    pub layout: u32,
+    /// Seconds since the Unix epoch when the export finished.
+    pub created_unix_s: u64,
+    /// The project file exported.
+    pub project: PathBuf,
+    /// The input the frames came from.
+    pub source: PathBuf,
+    /// Input kind.
+    pub source_kind: SourceKind,
+    /// Settings used.
+    pub settings: ExportSettings,
+    /// Size of every exported image.
+    pub width: u32,
+    /// Size of every exported image.
+    pub height: u32,
+    /// The exported images, in frame order.
+    pub frames: Vec<ExportedFrame>,
+    /// Keyframes that could not be exported, with the reason.
+    pub missing: Vec<MissingFrame>,
+    /// Mean network time per image when masks were made (ms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask_ms_per_image: Option<f64>,
+}
+
+fn layout_one() -> u32 {
+    1
+}
+
+/// A keyframe that could not be exported.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MissingFrame {
+    /// Frame index.
+    pub index: usize,
+    /// Why.
+    pub reason: String,
+}
+
+/// Image file format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// JPEG with a quality setting.
+    Jpg,
+    /// Lossless PNG.
+    Png,
+}
+
+impl Format {
+    /// File extension.
+    pub fn ext(self) -> &'static str {
+        match self {
+            Format::Jpg => "jpg",
+            Format::Png => "png",
+        }
+    }
+}
+
+/// Reads an export's manifest, if present and valid.
+pub fn read_manifest(path: &Path) -> Option<Manifest> {
+    Manifest::load(path).ok()
+}
+
+impl Manifest {
+    /// Reads and checks a manifest: the current layout, every name a plain file name.
+    pub fn load(path: &Path) -> Result<Manifest> {
+        let text = crate::output::read_text(path)?;
+        let bad = |field: String, msg: &str| Error::File {
+            path: path.to_path_buf(),
+            line: None,
+            what: "export manifest",
+            field,
+            msg: msg.into(),
+        };
+        let de = &mut serde_json::Deserializer::from_str(&text);
+        let m: Manifest = serde_path_to_error::deserialize(de).map_err(|e| {
+            let field = e.path().to_string();
+            let inner = e.into_inner();
+            bad(
+                field,
+                &format!("{inner} (line {}, column {})", inner.line(), inner.column()),
+            )
+        })?;
+        if m.layout != LAYOUT {
+            return Err(bad(
+                "layout".into(),
+                "made by an older keyframer (images beside manifest.json, no images/ folder); export again into a new folder",
+            ));
+        }
+        for (k, f) in m.frames.iter().enumerate() {
+            crate::output::plain_name(&f.file, &format!("frames[{k}].file"), path)?;
+            if let Some(x) = &f.mask {
+                crate::output::plain_name(x, &format!("frames[{k}].mask"), path)?;
+            }
+            if let Some(x) = &f.overlay {
+                crate::output::plain_name(x, &format!("frames[{k}].overlay"), path)?;
+            }
+        }
+        let mut names: Vec<&str> = m.frames.iter().map(|f| f.file.as_str()).collect();
+        names.sort_unstable();
+        if names.windows(2).any(|w| w[0] == w[1]) {
+            return Err(bad("frames".into(), "lists one file twice"));
+        }
+        Ok(m)
+    }
+}
+
+/// Which runtime executes the network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SegRuntime {
+    /// OpenCV DNN on the CPU (every format OpenCV reads).
+    #[default]
+    Opencv,
+    /// ONNX Runtime through the `ort` crate (ONNX models only; library loaded at run time).
+    Ort,
+}
+
+/// Segmentation masks of an export: the model, the hidden classes and the runtime.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MaskSettings {
+    /// Model description file.
+    pub model: std::path::PathBuf,
+    /// Class names whose pixels are hidden.
+    pub classes: Vec<String>,
+    /// Grow the hidden area by this many pixels (of the exported image).
+    pub dilate: u32,
+    /// Runtime.
+    pub backend: SegRuntime,
+    /// Also write colour overlays of the class map.
+    pub overlay: bool,
+}

@@ -1,0 +1,302 @@
+//! Analysis parameters and results as plain data: what projects, workflows and step lists
+//! record (backend, sharpness metric, Farnebäck parameters, movement statistic and request,
+//! movement series), with their checks. No GPU, OpenCV or analysis code here: file formats
+//! depend on this module, and the engines re-export its types where they use them.
+
+use crate::error::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// Which implementation runs the per-frame kernels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// WGSL compute shaders through wgpu.
+    Gpu,
+    /// OpenCV's CPU functions (the reference).
+    Opencv,
+}
+
+impl std::fmt::Display for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Backend::Gpu => "gpu",
+            Backend::Opencv => "opencv",
+        })
+    }
+}
+
+/// A sharpness measure.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum Metric {
+    /// Mean of Gx² + Gy² of the 3x3 Sobel gradients.
+    Tenengrad,
+    /// Variance of the Laplacian with OpenCV aperture `ksize` (1 or 3).
+    Laplacian {
+        /// 1 (4-neighbour kernel) or 3.
+        ksize: u32,
+    },
+}
+
+impl fmt::Display for Metric {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Metric::Tenengrad => f.write_str("tenengrad"),
+            Metric::Laplacian { ksize } => write!(f, "laplacian-k{ksize}"),
+        }
+    }
+}
+
+impl FromStr for Metric {
+    type Err = String;
+
+    /// `tenengrad`, `laplacian` (ksize 1), `laplacian-k1`, `laplacian-k3`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "tenengrad" => Ok(Metric::Tenengrad),
+            "laplacian" | "laplacian-k1" => Ok(Metric::Laplacian { ksize: 1 }),
+            "laplacian-k3" => Ok(Metric::Laplacian { ksize: 3 }),
+            _ => Err(format!(
+                "unknown metric `{s}` (tenengrad, laplacian, laplacian-k1, laplacian-k3)"
+            )),
+        }
+    }
+}
+
+impl TryFrom<String> for Metric {
+    type Error = String;
+    fn try_from(s: String) -> Result<Self, String> {
+        s.parse()
+    }
+}
+
+impl From<Metric> for String {
+    fn from(m: Metric) -> String {
+        m.to_string()
+    }
+}
+
+/// Parameters of cv::calcOpticalFlowFarneback.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FarnebackParams {
+    /// Scale between pyramid levels (< 1).
+    pub pyr_scale: f64,
+    /// Number of pyramid levels below the full resolution (fewer when the image gets small).
+    pub levels: u32,
+    /// Averaging window size.
+    pub winsize: u32,
+    /// Iterations per level.
+    pub iterations: u32,
+    /// Neighbourhood of the polynomial expansion (5 or 7).
+    pub poly_n: u32,
+    /// Gaussian sigma of the polynomial expansion.
+    pub poly_sigma: f64,
+    /// Gaussian window (OPTFLOW_FARNEBACK_GAUSSIAN) instead of a box.
+    pub gaussian: bool,
+}
+
+impl Default for FarnebackParams {
+    /// The parameters of OpenCV's Farneback tutorial: 0.5, 3, 15, 3, 5, 1.2, box window.
+    fn default() -> Self {
+        FarnebackParams {
+            pyr_scale: 0.5,
+            levels: 3,
+            winsize: 15,
+            iterations: 3,
+            poly_n: 5,
+            poly_sigma: 1.2,
+            gaussian: false,
+        }
+    }
+}
+
+impl FarnebackParams {
+    /// Most pyramid levels: 2^-32 of any image is below one pixel at the usual scale of 0.5, and
+    /// a scale near 1 with thousands of levels would only allocate buffers.
+    pub const MAX_LEVELS: u32 = 32;
+    /// Largest averaging window: wider than any analysis image worth a window (its cost grows
+    /// with the size, and `winsize²` must stay far from overflowing).
+    pub const MAX_WINSIZE: u32 = 1001;
+    /// Most iterations per level: 30x the usual 3; the flow stops changing long before.
+    pub const MAX_ITERATIONS: u32 = 100;
+
+    /// Checks the ranges OpenCV accepts and keyframer bounds; errors name the parameter (`levels`; the binary shows its flag).
+    pub fn validate(&self) -> Result<()> {
+        let bad = |name: &str, msg: String| Err(Error::param(name, msg));
+        if !(self.pyr_scale > 0.0 && self.pyr_scale < 1.0) {
+            return bad(
+                "pyr_scale",
+                format!("must be in (0, 1), got {}", self.pyr_scale),
+            );
+        }
+        if self.levels > Self::MAX_LEVELS {
+            return bad(
+                "levels",
+                format!("must be at most {}, got {}", Self::MAX_LEVELS, self.levels),
+            );
+        }
+        if !(1..=Self::MAX_WINSIZE).contains(&self.winsize) {
+            return bad(
+                "winsize",
+                format!(
+                    "must be between 1 and {}, got {}",
+                    Self::MAX_WINSIZE,
+                    self.winsize
+                ),
+            );
+        }
+        if !(1..=Self::MAX_ITERATIONS).contains(&self.iterations) {
+            return bad(
+                "iterations",
+                format!(
+                    "must be between 1 and {}, got {}",
+                    Self::MAX_ITERATIONS,
+                    self.iterations
+                ),
+            );
+        }
+        if self.poly_n != 5 && self.poly_n != 7 {
+            return bad("poly_n", format!("must be 5 or 7, got {}", self.poly_n));
+        }
+        if !(self.poly_sigma.is_finite() && self.poly_sigma > 0.0) {
+            return bad(
+                "poly_sigma",
+                format!("must be a positive number, got {}", self.poly_sigma),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Which robust statistic of the flow magnitudes measures movement.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Statistic {
+    /// The median (mean of the two middle values for an even count), as iVS3D's code uses.
+    Median,
+    /// The mean after dropping the `trim` fraction of smallest and of largest values, as the
+    /// iVS3D paper describes.
+    TrimmedMean {
+        /// Fraction dropped at each end, in [0, 0.5).
+        trim: f64,
+    },
+}
+
+impl Statistic {
+    /// The `--movement` flag value and `--trim` for this statistic.
+    pub fn to_flag(self) -> (&'static str, Option<f64>) {
+        match self {
+            Statistic::Median => ("median", None),
+            Statistic::TrimmedMean { trim } => ("trimmed-mean", Some(trim)),
+        }
+    }
+}
+
+impl Statistic {
+    /// Checks the trim fraction.
+    pub fn validate(&self) -> Result<()> {
+        if let Statistic::TrimmedMean { trim } = self {
+            if !(0.0..0.5).contains(trim) {
+                return Err(Error::param(
+                    "trim",
+                    format!("must be in [0, 0.5), got {trim}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The 0-based ranks (lo, hi inclusive) the statistic needs among `n` sorted values.
+    pub fn ranks(&self, n: u32) -> (u32, u32) {
+        match self {
+            Statistic::Median => ((n - 1) / 2, n / 2),
+            Statistic::TrimmedMean { trim } => {
+                let cut = (f64::from(n) * trim).floor() as u32;
+                (cut, n - cut - 1)
+            }
+        }
+    }
+}
+
+/// Rotation compensation: the flow is measured after subtracting the flow of the camera rotation
+/// that best explains it, for a pinhole camera with this horizontal field of view and its
+/// principal point at the image centre.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Derotate {
+    /// Horizontal field of view in degrees (the focal length is width / (2 tan(hfov / 2))).
+    pub hfov_deg: f64,
+}
+
+impl Derotate {
+    /// The field of view assumed when none is given: 70 degrees, typical of drone and phone main
+    /// cameras.
+    pub const DEFAULT_HFOV_DEG: f64 = 70.0;
+
+    /// Checks the field of view.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.hfov_deg > 1.0 && self.hfov_deg < 179.0) {
+            return Err(Error::param(
+                "hfov",
+                format!("{} must be between 1 and 179 degrees", self.hfov_deg),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Focal length in pixels for an image `width` pixels wide.
+    pub fn focal(&self, width: u32) -> f64 {
+        f64::from(width) / (2.0 * (self.hfov_deg.to_radians() / 2.0).tan())
+    }
+}
+
+/// How movement is measured.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MovementRequest {
+    /// Farneback parameters.
+    pub farneback: FarnebackParams,
+    /// Statistic of the flow magnitudes.
+    pub statistic: Statistic,
+    /// Width of the analysis resolution (frames are converted to gray and resized with
+    /// INTER_AREA; never upscaled).
+    pub analysis_width: u32,
+    /// Flow is measured between frames `stride` apart (every frame index divisible by it, and
+    /// the last); each frame in between gets an equal share. 1 measures every pair.
+    #[serde(default = "one")]
+    pub stride: u32,
+    /// Subtract the flow of the best-fitting camera rotation before taking the statistic (the
+    /// movement then follows translation, which gives reconstructions their baseline).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub derotate: Option<Derotate>,
+}
+
+fn one() -> u32 {
+    1
+}
+
+/// The stationary sampler's parameters (reference mode).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StationaryRequest {
+    /// Movement (full-resolution pixels) since the last keyframe that makes a new keyframe.
+    pub threshold: f64,
+    /// Frames after which the reference is re-anchored, carrying the accumulated movement.
+    pub reset_delta: usize,
+    /// First candidate frame.
+    pub first: usize,
+    /// Last candidate frame (inclusive).
+    pub last: usize,
+}
+
+/// Movement between consecutive frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MovementSeries {
+    /// Analysis width.
+    pub width: u32,
+    /// Analysis height.
+    pub height: u32,
+    /// Factor from analysis pixels to full-resolution pixels.
+    pub scale_to_full: f64,
+    /// values[i] = movement from frame i-1 to frame i in full-resolution pixels; values[0] = 0.
+    pub values: Vec<f64>,
+}
