@@ -338,7 +338,15 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     log::info!("textures built in {:.1} s", t0.elapsed().as_secs_f64());
     let (tv, ti) = terrain.mesh();
     let (bv, bi) = world::box_mesh();
-    let ctx = crate::gpu::GpuContext::new(s.adapter.as_deref())?;
+    // The product asks for downlevel limits (2048-texel textures); the terrain texture and large
+    // frames need more. Asking for no more than the adapter has leaves the error to the renderer,
+    // which names the size it needs.
+    let texels = world::TERRAIN_TEX.max(s.width).max(s.height);
+    let ctx = crate::gpu::GpuContext::with_limits(s.adapter.as_deref(), |limits, have| {
+        limits.max_texture_dimension_2d = limits
+            .max_texture_dimension_2d
+            .max(texels.min(have.max_texture_dimension_2d));
+    })?;
     let data = SceneData {
         terrain: (&tv, &ti),
         boxes: (&bv, &bi),
