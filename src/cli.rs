@@ -67,8 +67,6 @@ pub enum Command {
     Eval(crate::eval::EvalArgs),
     /// Self-contained HTML report of a project (timeline, thumbnails, steps) plus a PNG timeline.
     Report(ReportArgs),
-    /// Dev tool: render a synthetic drone sequence (video.mp4, poses.tum, scene.json).
-    Scene(crate::scene::cli::SceneArgs),
 }
 
 /// `report` flags.
