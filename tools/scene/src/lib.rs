@@ -6,7 +6,9 @@
 //! constant frame rate), `poses.tum` (one camera-to-world pose per video frame, at the frame's
 //! mid-shutter time i / fps) and `scene.json` (settings, intrinsics, hovers, fast turns, objects).
 //! The same settings and seed give the same poses and pixels.
+//! - `keyframer-bench-clip`: the H.264 clips of `keyframer bench pipeline` ([`bench_clip`]).
 
+pub mod bench_clip;
 pub mod cli;
 pub mod math;
 pub mod path;
