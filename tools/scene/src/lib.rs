@@ -1,11 +1,11 @@
 //! Development tools of keyframer, kept out of the product (this crate depends on the `keyframer`
 //! library, never the other way round):
 //!
-//! - `keyframer-scene`: a synthetic drone sequence rendered with wgpu (this module). Writes into an
-//! output folder, each file atomically and `scene.json` last: `video.mp4` (H.264, yuv420p,
-//! constant frame rate), `poses.tum` (one camera-to-world pose per video frame, at the frame's
-//! mid-shutter time i / fps) and `scene.json` (settings, intrinsics, hovers, fast turns, objects).
-//! The same settings and seed give the same poses and pixels.
+//! - `keyframer-scene`: a synthetic drone sequence rendered with wgpu (this module). Writes into
+//!   an output folder, each file atomically and `scene.json` last: `video.mp4` (H.264, yuv420p,
+//!   constant frame rate), `poses.tum` (one camera-to-world pose per video frame, at the frame's
+//!   mid-shutter time i / fps) and `scene.json` (settings, intrinsics, hovers, fast turns,
+//!   objects). The same settings and seed give the same poses and pixels.
 //! - `keyframer-bench-clip`: the H.264 clips of `keyframer bench pipeline` ([`bench_clip`]).
 
 pub mod bench_clip;
