@@ -69,7 +69,7 @@ fn clip_tool() -> Result<PathBuf> {
         .chain(on_path)
         .find(|p| p.is_file())
         .ok_or_else(|| {
-            tool_error(
+            Error::input(
                 CLIP_TOOL,
                 "not found beside keyframer or on PATH: the benchmark makes its clips with it; \
              build it with `cargo build --release -p keyframer-scene` (it lands beside \
