@@ -13,6 +13,9 @@
 # --smoke: short, small sequences (CI's version: a few dozen frames). WORK (default
 # target/experiment) keeps every scene, project, export and COLMAP workspace; the table is printed
 # to stdout and written to WORK/table.md, the raw numbers to WORK/results.jsonl.
+# Sequences come from the workspace's scene tool: $KEYFRAMER_SCENE (default
+# target/release/keyframer-scene), keyframer from $KEYFRAMER (default target/release/keyframer);
+# each is built when missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -34,6 +37,8 @@ for tool in jq colmap ffmpeg; do
 done
 kf="${KEYFRAMER:-target/release/keyframer}"
 [ -x "$kf" ] || cargo build --release --quiet
+scene="${KEYFRAMER_SCENE:-target/release/keyframer-scene}"
+[ -x "$scene" ] || cargo build --release --quiet -p keyframer-scene
 mkdir -p "$work"
 results="$work/results.jsonl"
 : > "$results"
@@ -67,7 +72,7 @@ for seq in "${seq_list[@]}"; do
   dir="$work/$seq"
   mkdir -p "$dir"
   echo "experiment: rendering $seq" >&2
-  "$kf" scene "$dir/scene" --preset "$seq" "${scene_args[@]}" --force --quiet
+  "$scene" "$dir/scene" --preset "$seq" "${scene_args[@]}" --force --quiet
   run fps1 "$dir" --fps 1
   n=$(jq '.keyframes | length' "$dir/fps1/project.json")
   hfov=$(jq '2 * ((.width / 2) / .intrinsics.fx | atan) * 180 / 3.141592653589793' "$dir/scene/scene.json")

@@ -7,5 +7,5 @@ export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 export KEYFRAMER_TESTDATA="$PWD/target/testdata"
 export ORT_DYLIB_PATH="${ORT_DYLIB_PATH:-$PWD/target/onnxruntime/libonnxruntime.so.1.31.1}"
 cargo fmt --all -- --check
-cargo clippy --locked --release --all-targets -- -D warnings
-cargo test --locked --release
+cargo clippy --locked --release --workspace --all-targets -- -D warnings
+cargo test --locked --release --workspace

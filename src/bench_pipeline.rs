@@ -1,7 +1,8 @@
-//! `bench pipeline`: makes its own clips (1080p30 H.264 and 4K clips of two lengths) and, in one
-//! run, times decode-only (`ffmpeg -f null`, OpenCV read loop) against full analysis (`select
-//! --blur --spacing`, every frame scored and flowed) per backend, with ratios and peak memory.
-//! Analyses run as child processes so each one's peak RSS is its own.
+//! `bench pipeline`: makes its own clips (1080p30 H.264 and 4K clips of two lengths, with the
+//! workspace's `keyframer-bench-clip` tool) and, in one run, times decode-only (`ffmpeg -f null`,
+//! OpenCV read loop) against full analysis (`select --blur --spacing`, every frame scored and
+//! flowed) per backend, with ratios and peak memory. Analyses run as child processes so each
+//! one's peak RSS is its own.
 
 use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
@@ -51,68 +52,55 @@ fn run_tool(cmd: &mut Command, what: &str) -> Result<std::process::Output> {
     Ok(out)
 }
 
-/// A photo to pan over: Debian's opencv-doc aerial photo when the test data is present,
-/// otherwise ffmpeg's testsrc2 pattern.
-fn texture(dir: &Path, width: u32) -> Result<PathBuf> {
-    let out = dir.join(format!("texture-{width}.png"));
-    if out.exists() {
-        return Ok(out);
-    }
-    let data = std::env::var_os("KEYFRAMER_TESTDATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("target/testdata"));
-    let photo = data.join("opencv-doc/aero3.jpg");
-    let mut cmd = Command::new("ffmpeg");
-    cmd.args(["-v", "error", "-y"]);
-    if photo.exists() {
-        cmd.arg("-i").arg(&photo);
-    } else {
-        cmd.args([
-            "-f",
-            "lavfi",
-            "-i",
-            "testsrc2=size=640x480:rate=1",
-            "-frames:v",
-            "1",
-        ]);
-    }
-    cmd.args(["-vf", &format!("scale={width}:-2:flags=bicubic")]);
-    let tmp = dir.join(format!(".texture-{width}.tmp.png"));
-    cmd.arg(&tmp);
-    run_tool(&mut cmd, "ffmpeg (texture)")?;
-    std::fs::rename(&tmp, &out).map_err(|e| Error::io(&out, e))?;
-    Ok(out)
+/// The tool that makes the benchmark clips (package `keyframer-scene` of this workspace).
+pub const CLIP_TOOL: &str = "keyframer-bench-clip";
+
+/// [`CLIP_TOOL`] beside the running executable, else on PATH.
+fn clip_tool() -> Result<PathBuf> {
+    let beside = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(|d| d.join(CLIP_TOOL)));
+    let on_path = std::env::var_os("PATH")
+        .into_iter()
+        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+        .map(|d| d.join(CLIP_TOOL));
+    beside
+        .into_iter()
+        .chain(on_path)
+        .find(|p| p.is_file())
+        .ok_or_else(|| {
+            Error::input(
+                CLIP_TOOL,
+                "not found beside keyframer or on PATH: the benchmark makes its clips with it; \
+             build it with `cargo build --release -p keyframer-scene` (it lands beside \
+             target/release/keyframer)",
+            )
+        })
 }
 
-/// A `w`x`h` H.264 clip panning over the texture with sensor-like temporal noise (so the bitrate,
-/// and with it the decode cost, is that of real footage), made once.
+/// A `w`x`h` H.264 clip panning over a photo with sensor-like temporal noise (so the bitrate,
+/// and with it the decode cost, is that of real footage), made once by [`CLIP_TOOL`].
 fn clip(dir: &Path, name: &str, w: u32, h: u32, fps: u32, secs: u32) -> Result<PathBuf> {
     let out = dir.join(name);
     if out.exists() {
         return Ok(out);
     }
-    let tex = texture(dir, w * 2)?;
+    let tool = clip_tool()?;
     eprintln!("bench: making {name} ({w}x{h}, {fps} fps, {secs} s)");
-    let tmp = dir.join(format!(".{name}.tmp.mp4"));
-    let vf = format!(
-        "crop={w}:{h}:x='(iw-{w})/2*(1+sin(t/7))':y='(ih-{h})/2*(1+sin(t/11))',\
-         noise=alls=8:allf=t,format=yuv420p"
-    );
     run_tool(
-        Command::new("ffmpeg")
-            .args(["-v", "error", "-y", "-loop", "1", "-framerate"])
-            .arg(fps.to_string())
-            .arg("-i")
-            .arg(&tex)
-            .args(["-vf", &vf, "-t"])
-            .arg(secs.to_string())
-            .args(["-r"])
-            .arg(fps.to_string())
-            .args(["-c:v", "libx264", "-preset", "veryfast", "-crf", "23"])
-            .arg(&tmp),
-        "ffmpeg (clip)",
+        Command::new(&tool)
+            .arg(&out)
+            .args(["--size", &format!("{w}x{h}")])
+            .args(["--fps", &fps.to_string()])
+            .args(["--seconds", &secs.to_string()]),
+        CLIP_TOOL,
     )?;
-    std::fs::rename(&tmp, &out).map_err(|e| Error::io(&out, e))?;
+    if !out.is_file() {
+        return Err(tool_error(
+            CLIP_TOOL,
+            format!("succeeded but {} is missing", out.display()),
+        ));
+    }
     Ok(out)
 }
 
@@ -174,12 +162,6 @@ fn fmt_ratio(a: f64, b: Option<f64>) -> String {
 /// Runs the benchmark; progress on stderr, the report returned.
 pub fn run(s: &Settings) -> Result<String> {
     std::fs::create_dir_all(&s.dir).map_err(|e| Error::io(&s.dir, e))?;
-    if Command::new("ffmpeg").arg("-version").output().is_err() {
-        return Err(tool_error(
-            "ffmpeg",
-            "the benchmark makes its clips with ffmpeg: install it (Debian: apt-get install ffmpeg)",
-        ));
-    }
     let mut clips = vec![(
         clip(
             &s.dir,

@@ -67,8 +67,6 @@ pub enum Command {
     Eval(EvalArgs),
     /// Self-contained HTML report of a project (timeline, thumbnails, steps) plus a PNG timeline.
     Report(ReportArgs),
-    /// Dev tool: render a synthetic drone sequence (video.mp4, poses.tum, scene.json).
-    Scene(keyframer::scene::cli::SceneArgs),
 }
 
 /// `report` flags.
@@ -211,7 +209,8 @@ pub struct BenchArgs {
     /// GPU adapter (part of its name).
     #[arg(long)]
     pub adapter: Option<String>,
-    /// pipeline: folder for the generated clips (kept and re-used) and scratch projects.
+    /// pipeline: folder for the generated clips (kept and re-used; made by keyframer-bench-clip,
+    /// built with `cargo build --release -p keyframer-scene`) and scratch projects.
     #[arg(long, default_value = "keyframer-bench")]
     pub dir: PathBuf,
     /// pipeline: length of the 1080p30 clip in seconds.

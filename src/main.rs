@@ -17,7 +17,7 @@ enum Outcome {
 
 fn main() -> ExitCode {
     keep_frame_buffers();
-    quiet_native_logs();
+    keyframer::native::quiet_logs();
     let parsed = {
         use clap::{CommandFactory, FromArgMatches};
         Cli::command()
@@ -95,35 +95,6 @@ fn keep_frame_buffers() {
         unsafe {
             mallopt(M_MMAP_THRESHOLD, 64 << 20);
             mallopt(M_TRIM_THRESHOLD, 256 << 20);
-        }
-    }
-}
-
-/// FFmpeg and OpenCV print their own diagnostics to stderr; keyframer reports problems itself in
-/// one line each, so theirs are silenced unless the user configured them. Mesa's Vulkan drivers
-/// print an error line when XDG_RUNTIME_DIR is unset (headless machines): give them a private one.
-fn quiet_native_logs() {
-    // Runs first thing in main, before any other thread exists.
-    for (var, value) in [
-        ("OPENCV_FFMPEG_LOGLEVEL", "-8"),
-        ("OPENCV_LOG_LEVEL", "FATAL"),
-    ] {
-        if std::env::var_os(var).is_none() {
-            std::env::set_var(var, value);
-        }
-    }
-    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
-        use std::os::unix::fs::{DirBuilderExt, MetadataExt};
-        let uid = std::fs::metadata("/proc/self")
-            .map(|m| m.uid())
-            .unwrap_or(0);
-        let dir = std::env::temp_dir().join(format!("keyframer-runtime-{uid}"));
-        let _ = std::fs::DirBuilder::new().mode(0o700).create(&dir);
-        let private = std::fs::metadata(&dir)
-            .map(|m| m.is_dir() && m.uid() == uid && m.mode() & 0o077 == 0)
-            .unwrap_or(false);
-        if private {
-            std::env::set_var("XDG_RUNTIME_DIR", &dir);
         }
     }
 }
@@ -220,11 +191,6 @@ fn run(cli: Cli) -> Result<Outcome> {
                 r.html.display(),
                 r.timeline.display()
             );
-            Ok(Outcome::Ok)
-        }
-        Command::Scene(a) => {
-            let r = keyframer::scene::generate(&a.settings(quiet)?)?;
-            eprintln!("{}", keyframer::scene::cli::summary(&r, &a.out));
             Ok(Outcome::Ok)
         }
         Command::Run(a) => {

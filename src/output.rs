@@ -286,9 +286,9 @@ impl OutDir {
     }
 }
 
-/// Prepares a folder output named by the user (`export --out`, `colmap -o`, `scene`): refuses an
-/// input, a non-folder and a folder keyframer did not make (non-empty without `record` inside);
-/// a non-empty folder of keyframer's needs `force`. Clears stale temporaries, creates the folder
+/// Prepares a folder output named by the user (`export --out`, `colmap -o`, `keyframer-scene`):
+/// refuses an input, a non-folder and a folder keyframer did not make (non-empty without `record`
+/// inside); a non-empty folder of keyframer's needs `force`. Clears stale temporaries, creates the folder
 /// when missing and checks that it is writable, leaving nothing behind.
 pub fn prepare_dir(
     dir: &Path,

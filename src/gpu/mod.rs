@@ -1,6 +1,7 @@
 //! GPU context: picks a wgpu adapter (hardware first, then a software one such as lavapipe, or the
 //! one named by `--adapter` / `KEYFRAMER_ADAPTER`), requests downlevel limits raised only where the
-//! adapter allows, caches compute pipelines by name, and uploads / reads back buffers.
+//! adapter allows (a tool that needs more asks through [`GpuContext::with_limits`]), caches compute
+//! pipelines by name, and uploads / reads back buffers.
 
 use crate::error::{Error, Result};
 pub use crate::params::Backend;
@@ -90,9 +91,21 @@ pub fn summarize(info: &wgpu::AdapterInfo, limits: &wgpu::Limits) -> AdapterSumm
 }
 
 impl GpuContext {
-    /// Creates a device on the preferred adapter. `wanted` (or `KEYFRAMER_ADAPTER`) selects an
-    /// adapter by a case-insensitive substring of its name.
+    /// Creates a device on the preferred adapter with the limits the product's kernels need
+    /// (downlevel defaults, storage limits raised as far as the adapter allows). `wanted` (or
+    /// `KEYFRAMER_ADAPTER`) selects an adapter by a case-insensitive substring of its name.
     pub fn new(wanted: Option<&str>) -> Result<GpuContext> {
+        GpuContext::with_limits(wanted, |_, _| {})
+    }
+
+    /// As [`GpuContext::new`], but `raise(limits, adapter)` may raise the requested `limits`
+    /// (the product's, see [`GpuContext::new`]) further, up to what the `adapter` offers: for
+    /// tools that need more than the product (e.g. the scene renderer's large textures). Asking
+    /// for more than the adapter has fails with an error naming the adapter.
+    pub fn with_limits(
+        wanted: Option<&str>,
+        raise: impl FnOnce(&mut wgpu::Limits, &wgpu::Limits),
+    ) -> Result<GpuContext> {
         let env = std::env::var(ADAPTER_ENV).ok();
         let wanted = wanted.or(env.as_deref()).filter(|w| !w.is_empty());
         let list = adapters();
@@ -125,8 +138,7 @@ impl GpuContext {
         limits.max_storage_buffers_per_shader_stage =
             have.max_storage_buffers_per_shader_stage.min(8);
         limits.max_compute_workgroup_storage_size = have.max_compute_workgroup_storage_size;
-        // `keyframer scene` textures its terrain with a 4096-texel image.
-        limits.max_texture_dimension_2d = have.max_texture_dimension_2d.min(8192);
+        raise(&mut limits, &have);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("keyframer"),
             required_features: wgpu::Features::empty(),

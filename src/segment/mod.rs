@@ -5,6 +5,10 @@
 pub mod desc;
 pub mod dnn;
 pub mod onnx;
+#[cfg(feature = "onnx")]
+pub mod onnxrt;
+#[cfg(not(feature = "onnx"))]
+#[path = "onnxrt_off.rs"]
 pub mod onnxrt;
 pub mod tensor;
 

@@ -1,4 +1,5 @@
-//! Helpers: run the keyframer binary, make clips with ffmpeg, find the public test data.
+//! Helpers: run the keyframer binary and the workspace's development tools (`keyframer-scene`,
+//! `keyframer-bench-clip`), make clips with ffmpeg, find the public test data.
 
 #![allow(dead_code)]
 
@@ -20,6 +21,71 @@ pub fn kf_loud(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("run keyframer")
+}
+
+/// The development tools of the workspace's `keyframer-scene` package (`keyframer-scene`,
+/// `keyframer-bench-clip`) are not targets of this package, so cargo does not build them for
+/// these tests: the first call builds them (once per test process) into the target directory the
+/// keyframer binary lives in, with its profile, and returns the path of `name` beside it (where
+/// `keyframer bench pipeline` also looks for its clip tool).
+pub fn tool_exe(name: &str) -> PathBuf {
+    static BUILT: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    let kf = Path::new(env!("CARGO_BIN_EXE_keyframer"));
+    let bin_dir = kf.parent().expect("keyframer binary folder");
+    let built = BUILT.get_or_init(|| {
+        let profile = bin_dir.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        let target_dir = bin_dir.parent().expect("target folder");
+        let mut cmd = Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
+        cmd.current_dir(env!("CARGO_MANIFEST_DIR"))
+            .args(["build", "--quiet", "-p", "keyframer-scene", "--bins"])
+            .env("CARGO_TARGET_DIR", target_dir);
+        match profile {
+            "debug" => {}
+            "release" => {
+                cmd.arg("--release");
+            }
+            other => {
+                cmd.args(["--profile", other]);
+            }
+        }
+        let out = cmd.output().map_err(|e| format!("cannot run cargo: {e}"))?;
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(String::from_utf8_lossy(&out.stderr).into_owned())
+        }
+    });
+    if let Err(e) = built {
+        panic!("cargo build -p keyframer-scene failed:\n{e}");
+    }
+    let exe = bin_dir.join(name);
+    assert!(exe.is_file(), "{} was not built", exe.display());
+    exe
+}
+
+/// The `keyframer-scene` binary (built on first use, see [`tool_exe`]).
+pub fn scene_exe() -> PathBuf {
+    tool_exe("keyframer-scene")
+}
+
+/// Runs keyframer-scene with `args` (quiet); returns the output (never panics on a non-zero exit).
+pub fn scene(args: &[&str]) -> Output {
+    Command::new(scene_exe())
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .expect("run keyframer-scene")
+}
+
+/// Runs keyframer-scene and asserts success.
+pub fn scene_ok(args: &[&str]) {
+    let out = scene(args);
+    assert!(
+        out.status.success(),
+        "keyframer-scene {args:?} failed ({:?}):\n{}",
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 /// Encodes `dir/f%04d.png` at 30 fps as H.264 (`crf`) into `out`.

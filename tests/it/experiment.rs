@@ -21,6 +21,7 @@ fn experiment_smoke_reproduces_the_table() {
     let out = Command::new(script)
         .args(["--smoke", "--seqs", "hover-survey", s(&work)])
         .env("KEYFRAMER", env!("CARGO_BIN_EXE_keyframer"))
+        .env("KEYFRAMER_SCENE", scene_exe())
         .output()
         .unwrap();
     let (code, err) = code_and_stderr(&out);

@@ -1,7 +1,7 @@
-//! `keyframer scene`: frame count and poses file, poses agree with the pixels (markers at known
+//! `keyframer-scene` (the workspace's scene tool): frame count and poses file, poses agree with the pixels (markers at known
 //! world positions), hovers are still, fast turns are blurred, same seed gives the same output.
 
-use crate::common::{code_and_stderr, json, kf, kf_ok, s};
+use crate::common::{code_and_stderr, json, kf_ok, s, scene, scene_ok};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use opencv::videoio;
@@ -13,17 +13,9 @@ fn generate(name: &str, args: &[&str]) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
         .join("scene")
         .join(name);
-    let mut all = vec![
-        "scene",
-        s(&dir),
-        "--force",
-        "--size",
-        "320x180",
-        "--fps",
-        "10",
-    ];
+    let mut all = vec![s(&dir), "--force", "--size", "320x180", "--fps", "10"];
     all.extend_from_slice(args);
-    kf_ok(&all);
+    scene_ok(&all);
     dir
 }
 
@@ -131,7 +123,7 @@ fn scene_video_has_one_pose_per_frame() {
         [r[0][2], r[1][2], r[2][2]]
     );
     // A non-empty folder is refused without --force, and left alone.
-    let out = kf(&["scene", s(dir), "--seconds", "1", "--size", "320x180"]);
+    let out = scene(&[s(dir), "--seconds", "1", "--size", "320x180"]);
     let (code, err) = code_and_stderr(&out);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("--force"), "{err}");
@@ -432,8 +424,7 @@ fn derotated_spacing_discounts_fast_turns() {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("scene/survey-turns");
     // Fresh every run: projects left by an earlier build would be reused as caches.
     let _ = std::fs::remove_dir_all(&dir);
-    kf_ok(&[
-        "scene",
+    scene_ok(&[
         s(&dir),
         "--force",
         "--size",

@@ -1,9 +1,14 @@
-//! `keyframer scene`: a synthetic drone sequence (dev tool) rendered with wgpu. Writes into an
-//! output folder, each file atomically and `scene.json` last: `video.mp4` (H.264, yuv420p,
-//! constant frame rate), `poses.tum` (one camera-to-world pose per video frame, at the frame's
-//! mid-shutter time i / fps) and `scene.json` (settings, intrinsics, hovers, fast turns, objects).
-//! The same settings and seed give the same poses and pixels.
+//! Development tools of keyframer, kept out of the product (this crate depends on the `keyframer`
+//! library, never the other way round):
+//!
+//! - `keyframer-scene`: a synthetic drone sequence rendered with wgpu (this module). Writes into
+//!   an output folder, each file atomically and `scene.json` last: `video.mp4` (H.264, yuv420p,
+//!   constant frame rate), `poses.tum` (one camera-to-world pose per video frame, at the frame's
+//!   mid-shutter time i / fps) and `scene.json` (settings, intrinsics, hovers, fast turns,
+//!   objects). The same settings and seed give the same poses and pixels.
+//! - `keyframer-bench-clip`: the H.264 clips of `keyframer bench pipeline` ([`bench_clip`]).
 
+pub mod bench_clip;
 pub mod cli;
 pub mod math;
 pub mod path;
@@ -12,7 +17,7 @@ pub mod world;
 
 mod encode;
 
-use crate::error::{Error, Result};
+use keyframer::error::{Error, Result};
 use math::{Pose, V3};
 use path::{Flight, Preset};
 use render::{Instance, Intrinsics, Renderer, SceneData, SubSample};
@@ -85,9 +90,9 @@ pub struct FastTurn {
 /// The description written as scene.json.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct SceneDescription {
-    /// Always "keyframer scene".
+    /// Always "keyframer-scene".
     pub generator: String,
-    /// keyframer version.
+    /// Version of the generator.
     pub version: String,
     /// Preset name.
     pub preset: Preset,
@@ -292,10 +297,11 @@ pub fn tum_line(t: f64, p: &Pose) -> String {
 /// Generates the sequence described by `s`.
 pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
     let seconds = validate(s)?;
-    let dir = crate::output::prepare_dir(&s.out, "OUT", s.force, &["scene.json"], &[&s.textures])?;
+    let dir =
+        keyframer::output::prepare_dir(&s.out, "OUT", s.force, &["scene.json"], &[&s.textures])?;
     let r = (|| {
         for name in ["video.mp4", "poses.tum", "scene.json"] {
-            crate::output::check_replaceable(&s.out.join(name))?;
+            keyframer::output::check_replaceable(&s.out.join(name))?;
         }
         render_scene(s, seconds)
     })();
@@ -338,7 +344,15 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     log::info!("textures built in {:.1} s", t0.elapsed().as_secs_f64());
     let (tv, ti) = terrain.mesh();
     let (bv, bi) = world::box_mesh();
-    let ctx = crate::gpu::GpuContext::new(s.adapter.as_deref())?;
+    // The product asks for downlevel limits (2048-texel textures); the terrain texture and large
+    // frames need more. Asking for no more than the adapter has leaves the error to the renderer,
+    // which names the size it needs.
+    let texels = world::TERRAIN_TEX.max(s.width).max(s.height);
+    let ctx = keyframer::gpu::GpuContext::with_limits(s.adapter.as_deref(), |limits, have| {
+        limits.max_texture_dimension_2d = limits
+            .max_texture_dimension_2d
+            .max(texels.min(have.max_texture_dimension_2d));
+    })?;
     let data = SceneData {
         terrain: (&tv, &ti),
         boxes: (&bv, &bi),
@@ -360,7 +374,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let sun4 = [sun.0 as f32, sun.1 as f32, sun.2 as f32, 0.0];
     let video = s.out.join("video.mp4");
     let mut enc = encode::Encoder::start(&video, s.width, s.height, s.fps)?;
-    let bar = crate::progress::bar(frames as u64, "render", s.quiet);
+    let bar = keyframer::progress::bar(frames as u64, "render", s.quiet);
     let started = std::time::Instant::now();
     let mut tum = String::new();
     let mut yaw_rates = Vec::with_capacity(frames);
@@ -399,7 +413,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     enc.finish()?;
     let render_seconds = started.elapsed().as_secs_f64();
     let sub_total: u64 = sub_counts.iter().map(|&c| c as u64).sum();
-    crate::fsutil::write_atomic(&s.out.join("poses.tum"), tum.as_bytes())?;
+    keyframer::fsutil::write_atomic(&s.out.join("poses.tum"), tum.as_bytes())?;
 
     let half_shutter = 0.5 * SHUTTER / s.fps;
     let hovers = flight
@@ -445,7 +459,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let hi = terrain.heights.iter().copied().fold(f32::MIN, f32::max) as f64;
     let round2 = |v: f64| (v * 100.0).round() / 100.0;
     let description = SceneDescription {
-        generator: "keyframer scene".into(),
+        generator: "keyframer-scene".into(),
         version: env!("CARGO_PKG_VERSION").into(),
         preset: s.preset,
         seed: s.seed,
@@ -497,7 +511,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     };
     let json = serde_json::to_string_pretty(&description)
         .map_err(|e| Error::Gpu(format!("scene.json: {e}")))?;
-    crate::fsutil::write_atomic(&s.out.join("scene.json"), json.as_bytes())?;
+    keyframer::fsutil::write_atomic(&s.out.join("scene.json"), json.as_bytes())?;
     Ok(SceneReport {
         description,
         adapter: ctx.info.name.clone(),

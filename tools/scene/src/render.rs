@@ -5,14 +5,14 @@
 
 use super::math::{Pose, V3};
 use super::world::{MipImage, Vertex, CHUNK_INDICES};
-use crate::error::{Error, Result};
-use crate::gpu::GpuContext;
+use keyframer::error::{Error, Result};
+use keyframer::gpu::GpuContext;
 use wgpu::util::DeviceExt;
 
 /// Scene shader source.
-pub const WGSL: &str = include_str!("../../shaders/scene.wgsl");
+pub const WGSL: &str = include_str!("../shaders/scene.wgsl");
 /// Accumulation / resolve shader source.
-pub const ACCUM_WGSL: &str = include_str!("../../shaders/scene_accum.wgsl");
+pub const ACCUM_WGSL: &str = include_str!("../shaders/scene_accum.wgsl");
 
 const NEAR: f64 = 0.5;
 const FAR: f64 = 2000.0;
@@ -784,5 +784,19 @@ impl<'a> Renderer<'a> {
             out.extend_from_slice(&padded[o..o + row]);
         }
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// The scene's shaders pass naga's validation, as the product's kernels do
+    /// (`keyframer::kernels::tests::every_shader_validates`).
+    #[test]
+    fn scene_shaders_validate() {
+        for (name, src) in [("scene", super::WGSL), ("scene_accum", super::ACCUM_WGSL)] {
+            if let Err(e) = keyframer::kernels::validate_wgsl(src) {
+                panic!("{name}.wgsl: {e}");
+            }
+        }
     }
 }

@@ -1,7 +1,7 @@
 //! H.264 encoding of raw RGBA frames by piping them into ffmpeg; the video appears at its final
 //! path only when ffmpeg succeeded (temporary file in the same folder, then a rename).
 
-use crate::error::{Error, Result};
+use keyframer::error::{Error, Result};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

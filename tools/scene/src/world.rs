@@ -4,7 +4,7 @@
 //! poses at any time. Everything is a pure function of the seed and the photos.
 
 use super::math::{Noise, Rng, V3};
-use crate::error::{Error, Result};
+use keyframer::error::{Error, Result};
 use std::path::Path;
 
 /// Terrain half size (metres): the terrain covers [-HALF, HALF]² in x and y.

@@ -1,9 +1,9 @@
-//! Flags of `keyframer scene` and their conversion into [`SceneSettings`]; the one-line summary.
+//! Flags of `keyframer-scene` and their conversion into [`SceneSettings`]; the one-line summary.
 
 use super::path::Preset;
 use super::{SceneReport, SceneSettings};
-use crate::error::{Error, Result};
-use clap::{Args, ValueEnum};
+use clap::{Parser, ValueEnum};
+use keyframer::error::{Error, Result};
 use std::path::{Path, PathBuf};
 
 /// Flight presets on the command line.
@@ -17,14 +17,18 @@ pub enum PresetArg {
     HoverSurvey,
 }
 
-/// `scene` flags (a development command: synthetic data with exact ground truth).
-#[derive(Debug, Args)]
+/// Renders a synthetic drone sequence (video.mp4, poses.tum, scene.json): a development tool of
+/// keyframer, synthetic data with exact ground truth.
+#[derive(Debug, Parser)]
 #[command(
-    long_about = "Development command: renders a synthetic drone flight over textured hilly \
-                  terrain with driving cars, with motion blur, on the GPU (wgpu). Writes OUT_DIR/\
-                  video.mp4 (H.264, yuv420p, constant fps), poses.tum (camera-to-world pose per \
-                  frame at its mid-shutter time, OpenCV camera axes: x right, y down, z forward; \
-                  world z up, metres) and scene.json (intrinsics, hovers, fast turns, objects)."
+    name = "keyframer-scene",
+    version,
+    long_about = "Development tool of keyframer: renders a synthetic drone flight over textured \
+                  hilly terrain with driving cars, with motion blur, on the GPU (wgpu). Writes \
+                  OUT_DIR/video.mp4 (H.264, yuv420p, constant fps), poses.tum (camera-to-world \
+                  pose per frame at its mid-shutter time, OpenCV camera axes: x right, y down, z \
+                  forward; world z up, metres) and scene.json (intrinsics, hovers, fast turns, \
+                  objects).\nExit codes: 0 success; 1 usage or error."
 )]
 pub struct SceneArgs {
     /// Output folder (refused when not empty, unless --force).
@@ -60,15 +64,24 @@ pub struct SceneArgs {
     /// GPU adapter to use (part of its name).
     #[arg(long)]
     pub adapter: Option<String>,
+    /// No progress bar; only errors and warnings on stderr.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// `WxH` as (width, height).
+pub fn parse_size(size: &str) -> Result<(u32, u32)> {
+    let bad = || Error::param("--size", format!("`{size}` is not WxH"));
+    let (w, h) = size.split_once(['x', 'X']).ok_or_else(bad)?;
+    let width: u32 = w.trim().parse().map_err(|_| bad())?;
+    let height: u32 = h.trim().parse().map_err(|_| bad())?;
+    Ok((width, height))
 }
 
 impl SceneArgs {
     /// Validated settings.
-    pub fn settings(&self, quiet: bool) -> Result<SceneSettings> {
-        let bad = || Error::param("--size", format!("`{}` is not WxH", self.size));
-        let (w, h) = self.size.split_once(['x', 'X']).ok_or_else(bad)?;
-        let width: u32 = w.trim().parse().map_err(|_| bad())?;
-        let height: u32 = h.trim().parse().map_err(|_| bad())?;
+    pub fn settings(&self) -> Result<SceneSettings> {
+        let (width, height) = parse_size(&self.size)?;
         let textures = match &self.textures {
             Some(t) => t.clone(),
             None => std::env::var_os("KEYFRAMER_TESTDATA")
@@ -99,7 +112,7 @@ impl SceneArgs {
             textures,
             markers: self.markers,
             force: self.force,
-            quiet,
+            quiet: self.quiet,
             adapter: self.adapter.clone(),
         })
     }
