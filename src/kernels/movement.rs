@@ -8,6 +8,7 @@ use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 pub use crate::params::{Derotate, Statistic};
 use bytemuck::{Pod, Zeroable};
+use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
 
 /// WGSL source.
@@ -177,39 +178,31 @@ impl RotationField {
 }
 
 /// The rotation whose first-order image flow is sum_k omega_k e_k: the rotation by the angle
-/// |omega| about the axis -omega (Rodrigues).
+/// |omega| about the axis -omega (Rodrigues: I + sin t / t W + (1 - cos t) / t² W², W the cross
+/// matrix of -omega).
 pub fn matrix(omega: [f64; 3]) -> Rotation {
-    let [a, b, c] = omega.map(|w| -w);
-    let t = (a * a + b * b + c * c).sqrt();
+    let axis = -Vector3::from(omega);
+    let t = axis.norm();
     let (s, k) = if t < 1e-12 {
         (1.0, 0.5)
     } else {
         (t.sin() / t, (1.0 - t.cos()) / (t * t))
     };
-    let w = [[0.0, -c, b], [c, 0.0, -a], [-b, a, 0.0]];
-    std::array::from_fn(|i| {
-        std::array::from_fn(|j| {
-            let w2: f64 = (0..3).map(|m| w[i][m] * w[m][j]).sum();
-            let id = if i == j { 1.0 } else { 0.0 };
-            (id + s * w[i][j] + k * w2) as f32
-        })
-    })
+    let w = axis.cross_matrix();
+    let r = Matrix3::identity() + w * s + w * w * k;
+    std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)] as f32))
 }
 
-/// Inverse of a 3x3 matrix (None when singular).
+/// Inverse of a 3x3 matrix (None when singular: determinant not finite or below 1e-12).
 fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
-    let c = |r: usize, k: usize| {
-        let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
-        let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
-        m[r1][k1] * m[r2][k2] - m[r1][k2] * m[r2][k1]
-    };
-    let det = m[0][0] * c(0, 0) + m[0][1] * c(0, 1) + m[0][2] * c(0, 2);
+    let m = Matrix3::from_fn(|i, j| m[i][j]);
+    let det = m.determinant();
     if !det.is_finite() || det.abs() < 1e-12 {
         return None;
     }
-    // inverse[k][r] = cofactor(r, k) / det
-    Some(std::array::from_fn(|k| {
-        std::array::from_fn(|r| c(r, k) / det)
+    let inv = m.try_inverse()?;
+    Some(std::array::from_fn(|i| {
+        std::array::from_fn(|j| inv[(i, j)])
     }))
 }
 

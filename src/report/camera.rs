@@ -1,6 +1,7 @@
 //! Camera path for the report: camera centres (e.g. from a COLMAP model) projected on their two
 //! principal axes, segments coloured by the spacing to the previous camera, as an inline SVG.
 
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use std::fmt::Write;
 
 /// One camera: the frame it was taken from and its centre in world coordinates.
@@ -65,41 +66,24 @@ impl CameraPath {
     }
 
     /// The centres projected on the two principal axes (largest spread first), in frame order.
+    /// Each axis is the covariance's eigenvector with the sign that makes its largest component
+    /// (the first of equal ones) positive, so the plot never comes out mirrored by chance.
     pub fn projected(&self) -> Vec<(usize, f64, f64)> {
         let pts = self.sorted();
         if pts.is_empty() {
             return Vec::new();
         }
         let n = pts.len() as f64;
-        let mut mean = [0.0; 3];
-        for p in &pts {
-            for (m, c) in mean.iter_mut().zip(p.centre) {
-                *m += c / n;
-            }
-        }
-        let mut cov = [[0.0; 3]; 3];
-        for p in &pts {
-            let d: Vec<f64> = (0..3).map(|i| p.centre[i] - mean[i]).collect();
-            for (i, row) in cov.iter_mut().enumerate() {
-                for (j, c) in row.iter_mut().enumerate() {
-                    *c += d[i] * d[j] / n;
-                }
-            }
-        }
-        let (vals, vecs) = jacobi_eigen(cov);
-        let mut order = [0usize, 1, 2];
-        order.sort_by(|&a, &b| vals[b].total_cmp(&vals[a]));
-        let axis = |k: usize| [vecs[0][k], vecs[1][k], vecs[2][k]];
-        let (a, b) = (axis(order[0]), axis(order[1]));
+        let centres: Vec<Vector3<f64>> = pts.iter().map(|p| Vector3::from(p.centre)).collect();
+        let mean = centres.iter().sum::<Vector3<f64>>() / n;
+        let cov = centres
+            .iter()
+            .map(|c| (c - mean) * (c - mean).transpose() / n)
+            .sum::<Matrix3<f64>>();
+        let (a, b) = principal_axes(cov);
         pts.iter()
-            .map(|p| {
-                let d = [
-                    p.centre[0] - mean[0],
-                    p.centre[1] - mean[1],
-                    p.centre[2] - mean[2],
-                ];
-                (p.frame, dot(&d, &a), dot(&d, &b))
-            })
+            .zip(&centres)
+            .map(|(p, c)| (p.frame, (c - mean).dot(&a), (c - mean).dot(&b)))
             .collect()
     }
 
@@ -216,11 +200,41 @@ impl CameraPath {
 }
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    (Vector3::from(*a) - Vector3::from(*b)).norm()
 }
 
-fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+/// The eigenvectors of the two largest eigenvalues of a symmetric matrix (nalgebra's symmetric
+/// eigen solver), each with its largest component (the first of equal ones) positive; equal
+/// eigenvalues are ordered by the index of their vector's largest component. These rules give
+/// the orientation the earlier hand-made Jacobi solver gave on near-axis-aligned paths, and one
+/// that no longer depends on the solver's iterations.
+fn principal_axes(cov: Matrix3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let eig = SymmetricEigen::new(cov);
+    let largest = |k: usize| -> usize {
+        let v = eig.eigenvectors.column(k);
+        (0..3).fold(0, |m, i| if v[i].abs() > v[m].abs() { i } else { m })
+    };
+    let vals = eig.eigenvalues;
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| vals[b].total_cmp(&vals[a]));
+    // Equal spreads (a circle) have no preferred axes: take the one nearest the lower world axis
+    // first, as the earlier solver did, rather than whatever order the solver returns.
+    let tol = 1e-9 * vals.amax();
+    for i in [0, 1, 0] {
+        let (a, b) = (order[i], order[i + 1]);
+        if (vals[a] - vals[b]).abs() <= tol && largest(b) < largest(a) {
+            order.swap(i, i + 1);
+        }
+    }
+    let axis = |k: usize| {
+        let v: Vector3<f64> = eig.eigenvectors.column(k).into();
+        if v[largest(k)] < 0.0 {
+            -v
+        } else {
+            v
+        }
+    };
+    (axis(order[0]), axis(order[1]))
 }
 
 /// Blue (t = 0, small spacing) through green to yellow (t = 1, large spacing).
@@ -239,43 +253,6 @@ pub fn scale_colour(t: f64) -> String {
         .map(|j| (stops[i][j] + (stops[i + 1][j] - stops[i][j]) * f).round() as u8)
         .collect();
     format!("#{:02x}{:02x}{:02x}", c[0], c[1], c[2])
-}
-
-/// Eigenvalues and eigenvectors (columns) of a symmetric 3x3 matrix by cyclic Jacobi rotations.
-fn jacobi_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    for _ in 0..50 {
-        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
-        if off < 1e-15 {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            if a[p][q].abs() < 1e-300 {
-                continue;
-            }
-            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let t = if theta == 0.0 { 1.0 } else { t };
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let sn = t * c;
-            // A' = J^T A J with the rotation J in the (p, q) plane.
-            for row in a.iter_mut() {
-                let (akp, akq) = (row[p], row[q]);
-                row[p] = c * akp - sn * akq;
-                row[q] = sn * akp + c * akq;
-            }
-            let (rp, rq) = (a[p], a[q]);
-            a[p] = std::array::from_fn(|k| c * rp[k] - sn * rq[k]);
-            a[q] = std::array::from_fn(|k| sn * rp[k] + c * rq[k]);
-            for row in v.iter_mut() {
-                let vp = row[p];
-                let vq = row[q];
-                row[p] = c * vp - sn * vq;
-                row[q] = sn * vp + c * vq;
-            }
-        }
-    }
-    ([a[0][0], a[1][1], a[2][2]], v)
 }
 
 #[cfg(test)]
@@ -310,6 +287,80 @@ mod tests {
         assert!(st.cv_spacing < 0.01, "equal steps: cv {}", st.cv_spacing);
         let expect = 2.0 * 2.0 * (std::f64::consts::PI / n as f64).sin();
         assert!((st.mean_spacing - expect).abs() < 0.01 * expect);
+    }
+
+    #[test]
+    fn orientation_is_that_of_the_earlier_jacobi_solver() {
+        // First and last projected centres as the hand-made Jacobi solver gave them: the plot
+        // must not come out mirrored or turned with nalgebra's eigenvectors.
+        let near =
+            |a: (f64, f64), b: (f64, f64)| (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 1e-9;
+        let ends = |p: &CameraPath| {
+            let v = p.projected();
+            ((v[0].1, v[0].2), (v[v.len() - 1].1, v[v.len() - 1].2))
+        };
+        let helix = CameraPath {
+            points: (0..60)
+                .step_by(5)
+                .map(|k| {
+                    let a = k as f64 * 0.05;
+                    PathPoint {
+                        frame: k,
+                        centre: [3.0 * a.cos(), 3.0 * a.sin(), 0.2 * a],
+                    }
+                })
+                .collect(),
+        };
+        let line = CameraPath {
+            points: (0..10)
+                .map(|i| PathPoint {
+                    frame: i,
+                    centre: [
+                        i as f64 * 0.3 + 1.0,
+                        -(i as f64) * 0.8,
+                        0.05 * (i % 2) as f64,
+                    ],
+                })
+                .collect(),
+        };
+        // A circle: two equal principal spreads, the tie broken towards the lower world axis.
+        let (s2, c2) = (0.6f64.sin(), 0.6f64.cos());
+        let circle = CameraPath {
+            points: (0..40)
+                .map(|i| {
+                    let a = i as f64 / 40.0 * std::f64::consts::TAU;
+                    let (u, w) = (2.0 * a.cos(), 2.0 * a.sin());
+                    let e = 0.01 * (3.0 * a).sin();
+                    PathPoint {
+                        frame: i * 5,
+                        centre: [u, w * c2 - e * s2, w * s2 + e * c2],
+                    }
+                })
+                .collect(),
+        };
+        for (name, path, first, last) in [
+            (
+                "helix",
+                &helix,
+                (2.955339690225598, -1.4165516218319585),
+                (-2.9553396902255984, -1.4165516218319587),
+            ),
+            (
+                "line",
+                &line,
+                (3.84483997683643, -0.018181103389232567),
+                (-3.8448399768364285, 0.018181103389232567),
+            ),
+            (
+                "circle",
+                &circle,
+                (2.0, 0.0),
+                (1.9753766811902753, -0.31286893008046224),
+            ),
+        ] {
+            let (f, l) = ends(path);
+            assert!(near(f, first) && near(l, last), "{name}: {f:?} {l:?}");
+        }
     }
 
     #[test]

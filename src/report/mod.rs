@@ -133,7 +133,7 @@ pub fn write_report(
         timeline_png: png_path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned()),
-    });
+    })?;
     let png = timeline.png()?;
     let png_existed = png_path.exists();
     fsutil::write_atomic(&png_path, &png)?;
@@ -151,20 +151,4 @@ pub fn write_report(
         thumbs: thumbs.len(),
         missing,
     })
-}
-
-/// Escapes text for HTML element content and attribute values.
-pub fn esc(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&#39;"),
-            _ => out.push(c),
-        }
-    }
-    out
 }

@@ -1,12 +1,15 @@
 //! The report's timeline: per-frame curves, thresholds, boundaries and keyframes laid out in
-//! stacked panels over the frame axis, drawn as SVG (HTML page) and as a PNG (OpenCV drawing).
+//! stacked panels over the frame axis, drawn by plotters from one description ([`Timeline::draw`]) as SVG (HTML page) and as a PNG.
 
-use crate::error::{CvContext, Error, Result};
+use crate::error::{Error, Result};
 use crate::project::Project;
-use opencv::core::{Mat, Point, Rect, Scalar, Vector, CV_8UC3};
-use opencv::imgproc;
-use opencv::prelude::*;
-use std::fmt::Write;
+use crate::samplers::{blur, spacing, BlurMode};
+use crate::steps::Applied;
+use plotters::coord::Shift;
+use plotters::element::DashedPathElement;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+use plotters::style::FontTransform;
 
 /// Width of the timeline in pixels (SVG and PNG).
 pub const WIDTH: u32 = 1200;
@@ -131,7 +134,30 @@ impl Timeline {
             .candidates(n, cache.timestamps_s.as_deref())
             .ok()
             .and_then(|c| Some((*c.first()?, *c.last()?)));
-        let step = |id: &str| project.history.iter().rev().find(|s| s.plugin == id);
+        // The recorded steps, typed (a project is validated when loaded, so every entry reads).
+        let applied: Vec<Applied> = project
+            .history
+            .iter()
+            .filter_map(|e| Applied::from_entry(e).ok())
+            .collect();
+        let last_blur = applied.iter().rev().find_map(|a| match a {
+            Applied::Blur {
+                metric,
+                mode,
+                ratio,
+                window,
+                ..
+            } => Some((*metric, *mode, *ratio, *window)),
+            _ => None,
+        });
+        let last_spacing = applied.iter().rev().find_map(|a| match a {
+            Applied::Spacing { threshold_px, .. } => Some(Some(*threshold_px)),
+            _ => None,
+        });
+        let last_stationary = applied.iter().rev().find_map(|a| match a {
+            Applied::Stationary { threshold_px, .. } => Some(*threshold_px),
+            _ => None,
+        });
         let mut panels = Vec::new();
         let mut missing = Vec::new();
 
@@ -164,21 +190,24 @@ impl Timeline {
                     dashed: false,
                     values: s.scores.iter().map(|v| v * scale).collect(),
                 });
-                let blur = step("blur").filter(|b| {
-                    b.params["metric"] == metric
-                        && s.width == project.metadata.width
-                        && s.height == project.metadata.height
-                });
-                if let (Some(b), Some((lo, hi))) = (blur, range) {
-                    let ratio = b.params["ratio"].as_f64();
-                    let window = b.params["window"].as_u64().map(|w| w as usize);
-                    let filter = b.params["mode"].as_str() == Some("filter");
-                    if let (true, Some(ratio), Some(window)) = (filter, ratio, window) {
+                let full_size =
+                    s.width == project.metadata.width && s.height == project.metadata.height;
+                let blur = last_blur.filter(|b| b.0 == Some(s.metric) && full_size);
+                if let (Some((_, mode, ratio, window)), Some((lo, hi))) = (blur, range) {
+                    if let (Some(BlurMode::Filter), Some(ratio), Some(window)) =
+                        (mode, ratio, window)
+                    {
                         curves.push(Curve {
                             name: format!("blur threshold: {ratio} x mean of ±{window} frames"),
                             rgb: THRESHOLD_RGB[0],
                             dashed: true,
-                            values: blur_threshold(&s.scores, lo, hi, window, ratio * scale),
+                            values: blur::threshold_series(
+                                &s.scores,
+                                lo,
+                                hi,
+                                window,
+                                ratio * scale,
+                            ),
                         });
                     }
                 }
@@ -218,18 +247,18 @@ impl Timeline {
                 name: "movement accumulated since the previous keyframe".into(),
                 rgb: ACCUMULATED_RGB,
                 dashed: false,
-                values: accumulated(v, &project.keyframes, range),
+                values: spacing::accumulated(v, &project.keyframes, range),
             }];
-            for (id, rgb) in [
-                ("spacing", THRESHOLD_RGB[1]),
-                ("stationary", THRESHOLD_RGB[2]),
+            for (id, threshold, rgb) in [
+                ("spacing", last_spacing, THRESHOLD_RGB[1]),
+                ("stationary", last_stationary, THRESHOLD_RGB[2]),
             ] {
-                if let Some(t) = step(id).and_then(|s| s.params["threshold_px"].as_f64()) {
+                if let Some(t) = threshold.flatten() {
                     curves.push(Curve {
                         name: format!("{id} threshold {t:.1} px"),
                         rgb,
                         dashed: true,
-                        values: in_range(n, range, t),
+                        values: spacing::threshold_series(n, range, t),
                     });
                 }
             }
@@ -344,149 +373,71 @@ impl Timeline {
         }
     }
 
-    /// The timeline as an inline SVG element.
-    pub fn svg(&self) -> String {
-        let mut s = String::new();
-        // Writing to a String cannot fail.
-        let _ = self.write_svg(&mut s);
-        s
-    }
-
-    fn write_svg(&self, s: &mut String) -> std::fmt::Result {
+    /// The timeline as an inline SVG element: plotters' drawing of [`Timeline::draw`] inside the
+    /// page's own `<svg id="timeline">` (which the page script and the tests find), each
+    /// keyframe's bars in a `<g class="kf" data-frame="K">` and a hidden `#cursor` line on top.
+    pub fn svg(&self) -> Result<String> {
         let h = height(self.panels.len());
         let n = self.frames;
-        writeln!(
-            s,
+        let mut s = format!(
             r#"<svg id="timeline" width="{WIDTH}" height="{h}" viewBox="0 0 {WIDTH} {h}" font-family="sans-serif" font-size="11" data-frames="{n}">"#
-        )?;
-        writeln!(s, r##"<rect width="{WIDTH}" height="{h}" fill="#fff"/>"##)?;
-        let (by0, by1) = bars_y(self.panels.len());
-        let x_end = frame_x(n.saturating_sub(1), n);
-        if let Some((lo, hi)) = self.range {
-            let shade = |a: i32, b: i32, s: &mut String| -> std::fmt::Result {
-                for (y0, y1) in panel_spans(self.panels.len()) {
-                    if b > a {
-                        writeln!(
-                            s,
-                            r#"<rect class="outside" x="{a}" y="{y0}" width="{}" height="{}" fill="{}"/>"#,
-                            b - a,
-                            y1 - y0,
-                            hex(BOUNDARY_RGB)
-                        )?;
-                    }
-                }
-                Ok(())
-            };
-            shade(LEFT as i32, frame_x(lo, n), s)?;
-            shade(frame_x(hi, n) + 1, x_end + 1, s)?;
-        }
-        for (i, p) in self.panels.iter().enumerate() {
-            let top = panel_top(i);
-            let max = p.max();
-            writeln!(
-                s,
-                r#"<text x="{LEFT}" y="{}" font-weight="bold">{}</text>"#,
-                top - 8,
-                super::esc(&p.title)
-            )?;
-            for frac in [0.0, 0.5, 1.0] {
-                let y = top as f64 + PANEL_H as f64 * (1.0 - frac);
-                writeln!(
-                    s,
-                    r#"<line x1="{LEFT}" x2="{x_end}" y1="{y}" y2="{y}" stroke="{}"/>"#,
-                    hex(GRID_RGB)
-                )?;
-                if !p.curves.is_empty() {
-                    writeln!(
-                        s,
-                        r#"<text x="{}" y="{}" text-anchor="end">{}</text>"#,
-                        LEFT - 6,
-                        y + 4.0,
-                        number(max * frac)
-                    )?;
-                }
-            }
-            writeln!(
-                s,
-                r#"<text transform="translate(12 {}) rotate(-90)" text-anchor="middle">{}</text>"#,
-                top + PANEL_H / 2,
-                super::esc(&p.unit)
-            )?;
-            for c in &p.curves {
-                for run in self.polylines(i, c, max) {
-                    let pts: Vec<String> =
-                        run.iter().map(|(x, y)| format!("{x:.1},{y:.1}")).collect();
-                    writeln!(
-                        s,
-                        r#"<polyline fill="none" stroke="{}" stroke-width="1.3"{} points="{}"><title>{}</title></polyline>"#,
-                        hex(c.rgb),
-                        if c.dashed {
-                            r#" stroke-dasharray="6 4""#
-                        } else {
-                            ""
-                        },
-                        pts.join(" "),
-                        super::esc(&c.name)
-                    )?;
-                }
-            }
-            writeln!(
-                s,
-                r#"<rect x="{LEFT}" y="{top}" width="{}" height="{PANEL_H}" fill="none" stroke="{}"/>"#,
-                x_end - LEFT as i32 + 1,
-                hex(AXIS_RGB)
-            )?;
-        }
+        );
+        s.push('\n');
+        s.push_str(&svg_layer(h, |root| self.draw(root))?);
+        let mut last = None;
         for &k in &self.keyframes {
-            write!(
-                s,
+            let x = frame_x(k, n);
+            s.push_str(&format!(
                 r#"<g class="kf" data-frame="{k}" fill="{}">"#,
                 hex(KEYFRAME_RGB)
-            )?;
-            for (y0, y1) in panel_spans(self.panels.len()) {
-                write!(
-                    s,
-                    r#"<rect x="{}" y="{y0}" width="1" height="{}" shape-rendering="crispEdges"/>"#,
-                    frame_x(k, n),
-                    y1 - y0
-                )?;
+            ));
+            s.push('\n');
+            // Keyframes closer than a pixel share one column: drawn once, each still has its group.
+            if last != Some(x) {
+                s.push_str(&svg_layer(h, |root| self.draw_bars(root, &[x]))?);
             }
-            writeln!(s, "</g>")?;
+            last = Some(x);
+            s.push_str("</g>\n");
         }
-        for t in self.ticks() {
-            let x = frame_x(t, n);
-            writeln!(
-                s,
-                r#"<line x1="{x}" x2="{x}" y1="{by1}" y2="{}" stroke="{}"/><text x="{x}" y="{}" text-anchor="middle">{}</text>"#,
-                by1 + 4,
-                hex(AXIS_RGB),
-                by1 + 16,
-                self.tick_label(t)
-            )?;
-        }
-        writeln!(
-            s,
-            r#"<text x="{}" y="{}" text-anchor="middle">frame index (time)</text>"#,
-            LEFT + (WIDTH - LEFT - RIGHT) / 2,
-            by1 + 32
-        )?;
-        writeln!(
-            s,
+        let (by0, by1) = bars_y(self.panels.len());
+        s.push_str(&format!(
             r##"<line id="cursor" x1="0" x2="0" y1="{by0}" y2="{by1}" stroke="#000" stroke-width="1" visibility="hidden"/>"##
-        )?;
-        writeln!(s, "</svg>")
+        ));
+        s.push_str("\n</svg>");
+        Ok(s)
     }
 
-    /// The timeline as an 8-bit BGR image (same layout as the SVG, OpenCV drawing).
-    pub fn image(&self) -> Result<Mat> {
-        let h = height(self.panels.len()) as i32;
+    /// The timeline as an 8-bit RGB image, `WIDTH` x [`height`] (the same drawing as the SVG).
+    pub fn image(&self) -> Result<image::RgbImage> {
+        let h = height(self.panels.len());
+        let mut buf = vec![0u8; WIDTH as usize * h as usize * 3];
+        font::register()?;
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, (WIDTH, h)).into_drawing_area();
+            self.draw(&root).map_err(drawing)?;
+            self.draw_bars(&root, &self.bar_columns())
+                .map_err(drawing)?;
+            root.present().map_err(drawing)?;
+        }
+        image::RgbImage::from_raw(WIDTH, h, buf)
+            .ok_or_else(|| Error::param("timeline", "the drawing has the wrong size"))
+    }
+
+    /// The PNG bytes of [`Timeline::image`].
+    pub fn png(&self) -> Result<Vec<u8>> {
+        let img = self.image()?;
+        let mut out = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut out, image::ImageFormat::Png)
+            .map_err(|e| Error::param("timeline", format!("PNG encoding failed: {e}")))?;
+        Ok(out.into_inner())
+    }
+
+    /// The timeline without the keyframe bars, on any plotters backend, in pixel coordinates:
+    /// shading outside the boundaries, per panel its title, grid, axis labels, curves (thresholds
+    /// dashed) and frame, then the frame axis.
+    pub fn draw<DB: DrawingBackend>(&self, root: &Area<DB>) -> Drawn<DB> {
         let n = self.frames;
-        let cv = |what: &str| {
-            let what = what.to_string();
-            move || format!("drawing the timeline ({what})")
-        };
-        let mut img = Mat::new_rows_cols_with_default(h, WIDTH as i32, CV_8UC3, bgr([255; 3]))
-            .cv(cv("canvas"))?;
+        root.fill(&WHITE)?;
         let by1 = bars_y(self.panels.len()).1 as i32;
         let x_end = frame_x(n.saturating_sub(1), n);
         if let Some((lo, hi)) = self.range {
@@ -495,120 +446,172 @@ impl Timeline {
                 (frame_x(hi, n) + 1, x_end + 1),
             ] {
                 for (y0, y1) in panel_spans(self.panels.len()).filter(|_| b > a) {
-                    let (y0, y1) = (y0 as i32, y1 as i32);
-                    imgproc::rectangle(
-                        &mut img,
-                        Rect::new(a, y0, b - a, y1 - y0),
-                        bgr(BOUNDARY_RGB),
-                        imgproc::FILLED,
-                        imgproc::LINE_8,
-                        0,
-                    )
-                    .cv(cv("boundaries"))?;
+                    root.draw(&Rectangle::new(
+                        [(a, y0 as i32), (b, y1 as i32)],
+                        rgb(BOUNDARY_RGB).filled(),
+                    ))?;
                 }
             }
         }
-        let text = |img: &mut Mat, t: &str, x: i32, y: i32| -> Result<()> {
-            imgproc::put_text(
-                img,
-                t,
-                Point::new(x, y),
-                imgproc::FONT_HERSHEY_SIMPLEX,
-                0.38,
-                bgr(AXIS_RGB),
-                1,
-                imgproc::LINE_AA,
-                false,
-            )
-            .cv(cv("text"))
+        let axis = rgb(AXIS_RGB);
+        let text = |anchor: Pos| {
+            TextStyle::from((FONT, FONT_PX).into_font())
+                .color(&axis)
+                .pos(anchor)
         };
+        let left = Pos::new(HPos::Left, VPos::Bottom);
+        let right = Pos::new(HPos::Right, VPos::Center);
+        let centre = Pos::new(HPos::Center, VPos::Top);
         for (i, p) in self.panels.iter().enumerate() {
             let top = panel_top(i) as i32;
             let max = p.max();
-            text(&mut img, &p.title, LEFT as i32, top - 8)?;
+            root.draw(&Text::new(
+                p.title.clone(),
+                (LEFT as i32, top - 5),
+                TextStyle::from((FONT, FONT_PX, FontStyle::Bold).into_font())
+                    .color(&BLACK)
+                    .pos(left),
+            ))?;
             for frac in [0.0, 0.5, 1.0] {
                 let y = top + (f64::from(PANEL_H) * (1.0 - frac)).round() as i32;
-                imgproc::line(
-                    &mut img,
-                    Point::new(LEFT as i32, y),
-                    Point::new(x_end, y),
-                    bgr(GRID_RGB),
-                    1,
-                    imgproc::LINE_8,
-                    0,
-                )
-                .cv(cv("grid"))?;
+                root.draw(&PathElement::new(
+                    vec![(LEFT as i32, y), (x_end, y)],
+                    rgb(GRID_RGB),
+                ))?;
                 if !p.curves.is_empty() {
-                    text(&mut img, &number(max * frac), 4, y + 4)?;
+                    root.draw(&Text::new(
+                        number(max * frac),
+                        (LEFT as i32 - 6, y),
+                        text(right),
+                    ))?;
                 }
             }
+            root.draw(&Text::new(
+                p.unit.clone(),
+                (6, top + PANEL_H as i32 / 2),
+                text(Pos::new(HPos::Center, VPos::Center)).transform(FontTransform::Rotate270),
+            ))?;
             for c in &p.curves {
+                let style = ShapeStyle::from(rgb(c.rgb)).stroke_width(1);
                 for run in self.polylines(i, c, max) {
-                    let pts: Vec<Point> = run
+                    let pts: Vec<(i32, i32)> = run
                         .iter()
-                        .map(|(x, y)| Point::new(x.round() as i32, y.round() as i32))
+                        .map(|(x, y)| (x.round() as i32, y.round() as i32))
                         .collect();
-                    for (j, w) in pts.windows(2).enumerate() {
-                        if c.dashed && j % 2 == 1 && pts.len() > 2 {
-                            continue;
-                        }
-                        imgproc::line(&mut img, w[0], w[1], bgr(c.rgb), 1, imgproc::LINE_AA, 0)
-                            .cv(cv("curve"))?;
+                    if c.dashed {
+                        root.draw(&DashedPathElement::new(pts, 6, 4, style))?;
+                    } else {
+                        root.draw(&PathElement::new(pts, style))?;
                     }
                 }
             }
-            imgproc::rectangle(
-                &mut img,
-                Rect::new(LEFT as i32, top, x_end - LEFT as i32 + 1, PANEL_H as i32),
-                bgr(AXIS_RGB),
-                1,
-                imgproc::LINE_8,
-                0,
-            )
-            .cv(cv("frame"))?;
-        }
-        for x in self.bar_columns() {
-            for (y0, y1) in panel_spans(self.panels.len()) {
-                imgproc::line(
-                    &mut img,
-                    Point::new(x, y0 as i32),
-                    Point::new(x, y1 as i32 - 1),
-                    bgr(KEYFRAME_RGB),
-                    1,
-                    imgproc::LINE_8,
-                    0,
-                )
-                .cv(cv("keyframes"))?;
-            }
+            root.draw(&Rectangle::new(
+                [(LEFT as i32, top), (x_end, top + PANEL_H as i32 - 1)],
+                rgb(AXIS_RGB),
+            ))?;
         }
         for t in self.ticks() {
             let x = frame_x(t, n);
-            imgproc::line(
-                &mut img,
-                Point::new(x, by1),
-                Point::new(x, by1 + 4),
-                bgr(AXIS_RGB),
-                1,
-                imgproc::LINE_8,
-                0,
-            )
-            .cv(cv("ticks"))?;
-            let label = self.tick_label(t);
-            text(&mut img, &label, x - 3 * label.len() as i32, by1 + 16)?;
+            root.draw(&PathElement::new(
+                vec![(x, by1), (x, by1 + 4)],
+                rgb(AXIS_RGB),
+            ))?;
+            root.draw(&Text::new(self.tick_label(t), (x, by1 + 6), text(centre)))?;
         }
-        Ok(img)
+        root.draw(&Text::new(
+            "frame index (time)",
+            ((LEFT + (WIDTH - LEFT - RIGHT) / 2) as i32, by1 + 22),
+            text(centre),
+        ))?;
+        Ok(())
     }
 
-    /// The PNG bytes of [`Timeline::image`].
-    pub fn png(&self) -> Result<Vec<u8>> {
-        let img = self.image()?;
-        let mut buf = Vector::<u8>::new();
-        let ok = opencv::imgcodecs::imencode(".png", &img, &mut buf, &Vector::new())
-            .cv(|| "encoding the timeline PNG".into())?;
-        if !ok {
-            return Err(Error::param("timeline", "PNG encoding failed"));
+    /// Keyframe bars: one pixel column at each x of `columns`, over every panel's plot area, in
+    /// [`KEYFRAME_RGB`] (drawn last so that nothing covers them).
+    pub fn draw_bars<DB: DrawingBackend>(&self, root: &Area<DB>, columns: &[i32]) -> Drawn<DB> {
+        for &x in columns {
+            for (y0, y1) in panel_spans(self.panels.len()) {
+                root.draw(&Rectangle::new(
+                    [(x, y0 as i32), (x + 1, y1 as i32)],
+                    rgb(KEYFRAME_RGB).filled(),
+                ))?;
+            }
         }
-        Ok(buf.to_vec())
+        Ok(())
+    }
+}
+
+/// A plotters drawing area in pixel coordinates.
+pub type Area<DB> = DrawingArea<DB, Shift>;
+/// What drawing on an [`Area`] returns.
+pub type Drawn<DB> =
+    std::result::Result<(), DrawingAreaErrorKind<<DB as DrawingBackend>::ErrorType>>;
+
+/// Font family of the timeline's text (the SVG names it; the PNG draws it with DejaVu Sans).
+const FONT: &str = "sans-serif";
+/// Text size in plotters' units (pixels × 1.24): 11 px, as the page's other text.
+const FONT_PX: f64 = 11.0 * 1.24;
+
+fn rgb(c: [u8; 3]) -> RGBColor {
+    RGBColor(c[0], c[1], c[2])
+}
+
+fn drawing<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> Error {
+    Error::param("timeline", format!("drawing the timeline failed: {e}"))
+}
+
+/// The SVG elements plotters writes for `draw` on a `WIDTH` x `h` area, without plotters' own
+/// `<svg>` element (the page wraps them in its own, without an `xmlns` address: inline SVG in
+/// HTML needs none, and the page refers to nothing outside itself).
+fn svg_layer(
+    h: u32,
+    draw: impl for<'a> FnOnce(&Area<SVGBackend<'a>>) -> Drawn<SVGBackend<'a>>,
+) -> Result<String> {
+    let mut out = String::new();
+    {
+        let root = SVGBackend::with_string(&mut out, (WIDTH, h)).into_drawing_area();
+        draw(&root).map_err(drawing)?;
+        root.present().map_err(drawing)?;
+    }
+    let body = out
+        .find('>')
+        .map(|i| &out[i + 1..])
+        .and_then(|rest| rest.trim_end().strip_suffix("</svg>"))
+        .ok_or_else(|| Error::param("timeline", "unexpected SVG from the plotting library"))?;
+    Ok(body.trim_start_matches('\n').to_string())
+}
+
+/// The font the PNG's text is drawn with, read once from the Debian package `fonts-dejavu-core`.
+mod font {
+    use crate::error::{Error, Result};
+    use plotters::style::{register_font, FontStyle};
+    use std::sync::OnceLock;
+
+    /// Where Debian's `fonts-dejavu-core` puts DejaVu Sans and its bold face.
+    pub const REGULAR: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+    /// The bold face (panel titles).
+    pub const BOLD: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans-Bold.ttf";
+
+    /// Registers DejaVu Sans as plotters' `sans-serif` (once per process).
+    pub fn register() -> Result<()> {
+        static DONE: OnceLock<std::result::Result<(), String>> = OnceLock::new();
+        DONE.get_or_init(|| {
+            for (path, style) in [(REGULAR, FontStyle::Normal), (BOLD, FontStyle::Bold)] {
+                let bytes = std::fs::read(path).map_err(|e| {
+                    format!(
+                        "the PNG timeline's text needs the font {path} ({e}); install the Debian \
+                         package fonts-dejavu-core (scripts/setup.sh does)"
+                    )
+                })?;
+                // Registered fonts live as long as the process.
+                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+                register_font(super::FONT, style, bytes)
+                    .map_err(|_| format!("{path} is not a font plotters can read"))?;
+            }
+            Ok(())
+        })
+        .clone()
+        .map_err(|msg| Error::param("--timeline", msg))
     }
 }
 
@@ -621,58 +624,9 @@ pub const ACCUMULATED_RGB: [u8; 3] = [80, 80, 80];
 /// Colours of the blur, spacing and stationary thresholds.
 pub const THRESHOLD_RGB: [[u8; 3]; 3] = [[255, 127, 14], [214, 39, 40], [148, 103, 189]];
 
-/// ratio x mean of `scores` over ±`window` frames clipped to `lo..=hi` (the blur filter's
-/// threshold), NaN outside the range.
-pub fn blur_threshold(scores: &[f64], lo: usize, hi: usize, window: usize, ratio: f64) -> Vec<f64> {
-    let mut out = vec![f64::NAN; scores.len()];
-    if hi >= scores.len() || lo > hi {
-        return out;
-    }
-    // Prefix sums keep this linear in the frame count.
-    let mut prefix = vec![0.0; scores.len() + 1];
-    for (i, v) in scores.iter().enumerate() {
-        prefix[i + 1] = prefix[i] + v;
-    }
-    for (k, o) in out.iter_mut().enumerate().take(hi + 1).skip(lo) {
-        let a = k.saturating_sub(window).max(lo);
-        let b = (k + window).min(hi);
-        *o = ratio * (prefix[b + 1] - prefix[a]) / (b + 1 - a) as f64;
-    }
-    out
-}
-
-/// Movement accumulated over consecutive frames since the previous keyframe (0 at a keyframe),
-/// NaN outside the sampled range.
-pub fn accumulated(values: &[f64], keyframes: &[usize], range: Option<(usize, usize)>) -> Vec<f64> {
-    let (lo, hi) = range.unwrap_or((0, values.len().saturating_sub(1)));
-    let mut out = vec![f64::NAN; values.len()];
-    let mut sum = 0.0;
-    for (f, o) in out.iter_mut().enumerate().take(hi + 1).skip(lo) {
-        if f > lo {
-            sum += values[f];
-        }
-        *o = sum;
-        if keyframes.binary_search(&f).is_ok() {
-            sum = 0.0;
-        }
-    }
-    out
-}
-
-fn in_range(n: usize, range: Option<(usize, usize)>, v: f64) -> Vec<f64> {
-    let (lo, hi) = range.unwrap_or((0, n.saturating_sub(1)));
-    (0..n)
-        .map(|f| if (lo..=hi).contains(&f) { v } else { f64::NAN })
-        .collect()
-}
-
 /// `#rrggbb`.
 pub fn hex(c: [u8; 3]) -> String {
     format!("#{:02x}{:02x}{:02x}", c[0], c[1], c[2])
-}
-
-fn bgr(c: [u8; 3]) -> Scalar {
-    Scalar::new(f64::from(c[2]), f64::from(c[1]), f64::from(c[0]), 0.0)
 }
 
 /// A short axis label: 3 significant digits.

@@ -107,6 +107,35 @@ pub fn blur(
     })
 }
 
+/// The filter mode's threshold for every frame: `ratio` × the mean score of the frames within
+/// ±`window`, clipped to the sampled range `lo..=hi`; NaN outside the range (and everywhere when
+/// the range does not fit the scores). This is the series the report draws; [`blur`] compares each
+/// keyframe with the same window mean, summed over the window itself (a series over every frame
+/// uses prefix sums to stay linear in the frame count, so the two can differ in the last bits).
+pub fn threshold_series(
+    scores: &[f64],
+    lo: usize,
+    hi: usize,
+    window: usize,
+    ratio: f64,
+) -> Vec<f64> {
+    let mut out = vec![f64::NAN; scores.len()];
+    if hi >= scores.len() || lo > hi {
+        return out;
+    }
+    // Prefix sums keep this linear in the frame count.
+    let mut prefix = vec![0.0; scores.len() + 1];
+    for (i, v) in scores.iter().enumerate() {
+        prefix[i + 1] = prefix[i] + v;
+    }
+    for (k, o) in out.iter_mut().enumerate().take(hi + 1).skip(lo) {
+        let a = k.saturating_sub(window).max(lo);
+        let b = (k + window).min(hi);
+        *o = ratio * (prefix[b + 1] - prefix[a]) / (b + 1 - a) as f64;
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,6 +161,24 @@ mod tests {
         )
         .unwrap();
         assert_eq!(k, vec![0, 1, 3, 4, 5, 6]);
+    }
+
+    #[test]
+    fn threshold_series_is_what_the_filter_compares_with() {
+        let scores = [10.0, 10.0, 2.0, 10.0, 10.0, 9.0, 10.0];
+        let p = params(BlurMode::Filter);
+        let t = threshold_series(&scores, 1, 5, p.window, p.ratio);
+        assert!(t[0].is_nan() && t[6].is_nan());
+        let kept = blur(&[1, 2, 3, 4, 5], &scores, &p, 1, 5).unwrap();
+        for k in 1usize..=5 {
+            let w = k.saturating_sub(2).max(1)..=(k + 2).min(5);
+            let mean = scores[w.clone()].iter().sum::<f64>() / w.count() as f64;
+            assert!((t[k] - 0.8 * mean).abs() < 1e-12);
+            assert_eq!(kept.contains(&k), scores[k] >= t[k], "frame {k}");
+        }
+        assert!(threshold_series(&scores, 3, 9, 2, 0.8)
+            .iter()
+            .all(|v| v.is_nan()));
     }
 
     #[test]

@@ -2,12 +2,12 @@
 //! and per-frame numbers to a subset of the candidates. They never touch pixels.
 
 pub mod auto;
-mod blur;
+pub mod blur;
 mod boundaries;
 mod every_nth;
 mod fps;
 mod manual;
-mod spacing;
+pub mod spacing;
 mod stationary;
 
 pub use blur::{blur, BlurMode, BlurParams};

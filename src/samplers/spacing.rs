@@ -70,6 +70,47 @@ pub fn spacing_for_count(candidates: &[usize], movement: &[f64], count: usize) -
     })
 }
 
+/// The series the report draws under a movement threshold: movement accumulated over
+/// consecutive frames since the previous keyframe (0 at a keyframe, `movement[i]` being the
+/// movement from frame i-1 to frame i), NaN outside the sampled range `lo..=hi` (none: every
+/// frame). On the frames [`spacing`] had as candidates it is the sum that sampler compared with
+/// its threshold, as long as no later step moved the keyframes.
+pub fn accumulated(
+    movement: &[f64],
+    keyframes: &[usize],
+    range: Option<(usize, usize)>,
+) -> Vec<f64> {
+    let (lo, hi) = range.unwrap_or((0, movement.len().saturating_sub(1)));
+    let mut out = vec![f64::NAN; movement.len()];
+    let mut sum = 0.0;
+    for (f, o) in out.iter_mut().enumerate().take(hi + 1).skip(lo) {
+        if f > lo {
+            sum += movement[f];
+        }
+        *o = sum;
+        if keyframes.binary_search(&f).is_ok() {
+            sum = 0.0;
+        }
+    }
+    out
+}
+
+/// A movement threshold (spacing's or the stationary sampler's) as a per-frame series over
+/// `frames` frames: `threshold` within the sampled range `lo..=hi` (none: every frame), NaN
+/// outside.
+pub fn threshold_series(frames: usize, range: Option<(usize, usize)>, threshold: f64) -> Vec<f64> {
+    let (lo, hi) = range.unwrap_or((0, frames.saturating_sub(1)));
+    (0..frames)
+        .map(|f| {
+            if (lo..=hi).contains(&f) {
+                threshold
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -101,6 +142,21 @@ mod tests {
             }
         }
         assert!(super::spacing_for_count(&c, &vec![0.0; 300], 5).is_err());
+    }
+
+    #[test]
+    fn accumulated_series_reaches_the_threshold_at_each_keyframe() {
+        let mv: Vec<f64> = (0..20).map(|i| if i == 0 { 0.0 } else { 1.0 }).collect();
+        let c: Vec<usize> = (2..18).collect();
+        let k = super::spacing(&c, &mv, 4.0).unwrap();
+        let acc = super::accumulated(&mv, &k, Some((2, 17)));
+        assert!(acc[1].is_nan() && acc[18].is_nan());
+        assert_eq!(acc[2], 0.0);
+        for &f in &k[1..] {
+            assert_eq!(acc[f], 4.0, "frame {f}");
+        }
+        let t = super::threshold_series(20, Some((2, 17)), 4.0);
+        assert!(t[1].is_nan() && t[2] == 4.0 && t[17] == 4.0 && t[18].is_nan());
     }
 
     #[test]

@@ -1,4 +1,14 @@
 //! Natural ordering of file names: runs of digits compare by value, so `img2` sorts before `img10`.
+//!
+//! Hand-made on purpose: the order of an image folder decides its frame indices, which existing
+//! projects store, so it must never change. The maintained crates were checked against it and
+//! none gives exactly this order: it compares text case-insensitively (ASCII) yet stays a total
+//! order (names equal but for case or leading zeros fall back to a bytewise comparison of the
+//! whole names: `IMG2` < `img002` < `img02` < `img2`), and digit runs of any length compare by
+//! value without overflow. `natord::compare` and `alphanumeric-sort` are case-sensitive (`IMG1`
+//! before `a`); `natord::compare_ignore_case` orders `img02b` before `IMG1` and calls
+//! `img2`/`IMG2` equal (the folder's listing order would then decide); `lexical-sort` orders
+//! `img2` before `img02` and overflows on a 24-digit run.
 
 use std::cmp::Ordering;
 
