@@ -12,6 +12,7 @@ pub mod error;
 pub mod eval;
 pub mod export;
 pub mod flo;
+pub mod flow;
 pub mod fsutil;
 pub mod gpu;
 pub mod info;

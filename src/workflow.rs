@@ -640,3 +640,22 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
         project.display()
     ))
 }
+
+/// `workflow save`: the workflow of [`from_project`], checked to load (in memory) before it is
+/// written atomically to `output`, which may be none of what the save reads (the project, its
+/// input, the exports' manifests) and is replaced only with `force`. Returns `output`.
+pub fn save(project: &Path, exports: &[PathBuf], output: &Path, force: bool) -> Result<PathBuf> {
+    let text = from_project(project, exports)?;
+    Workflow::from_text(output, text.clone())
+        .map_err(|e| Error::input(project, format!("cannot be saved as a workflow: {e}")))?;
+    let source = Project::load(project)?.input_path(project);
+    let manifests: Vec<PathBuf> = exports
+        .iter()
+        .map(|e| e.join(crate::manifest::MANIFEST))
+        .collect();
+    let mut inputs: Vec<&Path> = vec![project, &source];
+    inputs.extend(manifests.iter().map(|m| m.as_path()));
+    crate::output::check_file(output, "-o", force, &inputs)?;
+    crate::fsutil::write_atomic(output, text.as_bytes())?;
+    Ok(output.to_path_buf())
+}

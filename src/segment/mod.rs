@@ -311,3 +311,61 @@ pub fn write_mask(dir: &Path, image_name: &str, mask: &Mat) -> Result<String> {
     crate::fsutil::write_atomic(&dir.join(&name), &bytes)?;
     Ok(name)
 }
+
+/// What [`segment_file`] wrote.
+pub struct SegmentReport {
+    /// Fraction of the image's pixels the mask hides.
+    pub hidden_fraction: f64,
+    /// Network time for the image in milliseconds.
+    pub network_ms: f64,
+}
+
+/// Segments one image file: writes its mask (PNG: hidden 0, kept 255, the image's size) to
+/// `output` and, when asked, a colour preview of the classes to `overlay` (PNG or JPEG by its
+/// extension). Outputs are checked first: never an input (the image, the description, the
+/// network files it names), replaced only with `force`.
+pub fn segment_file(
+    settings: &MaskSettings,
+    image_path: &Path,
+    output: &Path,
+    overlay: Option<&Path>,
+    force: bool,
+) -> Result<SegmentReport> {
+    use crate::manifest::Format;
+    let desc = ModelDesc::load(&settings.model)?;
+    let mut inputs: Vec<&Path> = vec![image_path, &settings.model, &desc.model];
+    if let Some(c) = &desc.config {
+        inputs.push(c);
+    }
+    crate::output::check_file(output, "-o", force, &inputs)?;
+    if let Some(o) = overlay {
+        crate::output::check_file(o, "--overlay", force, &inputs)?;
+        if crate::output::resolve(o) == crate::output::resolve(output) {
+            return Err(Error::param("overlay", "must differ from the mask output"));
+        }
+    }
+    let mut seg = Segmenter::new(settings)?;
+    let image = opencv::imgcodecs::imread(
+        image_path.to_str().unwrap_or_default(),
+        opencv::imgcodecs::IMREAD_COLOR,
+    )
+    .map_err(|e| Error::input(image_path, e.message))?;
+    if image.empty() {
+        return Err(Error::input(image_path, "not a readable image"));
+    }
+    let maps = seg.classify(std::slice::from_ref(&image))?;
+    let size = (image.cols() as u32, image.rows() as u32);
+    let mask = seg.mask(&maps[0], size)?;
+    crate::fsutil::write_atomic(output, &crate::encode::encode(&mask, Format::Png, 100)?)?;
+    if let Some(o) = overlay {
+        let ov = seg.overlay(&image, &maps[0])?;
+        let png = o.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+        let format = if png { Format::Png } else { Format::Jpg };
+        crate::fsutil::write_atomic(o, &crate::encode::encode(&ov, format, 90)?)?;
+    }
+    let kept = opencv::core::count_non_zero(&mask).map_err(|e| Error::input(output, e.message))?;
+    Ok(SegmentReport {
+        hidden_fraction: 1.0 - kept as f64 / (f64::from(size.0) * f64::from(size.1)),
+        network_ms: seg.ms_per_image().unwrap_or(0.0),
+    })
+}

@@ -203,3 +203,39 @@ pub fn scan(source: &mut dyn FrameSource, mut progress: impl FnMut(usize)) -> Re
         damaged: source.damaged_frames(),
     })
 }
+
+/// What `probe` found: the input's metadata (frame count counted by decoding when asked or when
+/// the container gives none) and the decode problems met while counting.
+#[derive(Debug, Clone)]
+pub struct Probe {
+    /// Metadata; `frame_count_exact` says whether the count was decoded.
+    pub metadata: Metadata,
+    /// Damaged frames and where decoding stopped early, as messages.
+    pub problems: Vec<String>,
+}
+
+/// Opens `input` and reads its metadata; with `exact` (or a container without a frame count)
+/// counts the frames by decoding them all, reporting the count to `progress`.
+pub fn probe(
+    input: &Path,
+    options: &OpenOptions,
+    exact: bool,
+    progress: impl FnMut(usize),
+) -> Result<Probe> {
+    let mut src = open(input, options)?;
+    let mut metadata = src.metadata().clone();
+    let mut problems = Vec::new();
+    if exact || (metadata.frame_count == 0 && !metadata.frame_count_exact) {
+        let scan = scan(src.as_mut(), progress)?;
+        metadata.frame_count = scan.frame_count;
+        metadata.frame_count_exact = true;
+        if let (Some(ts), Some(fps)) = (&scan.timestamps_s, metadata.fps) {
+            if let (Some(f), Some(l)) = (ts.first(), ts.last()) {
+                metadata.duration_s = Some(l - f + 1.0 / fps);
+            }
+        }
+        problems.extend(scan.damaged.into_iter().map(|(_, m)| m));
+        problems.extend(scan.failure.map(|(_, m)| m));
+    }
+    Ok(Probe { metadata, problems })
+}
