@@ -191,6 +191,16 @@ impl Project {
         }
         let n = self.metadata.frame_count;
         self.validate_metadata()?;
+        self.validate_selection(n)?;
+        self.validate_timestamps(n)?;
+        self.validate_sharpness(n)?;
+        self.validate_movement(n)?;
+        self.validate_stationary(n)?;
+        self.validate_history(n)
+    }
+
+    /// Keyframes, damaged frames and boundaries: within the input, sorted and distinct.
+    fn validate_selection(&self, n: usize) -> std::result::Result<(), (String, String)> {
         for (i, w) in self.keyframes.windows(2).enumerate() {
             if w[0] >= w[1] {
                 return Err((
@@ -229,6 +239,11 @@ impl Project {
                 }
             }
         }
+        Ok(())
+    }
+
+    /// One finite, strictly increasing timestamp per frame.
+    fn validate_timestamps(&self, n: usize) -> std::result::Result<(), (String, String)> {
         if let Some(ts) = &self.cache.timestamps_s {
             if ts.len() != n {
                 return Err((
@@ -253,6 +268,11 @@ impl Project {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// Sharpness series: a positive analysis size, one finite non-negative score per frame.
+    fn validate_sharpness(&self, n: usize) -> std::result::Result<(), (String, String)> {
         for (i, series) in self.cache.sharpness.iter().enumerate() {
             let at = |k: &str| format!("cache.sharpness[{i}].{k}");
             if series.width == 0 || series.height == 0 {
@@ -281,6 +301,11 @@ impl Project {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// Movement series: a valid request, positive sizes and scale, one value per frame.
+    fn validate_movement(&self, n: usize) -> std::result::Result<(), (String, String)> {
         for (i, m) in self.cache.movement.iter().enumerate() {
             let at = |k: &str| format!("cache.movement[{i}].{k}");
             validate_request(&m.request).map_err(|(k, msg)| (at(&format!("request.{k}")), msg))?;
@@ -316,6 +341,11 @@ impl Project {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// Stationary runs: a valid request and parameters, keyframes of the input.
+    fn validate_stationary(&self, n: usize) -> std::result::Result<(), (String, String)> {
         for (i, r) in self.cache.stationary.iter().enumerate() {
             let at = |k: &str| format!("cache.stationary[{i}].{k}");
             validate_request(&r.request).map_err(|(k, msg)| (at(&format!("request.{k}")), msg))?;
@@ -345,6 +375,11 @@ impl Project {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// History entries: known plugins with parameters in range (see `validate_step`).
+    fn validate_history(&self, n: usize) -> std::result::Result<(), (String, String)> {
         for (i, step) in self.history.iter().enumerate() {
             validate_step(step, n).map_err(|(k, msg)| {
                 let field = if k.is_empty() {

@@ -567,49 +567,10 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
         // The rate given with --images-fps is the folder's rate in the metadata.
         analysis.images_fps = p.metadata.fps;
     }
-    let mut export = Vec::new();
-    for dir in exports {
-        let m = crate::manifest::read_manifest(&dir.join(crate::manifest::MANIFEST)).ok_or_else(
-            || {
-                Error::input(
-                    dir,
-                    "no readable manifest.json: not a keyframer export folder",
-                )
-            },
-        )?;
-        let s = &m.settings;
-        export.push(Export {
-            name: dir
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "export".into()),
-            format: s.format.map(|f| f.ext().to_string()),
-            quality: Some(s.quality),
-            resize: match s.resize {
-                Some(crate::manifest::Resize::Size { width, height }) => {
-                    Some(format!("{width}x{height}"))
-                }
-                _ => None,
-            },
-            scale: match s.resize {
-                Some(crate::manifest::Resize::Scale(f)) => Some(f),
-                _ => None,
-            },
-            crop: s
-                .crop
-                .map(|c| format!("{},{},{},{}", c.x, c.y, c.width, c.height)),
-            masks: s.masks.as_ref().map(|mk| Masks {
-                model: crate::fsutil::absolute(&mk.model),
-                classes: mk.classes.clone(),
-                dilate: Some(mk.dilate),
-                backend: Some(match mk.backend {
-                    crate::segment::SegRuntime::Opencv => "opencv".into(),
-                    crate::segment::SegRuntime::Ort => "ort".into(),
-                }),
-                overlay: Some(mk.overlay),
-            }),
-        });
-    }
+    let export = exports
+        .iter()
+        .map(|dir| export_from_folder(dir))
+        .collect::<Result<Vec<_>>>()?;
     let wf = RawFile {
         version: VERSION,
         analysis: (analysis != Analysis::default()).then_some(analysis),
@@ -639,6 +600,49 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
          # Run it with: keyframer run THIS.toml INPUT... --out DIR\n{body}",
         project.display()
     ))
+}
+
+/// The `[[export]]` that repeats the export in `dir` (read from its manifest).
+fn export_from_folder(dir: &Path) -> Result<Export> {
+    let m =
+        crate::manifest::read_manifest(&dir.join(crate::manifest::MANIFEST)).ok_or_else(|| {
+            Error::input(
+                dir,
+                "no readable manifest.json: not a keyframer export folder",
+            )
+        })?;
+    let s = &m.settings;
+    Ok(Export {
+        name: dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "export".into()),
+        format: s.format.map(|f| f.ext().to_string()),
+        quality: Some(s.quality),
+        resize: match s.resize {
+            Some(crate::manifest::Resize::Size { width, height }) => {
+                Some(format!("{width}x{height}"))
+            }
+            _ => None,
+        },
+        scale: match s.resize {
+            Some(crate::manifest::Resize::Scale(f)) => Some(f),
+            _ => None,
+        },
+        crop: s
+            .crop
+            .map(|c| format!("{},{},{},{}", c.x, c.y, c.width, c.height)),
+        masks: s.masks.as_ref().map(|mk| Masks {
+            model: crate::fsutil::absolute(&mk.model),
+            classes: mk.classes.clone(),
+            dilate: Some(mk.dilate),
+            backend: Some(match mk.backend {
+                crate::segment::SegRuntime::Opencv => "opencv".into(),
+                crate::segment::SegRuntime::Ort => "ort".into(),
+            }),
+            overlay: Some(mk.overlay),
+        }),
+    })
 }
 
 /// `workflow save`: the workflow of [`from_project`], checked to load (in memory) before it is
