@@ -43,7 +43,7 @@ pub enum Error {
         msg: String,
     },
 
-    /// A sampler or transform refused its input or parameters.
+    /// A step (sampler, export masks) refused its input or parameters.
     #[error("plugin `{plugin}`: {msg}")]
     Plugin { plugin: &'static str, msg: String },
 

@@ -67,7 +67,7 @@ pub fn render(info: &Info) -> String {
             s += &format!(
                 "gpu adapter: {} ({}, {}{})\n  driver: {}\n  limits: storage binding {} MiB, buffer {} MiB, {} invocations/workgroup, {} workgroups/dim, {} KiB workgroup storage\n",
                 a.name,
-                a.backend,
+                a.graphics_api,
                 a.device_type,
                 if a.software { ", software" } else { "" },
                 a.driver,
@@ -81,7 +81,10 @@ pub fn render(info: &Info) -> String {
         Err(e) => s += &format!("gpu adapter: none ({e}); analysis uses the opencv backend\n"),
     }
     for a in &info.adapters {
-        s += &format!("  found: {} ({}, {})\n", a.name, a.backend, a.device_type);
+        s += &format!(
+            "  found: {} ({}, {})\n",
+            a.name, a.graphics_api, a.device_type
+        );
     }
     s += &format!("opencv: {}\n", info.opencv_version);
     s += &format!(

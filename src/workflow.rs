@@ -18,7 +18,7 @@ pub const VERSION: u32 = 1;
 /// `[analysis]`: how frames are analysed (shared by every sampler).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Analysis {
+pub struct AnalysisSection {
     /// `gpu` (default) or `opencv`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub backend: Option<String>,
@@ -51,13 +51,13 @@ pub struct Analysis {
     pub hfov: Option<f64>,
     /// Farnebäck parameters.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub farneback: Option<Farneback>,
+    pub farneback: Option<FarnebackSection>,
 }
 
 /// `[analysis.farneback]`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Farneback {
+pub struct FarnebackSection {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pyr_scale: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -120,7 +120,7 @@ pub struct WorkflowFile {
     /// Format version; must be [`VERSION`].
     pub version: u32,
     /// `[analysis]`.
-    pub analysis: Option<Analysis>,
+    pub analysis: Option<AnalysisSection>,
     /// `[[sample]]` steps in order.
     pub sample: Vec<Step>,
     /// `[[export]]`s.
@@ -133,7 +133,7 @@ pub struct WorkflowFile {
 struct RawFile {
     version: u32,
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    analysis: Option<Analysis>,
+    analysis: Option<AnalysisSection>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     sample: Vec<toml::Table>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -343,7 +343,7 @@ fn check_steps(file: &TomlFile<RawFile>, steps: &[Step]) -> Result<()> {
 }
 
 /// `[analysis]` as a movement request: the flags' defaults for what is not given.
-fn movement_request(an: &Analysis) -> Result<MovementRequest> {
+fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
     let d = FarnebackParams::default();
     let fb = an.farneback.clone().unwrap_or_default();
     let statistic = match an.movement.as_deref() {
@@ -508,7 +508,7 @@ fn export_settings(
 }
 
 /// `[analysis]` keys that reproduce the movement measure `req`.
-fn record_movement(analysis: &mut Analysis, req: &MovementRequest) {
+fn record_movement(analysis: &mut AnalysisSection, req: &MovementRequest) {
     analysis.analysis_width = Some(req.analysis_width);
     analysis.flow_stride = Some(req.stride);
     let (name, trim) = req.statistic.to_flag();
@@ -519,7 +519,7 @@ fn record_movement(analysis: &mut Analysis, req: &MovementRequest) {
         analysis.hfov = Some(d.hfov_deg);
     }
     let f = req.farneback;
-    analysis.farneback = Some(Farneback {
+    analysis.farneback = Some(FarnebackSection {
         pyr_scale: Some(f.pyr_scale),
         levels: Some(f.levels),
         winsize: Some(f.winsize),
@@ -541,7 +541,7 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
         field: "history".into(),
         msg,
     };
-    let mut analysis = Analysis::default();
+    let mut analysis = AnalysisSection::default();
     let mut sample = Vec::new();
     for (k, entry) in p.history.iter().enumerate() {
         // Project::load checked every entry.
@@ -573,7 +573,7 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
         .collect::<Result<Vec<_>>>()?;
     let wf = RawFile {
         version: VERSION,
-        analysis: (analysis != Analysis::default()).then_some(analysis),
+        analysis: (analysis != AnalysisSection::default()).then_some(analysis),
         sample: sample
             .iter()
             .map(|(k, s)| {

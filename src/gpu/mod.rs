@@ -29,8 +29,9 @@ pub struct GpuContext {
 pub struct AdapterSummary {
     /// Adapter name, e.g. `llvmpipe (LLVM 15.0.6, 256 bits)`.
     pub name: String,
-    /// Graphics API backend (Vulkan, Metal, Dx12, Gl).
-    pub backend: String,
+    /// Graphics API (Vulkan, Metal, Dx12, Gl); `backend` in `info --json`, as wgpu names it.
+    #[serde(rename = "backend")]
+    pub graphics_api: String,
     /// Discrete, integrated, virtual, CPU or other.
     pub device_type: String,
     /// True for software rasterisers (device type CPU).
@@ -76,7 +77,7 @@ pub fn adapters() -> Vec<wgpu::Adapter> {
 pub fn summarize(info: &wgpu::AdapterInfo, limits: &wgpu::Limits) -> AdapterSummary {
     AdapterSummary {
         name: info.name.clone(),
-        backend: format!("{:?}", info.backend),
+        graphics_api: format!("{:?}", info.backend),
         device_type: format!("{:?}", info.device_type),
         software: info.device_type == wgpu::DeviceType::Cpu,
         driver: format!("{} {}", info.driver, info.driver_info)

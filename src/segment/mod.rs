@@ -1,4 +1,4 @@
-//! The `segment` transform: runs a semantic segmentation network (OpenCV DNN or ONNX Runtime) on
+//! Segmentation masks: runs a semantic segmentation network (OpenCV DNN or ONNX Runtime) on
 //! images and turns the classes the user hides into COLMAP masks (hidden 0, kept 255), checking
 //! the model against its description before any frame is touched.
 

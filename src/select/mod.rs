@@ -235,7 +235,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
         s,
         &OpenOptions {
             images_fps: s.images_fps,
-            keyframes: None,
+            codec_keyframes: None,
         },
     )?;
     report.project.save(&s.output, true)?;
@@ -274,7 +274,7 @@ pub(crate) fn manual_step(
 /// Analyses (or reuses the cache) and runs the sampler chain; returns the project unsaved. A
 /// keyframe-only source (`open.keyframes`) never reuses or checkpoints a cache.
 pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectReport> {
-    let full = open.keyframes.is_none();
+    let full = open.codec_keyframes.is_none();
     let (kind, fingerprint) = identify(&s.input)?;
     check_outputs(s)?;
     let project_dir = fsutil::absolute(&s.output)

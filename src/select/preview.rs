@@ -8,14 +8,14 @@ use super::{self as select, SelectReport, SelectSettings};
 use crate::error::{Error, Result};
 use crate::project::Cache;
 use crate::samplers::{Bound, Boundaries};
-use crate::source::keyframes::{self, KeyframeIndex};
+use crate::source::codec_keyframes::{self, CodecKeyframeIndex};
 use crate::source::{OpenOptions, SourceKind};
 use crate::steps::{Applied, BoundArg, Step};
 use std::sync::Arc;
 
 /// Translates frame-index bounds into positions in the keyframe sequence (times stay times:
 /// keyframes carry the video's timestamps).
-pub fn keyframe_bounds(b: &Boundaries, index: &KeyframeIndex) -> Result<Boundaries> {
+pub fn keyframe_bounds(b: &Boundaries, index: &CodecKeyframeIndex) -> Result<Boundaries> {
     let k = &index.keyframes;
     let start = match b.start {
         Some(Bound::Frame(i)) => {
@@ -63,7 +63,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
             );
         }
     }
-    let index = Arc::new(keyframes::probe(&s.input)?);
+    let index = Arc::new(codec_keyframes::probe(&s.input)?);
     let (n_key, n_all) = (index.keyframes.len(), index.frame_count());
     if n_key == n_all {
         log::warn!(
@@ -101,7 +101,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     };
     let open = OpenOptions {
         images_fps: None,
-        keyframes: Some(index.clone()),
+        codec_keyframes: Some(index.clone()),
     };
     let mut report = select::build(&inner, &open)?;
     let p = &mut report.project;
@@ -138,8 +138,8 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
 mod tests {
     use super::*;
 
-    fn index() -> KeyframeIndex {
-        KeyframeIndex {
+    fn index() -> CodecKeyframeIndex {
+        CodecKeyframeIndex {
             timestamps_s: (0..30).map(|i| i as f64 / 10.0).collect(),
             keyframes: vec![0, 10, 20],
         }

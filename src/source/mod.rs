@@ -1,8 +1,8 @@
 //! Frame sources: videos (OpenCV VideoCapture) and image folders behind one streaming interface.
 //! Frames are produced one at a time in index order, so memory stays bounded on any input length.
 
+pub mod codec_keyframes;
 mod images;
-pub mod keyframes;
 mod natural;
 mod video;
 
@@ -100,7 +100,7 @@ pub struct OpenOptions {
     pub images_fps: Option<f64>,
     /// Decode only these codec keyframes of a video (`select --preview`); the source's frame `j`
     /// is the `j`-th keyframe.
-    pub keyframes: Option<std::sync::Arc<keyframes::KeyframeIndex>>,
+    pub codec_keyframes: Option<std::sync::Arc<codec_keyframes::CodecKeyframeIndex>>,
 }
 
 /// Opens a video file, an image file or a folder of images.
@@ -109,7 +109,7 @@ pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
         std::io::ErrorKind::NotFound => Error::input(path, "no such file or folder"),
         _ => Error::io(path, e),
     })?;
-    if opts.keyframes.is_some() && (meta.is_dir() || is_image_name(path)) {
+    if opts.codec_keyframes.is_some() && (meta.is_dir() || is_image_name(path)) {
         return Err(Error::input(
             path,
             "the keyframe-only preview needs a video (images have no codec keyframes)",
@@ -121,8 +121,8 @@ pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
     if is_image_name(path) {
         return Ok(Box::new(ImageSource::open_single(path, opts.images_fps)?));
     }
-    if let Some(index) = &opts.keyframes {
-        return Ok(Box::new(keyframes::KeyframeSource::open(
+    if let Some(index) = &opts.codec_keyframes {
+        return Ok(Box::new(codec_keyframes::CodecKeyframeSource::open(
             path,
             index.clone(),
         )?));

@@ -2,7 +2,7 @@
 //! UTF-8, and the keyframe-only preview on AVI and on cut-short streams.
 
 use crate::common::*;
-use keyframer::source::keyframes::{probe, KeyframeSource};
+use keyframer::source::codec_keyframes::{probe, CodecKeyframeSource};
 use keyframer::source::FrameSource;
 use opencv::core::{self, Mat};
 use opencv::imgcodecs;
@@ -166,7 +166,7 @@ fn rotated_videos_decode_as_ffmpeg_shows_them() {
 
         // The preview path decodes with ffmpeg: its first keyframe is the same picture.
         let index = Arc::new(probe(&v).unwrap());
-        let mut src = KeyframeSource::open(&v, index).unwrap();
+        let mut src = CodecKeyframeSource::open(&v, index).unwrap();
         let first = src.next_frame().unwrap().unwrap().image;
         let pv = psnr(&first, &want);
         assert!(pv >= 30.0, "rotate={deg}: preview vs ffmpeg {pv:.1} dB");

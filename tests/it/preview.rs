@@ -1,7 +1,7 @@
 //! `select --preview`: keyframe-only decode, mapped back to the video's frame indices.
 
 use crate::common::*;
-use keyframer::source::keyframes::{probe, KeyframeSource};
+use keyframer::source::codec_keyframes::{probe, CodecKeyframeSource};
 use keyframer::source::{FrameSource, VideoSource};
 use opencv::core::{self, Mat};
 use std::path::{Path, PathBuf};
@@ -76,7 +76,7 @@ fn keyframe_source_frames_are_the_video_frames_at_the_mapped_indices() {
     for (a, b) in ts.iter().zip(&index.timestamps_s) {
         assert!((a - b).abs() < 1e-3, "timestamps {a} vs {b}");
     }
-    let mut src = KeyframeSource::open(&v, index.clone()).unwrap();
+    let mut src = CodecKeyframeSource::open(&v, index.clone()).unwrap();
     assert_eq!(src.metadata().frame_count, 9);
     let mut n = 0;
     while let Some(f) = src.next_frame().unwrap() {

@@ -1,7 +1,7 @@
 //! Keyframe-only decode for `select --preview`: `ffprobe` lists the video's packets (which ones
 //! the codec marks as keyframes, every frame's presentation time), `ffmpeg -skip_frame nokey`
 //! decodes only those keyframes. The source yields them in order as a short sequence whose frame
-//! `j` is the `j`-th codec keyframe; [`KeyframeIndex`] maps it back to the video's frame indices.
+//! `j` is the `j`-th codec keyframe; [`CodecKeyframeIndex`] maps it back to the video's frame indices.
 //! Frames are streamed from the decoder's pipe one at a time, so memory stays bounded.
 
 use super::{Frame, FrameSource, Metadata, VideoSource};
@@ -14,14 +14,14 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 
 /// Which frames of a video the codec can decode on their own, from its packet list.
 #[derive(Debug, Clone, PartialEq)]
-pub struct KeyframeIndex {
+pub struct CodecKeyframeIndex {
     /// Presentation time of every frame in display order, seconds from the first frame.
     pub timestamps_s: Vec<f64>,
     /// Display-order indices of the codec keyframes, ascending.
     pub keyframes: Vec<usize>,
 }
 
-impl KeyframeIndex {
+impl CodecKeyframeIndex {
     /// Number of frames in the video.
     pub fn frame_count(&self) -> usize {
         self.timestamps_s.len()
@@ -42,7 +42,7 @@ fn missing_tool(tool: &str, e: std::io::Error) -> Error {
 /// index. A packet's time is its presentation time, or its decode time when the container
 /// stores none (AVI: only B-frames carry a pts; there display order is decode order). Packets
 /// with neither are skipped; order is by that time (stable: ties keep the packet order).
-pub fn parse_packets(path: &Path, text: &str) -> Result<KeyframeIndex> {
+pub fn parse_packets(path: &Path, text: &str) -> Result<CodecKeyframeIndex> {
     let mut packets: Vec<(f64, bool)> = Vec::new();
     let mut untimed = 0usize;
     for (n, line) in text.lines().enumerate() {
@@ -84,7 +84,7 @@ pub fn parse_packets(path: &Path, text: &str) -> Result<KeyframeIndex> {
     }
     packets.sort_by(|a, b| a.0.total_cmp(&b.0));
     let t0 = packets[0].0;
-    Ok(KeyframeIndex {
+    Ok(CodecKeyframeIndex {
         timestamps_s: packets.iter().map(|p| p.0 - t0).collect(),
         keyframes: packets
             .iter()
@@ -95,7 +95,7 @@ pub fn parse_packets(path: &Path, text: &str) -> Result<KeyframeIndex> {
 }
 
 /// Lists the packets of `path`'s first video stream with `ffprobe` (demuxing only, no decode).
-pub fn probe(path: &Path) -> Result<KeyframeIndex> {
+pub fn probe(path: &Path) -> Result<CodecKeyframeIndex> {
     let out = Command::new("ffprobe")
         .args([
             "-v",
@@ -130,10 +130,10 @@ pub fn probe(path: &Path) -> Result<KeyframeIndex> {
 }
 
 /// The codec keyframes of a video, decoded by `ffmpeg` and read from its pipe.
-pub struct KeyframeSource {
+pub struct CodecKeyframeSource {
     path: PathBuf,
     meta: Metadata,
-    index: std::sync::Arc<KeyframeIndex>,
+    index: std::sync::Arc<CodecKeyframeIndex>,
     child: Child,
     pipe: ChildStdout,
     next: usize,
@@ -141,10 +141,10 @@ pub struct KeyframeSource {
     failure: Option<(usize, String)>,
 }
 
-impl KeyframeSource {
+impl CodecKeyframeSource {
     /// Starts decoding the keyframes of `path` listed in `index`. Size and rotation come from
     /// OpenCV (as in a full decode); `ffmpeg` applies the same rotation.
-    pub fn open(path: &Path, index: std::sync::Arc<KeyframeIndex>) -> Result<Self> {
+    pub fn open(path: &Path, index: std::sync::Arc<CodecKeyframeIndex>) -> Result<Self> {
         let full = VideoSource::open(path)?.metadata().clone();
         let mut child = Command::new("ffmpeg")
             .args(["-nostdin", "-v", "error", "-skip_frame", "nokey", "-i"])
@@ -182,7 +182,7 @@ impl KeyframeSource {
             frame_count_exact: true,
             ..full
         };
-        Ok(KeyframeSource {
+        Ok(CodecKeyframeSource {
             path: path.to_path_buf(),
             meta,
             index,
@@ -208,14 +208,14 @@ impl KeyframeSource {
     }
 }
 
-impl Drop for KeyframeSource {
+impl Drop for CodecKeyframeSource {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
 }
 
-impl FrameSource for KeyframeSource {
+impl FrameSource for CodecKeyframeSource {
     fn path(&self) -> &Path {
         &self.path
     }
