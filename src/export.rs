@@ -159,7 +159,7 @@ pub fn export(
     let is_video = meta.kind == SourceKind::Video;
     let names = output_names(&project, src.as_ref(), settings, is_video)?;
     let network = match &settings.masks {
-        Some(m) => Some(crate::segment::desc::ModelDesc::load(&m.model)?.model),
+        Some(m) => Some(crate::model_desc::ModelDesc::load(&m.model)?.model),
         None => None,
     };
     let mut inputs: Vec<&Path> = vec![project_path, &input];

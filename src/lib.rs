@@ -18,6 +18,7 @@ pub mod gpu;
 pub mod info;
 pub mod kernels;
 pub mod manifest;
+pub mod model_desc;
 pub mod native;
 pub mod output;
 pub mod params;

@@ -4,9 +4,9 @@
 
 use crate::error::{Error, Result};
 use crate::manifest::{ExportSettings, Format};
+use crate::manifest::{MaskSettings, SegRuntime};
 use crate::params::{Backend, Derotate, FarnebackParams, MovementRequest, Statistic};
 use crate::project::Project;
-use crate::segment::{MaskSettings, SegRuntime};
 use crate::steps::{Applied, Step};
 use crate::tomlfile::{self, TomlFile};
 use serde::{Deserialize, Serialize};
@@ -258,7 +258,7 @@ impl Workflow {
         for (i, e) in w.export.iter().enumerate() {
             let settings = export_settings(&file, w, i, e)?;
             if let Some(m) = &settings.masks {
-                let desc = crate::segment::desc::ModelDesc::load(&m.model)
+                let desc = crate::model_desc::ModelDesc::load(&m.model)
                     .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
                 desc.class_ids(&m.classes).map_err(|e| {
                     let msg = match e {
@@ -637,8 +637,8 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             classes: mk.classes.clone(),
             dilate: Some(mk.dilate),
             backend: Some(match mk.backend {
-                crate::segment::SegRuntime::Opencv => "opencv".into(),
-                crate::segment::SegRuntime::Ort => "ort".into(),
+                SegRuntime::Opencv => "opencv".into(),
+                SegRuntime::Ort => "ort".into(),
             }),
             overlay: Some(mk.overlay),
         }),

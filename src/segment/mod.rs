@@ -2,7 +2,7 @@
 //! images and turns the classes the user hides into COLMAP masks (hidden 0, kept 255), checking
 //! the model against its description before any frame is touched.
 
-pub mod desc;
+pub use crate::model_desc as desc;
 pub mod dnn;
 pub mod onnx;
 #[cfg(feature = "onnx")]

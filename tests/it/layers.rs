@@ -135,6 +135,59 @@ fn cycle_from(g: &BTreeMap<String, BTreeSet<String>>, start: &str) -> Option<Vec
     walk(g, start, start, &mut path, &mut BTreeSet::new()).then_some(path)
 }
 
+/// The library's layers, top to bottom, as README's Architecture section draws them: a module may
+/// import modules of its own layer or below, never above.
+const LAYERS: [(&str, &[&str]); 4] = [
+    (
+        "commands",
+        &[
+            "select",
+            "export",
+            "batch",
+            "colmap",
+            "eval",
+            "report",
+            "bench",
+            "bench_pipeline",
+            "flow",
+            "info",
+        ],
+    ),
+    (
+        "engines",
+        &["analysis", "kernels", "gpu", "segment", "encode", "native"],
+    ),
+    (
+        "formats",
+        &[
+            "project",
+            "workflow",
+            "manifest",
+            "model_desc",
+            "steps",
+            "params",
+            "samplers",
+            "flo",
+        ],
+    ),
+    (
+        "base",
+        &[
+            "source",
+            "error",
+            "output",
+            "fsutil",
+            "tomlfile",
+            "progress",
+            "synthetic",
+        ],
+    ),
+];
+
+fn layer_of(module: &str) -> Option<usize> {
+    LAYERS.iter().position(|(_, ms)| ms.contains(&module))
+}
+
 /// Every module `from` imports, directly or through others.
 fn reachable(g: &BTreeMap<String, BTreeSet<String>>, from: &str) -> BTreeSet<String> {
     let mut seen = BTreeSet::new();
@@ -164,7 +217,7 @@ fn the_import_graph_finds_groups_and_paths() {
 }
 
 #[test]
-fn library_modules_import_in_one_direction_and_clap_stays_in_the_binary() {
+fn library_layers_point_down_without_cycles_and_clap_stays_in_the_binary() {
     let (g, clap_in_library) = graph();
     assert!(g.len() > 20, "read too few modules: {:?}", g.keys());
     assert!(
@@ -177,6 +230,30 @@ fn library_modules_import_in_one_direction_and_clap_stays_in_the_binary() {
         .map(|c| c.join(" -> "))
         .collect();
     assert!(cycles.is_empty(), "import cycles:\n{}", cycles.join("\n"));
+    let mut upward = Vec::new();
+    for (m, deps) in &g {
+        let Some(at) = layer_of(m) else {
+            upward.push(format!(
+                "{m} is in no layer (add it to LAYERS and the README)"
+            ));
+            continue;
+        };
+        for d in deps {
+            match layer_of(d) {
+                Some(l) if l < at => upward.push(format!(
+                    "{m} ({}) imports {d} ({})",
+                    LAYERS[at].0, LAYERS[l].0
+                )),
+                Some(_) => {}
+                None => upward.push(format!("{d} is in no layer")),
+            }
+        }
+    }
+    assert!(
+        upward.is_empty(),
+        "imports pointing up:\n{}",
+        upward.join("\n")
+    );
     for format in ["project", "workflow", "manifest", "steps", "params"] {
         let reached = reachable(&g, format);
         let engines: Vec<&str> = ["gpu", "kernels", "analysis", "select", "export"]
