@@ -141,9 +141,7 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize) -> Result<Vec<FlowRow>> {
                 gpu.load(to, &frames[to])?;
                 gpu.flow_between(from, to)?;
             }
-            ctx.device
-                .poll(wgpu::PollType::wait_indefinitely())
-                .map_err(|e| crate::Error::Gpu(e.to_string()))?;
+            ctx.wait()?;
             let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
             rows.push(FlowRow {
                 width: w,

@@ -22,6 +22,9 @@ pub struct GpuContext {
     /// The limits the device was created with.
     pub limits: wgpu::Limits,
     pipelines: Mutex<HashMap<String, Arc<wgpu::ComputePipeline>>>,
+    /// Validation errors and device loss wgpu reported outside any error scope (wgpu's default
+    /// handler would panic); [`GpuContext::check`] turns them into an error.
+    faults: Arc<Mutex<Vec<String>>>,
 }
 
 /// Facts about one adapter, for `keyframer info`.
@@ -147,13 +150,48 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| Error::Gpu(format!("cannot create a device on {}: {e}", info.name)))?;
+        let faults = Arc::new(Mutex::new(Vec::new()));
+        let sink = faults.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| record(&sink, e.to_string())));
+        let sink = faults.clone();
+        device.set_device_lost_callback(move |reason, msg| {
+            record(&sink, format!("device lost ({reason:?}): {msg}"))
+        });
         Ok(GpuContext {
             device,
             queue,
             info,
             limits,
             pipelines: Mutex::new(HashMap::new()),
+            faults,
         })
+    }
+
+    /// An error naming the first fault wgpu reported on this device since it was made (a
+    /// validation error or the device's loss), if any: results read after a fault cannot be
+    /// trusted. Called after every wait for the device.
+    pub fn check(&self) -> Result<()> {
+        let faults = self
+            .faults
+            .lock()
+            .map_err(|_| Error::Gpu("fault list lock poisoned".into()))?;
+        match faults.first() {
+            None => Ok(()),
+            Some(first) => Err(Error::Gpu(format!(
+                "the GPU device on {} reported an error ({} in all); its results are not used: {}",
+                self.info.name,
+                faults.len(),
+                first.lines().next().unwrap_or_default()
+            ))),
+        }
+    }
+
+    /// Waits until the device has finished the submitted work, then [`GpuContext::check`]s it.
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("device poll failed: {e}")))?;
+        self.check()
     }
 
     /// Summary of the adapter and the device limits.
@@ -276,9 +314,7 @@ impl GpuContext {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("device poll failed: {e}")))?;
+        self.wait()?;
         rx.recv()
             .map_err(|_| Error::Gpu("readback callback dropped".into()))?
             .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?;
@@ -288,6 +324,16 @@ impl GpuContext {
             .to_vec();
         staging.unmap();
         Ok(out)
+    }
+}
+
+/// Keeps the first few faults (the first one explains the rest).
+fn record(faults: &Mutex<Vec<String>>, msg: String) {
+    if let Ok(mut f) = faults.lock() {
+        if f.len() < 8 {
+            log::debug!("gpu fault: {msg}");
+            f.push(msg);
+        }
     }
 }
 

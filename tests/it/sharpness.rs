@@ -245,3 +245,25 @@ fn device_gray_resized_matches_opencv() {
         }
     }
 }
+
+/// A validation error on the device (here a buffer usage wgpu forbids) is caught by the context,
+/// not wgpu's default handler (which panics): the next wait for the device returns an error that
+/// says so, and a fresh context is unaffected.
+#[test]
+fn gpu_faults_are_errors_not_panics() {
+    let ctx = ctx();
+    let good = ctx.storage_buffer("good", 16);
+    assert!(ctx.read_back(&good, 16).is_ok());
+    let _bad = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("map-read storage, forbidden"),
+        size: 16,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::STORAGE,
+        mapped_at_creation: false,
+    });
+    let err = ctx.read_back(&good, 16).unwrap_err().to_string();
+    assert!(err.contains("reported an error"), "{err}");
+    assert!(err.contains(&ctx.info.name), "{err}");
+    assert!(ctx.check().is_err());
+    let fresh = super::sharpness::ctx();
+    assert!(fresh.read_back(&fresh.storage_buffer("b", 4), 4).is_ok());
+}
