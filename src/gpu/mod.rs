@@ -337,28 +337,44 @@ fn record(faults: &Mutex<Vec<String>>, msg: String) {
     }
 }
 
-/// Resolves the requested backend: `gpu` without a usable adapter warns once and returns
-/// `opencv`. Returns the context when the gpu backend is used.
+/// Resolves the requested backend: `gpu` without a usable adapter warns and returns `opencv`.
+/// Returns the context when the gpu backend is used: one per process and adapter, shared by
+/// every stage, worker and `run` job (pipelines compile once; a context that reported a fault
+/// is replaced).
 pub fn resolve_backend(
     requested: Backend,
     adapter: Option<&str>,
 ) -> (Backend, Option<Arc<GpuContext>>) {
     match requested {
         Backend::Opencv => (Backend::Opencv, None),
-        Backend::Gpu => match GpuContext::new(adapter) {
-            Ok(ctx) => {
-                log::info!(
-                    "gpu backend on {} ({:?}, {:?})",
-                    ctx.info.name,
-                    ctx.info.backend,
-                    ctx.info.device_type
-                );
-                (Backend::Gpu, Some(Arc::new(ctx)))
-            }
+        Backend::Gpu => match shared(adapter) {
+            Ok(ctx) => (Backend::Gpu, Some(ctx)),
             Err(e) => {
                 log::warn!("{e}; falling back to the opencv backend");
                 (Backend::Opencv, None)
             }
         },
     }
+}
+
+/// The process's context for `adapter` (see [`resolve_backend`]).
+fn shared(adapter: Option<&str>) -> Result<Arc<GpuContext>> {
+    static SHARED: Mutex<Vec<(Option<String>, Arc<GpuContext>)>> = Mutex::new(Vec::new());
+    let key = adapter.map(str::to_string);
+    let mut list = SHARED
+        .lock()
+        .map_err(|_| Error::Gpu("context list lock poisoned".into()))?;
+    list.retain(|(_, c)| c.check().is_ok());
+    if let Some((_, c)) = list.iter().find(|(k, _)| *k == key) {
+        return Ok(c.clone());
+    }
+    let ctx = Arc::new(GpuContext::new(adapter)?);
+    log::info!(
+        "gpu backend on {} ({:?}, {:?})",
+        ctx.info.name,
+        ctx.info.backend,
+        ctx.info.device_type
+    );
+    list.push((key, ctx.clone()));
+    Ok(ctx)
 }
