@@ -9,12 +9,13 @@ use crate::analysis::{self, MovementRequest, Request, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu::{self, Backend};
+use crate::params::Metric;
 use crate::project::{
     Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
     SCHEMA_VERSION,
 };
 use crate::samplers::{self, Boundaries};
-use crate::source::{self, OpenOptions, SourceKind};
+use crate::source::{self, Metadata, OpenOptions, SourceKind};
 use crate::steps::{Applied, Step};
 use std::path::{Path, PathBuf};
 
@@ -275,119 +276,25 @@ pub(crate) fn manual_step(
 /// keyframe-only source (`open.keyframes`) never reuses or checkpoints a cache.
 pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectReport> {
     let full = open.codec_keyframes.is_none();
-    let (kind, fingerprint) = identify(&s.input)?;
+    let input_ref = input_ref(s)?;
     check_outputs(s)?;
-    let project_dir = fsutil::absolute(&s.output)
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_default();
-    let input_ref = InputRef {
-        path: fsutil::relative_to(&s.input, &project_dir),
-        kind,
-        fingerprint,
-    };
-
-    let reusable = s
-        .output
-        .exists()
-        .then(|| Project::load(&s.output).ok())
-        .flatten()
-        .filter(|p| full && !p.preview && p.input == input_ref);
-    let metrics: Vec<_> = s
-        .steps
-        .iter()
-        .filter_map(|b| b.blur_params())
-        .map(|b| b.metric)
-        .collect();
     let boundaries = s.boundaries();
-    let mut decoded = false;
-    let (mut cached_meta, mut cache, mut problems, mut damaged) = match reusable {
-        Some(p) => (
-            Some(p.metadata),
-            p.cache,
-            p.decode_problems,
-            p.damaged_frames,
-        ),
-        None => (None, Cache::default(), Vec::new(), Vec::new()),
-    };
-    let uses_seconds = [boundaries.start, boundaries.end]
-        .iter()
-        .any(|b| matches!(b, Some(samplers::Bound::Seconds(_))));
-    if s.stationary().is_some() && cached_meta.is_none() && uses_seconds {
-        // The stationary sampler runs during decoding and needs its frame range first.
-        let a = analysis::analyse(
-            &s.input,
-            open,
-            &Request::default(),
-            Backend::Opencv,
-            None,
-            s.quiet,
-        )?;
-        cache.timestamps_s = a.timestamps_s;
-        problems = a.problems;
-        damaged = a.damaged;
-        cached_meta = Some(a.metadata);
-        decoded = true;
-    }
-    let mut proposals = Vec::new();
-    let wants_auto_stationary = matches!(s.stationary(), Some((Some(Threshold::Auto), _)));
-    let mut stationary_setting = s.stationary().map(|(t, reset_delta)| Stationary {
-        threshold: match t {
-            Some(Threshold::Px(v)) => Some(v),
-            _ => None,
-        },
-        reset_delta,
-    });
-    let mut spacing = match s.spacing() {
-        Some(Threshold::Px(v)) => Some(v),
-        _ => None,
-    };
-    if wants_auto_stationary || s.spacing() == Some(Threshold::Auto) {
-        let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
-        let sample =
-            analysis::sample_movement(&s.input, open, s.movement, 40, backend, ctx.as_ref())?;
-        let meta = match &cached_meta {
-            Some(m) => m.clone(),
-            None => source::open(&s.input, open)?.metadata().clone(),
-        };
-        if wants_auto_stationary {
-            let p = samplers::auto::stationary_threshold(&sample);
-            if let Some(st) = stationary_setting.as_mut() {
-                st.threshold = Some(p.threshold);
-            }
-            proposals.push(format!("stationary --auto: {}", p.explanation));
-        }
-        if s.spacing() == Some(Threshold::Auto) {
-            let p = samplers::auto::spacing_threshold(&sample, meta.width, meta.frame_count);
-            spacing = Some(p.threshold);
-            proposals.push(format!("spacing auto: {}", p.explanation));
-        }
-    }
-    let stationary_req = match stationary_setting {
-        Some(st) => {
-            let meta = match &cached_meta {
-                Some(m) => m.clone(),
-                None => source::open(&s.input, open)?.metadata().clone(),
-            };
-            Some(stationary_request(st, &boundaries, &meta, &cache)?)
-        }
+    let mut known = Known::from_project(s, full, &input_ref);
+    known.scan_for_times(s, open, &boundaries)?;
+    let auto = AutoThresholds::find(s, open, &known)?;
+    let stationary_req = match auto.stationary {
+        Some(st) => Some(stationary_request(
+            st,
+            &boundaries,
+            &known.metadata(s, open)?,
+            &known.cache,
+        )?),
         None => None,
     };
-    let missing: Vec<_> = match &cached_meta {
-        Some(m) => metrics
-            .iter()
-            .copied()
-            .filter(|&k| cache.sharpness(k, m.width, m.height).is_none())
-            .collect(),
-        None => metrics.clone(),
-    };
-    let need_series = s.spacing().is_some() && cache.movement(&s.movement).is_none();
-    let need_stationary =
-        stationary_req.is_some_and(|st| cache.stationary(&s.movement, &st).is_none());
-    let complete = missing.is_empty() && !need_series && !need_stationary;
-    let metadata = match cached_meta {
-        Some(m) if complete => {
-            if !decoded {
+    let plan = Plan::of(s, &known, stationary_req);
+    let metadata = match known.metadata.take() {
+        Some(m) if plan.is_empty() => {
+            if !known.decoded {
                 log::info!(
                     "reusing the frame data cached in {} (input unchanged; nothing decoded)",
                     s.output.display()
@@ -395,86 +302,63 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
             }
             m
         }
-        cached => {
-            let wants_pixels = !missing.is_empty() || need_series || need_stationary;
-            let (backend, ctx) = if wants_pixels {
-                gpu::resolve_backend(s.backend, s.adapter.as_deref())
-            } else {
-                (Backend::Opencv, None)
-            };
-            let resume = analysis::Resume {
-                path: checkpoint_path(&s.output),
-                fingerprint: input_ref.fingerprint.clone(),
-                every_s: s.checkpoint_every_s,
-            };
-            let a = analysis::analyse_with(
-                &s.input,
-                open,
-                &Request {
-                    sharpness: missing,
-                    movement: (need_series || need_stationary).then_some(s.movement),
-                    stationary: if need_stationary {
-                        stationary_req
-                    } else {
-                        None
-                    },
-                },
-                backend,
-                ctx.as_ref(),
-                s.quiet,
-                full.then_some(&resume),
-            )?;
-            if cached.is_some_and(|m| m.frame_count != a.metadata.frame_count) {
-                log::warn!(
-                    "the input decodes to a different frame count than cached; cache replaced"
-                );
-                cache = Cache::default();
-            }
-            for (metric, scores) in a.sharpness {
-                cache.sharpness.push(SharpnessSeries {
-                    metric,
-                    width: a.metadata.width,
-                    height: a.metadata.height,
-                    backend: a.backend,
-                    scores,
-                });
-            }
-            if let Some(series) = a.movement {
-                cache.movement.retain(|m| m.request != s.movement);
-                cache.movement.push(MovementCache {
-                    request: s.movement,
-                    backend: a.backend,
-                    series,
-                });
-            }
-            if let (Some(keys), Some(mut st)) = (a.stationary, stationary_req) {
-                st.last = st.last.min(a.metadata.frame_count.saturating_sub(1));
-                cache.stationary.push(StationaryCache {
-                    request: s.movement,
-                    params: st,
-                    backend: a.backend,
-                    keyframes: keys,
-                });
-            }
-            if cache.timestamps_s.is_none() {
-                cache.timestamps_s = a.timestamps_s;
-            }
-            problems = a.problems;
-            damaged = a.damaged;
-            decoded = true;
-            a.metadata
-        }
+        cached => known.analyse(s, open, &plan, cached, full.then(|| resume(s, &input_ref)))?,
     };
-
     let chain = Chain {
         s,
-        cache: &cache,
+        cache: &known.cache,
         metadata: &metadata,
-        stationary: stationary_setting,
-        spacing,
-        auto_stationary: wants_auto_stationary,
+        stationary: auto.stationary,
+        spacing: auto.spacing,
+        auto_stationary: auto.wants_auto_stationary,
     };
-    let (mut keys, history) = chain.apply(&damaged)?;
+    let (keys, history) = chain.apply(&known.damaged)?;
+    let keys = drop_damaged(s, keys, &known.damaged);
+    let project = Project {
+        schema_version: SCHEMA_VERSION,
+        tool_version: env!("CARGO_PKG_VERSION").into(),
+        input: input_ref,
+        metadata,
+        boundaries,
+        keyframes: keys,
+        history,
+        cache: known.cache,
+        decode_problems: known.problems,
+        damaged_frames: known.damaged,
+        preview: false,
+    };
+    Ok(SelectReport {
+        project,
+        decoded: known.decoded,
+        proposals: auto.proposals,
+    })
+}
+
+/// The project's reference to its input: kind, fingerprint and a path relative to the project.
+fn input_ref(s: &SelectSettings) -> Result<InputRef> {
+    let (kind, fingerprint) = identify(&s.input)?;
+    let project_dir = fsutil::absolute(&s.output)
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    Ok(InputRef {
+        path: fsutil::relative_to(&s.input, &project_dir),
+        kind,
+        fingerprint,
+    })
+}
+
+/// Where a running analysis keeps its checkpoint.
+fn resume(s: &SelectSettings, input: &InputRef) -> analysis::Resume {
+    analysis::Resume {
+        path: checkpoint_path(&s.output),
+        fingerprint: input.fingerprint.clone(),
+        every_s: s.checkpoint_every_s,
+    }
+}
+
+/// Keyframes without the damaged frames blur replace or `--add` may have moved there.
+fn drop_damaged(s: &SelectSettings, mut keys: Vec<usize>, damaged: &[usize]) -> Vec<usize> {
     let before = keys.len();
     keys.retain(|k| damaged.binary_search(k).is_err());
     if keys.len() < before {
@@ -484,25 +368,254 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
             before - keys.len()
         );
     }
+    keys
+}
 
-    let project = Project {
-        schema_version: SCHEMA_VERSION,
-        tool_version: env!("CARGO_PKG_VERSION").into(),
-        input: input_ref,
-        metadata,
-        boundaries,
-        keyframes: keys,
-        history,
-        cache,
-        decode_problems: problems,
-        damaged_frames: damaged,
-        preview: false,
-    };
-    Ok(SelectReport {
-        project,
-        decoded,
-        proposals,
-    })
+/// What is known of the input before this run decodes anything: the earlier project's metadata,
+/// cache and problems when it is for the same unchanged input (a full analysis only), and
+/// whether this run has decoded the input yet.
+struct Known {
+    metadata: Option<Metadata>,
+    cache: Cache,
+    problems: Vec<String>,
+    damaged: Vec<usize>,
+    decoded: bool,
+}
+
+impl Known {
+    fn from_project(s: &SelectSettings, full: bool, input: &InputRef) -> Known {
+        let reusable = s
+            .output
+            .exists()
+            .then(|| Project::load(&s.output).ok())
+            .flatten()
+            .filter(|p| full && !p.preview && p.input == *input);
+        match reusable {
+            Some(p) => Known {
+                metadata: Some(p.metadata),
+                cache: p.cache,
+                problems: p.decode_problems,
+                damaged: p.damaged_frames,
+                decoded: false,
+            },
+            None => Known {
+                metadata: None,
+                cache: Cache::default(),
+                problems: Vec::new(),
+                damaged: Vec::new(),
+                decoded: false,
+            },
+        }
+    }
+
+    /// The stationary sampler runs during decoding and needs its frame range first: with
+    /// boundaries in seconds and nothing cached, a scan gives the timestamps.
+    fn scan_for_times(
+        &mut self,
+        s: &SelectSettings,
+        open: &OpenOptions,
+        boundaries: &Boundaries,
+    ) -> Result<()> {
+        let uses_seconds = [boundaries.start, boundaries.end]
+            .iter()
+            .any(|b| matches!(b, Some(samplers::Bound::Seconds(_))));
+        if s.stationary().is_none() || self.metadata.is_some() || !uses_seconds {
+            return Ok(());
+        }
+        let a = analysis::analyse(
+            &s.input,
+            open,
+            &Request::default(),
+            Backend::Opencv,
+            None,
+            s.quiet,
+        )?;
+        self.cache.timestamps_s = a.timestamps_s;
+        self.problems = a.problems;
+        self.damaged = a.damaged;
+        self.metadata = Some(a.metadata);
+        self.decoded = true;
+        Ok(())
+    }
+
+    /// The input's metadata: cached, or read from its header.
+    fn metadata(&self, s: &SelectSettings, open: &OpenOptions) -> Result<Metadata> {
+        match &self.metadata {
+            Some(m) => Ok(m.clone()),
+            None => Ok(source::open(&s.input, open)?.metadata().clone()),
+        }
+    }
+
+    /// Runs the analysis `plan` asks for and merges it into the cache (replaced when the input
+    /// decodes to another frame count than `cached` says). Returns the decoded metadata.
+    fn analyse(
+        &mut self,
+        s: &SelectSettings,
+        open: &OpenOptions,
+        plan: &Plan,
+        cached: Option<Metadata>,
+        resume: Option<analysis::Resume>,
+    ) -> Result<Metadata> {
+        let (backend, ctx) = if plan.is_empty() {
+            (Backend::Opencv, None)
+        } else {
+            gpu::resolve_backend(s.backend, s.adapter.as_deref())
+        };
+        let a = analysis::analyse_with(
+            &s.input,
+            open,
+            &plan.request(s),
+            backend,
+            ctx.as_ref(),
+            s.quiet,
+            resume.as_ref(),
+        )?;
+        if cached.is_some_and(|m| m.frame_count != a.metadata.frame_count) {
+            log::warn!("the input decodes to a different frame count than cached; cache replaced");
+            self.cache = Cache::default();
+        }
+        self.merge(s, a, plan)
+    }
+
+    /// Adds what an analysis measured to the cache; returns its metadata.
+    fn merge(
+        &mut self,
+        s: &SelectSettings,
+        a: analysis::Analysis,
+        plan: &Plan,
+    ) -> Result<Metadata> {
+        let cache = &mut self.cache;
+        for (metric, scores) in a.sharpness {
+            cache.sharpness.push(SharpnessSeries {
+                metric,
+                width: a.metadata.width,
+                height: a.metadata.height,
+                backend: a.backend,
+                scores,
+            });
+        }
+        if let Some(series) = a.movement {
+            cache.movement.retain(|m| m.request != s.movement);
+            cache.movement.push(MovementCache {
+                request: s.movement,
+                backend: a.backend,
+                series,
+            });
+        }
+        if let (Some(keys), Some(mut st)) = (a.stationary, plan.stationary) {
+            st.last = st.last.min(a.metadata.frame_count.saturating_sub(1));
+            cache.stationary.push(StationaryCache {
+                request: s.movement,
+                params: st,
+                backend: a.backend,
+                keyframes: keys,
+            });
+        }
+        if cache.timestamps_s.is_none() {
+            cache.timestamps_s = a.timestamps_s;
+        }
+        self.problems = a.problems;
+        self.damaged = a.damaged;
+        self.decoded = true;
+        Ok(a.metadata)
+    }
+}
+
+/// The thresholds the steps use: given ones, or proposed from a sample of the movement for
+/// `--auto` / `--spacing auto` (with the explanations `select` prints).
+struct AutoThresholds {
+    stationary: Option<Stationary>,
+    spacing: Option<f64>,
+    wants_auto_stationary: bool,
+    proposals: Vec<String>,
+}
+
+impl AutoThresholds {
+    fn find(s: &SelectSettings, open: &OpenOptions, known: &Known) -> Result<AutoThresholds> {
+        let wants_auto_stationary = matches!(s.stationary(), Some((Some(Threshold::Auto), _)));
+        let mut t = AutoThresholds {
+            stationary: s.stationary().map(|(t, reset_delta)| Stationary {
+                threshold: match t {
+                    Some(Threshold::Px(v)) => Some(v),
+                    _ => None,
+                },
+                reset_delta,
+            }),
+            spacing: match s.spacing() {
+                Some(Threshold::Px(v)) => Some(v),
+                _ => None,
+            },
+            wants_auto_stationary,
+            proposals: Vec::new(),
+        };
+        let auto_spacing = s.spacing() == Some(Threshold::Auto);
+        if !(wants_auto_stationary || auto_spacing) {
+            return Ok(t);
+        }
+        let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
+        let sample =
+            analysis::sample_movement(&s.input, open, s.movement, 40, backend, ctx.as_ref())?;
+        let meta = known.metadata(s, open)?;
+        if wants_auto_stationary {
+            let p = samplers::auto::stationary_threshold(&sample);
+            if let Some(st) = t.stationary.as_mut() {
+                st.threshold = Some(p.threshold);
+            }
+            t.proposals
+                .push(format!("stationary --auto: {}", p.explanation));
+        }
+        if auto_spacing {
+            let p = samplers::auto::spacing_threshold(&sample, meta.width, meta.frame_count);
+            t.spacing = Some(p.threshold);
+            t.proposals.push(format!("spacing auto: {}", p.explanation));
+        }
+        Ok(t)
+    }
+}
+
+/// What the analysis must still measure: sharpness metrics the blur steps use and the cache
+/// lacks, the movement series for spacing, the stationary run.
+struct Plan {
+    missing: Vec<Metric>,
+    movement: bool,
+    stationary: Option<StationaryRequest>,
+}
+
+impl Plan {
+    fn of(s: &SelectSettings, known: &Known, stationary: Option<StationaryRequest>) -> Plan {
+        let metrics = s
+            .steps
+            .iter()
+            .filter_map(|b| b.blur_params())
+            .map(|b| b.metric);
+        let missing = match &known.metadata {
+            Some(m) => metrics
+                .filter(|&k| known.cache.sharpness(k, m.width, m.height).is_none())
+                .collect(),
+            None => metrics.collect(),
+        };
+        let cache = &known.cache;
+        let need_series = s.spacing().is_some() && cache.movement(&s.movement).is_none();
+        Plan {
+            missing,
+            movement: need_series,
+            stationary: stationary.filter(|st| cache.stationary(&s.movement, st).is_none()),
+        }
+    }
+
+    /// Nothing to measure: every series is cached (the metadata still needs a scan when none is
+    /// cached).
+    fn is_empty(&self) -> bool {
+        self.missing.is_empty() && !self.movement && self.stationary.is_none()
+    }
+
+    fn request(&self, s: &SelectSettings) -> Request {
+        Request {
+            sharpness: self.missing.clone(),
+            movement: (self.movement || self.stationary.is_some()).then_some(s.movement),
+            stationary: self.stationary,
+        }
+    }
 }
 
 /// The sampler chain over the analysed (or cached) input: `select`'s interpreter of its steps.
