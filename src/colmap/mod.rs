@@ -257,83 +257,10 @@ pub fn read_manifest(export: &Path) -> Result<Manifest> {
 
 /// Runs `keyframer colmap`; returns the record as written.
 pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
-    if a.overlap == 0 {
-        return Err(Error::param("overlap", "must be at least 1"));
-    }
-    if !model::CAMERA_MODELS.iter().any(|m| m.1 == a.camera_model) {
-        let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
-        return Err(Error::param(
-            "camera_model",
-            format!("`{}` is not one of {}", a.camera_model, names.join(", ")),
-        ));
-    }
-    mapper_keys(&a.mapper_option)?;
-    if let Some(params) = &a.camera_params {
-        camera_params(params)?;
-    }
+    check_settings(a)?;
     let colmap = locate()?;
-    let export = fsutil::absolute(&a.export);
-    let manifest = read_manifest(&export)?;
-    if manifest.frames.is_empty() {
-        return Err(Error::input(&export, "the export holds no images"));
-    }
-    let ws = fsutil::absolute(&a.output.clone().unwrap_or_else(|| export.join("colmap")));
-    let export_images = export.join(crate::export::IMAGE_DIR);
-    let export_masks = export.join(crate::export::MASK_DIR);
-    let manifest_path = export.join(MANIFEST);
-    crate::output::check_not_input(&ws, "-o", &[&export_images, &export_masks, &manifest_path])?;
-    if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
-        return Err(Error::param(
-            "output",
-            format!(
-                "the workspace {} must not be or contain the export folder {}",
-                ws.display(),
-                export.display()
-            ),
-        ));
-    }
-    for f in &manifest.frames {
-        let from = crate::export::image_path(&export, f);
-        if !from.is_file() {
-            return Err(Error::input(
-                &from,
-                "listed in the export's manifest but missing",
-            ));
-        }
-    }
-    let dir = prepare_workspace(&ws, a.force)?;
-    let images = ws.join("images");
-    let masks_dir = ws.join("masks");
-    let mut masks = 0;
-    let linked = (|| -> Result<()> {
-        std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
-        std::fs::create_dir_all(ws.join("logs")).map_err(|e| Error::io(ws.join("logs"), e))?;
-        for f in &manifest.frames {
-            link_or_copy(
-                &crate::export::image_path(&export, f),
-                &images.join(&f.file),
-            )?;
-            if let Some(m) = &f.mask {
-                if masks == 0 {
-                    std::fs::create_dir_all(&masks_dir).map_err(|e| Error::io(&masks_dir, e))?;
-                }
-                link_or_copy(
-                    &export_masks.join(m),
-                    &masks_dir.join(format!("{}.png", f.file)),
-                )?;
-                masks += 1;
-            }
-        }
-        Ok(())
-    })();
-    if let Err(e) = linked {
-        remove_ours(&ws, &ours_now(&ws));
-        if dir.is_new() {
-            dir.abandon();
-        }
-        return Err(e);
-    }
-    let has_masks = masks > 0;
+    let (export, manifest, ws) = check_export(a)?;
+    let masks = fill_workspace(&ws, &export, &manifest, a.force)?;
     let mut rec = Record {
         tool: "keyframer".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
@@ -365,139 +292,261 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
     rec.finished = false;
     write_record(&ws, &rec)?;
     rec.finished = true;
-    let result = (|| -> Result<()> {
-        write_project_ini(&runner, &mut rec, a, has_masks)?;
-        let db = ws.join("database.db");
-        let p = |p: &Path| p.display().to_string();
-        if !(a.sparse || a.dense) {
-            rec.stages
-                .push(runner.stage("database_creator", &[("--database_path", p(&db))])?);
-            return Ok(());
-        }
-        let gpu = if colmap.cuda { "1" } else { "0" };
-        let mut fe = vec![
-            ("--database_path", p(&db)),
-            ("--image_path", p(&images)),
-            ("--ImageReader.single_camera", "1".into()),
-            ("--ImageReader.camera_model", a.camera_model.clone()),
-            ("--SiftExtraction.use_gpu", gpu.into()),
-        ];
-        if has_masks {
-            fe.push(("--ImageReader.mask_path", p(&masks_dir)));
-        }
-        if let Some(n) = a.max_features {
-            fe.push(("--SiftExtraction.max_num_features", n.to_string()));
-        }
-        if let Some(params) = &a.camera_params {
-            fe.push(("--ImageReader.camera_params", params.clone()));
-        }
-        rec.stages.push(runner.stage("feature_extractor", &fe)?);
-        rec.matcher = Some(a.matcher);
-        let (name, mut args) = match a.matcher {
-            Matcher::Sequential => {
-                rec.overlap = Some(a.overlap);
-                (
-                    "sequential_matcher",
-                    vec![("--SequentialMatching.overlap", a.overlap.to_string())],
-                )
-            }
-            Matcher::Exhaustive => ("exhaustive_matcher", Vec::new()),
-        };
-        args.push(("--database_path", p(&db)));
-        args.push(("--SiftMatching.use_gpu", gpu.into()));
-        rec.stages.push(runner.stage(name, &args)?);
-        let sparse = ws.join("sparse");
-        std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
-        let mut margs = vec![
-            ("--database_path", p(&db)),
-            ("--image_path", p(&images)),
-            ("--output_path", p(&sparse)),
-        ];
-        let keys = mapper_keys(&a.mapper_option)?;
-        if a.camera_params.is_some() {
-            // Known intrinsics stay fixed unless a --mapper-option says otherwise.
-            for k in [
-                "--Mapper.ba_refine_focal_length",
-                "--Mapper.ba_refine_extra_params",
-            ] {
-                if !keys.iter().any(|(key, _)| key == k) {
-                    margs.push((k, "0".into()));
-                }
-            }
-        }
-        for (k, v) in &keys {
-            margs.push((k.as_str(), v.clone()));
-        }
-        rec.stages.push(runner.stage("mapper", &margs)?);
-        for dir in model::model_dirs(&sparse)? {
-            let (m, _) = model::read(&dir)?;
-            rec.models
-                .push(summarise(&m, &fsutil::relative_to(&dir, &ws)));
-        }
-        let Some(best) = largest(&rec.models) else {
-            return Err(Error::Colmap(format!(
-                "mapper made no model from {} images (see {})",
-                rec.images,
-                ws.join("logs/mapper.log").display()
-            )));
-        };
-        if !quiet {
-            for m in &rec.models {
-                eprintln!(
-                    "{}: {} of {} images registered, {} points",
-                    m.path, m.registered_images, rec.images, m.points3d
-                );
-            }
-        }
-        if a.dense {
-            let model_dir = ws.join(&best.path);
-            if !colmap.cuda {
-                return Err(Error::Colmap(format!(
-                    "dense reconstruction (patch_match_stereo) needs a CUDA build of COLMAP and {} is built without CUDA; \
-                     the sparse model is at {}; `colmap image_undistorter --image_path {} --input_path {} --output_path DIR` \
-                     prepares it for densifying elsewhere (e.g. OpenMVS)",
-                    colmap.bin.display(),
-                    model_dir.display(),
-                    images.display(),
-                    model_dir.display()
-                )));
-            }
-            let dense = ws.join("dense");
-            rec.stages.push(runner.stage(
-                "image_undistorter",
-                &[
-                    ("--image_path", p(&images)),
-                    ("--input_path", p(&model_dir)),
-                    ("--output_path", p(&dense)),
-                    ("--output_type", "COLMAP".into()),
-                ],
-            )?);
-            rec.stages.push(runner.stage(
-                "patch_match_stereo",
-                &[
-                    ("--workspace_path", p(&dense)),
-                    ("--workspace_format", "COLMAP".into()),
-                    ("--PatchMatchStereo.geom_consistency", "true".into()),
-                ],
-            )?);
-            rec.stages.push(runner.stage(
-                "stereo_fusion",
-                &[
-                    ("--workspace_path", p(&dense)),
-                    ("--workspace_format", "COLMAP".into()),
-                    ("--input_type", "geometric".into()),
-                    ("--output_path", p(&dense.join("fused.ply"))),
-                ],
-            )?);
-        }
-        Ok(())
-    })();
+    let result = run_stages(&runner, &mut rec, a);
     if let Err(e) = &result {
         rec.error = Some(e.to_string());
     }
     rec.files = ours_now(&ws);
     write_record(&ws, &rec)?;
     result.map(|()| rec)
+}
+
+/// The options COLMAP would otherwise refuse only after the workspace is made.
+fn check_settings(a: &ColmapSettings) -> Result<()> {
+    if a.overlap == 0 {
+        return Err(Error::param("overlap", "must be at least 1"));
+    }
+    if !model::CAMERA_MODELS.iter().any(|m| m.1 == a.camera_model) {
+        let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
+        return Err(Error::param(
+            "camera_model",
+            format!("`{}` is not one of {}", a.camera_model, names.join(", ")),
+        ));
+    }
+    mapper_keys(&a.mapper_option)?;
+    if let Some(params) = &a.camera_params {
+        camera_params(params)?;
+    }
+    Ok(())
+}
+
+/// The export (absolute), its manifest (every listed image present) and the workspace folder,
+/// which must be neither inside the export's files nor around the export.
+fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
+    let export = fsutil::absolute(&a.export);
+    let manifest = read_manifest(&export)?;
+    if manifest.frames.is_empty() {
+        return Err(Error::input(&export, "the export holds no images"));
+    }
+    let ws = fsutil::absolute(&a.output.clone().unwrap_or_else(|| export.join("colmap")));
+    let export_images = export.join(crate::export::IMAGE_DIR);
+    let export_masks = export.join(crate::export::MASK_DIR);
+    let manifest_path = export.join(MANIFEST);
+    crate::output::check_not_input(&ws, "-o", &[&export_images, &export_masks, &manifest_path])?;
+    if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
+        return Err(Error::param(
+            "output",
+            format!(
+                "the workspace {} must not be or contain the export folder {}",
+                ws.display(),
+                export.display()
+            ),
+        ));
+    }
+    for f in &manifest.frames {
+        let from = crate::export::image_path(&export, f);
+        if !from.is_file() {
+            return Err(Error::input(
+                &from,
+                "listed in the export's manifest but missing",
+            ));
+        }
+    }
+    Ok((export, manifest, ws))
+}
+
+/// Prepares the workspace (replacing only keyframer's own content) and links or copies the
+/// export's images and masks into `images/` and `masks/`; on failure removes what it made.
+/// Returns the number of masks.
+fn fill_workspace(ws: &Path, export: &Path, manifest: &Manifest, force: bool) -> Result<usize> {
+    let dir = prepare_workspace(ws, force)?;
+    let images = ws.join("images");
+    let masks_dir = ws.join("masks");
+    let export_masks = export.join(crate::export::MASK_DIR);
+    let mut masks = 0;
+    let linked = (|| -> Result<()> {
+        std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
+        std::fs::create_dir_all(ws.join("logs")).map_err(|e| Error::io(ws.join("logs"), e))?;
+        for f in &manifest.frames {
+            link_or_copy(&crate::export::image_path(export, f), &images.join(&f.file))?;
+            if let Some(m) = &f.mask {
+                if masks == 0 {
+                    std::fs::create_dir_all(&masks_dir).map_err(|e| Error::io(&masks_dir, e))?;
+                }
+                link_or_copy(
+                    &export_masks.join(m),
+                    &masks_dir.join(format!("{}.png", f.file)),
+                )?;
+                masks += 1;
+            }
+        }
+        Ok(())
+    })();
+    if let Err(e) = linked {
+        remove_ours(ws, &ours_now(ws));
+        if dir.is_new() {
+            dir.abandon();
+        }
+        return Err(e);
+    }
+    Ok(masks)
+}
+
+/// `project.ini`, then the database alone, or the sparse stages (and the dense ones).
+fn run_stages(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
+    let ws = runner.ws;
+    write_project_ini(runner, rec, a, rec.masks > 0)?;
+    let db = ws.join("database.db");
+    if !(a.sparse || a.dense) {
+        rec.stages
+            .push(runner.stage("database_creator", &[("--database_path", p(&db))])?);
+        return Ok(());
+    }
+    extract_and_match(runner, rec, a)?;
+    let best = map(runner, rec, a)?;
+    if a.dense {
+        densify(runner, rec, &ws.join(&best))?;
+    }
+    Ok(())
+}
+
+/// A path as a COLMAP argument.
+fn p(path: &Path) -> String {
+    path.display().to_string()
+}
+
+/// `feature_extractor` (with the masks and known intrinsics) and the chosen matcher.
+fn extract_and_match(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
+    let ws = runner.ws;
+    let db = ws.join("database.db");
+    let gpu = if runner.colmap.cuda { "1" } else { "0" };
+    let mut fe = vec![
+        ("--database_path", p(&db)),
+        ("--image_path", p(&ws.join("images"))),
+        ("--ImageReader.single_camera", "1".into()),
+        ("--ImageReader.camera_model", a.camera_model.clone()),
+        ("--SiftExtraction.use_gpu", gpu.into()),
+    ];
+    if rec.masks > 0 {
+        fe.push(("--ImageReader.mask_path", p(&ws.join("masks"))));
+    }
+    if let Some(n) = a.max_features {
+        fe.push(("--SiftExtraction.max_num_features", n.to_string()));
+    }
+    if let Some(params) = &a.camera_params {
+        fe.push(("--ImageReader.camera_params", params.clone()));
+    }
+    rec.stages.push(runner.stage("feature_extractor", &fe)?);
+    rec.matcher = Some(a.matcher);
+    let (name, mut args) = match a.matcher {
+        Matcher::Sequential => {
+            rec.overlap = Some(a.overlap);
+            (
+                "sequential_matcher",
+                vec![("--SequentialMatching.overlap", a.overlap.to_string())],
+            )
+        }
+        Matcher::Exhaustive => ("exhaustive_matcher", Vec::new()),
+    };
+    args.push(("--database_path", p(&db)));
+    args.push(("--SiftMatching.use_gpu", gpu.into()));
+    rec.stages.push(runner.stage(name, &args)?);
+    Ok(())
+}
+
+/// The `mapper` (known intrinsics kept fixed unless a mapper option says otherwise); records
+/// every model and returns the largest one's path, relative to the workspace.
+fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> {
+    let ws = runner.ws;
+    let sparse = ws.join("sparse");
+    std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
+    let mut margs = vec![
+        ("--database_path", p(&ws.join("database.db"))),
+        ("--image_path", p(&ws.join("images"))),
+        ("--output_path", p(&sparse)),
+    ];
+    let keys = mapper_keys(&a.mapper_option)?;
+    if a.camera_params.is_some() {
+        for k in [
+            "--Mapper.ba_refine_focal_length",
+            "--Mapper.ba_refine_extra_params",
+        ] {
+            if !keys.iter().any(|(key, _)| key == k) {
+                margs.push((k, "0".into()));
+            }
+        }
+    }
+    for (k, v) in &keys {
+        margs.push((k.as_str(), v.clone()));
+    }
+    rec.stages.push(runner.stage("mapper", &margs)?);
+    for dir in model::model_dirs(&sparse)? {
+        let (m, _) = model::read(&dir)?;
+        rec.models
+            .push(summarise(&m, &fsutil::relative_to(&dir, ws)));
+    }
+    let Some(best) = largest(&rec.models) else {
+        return Err(Error::Colmap(format!(
+            "mapper made no model from {} images (see {})",
+            rec.images,
+            ws.join("logs/mapper.log").display()
+        )));
+    };
+    if !runner.quiet {
+        for m in &rec.models {
+            eprintln!(
+                "{}: {} of {} images registered, {} points",
+                m.path, m.registered_images, rec.images, m.points3d
+            );
+        }
+    }
+    Ok(best.path.clone())
+}
+
+/// `image_undistorter`, `patch_match_stereo` and `stereo_fusion` on the model in `model_dir`
+/// (a CUDA build of COLMAP only; otherwise an error saying how to densify elsewhere).
+fn densify(runner: &Runner, rec: &mut Record, model_dir: &Path) -> Result<()> {
+    let (colmap, ws) = (runner.colmap, runner.ws);
+    let images = ws.join("images");
+    if !colmap.cuda {
+        return Err(Error::Colmap(format!(
+            "dense reconstruction (patch_match_stereo) needs a CUDA build of COLMAP and {} is built without CUDA; \
+             the sparse model is at {}; `colmap image_undistorter --image_path {} --input_path {} --output_path DIR` \
+             prepares it for densifying elsewhere (e.g. OpenMVS)",
+            colmap.bin.display(),
+            model_dir.display(),
+            images.display(),
+            model_dir.display()
+        )));
+    }
+    let dense = ws.join("dense");
+    rec.stages.push(runner.stage(
+        "image_undistorter",
+        &[
+            ("--image_path", p(&images)),
+            ("--input_path", p(model_dir)),
+            ("--output_path", p(&dense)),
+            ("--output_type", "COLMAP".into()),
+        ],
+    )?);
+    rec.stages.push(runner.stage(
+        "patch_match_stereo",
+        &[
+            ("--workspace_path", p(&dense)),
+            ("--workspace_format", "COLMAP".into()),
+            ("--PatchMatchStereo.geom_consistency", "true".into()),
+        ],
+    )?);
+    rec.stages.push(runner.stage(
+        "stereo_fusion",
+        &[
+            ("--workspace_path", p(&dense)),
+            ("--workspace_format", "COLMAP".into()),
+            ("--input_type", "geometric".into()),
+            ("--output_path", p(&dense.join("fused.ply"))),
+        ],
+    )?);
+    Ok(())
 }
 
 /// `KEY=VALUE` mapper options as (`--Mapper.KEY`, `VALUE`).
