@@ -188,21 +188,20 @@ pub fn export(
             crate::output::unique_suffix()
         ));
         std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
-        let r = write_staged(
-            &project,
-            &input,
-            src.as_mut(),
+        let job = Job {
+            project: &project,
+            input: &input,
             settings,
-            &names,
+            names: &names,
             size,
-            &staging,
-            masker.as_mut(),
             quiet,
-        )
-        .and_then(|(frames, missing)| {
-            commit(out, &staging, &ours, &frames)?;
-            Ok((frames, missing))
-        });
+        };
+        let r = write_staged(&job, src.as_mut(), &staging, masker.as_mut()).and_then(
+            |(frames, missing)| {
+                commit(out, &staging, &ours, &frames)?;
+                Ok((frames, missing))
+            },
+        );
         let _ = std::fs::remove_dir_all(&staging);
         r
     })();
@@ -419,15 +418,10 @@ fn check_targets(
 /// Decodes, transforms, encodes (or copies) and segments every keyframe into `staging`.
 #[allow(clippy::too_many_arguments)]
 fn write_staged(
-    project: &Project,
-    input: &Path,
+    job: &Job,
     src: &mut dyn source::FrameSource,
-    settings: &ExportSettings,
-    names: &[String],
-    size: (u32, u32),
     staging: &Path,
     mut masker: Option<&mut Masker>,
-    quiet: bool,
 ) -> Result<(Vec<ExportedFrame>, Vec<MissingFrame>)> {
     let images = staging.join(IMAGE_DIR);
     std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
@@ -435,118 +429,158 @@ fn write_staged(
         m.create_dirs(staging)?;
     }
     let is_video = src.metadata().kind == SourceKind::Video;
-    let timestamps = project.cache.timestamps_s.as_deref();
-    let bar = crate::progress::bar(project.keyframes.len() as u64, "export", quiet);
+    let bar = crate::progress::bar(job.project.keyframes.len() as u64, "export", job.quiet);
+    let r = if byte_copy(src, job.settings, is_video) {
+        copy_originals(job, src, &images, masker, &bar)
+    } else {
+        decode_and_encode(job, src, &images, masker, &bar)
+    };
+    bar.finish_and_clear();
+    r
+}
+
+/// The keyframes' image files copied byte for byte (nothing changes them), damaged ones listed
+/// as missing.
+fn copy_originals(
+    job: &Job,
+    src: &mut dyn source::FrameSource,
+    images: &Path,
+    mut masker: Option<&mut Masker>,
+    bar: &indicatif::ProgressBar,
+) -> Result<(Vec<ExportedFrame>, Vec<MissingFrame>)> {
+    let timestamps = job.project.cache.timestamps_s.as_deref();
     let mut frames = Vec::new();
     let mut missing = Vec::new();
-    let total = project.keyframes.len();
-    if byte_copy(src, settings, is_video) {
-        for (k, &index) in project.keyframes.iter().enumerate() {
-            let from = src
-                .file_of(index)
-                .ok_or_else(|| Error::Frame {
-                    path: input.to_path_buf(),
-                    index,
-                    msg: "no such image in the folder".into(),
-                })?
-                .to_path_buf();
-            // A damaged file is never copied (OpenCV would read a cut JPEG as grey-filled).
-            let damage = match src.damage_of(index) {
-                Some(why) => Some(why.to_string()),
-                None => source::check_image(&from).err().map(|why| {
-                    format!(
-                        "frame {index} ({}): damaged image: {why}",
-                        from.file_name().unwrap_or_default().to_string_lossy()
-                    )
-                }),
-            };
-            if let Some(reason) = damage {
-                missing.push(MissingFrame { index, reason });
-                bar.inc(1);
-                continue;
-            }
-            let name = &names[k];
-            fsutil::copy_atomic(&from, &images.join(name))?;
-            frames.push(ExportedFrame {
+    for (k, &index) in job.project.keyframes.iter().enumerate() {
+        let from = src
+            .file_of(index)
+            .ok_or_else(|| Error::Frame {
+                path: job.input.to_path_buf(),
                 index,
-                timestamp_s: timestamps.and_then(|t| t.get(index).copied()),
-                file: name.clone(),
-                mask: None,
-                overlay: None,
-            });
-            if let Some(m) = masker.as_deref_mut() {
-                let img = imgcodecs::imread(&from, imgcodecs::IMREAD_COLOR)
-                    .cv(|| format!("read {}", from.display()))?;
-                m.push(name.clone(), img, &mut frames)?;
-            }
+                msg: "no such image in the folder".into(),
+            })?
+            .to_path_buf();
+        // A damaged file is never copied (OpenCV would read a cut JPEG as grey-filled).
+        let damage = match src.damage_of(index) {
+            Some(why) => Some(why.to_string()),
+            None => source::check_image(&from).err().map(|why| {
+                format!(
+                    "frame {index} ({}): damaged image: {why}",
+                    from.file_name().unwrap_or_default().to_string_lossy()
+                )
+            }),
+        };
+        if let Some(reason) = damage {
+            missing.push(MissingFrame { index, reason });
             bar.inc(1);
+            continue;
         }
+        let name = &job.names[k];
+        fsutil::copy_atomic(&from, &images.join(name))?;
+        frames.push(ExportedFrame {
+            index,
+            timestamp_s: timestamps.and_then(|t| t.get(index).copied()),
+            file: name.clone(),
+            mask: None,
+            overlay: None,
+        });
         if let Some(m) = masker.as_deref_mut() {
+            let img = imgcodecs::imread(&from, imgcodecs::IMREAD_COLOR)
+                .cv(|| format!("read {}", from.display()))?;
+            m.push(name.clone(), img, &mut frames)?;
+        }
+        bar.inc(1);
+    }
+    if let Some(m) = masker {
+        m.flush(&mut frames)?;
+    }
+    Ok((frames, missing))
+}
+
+/// The keyframes decoded in one pass, cropped, resized and encoded; frames the input could not
+/// give are listed as missing with the reason.
+fn decode_and_encode(
+    job: &Job,
+    src: &mut dyn source::FrameSource,
+    images: &Path,
+    mut masker: Option<&mut Masker>,
+    bar: &indicatif::ProgressBar,
+) -> Result<(Vec<ExportedFrame>, Vec<MissingFrame>)> {
+    let timestamps = job.project.cache.timestamps_s.as_deref();
+    let total = job.project.keyframes.len();
+    let mut frames = Vec::new();
+    let mut missing = Vec::new();
+    let result = source::read_indices(src, &job.project.keyframes, |frame| {
+        let img = transform(&frame.image, job.settings, job.size)?;
+        // Damaged frames are never passed here: find this frame's name by its index.
+        let k = job.project
+            .keyframes
+            .binary_search(&frame.index)
+            .map_err(|_| Error::Frame {
+                path: job.input.to_path_buf(),
+                index: frame.index,
+                msg: "the source delivered a frame that was not asked for".into(),
+            })?;
+        let name = &job.names[k];
+        let fmt = if name.ends_with(".png") {
+            Format::Png
+        } else {
+            Format::Jpg
+        };
+        let bytes = encode(&img, fmt, job.settings.quality)?;
+        fsutil::write_atomic(&images.join(name), &bytes)?;
+        frames.push(ExportedFrame {
+            index: frame.index,
+            timestamp_s: frame
+                .timestamp_s
+                .or_else(|| timestamps.and_then(|t| t.get(frame.index).copied())),
+            file: name.clone(),
+            mask: None,
+            overlay: None,
+        });
+        if let Some(m) = masker.as_deref_mut() {
+            m.push(name.clone(), img, &mut frames)?;
+        }
+        bar.inc(1);
+        Ok(())
+    })
+    .and_then(|missing| {
+        if let Some(m) = masker {
             m.flush(&mut frames)?;
         }
-    } else {
-        let result = source::read_indices(src, &project.keyframes, |frame| {
-            let img = transform(&frame.image, settings, size)?;
-            // Damaged frames are never passed here: find this frame's name by its index.
-            let k = project
-                .keyframes
-                .binary_search(&frame.index)
-                .map_err(|_| Error::Frame {
-                    path: input.to_path_buf(),
-                    index: frame.index,
-                    msg: "the source delivered a frame that was not asked for".into(),
-                })?;
-            let name = &names[k];
-            let fmt = if name.ends_with(".png") {
-                Format::Png
-            } else {
-                Format::Jpg
-            };
-            let bytes = encode(&img, fmt, settings.quality)?;
-            fsutil::write_atomic(&images.join(name), &bytes)?;
-            frames.push(ExportedFrame {
-                index: frame.index,
-                timestamp_s: frame
-                    .timestamp_s
-                    .or_else(|| timestamps.and_then(|t| t.get(frame.index).copied())),
-                file: name.clone(),
-                mask: None,
-                overlay: None,
-            });
-            if let Some(m) = masker.as_deref_mut() {
-                m.push(name.clone(), img, &mut frames)?;
-            }
-            bar.inc(1);
-            Ok(())
-        })
-        .and_then(|missing| {
-            if let Some(m) = masker {
-                m.flush(&mut frames)?;
-            }
-            Ok(missing)
-        });
-        let not_read = result.map_err(|e| Error::Output {
-            path: input.to_path_buf(),
-            msg: format!(
-                "{e}; export stopped after {} of {total} images; nothing was written",
-                frames.len()
-            ),
-        })?;
-        let reason = src
-            .decode_failure()
-            .map(|(_, m)| m)
-            .unwrap_or_else(|| "the stream ended before this frame".into());
-        missing.extend(not_read.into_iter().map(|index| {
-            MissingFrame {
-                index,
-                reason: src
-                    .damage_of(index)
-                    .map_or_else(|| reason.clone(), str::to_string),
-            }
-        }));
-    }
-    bar.finish_and_clear();
+        Ok(missing)
+    });
+    let not_read = result.map_err(|e| Error::Output {
+        path: job.input.to_path_buf(),
+        msg: format!(
+            "{e}; export stopped after {} of {total} images; nothing was written",
+            frames.len()
+        ),
+    })?;
+    let reason = src
+        .decode_failure()
+        .map(|(_, m)| m)
+        .unwrap_or_else(|| "the stream ended before this frame".into());
+    missing.extend(not_read.into_iter().map(|index| {
+        MissingFrame {
+            index,
+            reason: src
+                .damage_of(index)
+                .map_or_else(|| reason.clone(), str::to_string),
+        }
+    }));
     Ok((frames, missing))
+}
+
+/// One export's fixed inputs, shared by its stages.
+struct Job<'a> {
+    project: &'a Project,
+    input: &'a Path,
+    settings: &'a ExportSettings,
+    /// The file name of each keyframe's image, in keyframe order.
+    names: &'a [String],
+    size: (u32, u32),
+    quiet: bool,
 }
 
 /// Moves the staged files into place and removes what the earlier manifest listed that this
