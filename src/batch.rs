@@ -273,20 +273,35 @@ fn process(
     report: &mut InputReport,
 ) -> Result<Status> {
     let done_path = folder.join(DONE);
-    if !s.force {
-        if let Some(done) = read_done(&done_path) {
-            let same_input = select::identify(input)
-                .map(|(_, f)| f == done.fingerprint)
-                .unwrap_or(false);
-            if done.workflow_hash == format!("{:016x}", w.hash) && same_input {
-                report.keyframes = done.report.keyframes;
-                report.exported = done.report.exported.clone();
-                return Ok(Status::Skipped);
-            }
-        }
+    if !s.force && finished_before(w, input, &done_path, report) {
+        return Ok(Status::Skipped);
     }
-    // A folder we did not make is never written into; one we made for this input is ours to
-    // redo; one recorded for another input needs --force.
+    claim_folder(input, folder, s.force)?;
+    let _ = std::fs::remove_file(&done_path);
+    select_and_export(w, input, folder, report)
+}
+
+/// Whether `done_path` records this workflow finished on this unchanged input (its counts are
+/// then copied into `report`).
+fn finished_before(w: &Workflow, input: &Path, done_path: &Path, report: &mut InputReport) -> bool {
+    let Some(done) = read_done(done_path) else {
+        return false;
+    };
+    let same_input = select::identify(input)
+        .map(|(_, f)| f == done.fingerprint)
+        .unwrap_or(false);
+    if done.workflow_hash == format!("{:016x}", w.hash) && same_input {
+        report.keyframes = done.report.keyframes;
+        report.exported = done.report.exported.clone();
+        return true;
+    }
+    false
+}
+
+/// Makes `folder` this input's run folder, or refuses: a folder keyframer did not make is never
+/// written into; one made for this input is redone; one recorded for another input needs
+/// `force`.
+fn claim_folder(input: &Path, folder: &Path, force: bool) -> Result<()> {
     let marker = Marker {
         tool: "keyframer run".into(),
         input: crate::output::resolve(input),
@@ -309,7 +324,7 @@ fn process(
                     msg: "exists and was not made by `keyframer run`; move it away".into(),
                 })
             }
-            Some(Some(other)) if other != marker.input && !s.force => {
+            Some(Some(other)) if other != marker.input && !force => {
                 return Err(Error::Output {
                     path: folder.to_path_buf(),
                     msg: format!(
@@ -318,7 +333,7 @@ fn process(
                     ),
                 })
             }
-            Some(None) if !s.force => {
+            Some(None) if !force => {
                 return Err(Error::Output {
                     path: folder.to_path_buf(),
                     msg: format!(
@@ -343,8 +358,16 @@ fn process(
             .map_err(|e| Error::io(tmp.join(MARKER), e))?;
         std::fs::rename(&tmp, folder).map_err(|e| Error::io(folder, e))?;
     }
-    let _ = std::fs::remove_file(&done_path);
+    Ok(())
+}
 
+/// The workflow's select, then each export, into `folder`.
+fn select_and_export(
+    w: &Workflow,
+    input: &Path,
+    folder: &Path,
+    report: &mut InputReport,
+) -> Result<Status> {
     let project = folder.join("project.json");
     let settings = select::SelectSettings::from_workflow(w, input, &project, true);
     let sel = select::select(&settings)?;

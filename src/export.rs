@@ -513,7 +513,8 @@ fn decode_and_encode(
     let result = source::read_indices(src, &job.project.keyframes, |frame| {
         let img = transform(&frame.image, job.settings, job.size)?;
         // Damaged frames are never passed here: find this frame's name by its index.
-        let k = job.project
+        let k = job
+            .project
             .keyframes
             .binary_search(&frame.index)
             .map_err(|_| Error::Frame {
