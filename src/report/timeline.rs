@@ -2,7 +2,8 @@
 //! stacked panels over the frame axis, drawn by plotters from one description ([`Timeline::draw`]) as SVG (HTML page) and as a PNG.
 
 use crate::error::{Error, Result};
-use crate::project::Project;
+use crate::params::Metric;
+use crate::project::{MovementCache, Project};
 use crate::samplers::{blur, spacing, BlurMode};
 use crate::steps::Applied;
 use plotters::coord::Shift;
@@ -134,33 +135,9 @@ impl Timeline {
             .candidates(n, cache.timestamps_s.as_deref())
             .ok()
             .and_then(|c| Some((*c.first()?, *c.last()?)));
-        // The recorded steps, typed (a project is validated when loaded, so every entry reads).
-        let applied: Vec<Applied> = project
-            .history
-            .iter()
-            .filter_map(|e| Applied::from_entry(e).ok())
-            .collect();
-        let last_blur = applied.iter().rev().find_map(|a| match a {
-            Applied::Blur {
-                metric,
-                mode,
-                ratio,
-                window,
-                ..
-            } => Some((*metric, *mode, *ratio, *window)),
-            _ => None,
-        });
-        let last_spacing = applied.iter().rev().find_map(|a| match a {
-            Applied::Spacing { threshold_px, .. } => Some(Some(*threshold_px)),
-            _ => None,
-        });
-        let last_stationary = applied.iter().rev().find_map(|a| match a {
-            Applied::Stationary { threshold_px, .. } => Some(*threshold_px),
-            _ => None,
-        });
+        let recorded = Recorded::of(project);
         let mut panels = Vec::new();
         let mut missing = Vec::new();
-
         let how = |what: &str| match project.preview {
             true => "a --preview project keeps no scores; a full select computes them".to_string(),
             false => format!("select with {what} computes them"),
@@ -168,110 +145,14 @@ impl Timeline {
         if cache.sharpness.is_empty() {
             missing.push(format!("sharpness scores ({})", how("--blur")));
         } else {
-            let several = cache.sharpness.len() > 1;
-            let mut curves = Vec::new();
-            for (i, s) in cache.sharpness.iter().enumerate() {
-                let metric = serde_json::to_value(s.metric).unwrap_or_default();
-                let peak = s.scores.iter().copied().fold(0.0f64, f64::max);
-                let scale = if several && peak > 0.0 {
-                    1.0 / peak
-                } else {
-                    1.0
-                };
-                let name = format!(
-                    "{} at {}x{}",
-                    metric.as_str().unwrap_or("sharpness"),
-                    s.width,
-                    s.height
-                );
-                curves.push(Curve {
-                    name: format!("sharpness: {name}"),
-                    rgb: SHARPNESS_RGB[i % SHARPNESS_RGB.len()],
-                    dashed: false,
-                    values: s.scores.iter().map(|v| v * scale).collect(),
-                });
-                let full_size =
-                    s.width == project.metadata.width && s.height == project.metadata.height;
-                let blur = last_blur.filter(|b| b.0 == Some(s.metric) && full_size);
-                if let (Some((_, mode, ratio, window)), Some((lo, hi))) = (blur, range) {
-                    if let (Some(BlurMode::Filter), Some(ratio), Some(window)) =
-                        (mode, ratio, window)
-                    {
-                        curves.push(Curve {
-                            name: format!("blur threshold: {ratio} x mean of ±{window} frames"),
-                            rgb: THRESHOLD_RGB[0],
-                            dashed: true,
-                            values: blur::threshold_series(
-                                &s.scores,
-                                lo,
-                                hi,
-                                window,
-                                ratio * scale,
-                            ),
-                        });
-                    }
-                }
-            }
-            panels.push(Panel {
-                title: if several {
-                    "Sharpness (each metric divided by its maximum)".into()
-                } else {
-                    "Sharpness".into()
-                },
-                unit: if several { "score / max" } else { "score" }.into(),
-                curves,
-            });
+            panels.push(sharpness_panel(project, &recorded, range));
         }
-
-        if let Some(m) = cache.movement.first() {
-            let v = &m.series.values;
-            panels.push(Panel {
-                title: format!(
-                    "Camera movement between consecutive frames ({:?} of the flow magnitudes{} at {} px width)",
-                    m.request.statistic,
-                    m.request.derotate.map_or(String::new(), |d| format!(
-                        " after subtracting the camera rotation, hfov {}°",
-                        d.hfov_deg
-                    )),
-                    m.request.analysis_width
-                ),
-                unit: "px".into(),
-                curves: vec![Curve {
-                    name: "movement from the previous frame".into(),
-                    rgb: MOVEMENT_RGB,
-                    dashed: false,
-                    values: v.clone(),
-                }],
-            });
-            let mut curves = vec![Curve {
-                name: "movement accumulated since the previous keyframe".into(),
-                rgb: ACCUMULATED_RGB,
-                dashed: false,
-                values: spacing::accumulated(v, &project.keyframes, range),
-            }];
-            for (id, threshold, rgb) in [
-                ("spacing", last_spacing, THRESHOLD_RGB[1]),
-                ("stationary", last_stationary, THRESHOLD_RGB[2]),
-            ] {
-                if let Some(t) = threshold.flatten() {
-                    curves.push(Curve {
-                        name: format!("{id} threshold {t:.1} px"),
-                        rgb,
-                        dashed: true,
-                        values: spacing::threshold_series(n, range, t),
-                    });
-                }
-            }
-            panels.push(Panel {
-                title: "Movement accumulated since the previous keyframe (spacing keeps a frame when it reaches its threshold)".into(),
-                unit: "px".into(),
-                curves,
-            });
-        } else {
-            missing.push(format!(
+        match cache.movement.first() {
+            Some(m) => panels.extend(movement_panels(project, m, &recorded, range)),
+            None => missing.push(format!(
                 "camera movement ({})",
                 how("--spacing or --stationary")
-            ));
+            )),
         }
         if cache.timestamps_s.is_none() {
             missing.push("timestamps (an image folder without --images-fps)".to_string());
@@ -539,6 +420,152 @@ impl Timeline {
         }
         Ok(())
     }
+}
+
+/// The thresholds the project's last recorded steps used (a project is validated when loaded,
+/// so every history entry reads as an `Applied`).
+struct Recorded {
+    blur: Option<RecordedBlur>,
+    spacing: Option<Option<f64>>,
+    stationary: Option<Option<f64>>,
+}
+
+/// A blur step's metric, mode, ratio and window as recorded.
+type RecordedBlur = (Option<Metric>, Option<BlurMode>, Option<f64>, Option<usize>);
+
+impl Recorded {
+    fn of(project: &Project) -> Recorded {
+        let applied: Vec<Applied> = project
+            .history
+            .iter()
+            .filter_map(|e| Applied::from_entry(e).ok())
+            .collect();
+        Recorded {
+            blur: applied.iter().rev().find_map(|a| match a {
+                Applied::Blur {
+                    metric,
+                    mode,
+                    ratio,
+                    window,
+                    ..
+                } => Some((*metric, *mode, *ratio, *window)),
+                _ => None,
+            }),
+            spacing: applied.iter().rev().find_map(|a| match a {
+                Applied::Spacing { threshold_px, .. } => Some(Some(*threshold_px)),
+                _ => None,
+            }),
+            stationary: applied.iter().rev().find_map(|a| match a {
+                Applied::Stationary { threshold_px, .. } => Some(*threshold_px),
+                _ => None,
+            }),
+        }
+    }
+}
+
+/// Every cached sharpness series (each divided by its maximum when there are several), with the
+/// blur threshold the last blur step used where it applies.
+fn sharpness_panel(project: &Project, r: &Recorded, range: Option<(usize, usize)>) -> Panel {
+    let cache = &project.cache;
+    let several = cache.sharpness.len() > 1;
+    let mut curves = Vec::new();
+    for (i, s) in cache.sharpness.iter().enumerate() {
+        let metric = serde_json::to_value(s.metric).unwrap_or_default();
+        let peak = s.scores.iter().copied().fold(0.0f64, f64::max);
+        let scale = if several && peak > 0.0 {
+            1.0 / peak
+        } else {
+            1.0
+        };
+        let name = format!(
+            "{} at {}x{}",
+            metric.as_str().unwrap_or("sharpness"),
+            s.width,
+            s.height
+        );
+        curves.push(Curve {
+            name: format!("sharpness: {name}"),
+            rgb: SHARPNESS_RGB[i % SHARPNESS_RGB.len()],
+            dashed: false,
+            values: s.scores.iter().map(|v| v * scale).collect(),
+        });
+        let full_size = s.width == project.metadata.width && s.height == project.metadata.height;
+        let blur = r.blur.filter(|b| b.0 == Some(s.metric) && full_size);
+        if let (Some((_, mode, ratio, window)), Some((lo, hi))) = (blur, range) {
+            if let (Some(BlurMode::Filter), Some(ratio), Some(window)) = (mode, ratio, window) {
+                curves.push(Curve {
+                    name: format!("blur threshold: {ratio} x mean of ±{window} frames"),
+                    rgb: THRESHOLD_RGB[0],
+                    dashed: true,
+                    values: blur::threshold_series(&s.scores, lo, hi, window, ratio * scale),
+                });
+            }
+        }
+    }
+    Panel {
+        title: if several {
+            "Sharpness (each metric divided by its maximum)".into()
+        } else {
+            "Sharpness".into()
+        },
+        unit: if several { "score / max" } else { "score" }.into(),
+        curves,
+    }
+}
+
+/// The movement between consecutive frames, and the movement accumulated since the previous
+/// keyframe with the spacing and stationary thresholds.
+fn movement_panels(
+    project: &Project,
+    m: &MovementCache,
+    r: &Recorded,
+    range: Option<(usize, usize)>,
+) -> [Panel; 2] {
+    let n = project.metadata.frame_count;
+    let v = &m.series.values;
+    let movement = Panel {
+        title: format!(
+            "Camera movement between consecutive frames ({:?} of the flow magnitudes{} at {} px width)",
+            m.request.statistic,
+            m.request.derotate.map_or(String::new(), |d| format!(
+                " after subtracting the camera rotation, hfov {}°",
+                d.hfov_deg
+            )),
+            m.request.analysis_width
+        ),
+        unit: "px".into(),
+        curves: vec![Curve {
+            name: "movement from the previous frame".into(),
+            rgb: MOVEMENT_RGB,
+            dashed: false,
+            values: v.clone(),
+        }],
+    };
+    let mut curves = vec![Curve {
+        name: "movement accumulated since the previous keyframe".into(),
+        rgb: ACCUMULATED_RGB,
+        dashed: false,
+        values: spacing::accumulated(v, &project.keyframes, range),
+    }];
+    for (id, threshold, rgb) in [
+        ("spacing", r.spacing, THRESHOLD_RGB[1]),
+        ("stationary", r.stationary, THRESHOLD_RGB[2]),
+    ] {
+        if let Some(t) = threshold.flatten() {
+            curves.push(Curve {
+                name: format!("{id} threshold {t:.1} px"),
+                rgb,
+                dashed: true,
+                values: spacing::threshold_series(n, range, t),
+            });
+        }
+    }
+    let accumulated = Panel {
+        title: "Movement accumulated since the previous keyframe (spacing keeps a frame when it reaches its threshold)".into(),
+        unit: "px".into(),
+        curves,
+    };
+    [movement, accumulated]
 }
 
 /// A plotters drawing area in pixel coordinates.
