@@ -230,14 +230,7 @@ pub fn export(
         missing,
         mask_ms_per_image: masker.as_ref().and_then(|m| m.seg.ms_per_image()),
     };
-    let mut text = serde_json::to_string_pretty(&manifest).map_err(|e| Error::Output {
-        path: out.join(MANIFEST),
-        msg: e.to_string(),
-    })?;
-    text.push('\n');
-    fsutil::write_atomic(&out.join(MANIFEST), text.as_bytes())?;
-    // The manifest now lists exactly what is here: the journal has done its work.
-    let _ = std::fs::remove_file(out.join(PENDING));
+    write_manifest(out, &manifest)?;
     Ok(ExportReport { manifest })
 }
 
@@ -571,6 +564,19 @@ fn decode_and_encode(
         }
     }));
     Ok((frames, missing))
+}
+
+/// Writes `manifest.json` atomically, then drops the journal: the manifest now lists exactly
+/// what is in `out`.
+fn write_manifest(out: &Path, manifest: &Manifest) -> Result<()> {
+    let mut text = serde_json::to_string_pretty(manifest).map_err(|e| Error::Output {
+        path: out.join(MANIFEST),
+        msg: e.to_string(),
+    })?;
+    text.push('\n');
+    fsutil::write_atomic(&out.join(MANIFEST), text.as_bytes())?;
+    let _ = std::fs::remove_file(out.join(PENDING));
+    Ok(())
 }
 
 /// One export's fixed inputs, shared by its stages.
