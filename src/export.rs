@@ -173,38 +173,15 @@ pub fn export(
         None => None,
     };
     let dir = crate::output::prepare_dir(out, "--out", force, &[MANIFEST, PENDING], &inputs)?;
-    let result = (|| {
-        let ours = if dir.is_new() {
-            Vec::new()
-        } else {
-            own_files(out)?
-        };
-        check_targets(out, &ours, &names, settings)?;
-        for sub in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
-            crate::output::clear_stale_temps_of(&out.join(sub), None);
-        }
-        let staging = out.join(format!(
-            ".keyframer-staging-{}",
-            crate::output::unique_suffix()
-        ));
-        std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
-        let job = Job {
-            project: &project,
-            input: &input,
-            settings,
-            names: &names,
-            size,
-            quiet,
-        };
-        let r = write_staged(&job, src.as_mut(), &staging, masker.as_mut()).and_then(
-            |(frames, missing)| {
-                commit(out, &staging, &ours, &frames)?;
-                Ok((frames, missing))
-            },
-        );
-        let _ = std::fs::remove_dir_all(&staging);
-        r
-    })();
+    let job = Job {
+        project: &project,
+        input: &input,
+        settings,
+        names: &names,
+        size,
+        quiet,
+    };
+    let result = stage_and_commit(&job, out, dir.is_new(), src.as_mut(), masker.as_mut());
     let (frames, missing) = match result {
         Ok(v) => v,
         Err(e) => {
@@ -577,6 +554,33 @@ fn write_manifest(out: &Path, manifest: &Manifest) -> Result<()> {
     fsutil::write_atomic(&out.join(MANIFEST), text.as_bytes())?;
     let _ = std::fs::remove_file(out.join(PENDING));
     Ok(())
+}
+
+/// Writes every image (and mask) into a staging folder inside `out`, then moves them into place
+/// replacing only what keyframer wrote there before (`is_new`: `out` was just made).
+fn stage_and_commit(
+    job: &Job,
+    out: &Path,
+    is_new: bool,
+    src: &mut dyn source::FrameSource,
+    masker: Option<&mut Masker>,
+) -> Result<(Vec<ExportedFrame>, Vec<MissingFrame>)> {
+    let ours = if is_new { Vec::new() } else { own_files(out)? };
+    check_targets(out, &ours, job.names, job.settings)?;
+    for sub in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
+        crate::output::clear_stale_temps_of(&out.join(sub), None);
+    }
+    let staging = out.join(format!(
+        ".keyframer-staging-{}",
+        crate::output::unique_suffix()
+    ));
+    std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
+    let r = write_staged(job, src, &staging, masker).and_then(|(frames, missing)| {
+        commit(out, &staging, &ours, &frames)?;
+        Ok((frames, missing))
+    });
+    let _ = std::fs::remove_dir_all(&staging);
+    r
 }
 
 /// One export's fixed inputs, shared by its stages.

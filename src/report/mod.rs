@@ -92,33 +92,7 @@ pub fn write_report(
     let timeline = Timeline::from_project(&project);
     let mut missing = timeline.missing.clone();
 
-    let wanted = thumbs::pick(&project.keyframes, settings.thumbs);
-    let mut thumbs = Vec::new();
-    if !wanted.is_empty() {
-        let got = match &settings.export {
-            // An export folder the user named must be usable.
-            Some(dir) => Ok(thumbs::from_export(dir, &wanted)?),
-            None => {
-                let input = project.input_path(project_path);
-                export::check_fingerprint(&project, &input)
-                    .map_err(|e| e.to_string())
-                    .and_then(|()| thumbs::from_input(&input, &wanted).map_err(|e| e.to_string()))
-            }
-        };
-        match got {
-            Ok((t, lost)) => {
-                if !lost.is_empty() {
-                    missing.push(format!(
-                        "thumbnails of {} keyframes (frames not available: {:?})",
-                        lost.len(),
-                        lost
-                    ));
-                }
-                thumbs = t;
-            }
-            Err(e) => missing.push(format!("keyframe thumbnails: {e}")),
-        }
-    }
+    let thumbs = keyframe_thumbs(&project, project_path, settings, &mut missing)?;
     for m in &missing {
         log::warn!("not in the report: {m}");
     }
@@ -151,4 +125,43 @@ pub fn write_report(
         thumbs: thumbs.len(),
         missing,
     })
+}
+
+/// Thumbnails of (a spread of) the keyframes, from the export when one is named, else decoded
+/// from the input; what cannot be had is added to `missing`, except that an export the user
+/// named must be usable (an error).
+fn keyframe_thumbs(
+    project: &Project,
+    project_path: &Path,
+    settings: &ReportSettings,
+    missing: &mut Vec<String>,
+) -> Result<Vec<thumbs::Thumb>> {
+    let wanted = thumbs::pick(&project.keyframes, settings.thumbs);
+    let mut thumbs = Vec::new();
+    if !wanted.is_empty() {
+        let got = match &settings.export {
+            // An export folder the user named must be usable.
+            Some(dir) => Ok(thumbs::from_export(dir, &wanted)?),
+            None => {
+                let input = project.input_path(project_path);
+                export::check_fingerprint(project, &input)
+                    .map_err(|e| e.to_string())
+                    .and_then(|()| thumbs::from_input(&input, &wanted).map_err(|e| e.to_string()))
+            }
+        };
+        match got {
+            Ok((t, lost)) => {
+                if !lost.is_empty() {
+                    missing.push(format!(
+                        "thumbnails of {} keyframes (frames not available: {:?})",
+                        lost.len(),
+                        lost
+                    ));
+                }
+                thumbs = t;
+            }
+            Err(e) => missing.push(format!("keyframe thumbnails: {e}")),
+        }
+    }
+    Ok(thumbs)
 }
