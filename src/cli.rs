@@ -8,10 +8,9 @@ use keyframer::gpu::Backend;
 use keyframer::kernels::farneback::FarnebackParams;
 use keyframer::kernels::movement::{Derotate, Statistic};
 use keyframer::kernels::sharpness::Metric;
-use keyframer::samplers::{BlurMode, Bound};
 use keyframer::segment::{MaskSettings, SegRuntime};
 use keyframer::select::SelectSettings;
-use keyframer::steps::{defaults, BoundArg, Step, StepError, Threshold};
+use keyframer::steps::defaults;
 use std::path::PathBuf;
 
 /// Turns videos and image sequences into well-chosen keyframes for 3D reconstruction.
@@ -334,25 +333,6 @@ pub struct SelectArgs {
     /// with --force, so re-selecting decodes nothing).
     #[arg(short, long, value_name = "PROJECT.json")]
     pub output: PathBuf,
-    /// Keep every Nth frame.
-    #[arg(long, value_name = "N", conflicts_with = "fps")]
-    pub every: Option<usize>,
-    /// Resample to F frames per second, by timestamps (F at or above the input's frame rate
-    /// keeps every frame).
-    #[arg(long, value_name = "F")]
-    pub fps: Option<f64>,
-    /// First frame to consider: a frame index (`120`) or a time (`4.5s`).
-    #[arg(long, value_name = "FRAME|SECONDSs")]
-    pub start: Option<Bound>,
-    /// Last frame to consider, inclusive: a frame index or a time.
-    #[arg(long, value_name = "FRAME|SECONDSs")]
-    pub end: Option<Bound>,
-    /// Frames to add after sampling (comma-separated indices).
-    #[arg(long, value_delimiter = ',', value_name = "I,J,..")]
-    pub add: Vec<usize>,
-    /// Frames to remove after sampling (comma-separated indices).
-    #[arg(long, value_delimiter = ',', value_name = "I,J,..")]
-    pub remove: Vec<usize>,
     /// Frame rate to assume for an image folder (needed for --fps and times).
     #[arg(long, value_name = "FPS")]
     pub images_fps: Option<f64>,
@@ -368,9 +348,9 @@ pub struct SelectArgs {
     /// keyframes. The project is marked as a preview and never reused as a cache.
     #[arg(long)]
     pub preview: bool,
-    /// Blur sampler flags.
+    /// The steps' flags.
     #[command(flatten)]
-    pub blur: BlurArgs,
+    pub steps: StepArgs,
     /// Movement sampler flags.
     #[command(flatten)]
     pub movement: MovementArgs,
@@ -382,25 +362,6 @@ pub struct SelectArgs {
 /// Flags of the camera-movement samplers and of how movement is measured.
 #[derive(Debug, Args)]
 pub struct MovementArgs {
-    /// Drop frames where the camera stands still (reference mode: a frame becomes a keyframe when
-    /// the movement since the last keyframe reaches --stationary-threshold).
-    #[arg(long)]
-    pub stationary: bool,
-    /// Stationary threshold in full-resolution pixels (default: 1 % of the frame width).
-    #[arg(long, value_name = "PX")]
-    pub stationary_threshold: Option<f64>,
-    /// Frames after which the stationary reference frame is re-anchored (carrying the movement
-    /// accumulated so far), so flow is never asked across a larger gap.
-    #[arg(long, value_name = "N", default_value_t = defaults::RESET_DELTA)]
-    pub reset_delta: usize,
-    /// Even camera movement: keep a frame each time the movement accumulated since the last
-    /// keyframe reaches PX full-resolution pixels (`auto`: proposed from a sample, explained;
-    /// `60kf`: the threshold that keeps 60 keyframes).
-    #[arg(long, value_name = "PX|Nkf|auto")]
-    pub spacing: Option<Threshold>,
-    /// Propose the stationary threshold from a sample of 40 frame pairs (explained on stderr).
-    #[arg(long)]
-    pub auto: bool,
     /// Statistic of the per-pixel flow magnitudes: median (iVS3D's code) or trimmed-mean (the
     /// paper).
     #[arg(long, value_enum, default_value = "median")]
@@ -459,36 +420,6 @@ impl MovementArgs {
         keyframer::steps::check_movement(&request)?;
         Ok(request)
     }
-}
-
-/// Flags of the blur sampler.
-#[derive(Debug, Args)]
-pub struct BlurArgs {
-    /// Drop (filter) or replace blurry keyframes, after --every/--fps.
-    #[arg(long)]
-    pub blur: bool,
-    /// Sharpness metric: tenengrad, laplacian (= laplacian-k1) or laplacian-k3.
-    #[arg(long, value_name = "METRIC", default_value = "tenengrad")]
-    pub blur_metric: Metric,
-    /// Half-width of the comparison window, in frames.
-    #[arg(long, value_name = "W", default_value_t = defaults::BLUR_WINDOW)]
-    pub blur_window: usize,
-    /// Filter mode keeps a frame iff its score >= RATIO x the mean score within the window.
-    #[arg(long, value_name = "RATIO", default_value_t = defaults::BLUR_RATIO)]
-    pub blur_ratio: f64,
-    /// filter: drop blurry keyframes; replace: move each keyframe to the sharpest frame in its
-    /// window (never onto or across another keyframe).
-    #[arg(long, value_enum, default_value = "filter")]
-    pub blur_mode: BlurModeArg,
-}
-
-/// Blur sampler modes.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum BlurModeArg {
-    /// Drop blurry keyframes.
-    Filter,
-    /// Move keyframes to the sharpest nearby frame.
-    Replace,
 }
 
 /// `export` flags.
@@ -689,6 +620,75 @@ pub enum FormatArg {
     Png,
 }
 
+/// The steps' flags, built from each step's [`keyframer::steps::Flag`]s.
+#[derive(Debug, Clone)]
+pub struct StepArgs(pub keyframer::steps::FlagValues);
+
+impl clap::FromArgMatches for StepArgs {
+    fn from_arg_matches(m: &clap::ArgMatches) -> std::result::Result<Self, clap::Error> {
+        let mut v = keyframer::steps::FlagValues::default();
+        for f in keyframer::steps::flags() {
+            let id = f.long;
+            if f.value_name.is_none() {
+                if m.get_flag(id) {
+                    v.set(f.long, Vec::new());
+                }
+            } else if let Some(values) = m.get_many::<String>(id) {
+                v.set(f.long, values.cloned().collect());
+            }
+        }
+        Ok(StepArgs(v))
+    }
+
+    fn update_from_arg_matches(
+        &mut self,
+        m: &clap::ArgMatches,
+    ) -> std::result::Result<(), clap::Error> {
+        *self = Self::from_arg_matches(m)?;
+        Ok(())
+    }
+}
+
+impl clap::Args for StepArgs {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        keyframer::steps::flags().fold(cmd, |cmd, f| cmd.arg(step_arg(f)))
+    }
+
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        Self::augment_args(cmd)
+    }
+}
+
+/// One step flag as a clap argument.
+fn step_arg(f: &keyframer::steps::Flag) -> clap::Arg {
+    use clap::builder::{PossibleValue, PossibleValuesParser};
+    let arg = clap::Arg::new(f.long).long(f.long).help(f.help);
+    let Some(name) = f.value_name else {
+        return arg.action(clap::ArgAction::SetTrue);
+    };
+    let mut arg = arg.value_name(name);
+    if let Some(d) = f.default {
+        arg = arg.default_value(d);
+    }
+    if let Some(other) = f.conflicts {
+        arg = arg.conflicts_with(other);
+    }
+    if f.list {
+        arg = arg.value_delimiter(',').action(clap::ArgAction::Append);
+    }
+    if !f.choices.is_empty() {
+        let values = f
+            .choices
+            .iter()
+            .map(|(v, h)| PossibleValue::new(*v).help(*h));
+        return arg.value_parser(PossibleValuesParser::new(values));
+    }
+    match f.check {
+        Some(check) => arg.value_parser(move |s: &str| check(s).map(|()| s.to_string())),
+        None => arg,
+    }
+}
+
 fn positive(name: &str, v: Option<f64>) -> Result<Option<f64>> {
     match v {
         Some(x) if !(x.is_finite() && x > 0.0) => Err(Error::param(
@@ -700,66 +700,12 @@ fn positive(name: &str, v: Option<f64>) -> Result<Option<f64>> {
 }
 
 impl SelectArgs {
-    /// The sampler chain the flags give, in keyframer's order, checked.
-    pub fn steps(&self) -> Result<Vec<Step>> {
-        let m = &self.movement;
-        let mut steps = Vec::new();
-        if self.start.is_some() || self.end.is_some() {
-            steps.push(Step::Boundaries {
-                start: self.start.map(BoundArg),
-                end: self.end.map(BoundArg),
-            });
-        }
-        if m.stationary {
-            let given = positive("--stationary-threshold", m.stationary_threshold)?;
-            let threshold = match (given, m.auto) {
-                (Some(t), _) => Some(Threshold::Px(t)),
-                (None, true) => Some(Threshold::Auto),
-                (None, false) => None,
-            };
-            steps.push(Step::Stationary {
-                threshold,
-                reset_delta: Some(m.reset_delta),
-            });
-        }
-        if let Some(threshold) = m.spacing {
-            steps.push(Step::Spacing { threshold });
-        }
-        match (self.every, self.fps) {
-            (Some(n), _) => steps.push(Step::EveryNth { n }),
-            (None, Some(fps)) => steps.push(Step::Fps { fps }),
-            (None, None) => {}
-        }
-        if self.blur.blur {
-            let b = &self.blur;
-            steps.push(Step::Blur {
-                metric: Some(b.blur_metric),
-                window: Some(b.blur_window),
-                ratio: Some(b.blur_ratio),
-                mode: Some(match b.blur_mode {
-                    BlurModeArg::Filter => BlurMode::Filter,
-                    BlurModeArg::Replace => BlurMode::Replace,
-                }),
-            });
-        }
-        if !self.add.is_empty() || !self.remove.is_empty() {
-            steps.push(Step::Manual {
-                add: self.add.clone(),
-                remove: self.remove.clone(),
-            });
-        }
-        for step in &steps {
-            step.validate().map_err(step_error)?;
-        }
-        Ok(steps)
-    }
-
     /// Validated settings.
     pub fn settings(&self, quiet: bool) -> Result<SelectSettings> {
         Ok(SelectSettings {
             input: self.input.clone(),
             output: self.output.clone(),
-            steps: self.steps()?,
+            steps: keyframer::steps::from_flags(&self.steps.0)?,
             movement: self.movement.request()?,
             backend: self.analysis.backend.into(),
             adapter: self.analysis.adapter.clone(),
@@ -815,17 +761,6 @@ pub fn command_path(m: &clap::ArgMatches) -> Vec<&str> {
         at = sub;
     }
     path
-}
-
-fn step_error(e: StepError) -> Error {
-    let flag = match (e.plugin, e.key) {
-        ("stationary", "threshold") => "--stationary-threshold",
-        ("stationary", "reset_delta") => "--reset-delta",
-        ("every-nth", _) => "--every",
-        ("fps", _) => "--fps",
-        _ => return e.into_error(),
-    };
-    Error::param(flag, e.msg)
 }
 
 impl ExportArgs {

@@ -25,7 +25,6 @@ pub mod params;
 pub mod progress;
 pub mod project;
 pub mod report;
-pub mod samplers;
 pub mod segment;
 pub mod select;
 pub mod source;

@@ -5,8 +5,8 @@
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
-use crate::samplers::Boundaries;
 use crate::source::{Metadata, SourceKind};
+use crate::steps::Boundaries;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -230,7 +230,7 @@ impl Project {
             ("start", self.boundaries.start),
             ("end", self.boundaries.end),
         ] {
-            if let Some(crate::samplers::Bound::Seconds(s)) = b {
+            if let Some(crate::steps::Bound::Seconds(s)) = b {
                 if !(s.is_finite() && s >= 0.0) {
                     return Err((
                         format!("boundaries.{name}.seconds"),
@@ -480,62 +480,8 @@ fn validate_step(step: &HistoryEntry, n: usize) -> std::result::Result<(), (Stri
         );
     }
     let applied = Applied::from_entry(step)?;
-    let positive = |k: &str, v: Option<f64>| match v {
-        Some(f) if !(f.is_finite() && f > 0.0) => bad(
-            &format!("params.{k}"),
-            format!("must be a positive number, got {f}"),
-        ),
-        _ => Ok(()),
-    };
-    let count = |k: &str, v: Option<usize>| match v {
-        Some(0) => bad(
-            &format!("params.{k}"),
-            "must be a whole number of at least 1, got 0".into(),
-        ),
-        _ => Ok(()),
-    };
     if let (_, Some(r)) = applied.analysis() {
         validate_request(&r).map_err(|(k, msg)| (format!("params.movement.{k}"), msg))?;
     }
-    match &applied {
-        Applied::Boundaries { start, end } => {
-            for (k, b) in [("start", start), ("end", end)] {
-                if let Some(crate::samplers::Bound::Seconds(s)) = b {
-                    if !(s.is_finite() && *s >= 0.0) {
-                        return bad(
-                            &format!("params.{k}"),
-                            format!("must be a non-negative time, got {s}"),
-                        );
-                    }
-                }
-            }
-        }
-        Applied::Stationary {
-            threshold_px,
-            reset_delta,
-            ..
-        } => {
-            positive("threshold_px", *threshold_px)?;
-            count("reset_delta", *reset_delta)?;
-        }
-        Applied::Spacing { threshold_px, .. } => positive("threshold_px", Some(*threshold_px))?,
-        Applied::EveryNth { n } => count("n", Some(*n))?,
-        Applied::Fps { fps } => positive("fps", Some(*fps))?,
-        Applied::Blur { ratio, window, .. } => {
-            positive("ratio", *ratio)?;
-            count("window", *window)?;
-        }
-        Applied::Manual { add, remove } => {
-            for (k, list) in [("add", add), ("remove", remove)] {
-                if list.iter().any(|&i| i >= n) {
-                    return bad(
-                        &format!("params.{k}"),
-                        format!("must be a list of frame indices below {n}"),
-                    );
-                }
-            }
-        }
-        Applied::Preview { .. } => {}
-    }
-    Ok(())
+    applied.check(n)
 }

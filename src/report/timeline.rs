@@ -4,8 +4,8 @@
 use crate::error::{Error, Result};
 use crate::params::Metric;
 use crate::project::{MovementCache, Project};
-use crate::samplers::{blur, spacing, BlurMode};
 use crate::steps::Applied;
+use crate::steps::{blur, spacing, BlurMode};
 use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;

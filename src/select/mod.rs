@@ -14,76 +14,19 @@ use crate::project::{
     Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
     SCHEMA_VERSION,
 };
-use crate::samplers::{self, Boundaries};
 use crate::source::{self, Metadata, OpenOptions, SourceKind};
+use crate::steps::{self, Boundaries};
 use crate::steps::{Applied, Step};
 use std::path::{Path, PathBuf};
 
 pub use crate::steps::Threshold;
 
-/// Stationary sampler settings with `auto` resolved (the threshold defaults to 1 % of the frame
-/// width).
+/// The stationary step's threshold (`auto` resolved; None: 1 % of the frame width) and reset
+/// delta.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Stationary {
-    /// Movement in full-resolution pixels since the last keyframe that makes a new one.
-    pub threshold: Option<f64>,
-    /// Frames after which the reference frame is re-anchored.
-    pub reset_delta: usize,
-}
-
-/// The stationary request for this input: threshold and candidate range resolved.
-fn stationary_request(
-    st: Stationary,
-    b: &Boundaries,
-    meta: &crate::source::Metadata,
-    cache: &Cache,
-) -> Result<StationaryRequest> {
-    let width = Some(meta.width);
-    let (first, last) = match meta.frame_count_exact {
-        true => {
-            let c = b.candidates(meta.frame_count, cache.timestamps_s.as_deref())?;
-            (c[0], *c.last().unwrap_or(&c[0]))
-        }
-        false => {
-            let first = match b.start {
-                Some(samplers::Bound::Frame(i)) => i,
-                _ => 0,
-            };
-            let last = match b.end {
-                Some(samplers::Bound::Frame(i)) => i,
-                _ => usize::MAX,
-            };
-            (first, last)
-        }
-    };
-    let threshold = match (st.threshold, width) {
-        (Some(t), _) => t,
-        (None, Some(w)) => f64::from(w) * 0.01,
-        (None, None) => {
-            return Err(Error::Plugin {
-                plugin: "stationary",
-                msg: "give --stationary-threshold for an input whose size is not known yet".into(),
-            })
-        }
-    };
-    if !(threshold.is_finite() && threshold > 0.0) {
-        return Err(Error::Plugin {
-            plugin: "stationary",
-            msg: format!("threshold must be a positive number of pixels, got {threshold}"),
-        });
-    }
-    if st.reset_delta == 0 {
-        return Err(Error::Plugin {
-            plugin: "stationary",
-            msg: "reset delta must be at least 1 frame".into(),
-        });
-    }
-    Ok(StationaryRequest {
-        threshold,
-        reset_delta: st.reset_delta,
-        first,
-        last,
-    })
+    threshold: Option<f64>,
+    reset_delta: usize,
 }
 
 /// Validated settings of one `select` run.
@@ -259,13 +202,12 @@ pub(crate) fn manual_step(
     steps: &[Step],
     frame_count: usize,
 ) -> Result<()> {
-    for step in steps {
-        if let Step::Manual { add, remove } = step {
-            *keys = samplers::manual(keys, add, remove, frame_count)?;
-            let applied = Applied::Manual {
-                add: add.clone(),
-                remove: remove.clone(),
-            };
+    let at = steps::Inputs {
+        frame_count,
+        ..Default::default()
+    };
+    for step in steps.iter().filter(|s| matches!(s, Step::Manual { .. })) {
+        if let Some(applied) = step.apply(&at, keys)? {
             history.push(applied.entry(keys.len()));
         }
     }
@@ -283,11 +225,12 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     known.scan_for_times(s, open, &boundaries)?;
     let auto = AutoThresholds::find(s, open, &known)?;
     let stationary_req = match auto.stationary {
-        Some(st) => Some(stationary_request(
-            st,
+        Some(st) => Some(steps::stationary::request(
+            st.threshold,
+            st.reset_delta,
             &boundaries,
             &known.metadata(s, open)?,
-            &known.cache,
+            known.cache.timestamps_s.as_deref(),
         )?),
         None => None,
     };
@@ -304,15 +247,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         }
         cached => known.analyse(s, open, &plan, cached, full.then(|| resume(s, &input_ref)))?,
     };
-    let chain = Chain {
-        s,
-        cache: &known.cache,
-        metadata: &metadata,
-        stationary: auto.stationary,
-        spacing: auto.spacing,
-        auto_stationary: auto.wants_auto_stationary,
-    };
-    let (keys, history) = chain.apply(&known.damaged)?;
+    let (keys, history) = apply(s, &known, &metadata, &auto)?;
     let keys = drop_damaged(s, keys, &known.damaged);
     let project = Project {
         schema_version: SCHEMA_VERSION,
@@ -418,7 +353,7 @@ impl Known {
     ) -> Result<()> {
         let uses_seconds = [boundaries.start, boundaries.end]
             .iter()
-            .any(|b| matches!(b, Some(samplers::Bound::Seconds(_))));
+            .any(|b| matches!(b, Some(steps::Bound::Seconds(_))));
         if s.stationary().is_none() || self.metadata.is_some() || !uses_seconds {
             return Ok(());
         }
@@ -557,7 +492,7 @@ impl AutoThresholds {
             analysis::sample_movement(&s.input, open, s.movement, 40, backend, ctx.as_ref())?;
         let meta = known.metadata(s, open)?;
         if wants_auto_stationary {
-            let p = samplers::auto::stationary_threshold(&sample);
+            let p = steps::auto::stationary_threshold(&sample);
             if let Some(st) = t.stationary.as_mut() {
                 st.threshold = Some(p.threshold);
             }
@@ -565,7 +500,7 @@ impl AutoThresholds {
                 .push(format!("stationary --auto: {}", p.explanation));
         }
         if auto_spacing {
-            let p = samplers::auto::spacing_threshold(&sample, meta.width, meta.frame_count);
+            let p = steps::auto::spacing_threshold(&sample, meta.width, meta.frame_count);
             t.spacing = Some(p.threshold);
             t.proposals.push(format!("spacing auto: {}", p.explanation));
         }
@@ -618,142 +553,55 @@ impl Plan {
     }
 }
 
-/// The sampler chain over the analysed (or cached) input: `select`'s interpreter of its steps.
-struct Chain<'a> {
-    s: &'a SelectSettings,
-    cache: &'a Cache,
-    metadata: &'a crate::source::Metadata,
-    /// The stationary step with `auto` resolved.
-    stationary: Option<Stationary>,
-    /// The spacing threshold in pixels when known before the chain runs (given, or `auto`).
-    spacing: Option<f64>,
-    auto_stationary: bool,
-}
-
-impl Chain<'_> {
-    /// Runs every step in order on the candidates (damaged frames never are); returns the
-    /// keyframes and the history.
-    fn apply(&self, damaged: &[usize]) -> Result<(Vec<usize>, Vec<HistoryEntry>)> {
-        let boundaries = self.s.boundaries();
-        let ts = self.cache.timestamps_s.as_deref();
-        let range = boundaries.candidates(self.metadata.frame_count, ts)?;
-        let mut keys = range.clone();
-        keys.retain(|k| damaged.binary_search(k).is_err());
-        let mut history = vec![Applied::Boundaries {
-            end: boundaries.end,
-            start: boundaries.start,
+/// Runs every step in order on the candidates (damaged frames never are) over the analysed or
+/// cached series; returns the keyframes and the history.
+fn apply(
+    s: &SelectSettings,
+    known: &Known,
+    metadata: &Metadata,
+    auto: &AutoThresholds,
+) -> Result<(Vec<usize>, Vec<HistoryEntry>)> {
+    let (cache, boundaries) = (&known.cache, s.boundaries());
+    let ts = cache.timestamps_s.as_deref();
+    let range = boundaries.candidates(metadata.frame_count, ts)?;
+    let mut keys = range.clone();
+    keys.retain(|k| known.damaged.binary_search(k).is_err());
+    let mut history = vec![Applied::Boundaries {
+        end: boundaries.end,
+        start: boundaries.start,
+    }
+    .entry(keys.len())];
+    let stationary = match auto.stationary {
+        Some(st) => {
+            let (t, delta) = (st.threshold, st.reset_delta);
+            let req = steps::stationary::request(t, delta, &boundaries, metadata, ts)?;
+            let run = cache.stationary(&s.movement, &req);
+            run.map(|r| (req, r.keyframes.as_slice(), r.backend))
         }
-        .entry(keys.len())];
-        let lo = range.first().copied().unwrap_or(0);
-        let hi = range.last().copied().unwrap_or(0);
-        for step in &self.s.steps {
-            let applied = match step {
-                Step::Boundaries { .. } | Step::Manual { .. } => continue,
-                Step::Stationary { .. } => self.stationary(&mut keys, &boundaries)?,
-                Step::Spacing { threshold } => self.spacing(&mut keys, *threshold)?,
-                Step::EveryNth { n } => {
-                    keys = samplers::every_nth(&keys, *n)?;
-                    Applied::EveryNth { n: *n }
-                }
-                Step::Fps { fps } => {
-                    let ts = ts.ok_or_else(|| Error::Plugin {
-                        plugin: "fps",
-                        msg: "the input has no timestamps (an image folder: give its rate with --images-fps)"
-                            .into(),
-                    })?;
-                    keys = samplers::fps(&keys, ts, *fps)?;
-                    Applied::Fps { fps: *fps }
-                }
-                Step::Blur { .. } => self.blur(&mut keys, step, lo, hi)?,
-            };
+        None => None,
+    };
+    let (w, h) = (metadata.width, metadata.height);
+    let at = steps::Inputs {
+        frame_count: metadata.frame_count,
+        timestamps_s: ts,
+        range: (
+            range.first().copied().unwrap_or(0),
+            range.last().copied().unwrap_or(0),
+        ),
+        sharpness: (cache.sharpness.iter())
+            .filter(|x| x.width == w && x.height == h)
+            .map(|x| (x.metric, x.scores.as_slice(), x.backend))
+            .collect(),
+        movement_request: Some(s.movement),
+        movement: (cache.movement(&s.movement)).map(|m| (m.series.values.as_slice(), m.backend)),
+        stationary,
+        stationary_auto: auto.wants_auto_stationary,
+        spacing_px: auto.spacing,
+    };
+    for step in &s.steps {
+        if let Some(applied) = step.apply(&at, &mut keys)? {
             history.push(applied.entry(keys.len()));
         }
-        manual_step(
-            &mut keys,
-            &mut history,
-            &self.s.steps,
-            self.metadata.frame_count,
-        )?;
-        Ok((keys, history))
     }
-
-    fn stationary(&self, keys: &mut Vec<usize>, boundaries: &Boundaries) -> Result<Applied> {
-        let st = self.stationary.ok_or_else(|| Error::Plugin {
-            plugin: "stationary",
-            msg: "no threshold".into(),
-        })?;
-        let req = stationary_request(st, boundaries, self.metadata, self.cache)?;
-        let run = self
-            .cache
-            .stationary(&self.s.movement, &req)
-            .ok_or_else(|| Error::Plugin {
-                plugin: "stationary",
-                msg: "no stationary run was computed".into(),
-            })?;
-        keys.retain(|k| run.keyframes.binary_search(k).is_ok());
-        Ok(Applied::Stationary {
-            auto: self.auto_stationary,
-            backend: Some(run.backend),
-            movement: Some(self.s.movement),
-            reset_delta: Some(req.reset_delta),
-            threshold_px: Some(req.threshold),
-        })
-    }
-
-    fn spacing(&self, keys: &mut Vec<usize>, given: Threshold) -> Result<Applied> {
-        let series = self
-            .cache
-            .movement(&self.s.movement)
-            .ok_or_else(|| Error::Plugin {
-                plugin: "spacing",
-                msg: "no movement was computed".into(),
-            })?;
-        let threshold = match (given, self.spacing) {
-            (Threshold::Count(n), _) => {
-                let t = samplers::spacing_for_count(keys, &series.series.values, n)?;
-                log::info!("spacing {n}kf: threshold {t:.2} px");
-                t
-            }
-            (_, Some(t)) => t,
-            _ => {
-                return Err(Error::Plugin {
-                    plugin: "spacing",
-                    msg: "no threshold".into(),
-                })
-            }
-        };
-        *keys = samplers::spacing(keys, &series.series.values, threshold)?;
-        Ok(Applied::Spacing {
-            auto: given == Threshold::Auto,
-            backend: Some(series.backend),
-            count: match given {
-                Threshold::Count(n) => Some(n),
-                _ => None,
-            },
-            movement: Some(self.s.movement),
-            threshold_px: threshold,
-        })
-    }
-
-    fn blur(&self, keys: &mut Vec<usize>, step: &Step, lo: usize, hi: usize) -> Result<Applied> {
-        let b = step.blur_params().ok_or_else(|| Error::Plugin {
-            plugin: "blur",
-            msg: "not a blur step".into(),
-        })?;
-        let series = self
-            .cache
-            .sharpness(b.metric, self.metadata.width, self.metadata.height)
-            .ok_or_else(|| Error::Plugin {
-                plugin: "blur",
-                msg: format!("no {} scores were computed", b.metric),
-            })?;
-        *keys = samplers::blur(keys, &series.scores, &b, lo, hi)?;
-        Ok(Applied::Blur {
-            backend: Some(series.backend),
-            metric: Some(b.metric),
-            mode: Some(b.mode),
-            ratio: Some(b.ratio),
-            window: Some(b.window),
-        })
-    }
+    Ok((keys, history))
 }

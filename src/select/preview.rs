@@ -7,10 +7,10 @@
 use super::{self as select, SelectReport, SelectSettings};
 use crate::error::{Error, Result};
 use crate::project::Cache;
-use crate::samplers::{Bound, Boundaries};
 use crate::source::codec_keyframes::{self, CodecKeyframeIndex};
 use crate::source::{OpenOptions, SourceKind};
 use crate::steps::{Applied, BoundArg, Step};
+use crate::steps::{Bound, Boundaries};
 use std::sync::Arc;
 
 /// Translates frame-index bounds into positions in the keyframe sequence (times stay times:
@@ -47,35 +47,10 @@ pub fn keyframe_bounds(b: &Boundaries, index: &CodecKeyframeIndex) -> Result<Bou
 
 /// Runs the preview selection and writes the project.
 pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
-    let (kind, _) = select::identify(&s.input)?;
-    if kind != SourceKind::Video {
-        return Err(Error::input(
-            &s.input,
-            "--preview needs a video (images have no codec keyframes)",
-        ));
-    }
-    select::check_outputs(s)?;
-    if let Ok(old) = crate::project::Project::load(&s.output) {
-        if !old.preview && !old.cache.sharpness.is_empty() {
-            log::warn!(
-                "{}: replacing a project whose cache holds full-analysis scores with a preview",
-                s.output.display()
-            );
-        }
-    }
+    check_input(s)?;
     let index = Arc::new(codec_keyframes::probe(&s.input)?);
     let (n_key, n_all) = (index.keyframes.len(), index.frame_count());
-    if n_key == n_all {
-        log::warn!(
-            "{}: every frame is a codec keyframe; the preview decodes every frame (no speed-up)",
-            s.input.display()
-        );
-    } else {
-        log::info!(
-            "preview: analysing the {n_key} codec keyframes of {n_all} frames (one every {:.1})",
-            n_all as f64 / n_key as f64
-        );
-    }
+    announce(s, n_key, n_all);
     // Keyframes are already far apart: measure flow between every consecutive pair.
     let mut movement = s.movement;
     movement.stride = 1;
@@ -132,6 +107,42 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     p.preview = true;
     p.save(&s.output, true)?;
     Ok(report)
+}
+
+/// A video, outputs that may be written, and a warning when a full analysis is replaced.
+fn check_input(s: &SelectSettings) -> Result<()> {
+    let (kind, _) = select::identify(&s.input)?;
+    if kind != SourceKind::Video {
+        return Err(Error::input(
+            &s.input,
+            "--preview needs a video (images have no codec keyframes)",
+        ));
+    }
+    select::check_outputs(s)?;
+    if let Ok(old) = crate::project::Project::load(&s.output) {
+        if !old.preview && !old.cache.sharpness.is_empty() {
+            log::warn!(
+                "{}: replacing a project whose cache holds full-analysis scores with a preview",
+                s.output.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Says how many frames the preview analyses.
+fn announce(s: &SelectSettings, n_key: usize, n_all: usize) {
+    if n_key == n_all {
+        log::warn!(
+            "{}: every frame is a codec keyframe; the preview decodes every frame (no speed-up)",
+            s.input.display()
+        );
+    } else {
+        log::info!(
+            "preview: analysing the {n_key} codec keyframes of {n_all} frames (one every {:.1})",
+            n_all as f64 / n_key as f64
+        );
+    }
 }
 
 #[cfg(test)]

@@ -166,7 +166,6 @@ const LAYERS: [(&str, &[&str]); 4] = [
             "model_desc",
             "steps",
             "params",
-            "samplers",
             "flo",
         ],
     ),

@@ -7,31 +7,36 @@
 //! candidate already kept are skipped in one step, and a target rate above the candidates' own
 //! rate (a grid finer than their shortest interval) keeps every candidate, as the finer grid would.
 
+use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
+
+/// `--fps F`.
+pub const FLAGS: &[Flag] = &[Flag::value::<f64>(
+    "fps",
+    "F",
+    "Resample to F frames per second, by timestamps (F at or above the input's frame rate keeps every frame)",
+)
+.sets("fps", "fps")];
+
+/// The step when `--fps` is given.
+pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
+    Ok(v.get("fps")?.map(|fps| Step::Fps { fps }))
+}
+
+/// The step on `keys`.
+pub fn apply(at: &Inputs, keys: &mut Vec<usize>, target_fps: f64) -> Result<Applied> {
+    let ts = at.timestamps_s.ok_or_else(|| Error::Plugin {
+        plugin: "fps",
+        msg: "the input has no timestamps (an image folder: give its rate with --images-fps)"
+            .into(),
+    })?;
+    *keys = fps(keys, ts, target_fps)?;
+    Ok(Applied::Fps { fps: target_fps })
+}
 
 /// Candidates nearest to a regular `target_fps` grid of times.
 pub fn fps(candidates: &[usize], timestamps_s: &[f64], target_fps: f64) -> Result<Vec<usize>> {
-    let err = |msg: String| Error::Plugin { plugin: "fps", msg };
-    if !(target_fps.is_finite() && target_fps > 0.0) {
-        return Err(err(format!(
-            "target fps must be positive, got {target_fps}"
-        )));
-    }
-    if let Some(&bad) = candidates.iter().find(|&&c| c >= timestamps_s.len()) {
-        return Err(err(format!(
-            "frame {bad} has no timestamp ({} known)",
-            timestamps_s.len()
-        )));
-    }
-    if let Some(i) = candidates
-        .iter()
-        .position(|&c| !timestamps_s[c].is_finite())
-    {
-        return Err(err(format!(
-            "frame {} has no finite timestamp ({})",
-            candidates[i], timestamps_s[candidates[i]]
-        )));
-    }
+    check(candidates, timestamps_s, target_fps)?;
     let (Some(&first), Some(&last)) = (candidates.first(), candidates.last()) else {
         return Ok(Vec::new());
     };
@@ -51,20 +56,7 @@ pub fn fps(candidates: &[usize], timestamps_s: &[f64], target_fps: f64) -> Resul
     } else {
         1.0 / target_fps
     };
-    // later[j]: the first candidate after j with a later timestamp (a monotonic stack, O(n)).
-    let mut later: Vec<Option<usize>> = vec![None; candidates.len()];
-    let mut stack: Vec<usize> = Vec::new();
-    for i in 0..candidates.len() {
-        while let Some(&top) = stack.last() {
-            if ts(i) > ts(top) {
-                later[top] = Some(i);
-                stack.pop();
-            } else {
-                break;
-            }
-        }
-        stack.push(i);
-    }
+    let later = later_candidates(candidates.len(), ts);
     let end = t_last + half_frame + 1e-9;
     let mut out: Vec<usize> = Vec::new();
     let mut j = 0; // candidate cursor, only moves forward
@@ -95,6 +87,51 @@ pub fn fps(candidates: &[usize], timestamps_s: &[f64], target_fps: f64) -> Resul
         k = (k + 1.0).max(jump);
     }
     Ok(out)
+}
+
+/// The rate is positive and every candidate has a finite timestamp.
+fn check(candidates: &[usize], timestamps_s: &[f64], target_fps: f64) -> Result<()> {
+    let err = |msg: String| Error::Plugin { plugin: "fps", msg };
+    if !(target_fps.is_finite() && target_fps > 0.0) {
+        return Err(err(format!(
+            "target fps must be positive, got {target_fps}"
+        )));
+    }
+    if let Some(&bad) = candidates.iter().find(|&&c| c >= timestamps_s.len()) {
+        return Err(err(format!(
+            "frame {bad} has no timestamp ({} known)",
+            timestamps_s.len()
+        )));
+    }
+    if let Some(i) = candidates
+        .iter()
+        .position(|&c| !timestamps_s[c].is_finite())
+    {
+        return Err(err(format!(
+            "frame {} has no finite timestamp ({})",
+            candidates[i], timestamps_s[candidates[i]]
+        )));
+    }
+    Ok(())
+}
+
+/// For each of `n` candidates, the first candidate after it with a later time `ts` (a monotonic
+/// stack, O(n)).
+fn later_candidates(n: usize, ts: impl Fn(usize) -> f64) -> Vec<Option<usize>> {
+    let mut later: Vec<Option<usize>> = vec![None; n];
+    let mut stack: Vec<usize> = Vec::new();
+    for i in 0..n {
+        while let Some(&top) = stack.last() {
+            if ts(i) > ts(top) {
+                later[top] = Some(i);
+                stack.pop();
+            } else {
+                break;
+            }
+        }
+        stack.push(i);
+    }
+    later
 }
 
 fn median_interval(candidates: &[usize], ts: &[f64]) -> f64 {

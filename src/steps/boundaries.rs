@@ -1,10 +1,36 @@
 //! Boundaries: restrict the candidates to a start..=end range given in frames or seconds.
 //! Both ends are inclusive.
 
+use super::{BoundArg, Flag, FlagValues, Step};
 use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
+
+/// `--start`, `--end`.
+pub const FLAGS: &[Flag] = &[
+    Flag::value::<Bound>(
+        "start",
+        "FRAME|SECONDSs",
+        "First frame to consider: a frame index (`120`) or a time (`4.5s`)",
+    ),
+    Flag::value::<Bound>(
+        "end",
+        "FRAME|SECONDSs",
+        "Last frame to consider, inclusive: a frame index or a time",
+    ),
+];
+
+/// The step when `--start` or `--end` is given.
+pub fn from_flags(v: &FlagValues) -> Result<Option<Step>, crate::error::Error> {
+    let (start, end) = (v.get::<Bound>("start")?, v.get::<Bound>("end")?);
+    Ok(
+        (start.is_some() || end.is_some()).then_some(Step::Boundaries {
+            start: start.map(BoundArg),
+            end: end.map(BoundArg),
+        }),
+    )
+}
 
 /// One end of a range: a frame index or a time in seconds.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -1,6 +1,43 @@
 //! Manual edits: add and remove keyframes by index after the automatic samplers ran.
 
+use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
+
+/// `--add`, `--remove`.
+pub const FLAGS: &[Flag] = &[
+    Flag::value::<usize>(
+        "add",
+        "I,J,..",
+        "Frames to add after sampling (comma-separated indices)",
+    )
+    .list(),
+    Flag::value::<usize>(
+        "remove",
+        "I,J,..",
+        "Frames to remove after sampling (comma-separated indices)",
+    )
+    .list(),
+];
+
+/// The step when `--add` or `--remove` is given.
+pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
+    let (add, remove) = (v.list("add")?, v.list("remove")?);
+    Ok((!add.is_empty() || !remove.is_empty()).then_some(Step::Manual { add, remove }))
+}
+
+/// The step on `keys`.
+pub fn apply(
+    at: &Inputs,
+    keys: &mut Vec<usize>,
+    add: &[usize],
+    remove: &[usize],
+) -> Result<Applied> {
+    *keys = manual(keys, add, remove, at.frame_count)?;
+    Ok(Applied::Manual {
+        add: add.to_vec(),
+        remove: remove.to_vec(),
+    })
+}
 
 /// `keyframes` plus `add` minus `remove`, sorted and distinct; indices must exist in the input.
 pub fn manual(

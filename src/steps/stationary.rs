@@ -2,6 +2,96 @@
 //! with the movement from its reference frame, it decides keyframes and re-anchoring. It never
 //! touches pixels: whoever feeds it measures the movement it asks for, and only then.
 
+use super::{Applied, Bound, Boundaries, Flag, FlagValues, Inputs, Step, Threshold};
+use crate::error::{Error, Result as KfResult};
+use crate::params::StationaryRequest;
+use crate::source::Metadata;
+
+/// `--stationary`, `--stationary-threshold`, `--reset-delta`, `--auto`.
+pub const FLAGS: &[Flag] = &[
+    Flag::switch("stationary", "Drop frames where the camera stands still (reference mode: a frame becomes a keyframe when the movement since the last keyframe reaches --stationary-threshold)"),
+    Flag::value::<f64>("stationary-threshold", "PX", "Stationary threshold in full-resolution pixels (default: 1 % of the frame width)")
+        .sets("stationary", "threshold"),
+    Flag::value::<usize>("reset-delta", "N", "Frames after which the stationary reference frame is re-anchored (carrying the movement accumulated so far), so flow is never asked across a larger gap")
+        .default("15")
+        .sets("stationary", "reset_delta"),
+    Flag::switch("auto", "Propose the stationary threshold from a sample of 40 frame pairs (explained on stderr)"),
+];
+
+/// The step when `--stationary` is given.
+pub fn from_flags(v: &FlagValues) -> KfResult<Option<Step>> {
+    if !v.given("stationary") {
+        return Ok(None);
+    }
+    let threshold = match (v.get::<f64>("stationary-threshold")?, v.given("auto")) {
+        (Some(t), _) => Some(Threshold::Px(t)),
+        (None, true) => Some(Threshold::Auto),
+        (None, false) => None,
+    };
+    Ok(Some(Step::Stationary {
+        threshold,
+        reset_delta: v.get("reset-delta")?,
+    }))
+}
+
+/// The stationary run for this input: `threshold` (None: 1 % of the frame width) and the
+/// candidate range resolved.
+pub fn request(
+    threshold: Option<f64>,
+    reset_delta: usize,
+    b: &Boundaries,
+    meta: &Metadata,
+    timestamps_s: Option<&[f64]>,
+) -> KfResult<StationaryRequest> {
+    let err = |msg: String| Error::Plugin {
+        plugin: "stationary",
+        msg,
+    };
+    let (first, last) = match meta.frame_count_exact {
+        true => {
+            let c = b.candidates(meta.frame_count, timestamps_s)?;
+            (c[0], *c.last().unwrap_or(&c[0]))
+        }
+        false => {
+            let frame = |b: Option<Bound>, or: usize| match b {
+                Some(Bound::Frame(i)) => i,
+                _ => or,
+            };
+            (frame(b.start, 0), frame(b.end, usize::MAX))
+        }
+    };
+    let threshold = threshold.unwrap_or(f64::from(meta.width) * 0.01);
+    if !(threshold.is_finite() && threshold > 0.0) {
+        let msg = format!("threshold must be a positive number of pixels, got {threshold}");
+        return Err(err(msg));
+    }
+    if reset_delta == 0 {
+        return Err(err("reset delta must be at least 1 frame".into()));
+    }
+    Ok(StationaryRequest {
+        threshold,
+        reset_delta,
+        first,
+        last,
+    })
+}
+
+/// The step on `keys`: the keyframes of the stationary run in `at`.
+pub fn apply(at: &Inputs, keys: &mut Vec<usize>) -> KfResult<Applied> {
+    let (req, run, backend) = at.stationary.ok_or_else(|| Error::Plugin {
+        plugin: "stationary",
+        msg: "no stationary run was computed".into(),
+    })?;
+    keys.retain(|k| run.binary_search(k).is_ok());
+    Ok(Applied::Stationary {
+        auto: at.stationary_auto,
+        backend: Some(backend),
+        movement: at.movement_request,
+        reset_delta: Some(req.reset_delta),
+        threshold_px: Some(req.threshold),
+    })
+}
+
 /// The reference-mode state: its parameters, the reference frame, the movement accumulated since
 /// the last keyframe and the keyframes so far.
 #[derive(Debug, Clone, PartialEq)]

@@ -3,7 +3,50 @@
 //! movement accumulated since the last keyframe reaches the threshold (the first candidate is
 //! always kept).
 
+use super::{Applied, Flag, FlagValues, Inputs, Step, Threshold};
 use crate::error::{Error, Result};
+
+/// `--spacing PX|Nkf|auto`.
+pub const FLAGS: &[Flag] = &[Flag::value::<Threshold>(
+    "spacing",
+    "PX|Nkf|auto",
+    "Even camera movement: keep a frame each time the movement accumulated since the last keyframe reaches PX full-resolution pixels (`auto`: proposed from a sample, explained; `60kf`: the threshold that keeps 60 keyframes)",
+)];
+
+/// The step when `--spacing` is given.
+pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
+    Ok(v.get("spacing")?
+        .map(|threshold| Step::Spacing { threshold }))
+}
+
+/// The step on `keys`, with the threshold as `given` (`auto` resolved in `at`).
+pub fn apply(at: &Inputs, keys: &mut Vec<usize>, given: Threshold) -> Result<Applied> {
+    let err = |msg: &str| Error::Plugin {
+        plugin: "spacing",
+        msg: msg.into(),
+    };
+    let (movement, backend) = at.movement.ok_or_else(|| err("no movement was computed"))?;
+    let threshold = match (given, at.spacing_px) {
+        (Threshold::Count(n), _) => {
+            let t = spacing_for_count(keys, movement, n)?;
+            log::info!("spacing {n}kf: threshold {t:.2} px");
+            t
+        }
+        (_, Some(t)) => t,
+        _ => return Err(err("no threshold")),
+    };
+    *keys = spacing(keys, movement, threshold)?;
+    Ok(Applied::Spacing {
+        auto: given == Threshold::Auto,
+        backend: Some(backend),
+        count: match given {
+            Threshold::Count(n) => Some(n),
+            _ => None,
+        },
+        movement: at.movement_request,
+        threshold_px: threshold,
+    })
+}
 
 /// Candidates spaced by `threshold` of accumulated movement; `movement[i]` is the movement from
 /// frame i-1 to frame i.

@@ -4,9 +4,72 @@
 //! sharpest frame within ±window, never onto or across a neighbouring keyframe (ties: the frame
 //! nearest the original, then the earlier one).
 
+use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
 use crate::params::Metric;
 use serde::{Deserialize, Serialize};
+
+/// `--blur` and its parameters.
+pub const FLAGS: &[Flag] = &[
+    Flag::switch("blur", "Drop (filter) or replace blurry keyframes, after --every/--fps"),
+    Flag::value::<Metric>("blur-metric", "METRIC", "Sharpness metric: tenengrad, laplacian (= laplacian-k1) or laplacian-k3")
+        .default("tenengrad"),
+    Flag::value::<usize>("blur-window", "W", "Half-width of the comparison window, in frames")
+        .default("10"),
+    Flag::value::<f64>("blur-ratio", "RATIO", "Filter mode keeps a frame iff its score >= RATIO x the mean score within the window")
+        .default("0.8"),
+    Flag::value::<BlurMode>("blur-mode", "BLUR_MODE", "filter: drop blurry keyframes; replace: move each keyframe to the sharpest frame in its window (never onto or across another keyframe)")
+        .default("filter")
+        .choices(&[
+            ("filter", "Drop blurry keyframes"),
+            ("replace", "Move keyframes to the sharpest nearby frame"),
+        ]),
+];
+
+/// The step when `--blur` is given.
+pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
+    if !v.given("blur") {
+        return Ok(None);
+    }
+    Ok(Some(Step::Blur {
+        metric: v.get("blur-metric")?,
+        window: v.get("blur-window")?,
+        ratio: v.get("blur-ratio")?,
+        mode: v.get("blur-mode")?,
+    }))
+}
+
+impl std::str::FromStr for BlurMode {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "filter" => Ok(BlurMode::Filter),
+            "replace" => Ok(BlurMode::Replace),
+            _ => Err(format!("`{s}`: give filter or replace")),
+        }
+    }
+}
+
+/// The step on `keys`, within the candidates' range.
+pub fn apply(at: &Inputs, keys: &mut Vec<usize>, b: &BlurParams) -> Result<Applied> {
+    let (scores, backend) = at
+        .sharpness
+        .iter()
+        .find(|s| s.0 == b.metric)
+        .map(|s| (s.1, s.2))
+        .ok_or_else(|| Error::Plugin {
+            plugin: "blur",
+            msg: format!("no {} scores were computed", b.metric),
+        })?;
+    *keys = blur(keys, scores, b, at.range.0, at.range.1)?;
+    Ok(Applied::Blur {
+        backend: Some(backend),
+        metric: Some(b.metric),
+        mode: Some(b.mode),
+        ratio: Some(b.ratio),
+        window: Some(b.window),
+    })
+}
 
 /// What to do with blurry keyframes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

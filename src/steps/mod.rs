@@ -1,12 +1,34 @@
-//! The typed pipeline description. A [`Step`] is one sampler with its parameters as a user gives
-//! them (command-line flags and a workflow's `[[sample]]` tables both become `Vec<Step>`); an
-//! [`Applied`] step is what `select` ran (thresholds resolved, the backend and movement measure
-//! that fed it), which is what a project's history holds and what `workflow save` writes back as
-//! steps. No step is ever turned into text to be parsed again.
+//! The typed pipeline description and the samplers it runs. A [`Step`] is one sampler with its
+//! parameters as a user gives them (flags, built from each step's [`Flag`]s, and a workflow's
+//! `[[sample]]` tables both become `Vec<Step>`); an [`Applied`] step is what `select` ran
+//! (thresholds resolved, the backend and movement measure that fed it): a project's history
+//! holds it, `workflow save` writes it back as steps. Each step's module holds its flags, its
+//! pure function over candidate frames and per-frame numbers (samplers never touch pixels) and
+//! the series the report draws. Adding a sampler: its module, its variants here, its test.
 
-use crate::error::Error;
-use crate::params::{Backend, Metric, MovementRequest};
-use crate::samplers::{BlurMode, BlurParams, Bound, Boundaries};
+pub mod auto;
+pub mod blur;
+mod boundaries;
+mod every_nth;
+pub mod flags;
+mod fps;
+mod manual;
+pub mod spacing;
+pub mod stationary;
+mod values;
+
+pub use blur::{blur, BlurMode, BlurParams};
+pub use boundaries::{Bound, Boundaries};
+pub use every_nth::every_nth;
+pub use flags::{Flag, FlagValues};
+pub use fps::fps;
+pub use manual::manual;
+pub use spacing::{spacing, spacing_for_count};
+pub use stationary::Stationary;
+pub use values::{BoundArg, NumOrText, Threshold};
+
+use crate::error::{Error, Result};
+use crate::params::{Backend, Metric, MovementRequest, StationaryRequest};
 use serde::{Deserialize, Serialize};
 
 /// Defaults of the optional step parameters (the flags' defaults too).
@@ -41,104 +63,71 @@ pub fn check_movement(r: &MovementRequest) -> crate::error::Result<()> {
     r.farneback.validate()
 }
 
-/// A movement threshold as given: pixels, proposed from a sample (`auto`), or the threshold
-/// that keeps a number of keyframes (`60kf`). In files: a number or one of those strings.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(try_from = "NumOrText", into = "NumOrText")]
-pub enum Threshold {
-    /// Full-resolution pixels.
-    Px(f64),
-    /// Proposed from a sample of the input.
-    Auto,
-    /// The threshold that keeps this many keyframes.
-    Count(usize),
+/// What the steps read besides the candidates: the input's frames and the series `select`
+/// measured or took from the project's cache.
+#[derive(Debug, Clone, Default)]
+pub struct Inputs<'a> {
+    /// Frames in the input.
+    pub frame_count: usize,
+    /// Per-frame timestamps, when known.
+    pub timestamps_s: Option<&'a [f64]>,
+    /// First and last candidate of the boundaries.
+    pub range: (usize, usize),
+    /// Sharpness scores per metric, with the backend that measured them.
+    pub sharpness: Vec<(Metric, &'a [f64], Backend)>,
+    /// How movement is measured.
+    pub movement_request: Option<MovementRequest>,
+    /// Movement per frame and its backend.
+    pub movement: Option<(&'a [f64], Backend)>,
+    /// The stationary run (threshold resolved), its keyframes and backend.
+    pub stationary: Option<(StationaryRequest, &'a [usize], Backend)>,
+    /// Whether the stationary threshold was proposed from a sample (`auto`).
+    pub stationary_auto: bool,
+    /// The spacing threshold `auto` was resolved to.
+    pub spacing_px: Option<f64>,
 }
 
-impl std::str::FromStr for Threshold {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        if s == "auto" {
-            return Ok(Threshold::Auto);
-        }
-        if let Some(n) = s.strip_suffix("kf") {
-            return match n.parse::<usize>() {
-                Ok(n) if n >= 1 => Ok(Threshold::Count(n)),
-                _ => Err(format!(
-                    "`{s}`: give a keyframe count of 1 or more, e.g. `60kf`"
-                )),
-            };
-        }
-        match s.parse::<f64>() {
-            Ok(v) if v.is_finite() && v > 0.0 => Ok(Threshold::Px(v)),
-            _ => Err(format!(
-                "`{s}` is neither a positive number of pixels, a keyframe count (`60kf`) nor `auto`"
-            )),
-        }
-    }
+/// The flags of every step, in the chain's order.
+pub fn flags() -> impl Iterator<Item = &'static Flag> {
+    [
+        boundaries::FLAGS,
+        stationary::FLAGS,
+        spacing::FLAGS,
+        every_nth::FLAGS,
+        fps::FLAGS,
+        blur::FLAGS,
+        manual::FLAGS,
+    ]
+    .into_iter()
+    .flatten()
 }
 
-/// A number or a string in a file (`120`, `4.5s`, `auto`, `60kf`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum NumOrText {
-    /// An integer.
-    Int(i64),
-    /// A float.
-    Float(f64),
-    /// A string.
-    Text(String),
-}
-
-impl NumOrText {
-    fn text(&self) -> String {
-        match self {
-            NumOrText::Int(i) => i.to_string(),
-            NumOrText::Float(f) => f.to_string(),
-            NumOrText::Text(s) => s.clone(),
-        }
-    }
-}
-
-impl TryFrom<NumOrText> for Threshold {
-    type Error = String;
-    fn try_from(v: NumOrText) -> std::result::Result<Self, String> {
-        let text = v.text();
-        text.parse()
-            .map_err(|e| format!("invalid value '{text}': {e}"))
-    }
-}
-
-impl From<Threshold> for NumOrText {
-    fn from(t: Threshold) -> NumOrText {
-        match t {
-            Threshold::Px(v) => NumOrText::Float(v),
-            Threshold::Auto => NumOrText::Text("auto".into()),
-            Threshold::Count(n) => NumOrText::Text(format!("{n}kf")),
+/// The steps the flags give, in keyframer's order, checked (errors name the flag's parameter).
+pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
+    let readers = [
+        boundaries::from_flags,
+        stationary::from_flags,
+        spacing::from_flags,
+        every_nth::from_flags,
+        fps::from_flags,
+        blur::from_flags,
+        manual::from_flags,
+    ];
+    let mut steps = Vec::new();
+    for read in readers {
+        if let Some(step) = read(v)? {
+            step.validate().map_err(flag_error)?;
+            steps.push(step);
         }
     }
+    Ok(steps)
 }
 
-/// A frame bound as a user writes it: a frame index `120` or a time `"4.5s"`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(try_from = "NumOrText", into = "NumOrText")]
-pub struct BoundArg(pub Bound);
-
-impl TryFrom<NumOrText> for BoundArg {
-    type Error = String;
-    fn try_from(v: NumOrText) -> std::result::Result<Self, String> {
-        let text = v.text();
-        text.parse()
-            .map(BoundArg)
-            .map_err(|e| format!("invalid value '{text}': {e}"))
-    }
-}
-
-impl From<BoundArg> for NumOrText {
-    fn from(b: BoundArg) -> NumOrText {
-        match b.0 {
-            Bound::Frame(i) => NumOrText::Int(i64::try_from(i).unwrap_or(i64::MAX)),
-            Bound::Seconds(_) => NumOrText::Text(b.0.to_string()),
-        }
+/// A step's parameter error, naming the flag that sets the parameter when there is one.
+fn flag_error(e: StepError) -> Error {
+    match flags().find(|f| f.sets == Some((e.plugin, e.key))) {
+        Some(f) => Error::param(f.long, e.msg),
+        None => e.into_error(),
     }
 }
 
@@ -224,6 +213,23 @@ impl Step {
         }
     }
 
+    /// Runs the step on `keys`; returns what it did (None: boundaries, which `select` applies
+    /// when it lists the candidates).
+    pub fn apply(&self, at: &Inputs, keys: &mut Vec<usize>) -> Result<Option<Applied>> {
+        Ok(Some(match self {
+            Step::Boundaries { .. } => return Ok(None),
+            Step::Stationary { .. } => stationary::apply(at, keys)?,
+            Step::Spacing { threshold } => spacing::apply(at, keys, *threshold)?,
+            Step::EveryNth { n } => every_nth::apply(keys, *n)?,
+            Step::Fps { fps } => fps::apply(at, keys, *fps)?,
+            Step::Blur { .. } => match self.blur_params() {
+                Some(b) => blur::apply(at, keys, &b)?,
+                None => return Ok(None),
+            },
+            Step::Manual { add, remove } => manual::apply(at, keys, add, remove)?,
+        }))
+    }
+
     /// Position in keyframer's chain (every-nth and fps share one slot).
     fn rank(&self) -> usize {
         match self {
@@ -263,14 +269,20 @@ impl Step {
                 threshold,
                 reset_delta,
             } => {
+                match threshold {
+                    Some(Threshold::Count(_)) => {
+                        return bad(
+                            "threshold",
+                            "give pixels or `auto` (a keyframe count is for spacing)".into(),
+                        )
+                    }
+                    Some(Threshold::Px(t)) if !(t.is_finite() && *t > 0.0) => {
+                        return bad("threshold", format!("must be a positive number, got {t}"))
+                    }
+                    _ => {}
+                }
                 if *reset_delta == Some(0) {
                     return bad("reset_delta", "must be at least 1 frame".into());
-                }
-                if let Some(Threshold::Count(_)) = threshold {
-                    return bad(
-                        "threshold",
-                        "give pixels or `auto` (a keyframe count is for spacing)".into(),
-                    );
                 }
             }
             Step::EveryNth { n: 0 } => return bad("n", "must be at least 1".into()),
@@ -455,6 +467,58 @@ impl Applied {
         }
     }
 
+    /// Checks the parameters `workflow save` reads, for an input of `frames` frames; the error
+    /// names the parameter (`params.fps`).
+    pub fn check(&self, frames: usize) -> std::result::Result<(), (String, String)> {
+        let bad = |k: &str, msg: String| Err((format!("params.{k}"), msg));
+        let positive = |k: &str, v: Option<f64>| match v {
+            Some(f) if !(f.is_finite() && f > 0.0) => {
+                bad(k, format!("must be a positive number, got {f}"))
+            }
+            _ => Ok(()),
+        };
+        let count = |k: &str, v: Option<usize>| match v {
+            Some(0) => bad(k, "must be a whole number of at least 1, got 0".into()),
+            _ => Ok(()),
+        };
+        match self {
+            Applied::Boundaries { start, end } => {
+                for (k, b) in [("start", start), ("end", end)] {
+                    if let Some(Bound::Seconds(s)) = b {
+                        if !(s.is_finite() && *s >= 0.0) {
+                            return bad(k, format!("must be a non-negative time, got {s}"));
+                        }
+                    }
+                }
+                Ok(())
+            }
+            Applied::Stationary {
+                threshold_px,
+                reset_delta,
+                ..
+            } => {
+                positive("threshold_px", *threshold_px)?;
+                count("reset_delta", *reset_delta)
+            }
+            Applied::Spacing { threshold_px, .. } => positive("threshold_px", Some(*threshold_px)),
+            Applied::EveryNth { n } => count("n", Some(*n)),
+            Applied::Fps { fps } => positive("fps", Some(*fps)),
+            Applied::Blur { ratio, window, .. } => {
+                positive("ratio", *ratio)?;
+                count("window", *window)
+            }
+            Applied::Manual { add, remove } => {
+                for (k, list) in [("add", add), ("remove", remove)] {
+                    if list.iter().any(|&i| i >= frames) {
+                        return bad(k, format!("must be a list of frame indices below {frames}"));
+                    }
+                }
+                Ok(())
+            }
+            Applied::Preview { .. } => Ok(()),
+        }
+    }
+
     /// The history entry recording this step and how many frames it kept. Parameters are
     /// written in key order, as every project so far has them.
     pub fn entry(&self, kept: usize) -> HistoryEntry {
@@ -543,6 +607,36 @@ mod tests {
         );
         assert_eq!(blur.validate().unwrap_err().key, "window");
         assert_eq!(Step::EveryNth { n: 0 }.validate().unwrap_err().key, "n");
+    }
+
+    #[test]
+    fn flag_defaults_are_the_steps_defaults() {
+        let mut v = FlagValues::default();
+        for f in flags() {
+            if let (Some(d), Some(check)) = (f.default, f.check) {
+                assert_eq!(check(d), Ok(()), "{}", f.long);
+                v.set(f.long, vec![d.to_string()]);
+            }
+        }
+        v.set("stationary", Vec::new());
+        v.set("blur", Vec::new());
+        let steps = from_flags(&v).unwrap();
+        let given = |s: &Step| Step::validate(s).is_ok();
+        assert!(steps.iter().all(given));
+        assert_eq!(
+            steps[0],
+            Step::Stationary {
+                threshold: None,
+                reset_delta: Some(defaults::RESET_DELTA)
+            }
+        );
+        let blur = Step::Blur {
+            metric: None,
+            window: None,
+            ratio: None,
+            mode: None,
+        };
+        assert_eq!(steps[1].blur_params(), blur.blur_params());
     }
 
     #[test]
