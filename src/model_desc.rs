@@ -2,7 +2,7 @@
 //! its classes are called. Loading checks everything that can be checked without the model.
 
 use crate::error::{Error, Result};
-use crate::tomlfile;
+use crate::tomlfile::{self, TomlFile};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -173,87 +173,19 @@ impl ModelDesc {
         let file = tomlfile::read::<RawDesc>(path, "model description")?;
         let raw = &file.value;
         let dir = path.parent().unwrap_or(Path::new("."));
-        let resolve = |p: &Path| dir.join(p);
-
-        let model = resolve(&raw.model);
-        if !model.is_file() {
-            return Err(file.error(
-                "model",
-                format!("{} does not exist or is not a file", model.display()),
-            ));
-        }
-        let config = raw.config.as_deref().map(resolve);
-        if let Some(c) = &config {
-            if !c.is_file() {
-                return Err(file.error(
-                    "config",
-                    format!("{} does not exist or is not a file", c.display()),
-                ));
-            }
-        }
-        let classes =
-            match (&raw.classes, &raw.classes_file) {
-                (Some(c), None) => c.clone(),
-                (None, Some(f)) => read_lines(&resolve(f))?,
-                _ => return Err(file.error(
-                    "classes",
-                    "give exactly one of `classes` (a list) or `classes_file` (one name per line)",
-                )),
-            };
-        if classes.is_empty() {
-            return Err(file.error("classes", "no class names"));
-        }
-        if raw.output.kind == OutputKind::Probability && classes.len() != 2 {
-            return Err(file.error(
-                "classes",
-                format!(
-                    "a probability output needs exactly two classes (below, at or above the threshold), got {}",
-                    classes.len()
-                ),
-            ));
-        }
-        for (i, c) in classes.iter().enumerate() {
-            if classes[..i].iter().any(|d| d.eq_ignore_ascii_case(c)) {
-                return Err(file.error("classes", format!("`{c}` is listed twice")));
-            }
-        }
-        let colors = match (&raw.colors, &raw.colors_file) {
-            (Some(c), None) => c.clone(),
-            (None, Some(f)) => read_colors(&resolve(f))?,
-            (None, None) => default_colors(classes.len()),
-            _ => return Err(file.error("colors", "give at most one of `colors` and `colors_file`")),
-        };
-        if colors.len() != classes.len() {
-            return Err(file.error(
-                "colors",
-                format!("{} colours for {} classes", colors.len(), classes.len()),
-            ));
-        }
+        let model = existing(&file, "model", dir.join(&raw.model))?;
+        let config = raw.config.as_deref().map(|c| dir.join(c));
+        let config = config.map(|c| existing(&file, "config", c)).transpose()?;
+        let classes = classes(&file, dir)?;
+        let colors = colors(&file, dir, classes.len())?;
         let hide = raw.hide.clone().unwrap_or_default();
         for (k, h) in hide.iter().enumerate() {
             if !classes.iter().any(|c| c.eq_ignore_ascii_case(h)) {
-                return Err(file.error(
-                    &format!("hide[{k}]"),
-                    format!("`{h}` is not one of the classes ({})", classes.join(", ")),
-                ));
+                let msg = format!("`{h}` is not one of the classes ({})", classes.join(", "));
+                return Err(file.error(&format!("hide[{k}]"), msg));
             }
         }
-        let i = &raw.input;
-        if i.width == 0 || i.height == 0 || i.width > 16384 || i.height > 16384 {
-            return Err(file.error("input.width", "width and height must be 1..=16384"));
-        }
-        if !(i.scale.is_finite() && i.scale != 0.0) {
-            return Err(file.error("input.scale", "must be a finite, non-zero number"));
-        }
-        if i.std.iter().any(|s| !(s.is_finite() && *s != 0.0)) {
-            return Err(file.error("input.std", "every value must be finite and non-zero"));
-        }
-        if i.batch == 0 || i.batch > 256 {
-            return Err(file.error("input.batch", "must be 1..=256"));
-        }
-        if !(0.0..=1.0).contains(&raw.output.threshold) {
-            return Err(file.error("output.threshold", "must be between 0 and 1"));
-        }
+        check_numbers(&file)?;
         Ok(ModelDesc {
             path: path.to_path_buf(),
             model,
@@ -317,6 +249,79 @@ impl ModelDesc {
             })
             .collect()
     }
+}
+
+/// `path` (the value of `field`) if it is a file.
+fn existing(file: &TomlFile<RawDesc>, field: &str, path: PathBuf) -> Result<PathBuf> {
+    if !path.is_file() {
+        let msg = format!("{} does not exist or is not a file", path.display());
+        return Err(file.error(field, msg));
+    }
+    Ok(path)
+}
+
+/// The class names, from `classes` or `classes_file`: some, each once, two for a probability.
+fn classes(file: &TomlFile<RawDesc>, dir: &Path) -> Result<Vec<String>> {
+    let raw = &file.value;
+    let classes = match (&raw.classes, &raw.classes_file) {
+        (Some(c), None) => c.clone(),
+        (None, Some(f)) => read_lines(&dir.join(f))?,
+        _ => {
+            let msg =
+                "give exactly one of `classes` (a list) or `classes_file` (one name per line)";
+            return Err(file.error("classes", msg));
+        }
+    };
+    if classes.is_empty() {
+        return Err(file.error("classes", "no class names"));
+    }
+    if raw.output.kind == OutputKind::Probability && classes.len() != 2 {
+        let n = classes.len();
+        let msg = format!("a probability output needs exactly two classes (below, at or above the threshold), got {n}");
+        return Err(file.error("classes", msg));
+    }
+    for (i, c) in classes.iter().enumerate() {
+        if classes[..i].iter().any(|d| d.eq_ignore_ascii_case(c)) {
+            return Err(file.error("classes", format!("`{c}` is listed twice")));
+        }
+    }
+    Ok(classes)
+}
+
+/// The colours, from `colors`, `colors_file` or defaults: one per class.
+fn colors(file: &TomlFile<RawDesc>, dir: &Path, classes: usize) -> Result<Vec<[u8; 3]>> {
+    let colors = match (&file.value.colors, &file.value.colors_file) {
+        (Some(c), None) => c.clone(),
+        (None, Some(f)) => read_colors(&dir.join(f))?,
+        (None, None) => default_colors(classes),
+        _ => return Err(file.error("colors", "give at most one of `colors` and `colors_file`")),
+    };
+    if colors.len() != classes {
+        let msg = format!("{} colours for {classes} classes", colors.len());
+        return Err(file.error("colors", msg));
+    }
+    Ok(colors)
+}
+
+/// Checks the input size, scale, std and batch, and the output threshold.
+fn check_numbers(file: &TomlFile<RawDesc>) -> Result<()> {
+    let i = &file.value.input;
+    if i.width == 0 || i.height == 0 || i.width > 16384 || i.height > 16384 {
+        return Err(file.error("input.width", "width and height must be 1..=16384"));
+    }
+    if !(i.scale.is_finite() && i.scale != 0.0) {
+        return Err(file.error("input.scale", "must be a finite, non-zero number"));
+    }
+    if i.std.iter().any(|s| !(s.is_finite() && *s != 0.0)) {
+        return Err(file.error("input.std", "every value must be finite and non-zero"));
+    }
+    if i.batch == 0 || i.batch > 256 {
+        return Err(file.error("input.batch", "must be 1..=256"));
+    }
+    if !(0.0..=1.0).contains(&file.value.output.threshold) {
+        return Err(file.error("output.threshold", "must be between 0 and 1"));
+    }
+    Ok(())
 }
 
 fn read_lines(path: &Path) -> Result<Vec<String>> {

@@ -132,10 +132,7 @@ pub fn check_file(path: &Path, flag: &str, force: bool, inputs: &[&Path]) -> Res
     match kind_of(path) {
         None => {}
         Some("file") if !force => {
-            return Err(Error::Output {
-                path: path.to_path_buf(),
-                msg: "exists; pass --force to overwrite it".into(),
-            });
+            return Err(refused(path, "exists; pass --force to overwrite it".into()));
         }
         Some("file") => {}
         Some(kind) => {
@@ -297,40 +294,52 @@ pub fn prepare_dir(
     records: &[&str],
     inputs: &[&Path],
 ) -> Result<OutDir> {
-    let record = records.first().copied().unwrap_or("record");
     check_not_input(dir, flag, inputs)?;
-    let mut created = Vec::new();
-    match kind_of(dir) {
-        Some("folder") => {}
-        Some("symbolic link") if dir.is_dir() => {}
-        Some(kind) => {
-            return Err(Error::Output {
-                path: dir.to_path_buf(),
-                msg: format!("exists and is a {kind}, not a folder; choose another {flag}"),
-            })
-        }
-        None => {
-            // Remember every folder made, so a failure removes exactly those.
-            let mut missing = Vec::new();
-            let mut d = dir.to_path_buf();
-            while !d.as_os_str().is_empty() && fs::symlink_metadata(&d).is_err() {
-                missing.push(d.clone());
-                match d.parent() {
-                    Some(p) => d = p.to_path_buf(),
-                    None => break,
-                }
-            }
-            fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-            missing.reverse();
-            created = missing;
-        }
-    }
     let out = OutDir {
         path: dir.to_path_buf(),
-        created,
+        created: create_dir(dir, flag)?,
     };
-    // Ownership first: keyframer's own temporaries do not count, and are cleared only once the
-    // folder is known to be keyframer's (or holds nothing else).
+    // Ownership first: temporaries are cleared only in a folder that is keyframer's (or empty).
+    check_ours(dir, flag, force, records)?;
+    clear_stale_temps_of(dir, None);
+    if let Err(e) = probe_write(dir) {
+        out.abandon();
+        return Err(refused(dir, format!("output folder is not writable: {e}")));
+    }
+    Ok(out)
+}
+
+/// An [`Error::Output`] about `path`.
+fn refused(path: &Path, msg: String) -> Error {
+    let path = path.to_path_buf();
+    Error::Output { path, msg }
+}
+
+/// Creates `dir` when missing; returns the folders made (outermost first) for [`OutDir::abandon`].
+fn create_dir(dir: &Path, flag: &str) -> Result<Vec<PathBuf>> {
+    match kind_of(dir) {
+        Some("folder") => Ok(Vec::new()),
+        Some("symbolic link") if dir.is_dir() => Ok(Vec::new()),
+        Some(kind) => {
+            let msg = format!("exists and is a {kind}, not a folder; choose another {flag}");
+            Err(refused(dir, msg))
+        }
+        None => {
+            let mut missing: Vec<PathBuf> = dir
+                .ancestors()
+                .take_while(|d| !d.as_os_str().is_empty() && fs::symlink_metadata(d).is_err())
+                .map(Path::to_path_buf)
+                .collect();
+            fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+            missing.reverse();
+            Ok(missing)
+        }
+    }
+}
+
+/// Refuses a non-empty `dir` (keyframer's temporaries aside) without a record, or without `force`.
+fn check_ours(dir: &Path, flag: &str, force: bool, records: &[&str]) -> Result<()> {
+    let record = records.first().copied().unwrap_or("record");
     let non_empty = fs::read_dir(dir)
         .map_err(|e| Error::io(dir, e))?
         .flatten()
@@ -340,25 +349,21 @@ pub fn prepare_dir(
                 .and_then(|n| temp_pid(n, None))
                 .is_none()
         });
-    if non_empty {
-        if !records.iter().any(|r| dir.join(r).is_file()) {
-            return Err(Error::Output {
-                path: dir.to_path_buf(),
-                msg: format!(
-                    "is not empty and holds no {record}, so keyframer did not make it; keyframer replaces only its own results: choose a new or empty {flag}"
-                ),
-            });
-        }
-        if !force {
-            return Err(Error::Output {
-                path: dir.to_path_buf(),
-                msg: format!(
-                    "holds earlier results ({record}); pass --force to replace what keyframer wrote there"
-                ),
-            });
-        }
+    if non_empty && !records.iter().any(|r| dir.join(r).is_file()) {
+        let msg = format!("is not empty and holds no {record}, so keyframer did not make it; keyframer replaces only its own results: choose a new or empty {flag}");
+        return Err(refused(dir, msg));
     }
-    clear_stale_temps_of(dir, None);
+    if non_empty && !force {
+        let msg = format!(
+            "holds earlier results ({record}); pass --force to replace what keyframer wrote there"
+        );
+        return Err(refused(dir, msg));
+    }
+    Ok(())
+}
+
+/// Writes and removes a probe file in `dir`.
+fn probe_write(dir: &Path) -> std::io::Result<()> {
     let probe = dir.join(format!(".keyframer-write-test-{}", unique_suffix()));
     let written = fs::OpenOptions::new()
         .write(true)
@@ -366,14 +371,7 @@ pub fn prepare_dir(
         .open(&probe)
         .and_then(|mut f| std::io::Write::write_all(&mut f, b"ok"));
     let _ = fs::remove_file(&probe);
-    if let Err(e) = written {
-        out.abandon();
-        return Err(Error::Output {
-            path: dir.to_path_buf(),
-            msg: format!("output folder is not writable: {e}"),
-        });
-    }
-    Ok(out)
+    written
 }
 
 /// A path relative to an output folder, as read from keyframer's own record: relative, made of

@@ -215,99 +215,94 @@ impl<'a> Bin<'a> {
 
 /// Reads `cameras.bin`, `images.bin` and `points3D.bin` from `dir`.
 pub fn read_binary(dir: &Path) -> Result<Model> {
-    let mut model = Model::default();
-    let path = dir.join("cameras.bin");
-    let mut b = Bin::open(&path)?;
-    let n = b.count(24, &|| "number of cameras".into())?;
+    Ok(Model {
+        cameras: read_bin(&dir.join("cameras.bin"), 24, "camera", bin_camera, |c| c.id)?,
+        images: read_bin(&dir.join("images.bin"), 64, "image", bin_image, |i| i.id)?,
+        points: read_bin(&dir.join("points3D.bin"), 43, "point", bin_point, |p| p.id)?,
+    })
+}
+
+/// Reads one binary file: a count of `what`s, then their records keyed by id.
+fn read_bin<K: Ord, V>(
+    path: &Path,
+    min_bytes: usize,
+    what: &str,
+    record: fn(&mut Bin, &dyn Fn() -> String) -> Result<V>,
+    key: fn(&V) -> K,
+) -> Result<BTreeMap<K, V>> {
+    let mut b = Bin::open(path)?;
+    let n = b.count(min_bytes, &|| format!("number of {what}s"))?;
+    let mut out = BTreeMap::new();
     for k in 0..n {
-        let f = move || format!("camera record {k}");
-        let id = b.u32(&f)?;
-        let model_id = b.i32(&f)?;
-        let (_, name, np) = CAMERA_MODELS
-            .iter()
-            .find(|m| m.0 == model_id)
-            .ok_or_else(|| bad(&path, f(), format!("unknown camera model id {model_id}")))?;
-        let width = b.u64(&f)?;
-        let height = b.u64(&f)?;
-        let params = (0..*np).map(|_| b.f64(&f)).collect::<Result<Vec<_>>>()?;
-        model.cameras.insert(
-            id,
-            Camera {
-                id,
-                model: (*name).to_string(),
-                width,
-                height,
-                params,
-            },
-        );
+        let v = record(&mut b, &move || format!("{what} record {k}"))?;
+        out.insert(key(&v), v);
     }
     b.end()?;
+    Ok(out)
+}
 
-    let path = dir.join("images.bin");
-    let mut b = Bin::open(&path)?;
-    let n = b.count(64, &|| "number of images".into())?;
-    for k in 0..n {
-        let f = move || format!("image record {k}");
-        let id = b.u32(&f)?;
-        let mut q = [0.0; 4];
-        for v in &mut q {
-            *v = b.f64(&f)?;
-        }
-        let mut t = [0.0; 3];
-        for v in &mut t {
-            *v = b.f64(&f)?;
-        }
-        let camera_id = b.u32(&f)?;
-        let name = b.cstr(&f)?;
-        let np = b.count(24, &f)?;
-        let mut points2d = Vec::with_capacity(np);
-        for _ in 0..np {
-            let x = b.f64(&f)?;
-            let y = b.f64(&f)?;
-            let p = b.u64(&f)?;
+/// One `cameras.bin` record.
+fn bin_camera(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Camera> {
+    let id = b.u32(f)?;
+    let model_id = b.i32(f)?;
+    let (_, name, np) = CAMERA_MODELS
+        .iter()
+        .find(|m| m.0 == model_id)
+        .ok_or_else(|| bad(b.path, f(), format!("unknown camera model id {model_id}")))?;
+    let width = b.u64(f)?;
+    let height = b.u64(f)?;
+    let params = (0..*np).map(|_| b.f64(f)).collect::<Result<Vec<_>>>()?;
+    Ok(Camera {
+        id,
+        model: (*name).to_string(),
+        width,
+        height,
+        params,
+    })
+}
+
+/// One `images.bin` record.
+fn bin_image(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Image> {
+    let id = b.u32(f)?;
+    let qvec = [b.f64(f)?, b.f64(f)?, b.f64(f)?, b.f64(f)?];
+    let tvec = [b.f64(f)?, b.f64(f)?, b.f64(f)?];
+    let camera_id = b.u32(f)?;
+    let name = b.cstr(f)?;
+    let np = b.count(24, f)?;
+    let points2d = (0..np)
+        .map(|_| {
+            let (x, y, p) = (b.f64(f)?, b.f64(f)?, b.u64(f)?);
             // COLMAP writes an invalid id (-1) as u64::MAX.
-            points2d.push((x, y, (p != u64::MAX).then_some(p)));
-        }
-        model.images.insert(
-            id,
-            Image {
-                id,
-                qvec: q,
-                tvec: t,
-                camera_id,
-                name,
-                points2d,
-            },
-        );
-    }
-    b.end()?;
+            Ok((x, y, (p != u64::MAX).then_some(p)))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Image {
+        id,
+        qvec,
+        tvec,
+        camera_id,
+        name,
+        points2d,
+    })
+}
 
-    let path = dir.join("points3D.bin");
-    let mut b = Bin::open(&path)?;
-    let n = b.count(43, &|| "number of points".into())?;
-    for k in 0..n {
-        let f = move || format!("point record {k}");
-        let id = b.u64(&f)?;
-        let xyz = [b.f64(&f)?, b.f64(&f)?, b.f64(&f)?];
-        let rgb = [b.u8(&f)?, b.u8(&f)?, b.u8(&f)?];
-        let error = b.f64(&f)?;
-        let nt = b.count(8, &f)?;
-        let track = (0..nt)
-            .map(|_| Ok((b.u32(&f)?, b.u32(&f)?)))
-            .collect::<Result<Vec<_>>>()?;
-        model.points.insert(
-            id,
-            Point3D {
-                id,
-                xyz,
-                rgb,
-                error,
-                track,
-            },
-        );
-    }
-    b.end()?;
-    Ok(model)
+/// One `points3D.bin` record.
+fn bin_point(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Point3D> {
+    let id = b.u64(f)?;
+    let xyz = [b.f64(f)?, b.f64(f)?, b.f64(f)?];
+    let rgb = [b.u8(f)?, b.u8(f)?, b.u8(f)?];
+    let error = b.f64(f)?;
+    let nt = b.count(8, f)?;
+    let track = (0..nt)
+        .map(|_| Ok((b.u32(f)?, b.u32(f)?)))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Point3D {
+        id,
+        xyz,
+        rgb,
+        error,
+        track,
+    })
 }
 
 /// Lines of a text file that are not comments: (1-based line number, trimmed text).
@@ -321,6 +316,9 @@ fn text_lines(path: &Path) -> Result<Vec<(usize, String)>> {
         .collect())
 }
 
+/// Text lines still to read (comments left out).
+type Lines<'a> = std::slice::Iter<'a, (usize, String)>;
+
 struct Fields<'a> {
     path: &'a PathBuf,
     line: usize,
@@ -328,6 +326,10 @@ struct Fields<'a> {
 }
 
 impl<'a> Fields<'a> {
+    fn new(path: &'a PathBuf, line: usize, text: &'a str) -> Self {
+        let it = text.split_whitespace();
+        Fields { path, line, it }
+    }
     fn next<T: std::str::FromStr>(&mut self, field: &str) -> Result<T> {
         let tok = self.it.next().ok_or_else(|| self.err(field, "missing"))?;
         tok.parse()
@@ -349,134 +351,127 @@ impl<'a> Fields<'a> {
 
 /// Reads `cameras.txt`, `images.txt` and `points3D.txt` from `dir`.
 pub fn read_text(dir: &Path) -> Result<Model> {
-    let mut model = Model::default();
-    let path = dir.join("cameras.txt");
-    for (line, l) in text_lines(&path)?.iter().filter(|(_, l)| !l.is_empty()) {
-        let mut f = Fields {
-            path: &path,
-            line: *line,
-            it: l.split_whitespace(),
-        };
-        let id: u32 = f.next("CAMERA_ID")?;
-        let name: String = f.next("MODEL")?;
-        let width = f.next("WIDTH")?;
-        let height = f.next("HEIGHT")?;
-        let params = f
-            .rest()
-            .iter()
-            .map(|t| t.parse::<f64>())
-            .collect::<std::result::Result<Vec<_>, _>>()
-            .map_err(|_| f.err("PARAMS", "not a number"))?;
-        match CAMERA_MODELS.iter().find(|m| m.1 == name) {
-            Some(m) if m.2 == params.len() => {}
-            Some(m) => {
-                return Err(f.err("PARAMS", &format!("{name} needs {} parameters", m.2)));
-            }
-            None => return Err(f.err("MODEL", &format!("unknown camera model {name}"))),
-        }
-        model.cameras.insert(
-            id,
-            Camera {
-                id,
-                model: name,
-                width,
-                height,
-                params,
-            },
-        );
-    }
+    Ok(Model {
+        cameras: read_txt(&dir.join("cameras.txt"), txt_camera, |c| c.id)?,
+        images: read_txt(&dir.join("images.txt"), txt_image, |i| i.id)?,
+        points: read_txt(&dir.join("points3D.txt"), txt_point, |p| p.id)?,
+    })
+}
 
-    // Two lines per image; the second (its 2D points) may be empty, so blanks count there.
-    let path = dir.join("images.txt");
-    let lines = text_lines(&path)?;
+/// Reads a text file whose records start on non-blank lines, keyed by id.
+fn read_txt<K: Ord, V>(
+    path: &PathBuf,
+    record: fn(Fields, &mut Lines) -> Result<V>,
+    key: fn(&V) -> K,
+) -> Result<BTreeMap<K, V>> {
+    let lines = text_lines(path)?;
     let mut it = lines.iter();
+    let mut out = BTreeMap::new();
     while let Some((line, l)) = it.next() {
-        if l.is_empty() {
-            continue;
+        if !l.is_empty() {
+            let v = record(Fields::new(path, *line, l), &mut it)?;
+            out.insert(key(&v), v);
         }
-        let mut f = Fields {
-            path: &path,
-            line: *line,
-            it: l.split_whitespace(),
-        };
-        let id: u32 = f.next("IMAGE_ID")?;
-        let qvec = [f.next("QW")?, f.next("QX")?, f.next("QY")?, f.next("QZ")?];
-        let tvec = [f.next("TX")?, f.next("TY")?, f.next("TZ")?];
-        let camera_id = f.next("CAMERA_ID")?;
-        // Names may contain spaces: the rest of the line.
-        let name = f.rest().join(" ");
-        if name.is_empty() {
-            return Err(f.err("NAME", "missing"));
+    }
+    Ok(out)
+}
+
+/// One `cameras.txt` line.
+fn txt_camera(mut f: Fields, _: &mut Lines) -> Result<Camera> {
+    let id: u32 = f.next("CAMERA_ID")?;
+    let model: String = f.next("MODEL")?;
+    let width = f.next("WIDTH")?;
+    let height = f.next("HEIGHT")?;
+    let params = f
+        .rest()
+        .iter()
+        .map(|t| t.parse::<f64>())
+        .collect::<std::result::Result<Vec<_>, _>>()
+        .map_err(|_| f.err("PARAMS", "not a number"))?;
+    match CAMERA_MODELS.iter().find(|m| m.1 == model) {
+        Some(m) if m.2 == params.len() => {}
+        Some(m) => {
+            return Err(f.err("PARAMS", &format!("{model} needs {} parameters", m.2)));
         }
-        let (pline, pl) = it
-            .next()
-            .map(|(n, s)| (*n, s.as_str()))
-            .unwrap_or((line + 1, ""));
-        let mut g = Fields {
-            path: &path,
-            line: pline,
-            it: pl.split_whitespace(),
-        };
-        let toks = g.rest();
-        if toks.len() % 3 != 0 {
-            return Err(g.err("POINTS2D", "not a list of X Y POINT3D_ID triples"));
-        }
-        let mut points2d = Vec::with_capacity(toks.len() / 3);
-        for c in toks.chunks(3) {
-            let num = |t: &str| {
-                t.parse::<f64>()
-                    .map_err(|_| g.err("POINTS2D", "bad coordinate"))
-            };
+        None => return Err(f.err("MODEL", &format!("unknown camera model {model}"))),
+    }
+    Ok(Camera {
+        id,
+        model,
+        width,
+        height,
+        params,
+    })
+}
+
+/// One `images.txt` record: its line, then the 2D points line (which may be blank).
+fn txt_image(mut f: Fields, lines: &mut Lines) -> Result<Image> {
+    let id: u32 = f.next("IMAGE_ID")?;
+    let qvec = [f.next("QW")?, f.next("QX")?, f.next("QY")?, f.next("QZ")?];
+    let tvec = [f.next("TX")?, f.next("TY")?, f.next("TZ")?];
+    let camera_id = f.next("CAMERA_ID")?;
+    // Names may contain spaces: the rest of the line.
+    let name = f.rest().join(" ");
+    if name.is_empty() {
+        return Err(f.err("NAME", "missing"));
+    }
+    let (pline, pl) = lines
+        .next()
+        .map(|(n, s)| (*n, s.as_str()))
+        .unwrap_or((f.line + 1, ""));
+    let points2d = txt_points2d(Fields::new(f.path, pline, pl))?;
+    Ok(Image {
+        id,
+        qvec,
+        tvec,
+        camera_id,
+        name,
+        points2d,
+    })
+}
+
+/// The `X Y POINT3D_ID` triples of an image's second line.
+fn txt_points2d(mut g: Fields) -> Result<Vec<(f64, f64, Option<u64>)>> {
+    let toks = g.rest();
+    if toks.len() % 3 != 0 {
+        return Err(g.err("POINTS2D", "not a list of X Y POINT3D_ID triples"));
+    }
+    let num = |t: &str| {
+        t.parse::<f64>()
+            .map_err(|_| g.err("POINTS2D", "bad coordinate"))
+    };
+    toks.chunks(3)
+        .map(|c| {
             let p: i64 = c[2]
                 .parse()
                 .map_err(|_| g.err("POINTS2D", "bad POINT3D_ID"))?;
-            points2d.push((num(c[0])?, num(c[1])?, u64::try_from(p).ok()));
-        }
-        model.images.insert(
-            id,
-            Image {
-                id,
-                qvec,
-                tvec,
-                camera_id,
-                name,
-                points2d,
-            },
-        );
-    }
+            Ok((num(c[0])?, num(c[1])?, u64::try_from(p).ok()))
+        })
+        .collect()
+}
 
-    let path = dir.join("points3D.txt");
-    for (line, l) in text_lines(&path)?.iter().filter(|(_, l)| !l.is_empty()) {
-        let mut f = Fields {
-            path: &path,
-            line: *line,
-            it: l.split_whitespace(),
-        };
-        let id: u64 = f.next("POINT3D_ID")?;
-        let xyz = [f.next("X")?, f.next("Y")?, f.next("Z")?];
-        let rgb = [f.next("R")?, f.next("G")?, f.next("B")?];
-        let error = f.next("ERROR")?;
-        let toks = f.rest();
-        if toks.len() % 2 != 0 {
-            return Err(f.err("TRACK", "not a list of IMAGE_ID POINT2D_IDX pairs"));
-        }
-        let track = toks
-            .chunks(2)
-            .map(|c| Some((c[0].parse().ok()?, c[1].parse().ok()?)))
-            .collect::<Option<Vec<_>>>()
-            .ok_or_else(|| f.err("TRACK", "not integers"))?;
-        model.points.insert(
-            id,
-            Point3D {
-                id,
-                xyz,
-                rgb,
-                error,
-                track,
-            },
-        );
+/// One `points3D.txt` line.
+fn txt_point(mut f: Fields, _: &mut Lines) -> Result<Point3D> {
+    let id: u64 = f.next("POINT3D_ID")?;
+    let xyz = [f.next("X")?, f.next("Y")?, f.next("Z")?];
+    let rgb = [f.next("R")?, f.next("G")?, f.next("B")?];
+    let error = f.next("ERROR")?;
+    let toks = f.rest();
+    if toks.len() % 2 != 0 {
+        return Err(f.err("TRACK", "not a list of IMAGE_ID POINT2D_IDX pairs"));
     }
-    Ok(model)
+    let track = toks
+        .chunks(2)
+        .map(|c| Some((c[0].parse().ok()?, c[1].parse().ok()?)))
+        .collect::<Option<Vec<_>>>()
+        .ok_or_else(|| f.err("TRACK", "not integers"))?;
+    Ok(Point3D {
+        id,
+        xyz,
+        rgb,
+        error,
+        track,
+    })
 }
 
 /// The numbered model folders (`0/`, `1/`, …) under a `sparse/` root that hold a model, in

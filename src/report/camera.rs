@@ -2,7 +2,7 @@
 //! principal axes, segments coloured by the spacing to the previous camera, as an inline SVG.
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
-use std::fmt::Write;
+use std::fmt::{self, Write};
 
 /// One camera: the frame it was taken from and its centre in world coordinates.
 #[derive(Debug, Clone, PartialEq)]
@@ -95,108 +95,107 @@ impl CameraPath {
         s
     }
 
-    fn write_svg(&self, s: &mut String) -> std::fmt::Result {
-        let p = self.projected();
-        let d = self.spacings();
-        let (lo, hi) = d
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-                (a.min(x), b.max(x))
-            });
-        let (minx, maxx, miny, maxy) = p.iter().fold(
-            (
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-            ),
-            |(a, b, c, e), &(_, x, y)| (a.min(x), b.max(x), c.min(y), e.max(y)),
-        );
-        let span = (maxx - minx).max(maxy - miny).max(1e-12);
-        let k = (SIZE - 2.0 * PAD) / span;
-        let cx = (minx + maxx) / 2.0;
-        let cy = (miny + maxy) / 2.0;
-        let to = |x: f64, y: f64| (SIZE / 2.0 + (x - cx) * k, SIZE / 2.0 - (y - cy) * k);
-        let legend_w = 200.0;
+    fn write_svg(&self, s: &mut String) -> fmt::Result {
+        let (p, d) = (self.projected(), self.spacings());
+        let (width, cameras) = (SIZE + 200.0, p.len()); // the plot, then a 200 wide legend
         writeln!(
             s,
-            r#"<svg id="camera-path" width="{}" height="{SIZE}" font-family="sans-serif" font-size="11" data-cameras="{}">"#,
-            SIZE + legend_w,
-            p.len()
+            r#"<svg id="camera-path" width="{width}" height="{SIZE}" font-family="sans-serif" font-size="11" data-cameras="{cameras}">"#
         )?;
         writeln!(
             s,
             r##"<rect width="{SIZE}" height="{SIZE}" fill="#fafafa" stroke="#999"/>"##
         )?;
-        for (i, w) in p.windows(2).enumerate() {
-            let (x1, y1) = to(w[0].1, w[0].2);
-            let (x2, y2) = to(w[1].1, w[1].2);
-            let t = if hi > lo {
-                (d[i] - lo) / (hi - lo)
-            } else {
-                0.5
-            };
-            writeln!(
-                s,
-                r#"<line class="seg" x1="{x1:.1}" y1="{y1:.1}" x2="{x2:.1}" y2="{y2:.1}" stroke="{}" stroke-width="3" stroke-linecap="round"><title>frames {}–{}: spacing {:.4}</title></line>"#,
-                scale_colour(t),
-                w[0].0,
-                w[1].0,
-                d[i]
-            )?;
-        }
-        for &(f, x, y) in &p {
-            let (x, y) = to(x, y);
-            writeln!(
-                s,
-                r##"<circle class="cam" cx="{x:.1}" cy="{y:.1}" r="2.5" fill="#222"><title>frame {f}</title></circle>"##
-            )?;
-        }
-        if let (Some(first), Some(last)) = (p.first(), p.last()) {
-            for (pt, label) in [(first, "first"), (last, "last")] {
-                let (x, y) = to(pt.1, pt.2);
-                writeln!(
-                    s,
-                    r#"<text x="{:.1}" y="{:.1}">{label} (frame {})</text>"#,
-                    x + 5.0,
-                    y - 5.0,
-                    pt.0
-                )?;
-            }
-        }
-        // Colour scale legend.
-        let lx = SIZE + 30.0;
-        writeln!(
-            s,
-            r#"<text x="{lx}" y="40">spacing to the previous camera</text>"#
-        )?;
-        let steps = 20;
-        for i in 0..steps {
-            let t = 1.0 - i as f64 / (steps - 1) as f64;
-            writeln!(
-                s,
-                r#"<rect x="{lx}" y="{}" width="20" height="10" fill="{}"/>"#,
-                50 + i * 10,
-                scale_colour(t)
-            )?;
-        }
-        if hi.is_finite() {
-            writeln!(
-                s,
-                r#"<text x="{}" y="59">{hi:.4} (max)</text><text x="{}" y="{}">{lo:.4} (min)</text>"#,
-                lx + 26.0,
-                lx + 26.0,
-                50 + steps * 10 - 1
-            )?;
-        }
-        writeln!(
-            s,
-            r#"<text x="{lx}" y="{}">axes: the two principal</text><text x="{lx}" y="{}">directions of the centres</text>"#,
-            50 + steps * 10 + 30,
-            50 + steps * 10 + 44
-        )?;
+        write_path(s, &p, &d)?;
+        write_legend(s, &d)?;
         writeln!(s, "</svg>")
     }
+}
+
+/// Smallest and largest value (infinities when there is none).
+fn bounds(v: impl Iterator<Item = f64>) -> (f64, f64) {
+    let inf = f64::INFINITY;
+    v.fold((inf, -inf), |(a, b), x| (a.min(x), b.max(x)))
+}
+
+/// Maps projected coordinates into the plot square, centred, same scale on both axes.
+fn plot_transform(p: &[(usize, f64, f64)]) -> impl Fn(f64, f64) -> (f64, f64) {
+    let (minx, maxx) = bounds(p.iter().map(|q| q.1));
+    let (miny, maxy) = bounds(p.iter().map(|q| q.2));
+    let span = (maxx - minx).max(maxy - miny).max(1e-12);
+    let k = (SIZE - 2.0 * PAD) / span;
+    let (cx, cy) = ((minx + maxx) / 2.0, (miny + maxy) / 2.0);
+    move |x: f64, y: f64| (SIZE / 2.0 + (x - cx) * k, SIZE / 2.0 - (y - cy) * k)
+}
+
+/// The segments coloured by their spacing `d`, the cameras, and labels on the first and last.
+fn write_path(s: &mut String, p: &[(usize, f64, f64)], d: &[f64]) -> fmt::Result {
+    let ((lo, hi), to) = (bounds(d.iter().copied()), plot_transform(p));
+    for (i, w) in p.windows(2).enumerate() {
+        let (x1, y1) = to(w[0].1, w[0].2);
+        let (x2, y2) = to(w[1].1, w[1].2);
+        let t = if hi > lo {
+            (d[i] - lo) / (hi - lo)
+        } else {
+            0.5
+        };
+        let (colour, a, b, len) = (scale_colour(t), w[0].0, w[1].0, d[i]);
+        writeln!(
+            s,
+            r#"<line class="seg" x1="{x1:.1}" y1="{y1:.1}" x2="{x2:.1}" y2="{y2:.1}" stroke="{colour}" stroke-width="3" stroke-linecap="round"><title>frames {a}–{b}: spacing {len:.4}</title></line>"#
+        )?;
+    }
+    for &(f, x, y) in p {
+        let (x, y) = to(x, y);
+        writeln!(
+            s,
+            r##"<circle class="cam" cx="{x:.1}" cy="{y:.1}" r="2.5" fill="#222"><title>frame {f}</title></circle>"##
+        )?;
+    }
+    if let (Some(first), Some(last)) = (p.first(), p.last()) {
+        for (pt, label) in [(first, "first"), (last, "last")] {
+            let ((x, y), f) = (to(pt.1, pt.2), pt.0);
+            let (x, y) = (x + 5.0, y - 5.0);
+            writeln!(
+                s,
+                r#"<text x="{x:.1}" y="{y:.1}">{label} (frame {f})</text>"#
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// The colour scale legend of the spacings `d`, and a note on the axes.
+fn write_legend(s: &mut String, d: &[f64]) -> fmt::Result {
+    let ((lo, hi), lx) = (bounds(d.iter().copied()), SIZE + 30.0);
+    writeln!(
+        s,
+        r#"<text x="{lx}" y="40">spacing to the previous camera</text>"#
+    )?;
+    let steps = 20;
+    for i in 0..steps {
+        let t = 1.0 - i as f64 / (steps - 1) as f64;
+        writeln!(
+            s,
+            r#"<rect x="{lx}" y="{}" width="20" height="10" fill="{}"/>"#,
+            50 + i * 10,
+            scale_colour(t)
+        )?;
+    }
+    if hi.is_finite() {
+        let tx = lx + 26.0;
+        writeln!(
+            s,
+            r#"<text x="{tx}" y="59">{hi:.4} (max)</text><text x="{tx}" y="{}">{lo:.4} (min)</text>"#,
+            50 + steps * 10 - 1
+        )?;
+    }
+    writeln!(
+        s,
+        r#"<text x="{lx}" y="{}">axes: the two principal</text><text x="{lx}" y="{}">directions of the centres</text>"#,
+        50 + steps * 10 + 30,
+        50 + steps * 10 + 44
+    )
 }
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {

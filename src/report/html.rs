@@ -5,7 +5,7 @@
 
 use super::camera::{CameraPath, PathStats};
 use super::thumbs::{base64, Thumb};
-use super::timeline::{self, hex, Timeline};
+use super::timeline::{self, hex, Curve, Timeline};
 use crate::error::{Error, Result};
 use crate::project::Project;
 use askama::Template;
@@ -67,55 +67,85 @@ struct CameraView {
     svg: String,
 }
 
-fn round4(v: f64) -> serde_json::Value {
-    if v.is_finite() {
-        json!((v * 1e4).round() / 1e4)
-    } else {
-        serde_json::Value::Null
-    }
+/// Values rounded to 4 decimals (null when not finite).
+fn round4(values: &[f64]) -> Vec<Option<f64>> {
+    values
+        .iter()
+        .map(|v| v.is_finite().then(|| (v * 1e4).round() / 1e4))
+        .collect()
 }
 
 /// Renders the page.
 pub fn page(p: &PageInput) -> Result<String> {
-    let pr = p.project;
-    let m = &pr.metadata;
-    let tl = p.timeline;
-    let name = p
-        .project_path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let (pr, tl) = (p.project, p.timeline);
+    Page {
+        name: p
+            .project_path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        summary: summary(p),
+        decode_problems: &pr.decode_problems,
+        missing: p.missing,
+        timeline_svg: tl.svg()?,
+        keyframe_colour: hex(timeline::KEYFRAME_RGB),
+        keyframes: pr.keyframes.len(),
+        shaded: tl
+            .range
+            .is_some_and(|(lo, hi)| lo > 0 || hi + 1 < tl.frames),
+        legend: curves(tl)
+            .map(|c| Legend {
+                dashed: c.dashed,
+                colour: hex(c.rgb),
+                name: c.name.clone(),
+            })
+            .collect(),
+        timeline_png: p.timeline_png.clone(),
+        thumbs: thumbs(p),
+        steps: steps(pr),
+        camera: p
+            .camera
+            .filter(|c| !c.points.is_empty())
+            .map(|c| CameraView {
+                stats: c.stats(),
+                svg: c.svg(),
+            }),
+        data: hover_data(pr, tl),
+    }
+    .render()
+    .map_err(|e| Error::param("-o", format!("rendering the report page failed: {e}")))
+}
+
+/// The curves of all panels, top to bottom.
+fn curves(tl: &Timeline) -> impl Iterator<Item = &Curve> {
+    tl.panels.iter().flat_map(|p| p.curves.iter())
+}
+
+/// The summary table: (label, value) rows.
+fn summary(p: &PageInput) -> Vec<(&'static str, String)> {
+    let (pr, m) = (p.project, &p.project.metadata);
+    let input = format!("{} ({:?})", pr.input.path.display(), pr.input.kind);
     let fps = m.fps.map(|f| format!("{f:.3}")).unwrap_or("unknown".into());
     let duration = m
         .duration_s
         .map(|d| format!("{d:.2} s"))
         .unwrap_or("unknown".into());
-    let summary = vec![
+    vec![
         ("project", p.project_path.display().to_string()),
-        (
-            "input",
-            format!("{} ({:?})", pr.input.path.display(), pr.input.kind),
-        ),
+        ("input", input),
         ("frames", m.frame_count.to_string()),
         ("fps", fps),
         ("size", format!("{}x{}", m.width, m.height)),
         ("duration", duration),
         ("keyframes", pr.keyframes.len().to_string()),
         ("written by", format!("keyframer {}", pr.tool_version)),
-    ];
-    let legend = tl
-        .panels
-        .iter()
-        .flat_map(|p| p.curves.iter())
-        .map(|c| Legend {
-            dashed: c.dashed,
-            colour: hex(c.rgb),
-            name: c.name.clone(),
-        })
-        .collect();
-    let ts = pr.cache.timestamps_s.as_deref();
-    let thumbs = p
-        .thumbs
+    ]
+}
+
+/// The thumbnails with their frame time, when known.
+fn thumbs(p: &PageInput) -> Vec<ThumbView> {
+    let ts = p.project.cache.timestamps_s.as_deref();
+    p.thumbs
         .iter()
         .map(|t| ThumbView {
             frame: t.frame,
@@ -125,9 +155,12 @@ pub fn page(p: &PageInput) -> Result<String> {
                 .map(|v| format!(" · {v:.2} s"))
                 .unwrap_or_default(),
         })
-        .collect();
-    let steps = pr
-        .history
+        .collect()
+}
+
+/// One row per step of the project's history.
+fn steps(pr: &Project) -> Vec<StepRow> {
+    pr.history
         .iter()
         .enumerate()
         .map(|(i, st)| StepRow {
@@ -136,29 +169,16 @@ pub fn page(p: &PageInput) -> Result<String> {
             kept: st.kept,
             params: st.params.to_string(),
         })
-        .collect();
-    let camera = p
-        .camera
-        .filter(|c| !c.points.is_empty())
-        .map(|c| CameraView {
-            stats: c.stats(),
-            svg: c.svg(),
-        });
+        .collect()
+}
 
-    // Data for the hover details.
+/// The JSON data for the hover details; `<` never appears raw inside the script element.
+fn hover_data(pr: &Project, tl: &Timeline) -> String {
     let n = tl.frames;
-    let curves: Vec<serde_json::Value> = tl
-        .panels
-        .iter()
-        .flat_map(|p| p.curves.iter())
-        .map(|c| {
-            json!({
-                "name": c.name,
-                "values": c.values.iter().map(|v| round4(*v)).collect::<Vec<_>>(),
-            })
-        })
+    let curves: Vec<_> = curves(tl)
+        .map(|c| json!({ "name": c.name, "values": round4(&c.values) }))
         .collect();
-    let data = json!({
+    json!({
         "frames": n,
         "left": timeline::LEFT,
         "span": timeline::WIDTH - timeline::LEFT - timeline::RIGHT - 1,
@@ -166,28 +186,7 @@ pub fn page(p: &PageInput) -> Result<String> {
         "keyframes": pr.keyframes,
         "timestamps": pr.cache.timestamps_s,
         "curves": curves,
-    });
-    // `<` never appears raw inside the script element.
-    let data = data.to_string().replace('<', "\\u003c");
-
-    Page {
-        name,
-        summary,
-        decode_problems: &pr.decode_problems,
-        missing: p.missing,
-        timeline_svg: tl.svg()?,
-        keyframe_colour: hex(timeline::KEYFRAME_RGB),
-        keyframes: pr.keyframes.len(),
-        shaded: tl
-            .range
-            .is_some_and(|(lo, hi)| lo > 0 || hi + 1 < tl.frames),
-        legend,
-        timeline_png: p.timeline_png.clone(),
-        thumbs,
-        steps,
-        camera,
-        data,
-    }
-    .render()
-    .map_err(|e| Error::param("-o", format!("rendering the report page failed: {e}")))
+    })
+    .to_string()
+    .replace('<', "\\u003c")
 }

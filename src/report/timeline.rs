@@ -317,94 +317,86 @@ impl Timeline {
     /// shading outside the boundaries, per panel its title, grid, axis labels, curves (thresholds
     /// dashed) and frame, then the frame axis.
     pub fn draw<DB: DrawingBackend>(&self, root: &Area<DB>) -> Drawn<DB> {
-        let n = self.frames;
         root.fill(&WHITE)?;
-        let by1 = bars_y(self.panels.len()).1 as i32;
-        let x_end = frame_x(n.saturating_sub(1), n);
-        if let Some((lo, hi)) = self.range {
-            for (a, b) in [
-                (LEFT as i32, frame_x(lo, n)),
-                (frame_x(hi, n) + 1, x_end + 1),
-            ] {
-                for (y0, y1) in panel_spans(self.panels.len()).filter(|_| b > a) {
-                    root.draw(&Rectangle::new(
-                        [(a, y0 as i32), (b, y1 as i32)],
-                        rgb(BOUNDARY_RGB).filled(),
-                    ))?;
-                }
-            }
-        }
-        let axis = rgb(AXIS_RGB);
-        let text = |anchor: Pos| {
-            TextStyle::from((FONT, FONT_PX).into_font())
-                .color(&axis)
-                .pos(anchor)
-        };
-        let left = Pos::new(HPos::Left, VPos::Bottom);
-        let right = Pos::new(HPos::Right, VPos::Center);
-        let centre = Pos::new(HPos::Center, VPos::Top);
+        self.draw_shading(root)?;
         for (i, p) in self.panels.iter().enumerate() {
-            let top = panel_top(i) as i32;
-            let max = p.max();
-            root.draw(&Text::new(
-                p.title.clone(),
-                (LEFT as i32, top - 5),
-                TextStyle::from((FONT, FONT_PX, FontStyle::Bold).into_font())
-                    .color(&BLACK)
-                    .pos(left),
-            ))?;
-            for frac in [0.0, 0.5, 1.0] {
-                let y = top + (f64::from(PANEL_H) * (1.0 - frac)).round() as i32;
-                root.draw(&PathElement::new(
-                    vec![(LEFT as i32, y), (x_end, y)],
-                    rgb(GRID_RGB),
-                ))?;
-                if !p.curves.is_empty() {
-                    root.draw(&Text::new(
-                        number(max * frac),
-                        (LEFT as i32 - 6, y),
-                        text(right),
-                    ))?;
+            self.draw_panel(root, i, p)?;
+        }
+        self.draw_frame_axis(root)
+    }
+
+    /// x pixel of the last frame.
+    fn x_end(&self) -> i32 {
+        frame_x(self.frames.saturating_sub(1), self.frames)
+    }
+
+    /// Shading of every panel's plot area outside the sampled range.
+    fn draw_shading<DB: DrawingBackend>(&self, root: &Area<DB>) -> Drawn<DB> {
+        if let Some((lo, hi)) = self.range {
+            let (lo_x, after_hi) = (frame_x(lo, self.frames), frame_x(hi, self.frames) + 1);
+            for (a, b) in [(LEFT as i32, lo_x), (after_hi, self.x_end() + 1)] {
+                for (y0, y1) in panel_spans(self.panels.len()).filter(|_| b > a) {
+                    let shade = [(a, y0 as i32), (b, y1 as i32)];
+                    root.draw(&Rectangle::new(shade, rgb(BOUNDARY_RGB).filled()))?;
                 }
             }
-            root.draw(&Text::new(
-                p.unit.clone(),
-                (6, top + PANEL_H as i32 / 2),
-                text(Pos::new(HPos::Center, VPos::Center)).transform(FontTransform::Rotate270),
-            ))?;
-            for c in &p.curves {
-                let style = ShapeStyle::from(rgb(c.rgb)).stroke_width(1);
-                for run in self.polylines(i, c, max) {
-                    let pts: Vec<(i32, i32)> = run
-                        .iter()
-                        .map(|(x, y)| (x.round() as i32, y.round() as i32))
-                        .collect();
-                    if c.dashed {
-                        root.draw(&DashedPathElement::new(pts, 6, 4, style))?;
-                    } else {
-                        root.draw(&PathElement::new(pts, style))?;
-                    }
-                }
-            }
-            root.draw(&Rectangle::new(
-                [(LEFT as i32, top), (x_end, top + PANEL_H as i32 - 1)],
-                rgb(AXIS_RGB),
-            ))?;
         }
-        for t in self.ticks() {
-            let x = frame_x(t, n);
-            root.draw(&PathElement::new(
-                vec![(x, by1), (x, by1 + 4)],
-                rgb(AXIS_RGB),
-            ))?;
-            root.draw(&Text::new(self.tick_label(t), (x, by1 + 6), text(centre)))?;
-        }
-        root.draw(&Text::new(
-            "frame index (time)",
-            ((LEFT + (WIDTH - LEFT - RIGHT) / 2) as i32, by1 + 22),
-            text(centre),
-        ))?;
         Ok(())
+    }
+
+    /// Panel `i`: title, grid with value labels, unit, curves and frame.
+    fn draw_panel<DB: DrawingBackend>(&self, root: &Area<DB>, i: usize, p: &Panel) -> Drawn<DB> {
+        let (top, max, x_end) = (panel_top(i) as i32, p.max(), self.x_end());
+        let bold = TextStyle::from((FONT, FONT_PX, FontStyle::Bold).into_font());
+        let title = bold.color(&BLACK).pos(Pos::new(HPos::Left, VPos::Bottom));
+        root.draw(&Text::new(p.title.clone(), (LEFT as i32, top - 5), title))?;
+        for frac in [0.0, 0.5, 1.0] {
+            let y = top + (f64::from(PANEL_H) * (1.0 - frac)).round() as i32;
+            let grid = vec![(LEFT as i32, y), (x_end, y)];
+            root.draw(&PathElement::new(grid, rgb(GRID_RGB)))?;
+            if !p.curves.is_empty() {
+                let right = axis_text(Pos::new(HPos::Right, VPos::Center));
+                root.draw(&Text::new(number(max * frac), (LEFT as i32 - 6, y), right))?;
+            }
+        }
+        let unit = axis_text(Pos::new(HPos::Center, VPos::Center));
+        let unit = unit.transform(FontTransform::Rotate270);
+        let mid = (6, top + PANEL_H as i32 / 2);
+        root.draw(&Text::new(p.unit.clone(), mid, unit))?;
+        self.draw_curves(root, i, p)?;
+        let frame = [(LEFT as i32, top), (x_end, top + PANEL_H as i32 - 1)];
+        root.draw(&Rectangle::new(frame, rgb(AXIS_RGB)))
+    }
+
+    /// The curves of panel `i` in order, thresholds dashed.
+    fn draw_curves<DB: DrawingBackend>(&self, root: &Area<DB>, i: usize, p: &Panel) -> Drawn<DB> {
+        let (max, px) = (p.max(), |v: f64| v.round() as i32);
+        for c in &p.curves {
+            let style = ShapeStyle::from(rgb(c.rgb)).stroke_width(1);
+            for run in self.polylines(i, c, max) {
+                let pts: Vec<(i32, i32)> = run.iter().map(|&(x, y)| (px(x), px(y))).collect();
+                if c.dashed {
+                    root.draw(&DashedPathElement::new(pts, 6, 4, style))?;
+                } else {
+                    root.draw(&PathElement::new(pts, style))?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The frame axis under the panels: ticks, their labels and the axis title.
+    fn draw_frame_axis<DB: DrawingBackend>(&self, root: &Area<DB>) -> Drawn<DB> {
+        let by1 = bars_y(self.panels.len()).1 as i32;
+        let centre = || axis_text(Pos::new(HPos::Center, VPos::Top));
+        for t in self.ticks() {
+            let x = frame_x(t, self.frames);
+            let tick = vec![(x, by1), (x, by1 + 4)];
+            root.draw(&PathElement::new(tick, rgb(AXIS_RGB)))?;
+            root.draw(&Text::new(self.tick_label(t), (x, by1 + 6), centre()))?;
+        }
+        let at = ((LEFT + (WIDTH - LEFT - RIGHT) / 2) as i32, by1 + 22);
+        root.draw(&Text::new("frame index (time)", at, centre()))
     }
 
     /// Keyframe bars: one pixel column at each x of `columns`, over every panel's plot area, in
@@ -581,6 +573,13 @@ const FONT_PX: f64 = 11.0 * 1.24;
 
 fn rgb(c: [u8; 3]) -> RGBColor {
     RGBColor(c[0], c[1], c[2])
+}
+
+/// Axis-coloured timeline text anchored at `anchor`.
+fn axis_text(anchor: Pos) -> TextStyle<'static> {
+    let mut style = TextStyle::from((FONT, FONT_PX).into_font()).pos(anchor);
+    style.color = rgb(AXIS_RGB).to_backend_color();
+    style
 }
 
 fn drawing<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> Error {

@@ -226,50 +226,42 @@ fn check_onnx_signature(desc: &ModelDesc) -> Result<usize> {
     let sig = onnx::signature(&desc.model)?;
     let input = match &desc.input.name {
         Some(n) => sig.inputs.iter().find(|i| &i.name == n).ok_or_else(|| {
-            tensor::mismatch(
-                desc,
-                format!(
-                    "no input named `{n}` (inputs: {})",
-                    sig.inputs
-                        .iter()
-                        .map(|i| i.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            )
+            let msg = format!("no input named `{n}` (inputs: {})", names(&sig.inputs));
+            tensor::mismatch(desc, msg)
         })?,
         None => &sig.inputs[0],
     };
     if let Some(n) = &desc.output.name {
         if !sig.outputs.iter().any(|o| &o.name == n) {
-            return Err(tensor::mismatch(
-                desc,
-                format!(
-                    "no output named `{n}` (outputs: {})",
-                    sig.outputs
-                        .iter()
-                        .map(|o| o.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            ));
+            let msg = format!("no output named `{n}` (outputs: {})", names(&sig.outputs));
+            return Err(tensor::mismatch(desc, msg));
         }
     }
     let Some(shape) = &input.shape else {
         return Ok(desc.input.batch);
     };
+    check_input_shape(desc, &input.name, shape)?;
+    Ok(match shape[0] {
+        onnx::Dim::Fixed(_) => 1,
+        onnx::Dim::Dynamic => desc.input.batch,
+    })
+}
+
+/// The tensors' names, comma-separated.
+fn names(tensors: &[onnx::TensorDecl]) -> String {
+    let list: Vec<&str> = tensors.iter().map(|t| t.name.as_str()).collect();
+    list.join(", ")
+}
+
+/// Checks the declared shape of input `name`: 4 dimensions, the fixed ones past the batch as
+/// the description gives them.
+fn check_input_shape(desc: &ModelDesc, name: &str, shape: &[onnx::Dim]) -> Result<()> {
     let want = tensor::input_shape(desc, 1);
     if shape.len() != 4 {
-        return Err(tensor::mismatch(
-            desc,
-            format!(
-                "input `{}` has {} dimensions, not 4",
-                input.name,
-                shape.len()
-            ),
-        ));
+        let msg = format!("input `{name}` has {} dimensions, not 4", shape.len());
+        return Err(tensor::mismatch(desc, msg));
     }
-    let names = match desc.input.layout {
+    let dims = match desc.input.layout {
         Layout::Nchw => ["batch", "channels", "height", "width"],
         Layout::Nhwc => ["batch", "height", "width", "channels"],
     };
@@ -287,9 +279,9 @@ fn check_onnx_signature(desc: &ModelDesc) -> Result<usize> {
                     desc,
                     format!(
                         "input `{}` is {} but the description gives {} {} for {:?} (want {:?})",
-                        input.name,
+                        name,
                         shown.join("x"),
-                        names[k],
+                        dims[k],
                         want[k],
                         desc.input.layout,
                         want
@@ -298,10 +290,7 @@ fn check_onnx_signature(desc: &ModelDesc) -> Result<usize> {
             }
         }
     }
-    Ok(match shape[0] {
-        onnx::Dim::Fixed(_) => 1,
-        onnx::Dim::Dynamic => desc.input.batch,
-    })
+    Ok(())
 }
 
 /// Writes `mask` as `<dir>/<image_name>.png` (COLMAP's naming) atomically.
