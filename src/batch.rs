@@ -176,7 +176,7 @@ pub fn run(workflow: &Workflow, s: &RunSettings) -> Result<Vec<InputReport>> {
         return Err(Error::param("INPUT", "an input is listed twice"));
     }
     let inputs: Vec<&Path> = s.inputs.iter().map(PathBuf::as_path).collect();
-    crate::output::check_not_input(&s.out, "--out", &inputs)?;
+    crate::output::check_not_input(&s.out, &inputs)?;
     let names = folder_names(&s.inputs)?;
     std::fs::create_dir_all(&s.out).map_err(|e| Error::io(&s.out, e))?;
     let mine = shard_of(&s.inputs, s.shard);

@@ -172,7 +172,7 @@ pub fn export(
         Some(m) => Some(Masker::new(m)?),
         None => None,
     };
-    let dir = crate::output::prepare_dir(out, "--out", force, &[MANIFEST, PENDING], &inputs)?;
+    let dir = crate::output::prepare_dir(out, force, &[MANIFEST, PENDING], &inputs)?;
     let job = Job {
         project: &project,
         input: &input,

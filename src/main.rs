@@ -423,7 +423,7 @@ fn flow(a: &cli::FlowArgs) -> Result<Outcome> {
     let params = a.farneback.params()?;
     let mut inputs: Vec<&std::path::Path> = vec![&a.a, &a.b];
     inputs.extend(a.initial.as_deref());
-    keyframer::output::check_file(&a.output, "-o", a.force, &inputs)?;
+    keyframer::output::check_file(&a.output, a.force, &inputs)?;
     let r = keyframer::flow::between_files(
         &a.a,
         &a.b,

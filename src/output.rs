@@ -84,8 +84,7 @@ pub fn resolve(path: &Path) -> PathBuf {
 }
 
 /// Refuses an output that is an input, lies inside an input folder or contains an input.
-/// `flag` names the output (`-o`, `--out`).
-pub fn check_not_input(out: &Path, flag: &str, inputs: &[&Path]) -> Result<()> {
+pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
     let o = resolve(out);
     for input in inputs {
         let i = resolve(input);
@@ -101,7 +100,7 @@ pub fn check_not_input(out: &Path, flag: &str, inputs: &[&Path]) -> Result<()> {
         return Err(Error::Output {
             path: out.to_path_buf(),
             msg: format!(
-                "the output ({flag}) {how} {}; keyframer never writes into its inputs: choose another {flag}",
+                "the output {how} {}; keyframer never writes into its inputs: choose another output",
                 input.display()
             ),
         });
@@ -127,8 +126,8 @@ fn kind_of(path: &Path) -> Option<&'static str> {
 /// Checks a single-file output named by the user (`select -o`, `flow -o`, `report`, ...): not an
 /// input, a regular file or a missing path, replaced only with `force`. Clears this name's stale
 /// temporaries of earlier, killed runs.
-pub fn check_file(path: &Path, flag: &str, force: bool, inputs: &[&Path]) -> Result<()> {
-    check_not_input(path, flag, inputs)?;
+pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
+    check_not_input(path, inputs)?;
     match kind_of(path) {
         None => {}
         Some("file") if !force => {
@@ -139,7 +138,7 @@ pub fn check_file(path: &Path, flag: &str, force: bool, inputs: &[&Path]) -> Res
             return Err(Error::Output {
                 path: path.to_path_buf(),
                 msg: format!(
-                    "is a {kind}, not a regular file; keyframer replaces only regular files: choose another {flag}"
+                    "is a {kind}, not a regular file; keyframer replaces only regular files: choose another output"
                 ),
             })
         }
@@ -287,20 +286,14 @@ impl OutDir {
 /// refuses an input, a non-folder and a folder keyframer did not make (non-empty without `record`
 /// inside); a non-empty folder of keyframer's needs `force`. Clears stale temporaries, creates the folder
 /// when missing and checks that it is writable, leaving nothing behind.
-pub fn prepare_dir(
-    dir: &Path,
-    flag: &str,
-    force: bool,
-    records: &[&str],
-    inputs: &[&Path],
-) -> Result<OutDir> {
-    check_not_input(dir, flag, inputs)?;
+pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &[&Path]) -> Result<OutDir> {
+    check_not_input(dir, inputs)?;
     let out = OutDir {
         path: dir.to_path_buf(),
-        created: create_dir(dir, flag)?,
+        created: create_dir(dir)?,
     };
     // Ownership first: temporaries are cleared only in a folder that is keyframer's (or empty).
-    check_ours(dir, flag, force, records)?;
+    check_ours(dir, force, records)?;
     clear_stale_temps_of(dir, None);
     if let Err(e) = probe_write(dir) {
         out.abandon();
@@ -316,12 +309,12 @@ fn refused(path: &Path, msg: String) -> Error {
 }
 
 /// Creates `dir` when missing; returns the folders made (outermost first) for [`OutDir::abandon`].
-fn create_dir(dir: &Path, flag: &str) -> Result<Vec<PathBuf>> {
+fn create_dir(dir: &Path) -> Result<Vec<PathBuf>> {
     match kind_of(dir) {
         Some("folder") => Ok(Vec::new()),
         Some("symbolic link") if dir.is_dir() => Ok(Vec::new()),
         Some(kind) => {
-            let msg = format!("exists and is a {kind}, not a folder; choose another {flag}");
+            let msg = format!("exists and is a {kind}, not a folder; choose another output folder");
             Err(refused(dir, msg))
         }
         None => {
@@ -338,7 +331,7 @@ fn create_dir(dir: &Path, flag: &str) -> Result<Vec<PathBuf>> {
 }
 
 /// Refuses a non-empty `dir` (keyframer's temporaries aside) without a record, or without `force`.
-fn check_ours(dir: &Path, flag: &str, force: bool, records: &[&str]) -> Result<()> {
+fn check_ours(dir: &Path, force: bool, records: &[&str]) -> Result<()> {
     let record = records.first().copied().unwrap_or("record");
     let non_empty = fs::read_dir(dir)
         .map_err(|e| Error::io(dir, e))?
@@ -350,7 +343,7 @@ fn check_ours(dir: &Path, flag: &str, force: bool, records: &[&str]) -> Result<(
                 .is_none()
         });
     if non_empty && !records.iter().any(|r| dir.join(r).is_file()) {
-        let msg = format!("is not empty and holds no {record}, so keyframer did not make it; keyframer replaces only its own results: choose a new or empty {flag}");
+        let msg = format!("is not empty and holds no {record}, so keyframer did not make it; keyframer replaces only its own results: choose a new or empty folder");
         return Err(refused(dir, msg));
     }
     if non_empty && !force {
@@ -438,14 +431,14 @@ mod tests {
         let input = d.path().join("in");
         fs::create_dir_all(&input).unwrap();
         let i: &Path = &input;
-        assert!(check_not_input(&input, "-o", &[i]).is_err());
-        assert!(check_not_input(&input.join("x"), "-o", &[i]).is_err());
-        assert!(check_not_input(d.path(), "-o", &[i]).is_err());
-        assert!(check_not_input(&d.path().join("out"), "-o", &[i]).is_ok());
+        assert!(check_not_input(&input, &[i]).is_err());
+        assert!(check_not_input(&input.join("x"), &[i]).is_err());
+        assert!(check_not_input(d.path(), &[i]).is_err());
+        assert!(check_not_input(&d.path().join("out"), &[i]).is_ok());
         // Through a symbolic link too, and through `LINK/..` (the link's parent, not `.`).
         let link = d.path().join("link");
         std::os::unix::fs::symlink(&input, &link).unwrap();
-        assert!(check_not_input(&link.join("y"), "-o", &[i]).is_err());
+        assert!(check_not_input(&link.join("y"), &[i]).is_err());
         let sub = input.join("sub");
         fs::create_dir_all(&sub).unwrap();
         let elsewhere = d.path().join("elsewhere");
@@ -453,6 +446,6 @@ mod tests {
         let l2 = elsewhere.join("l2");
         std::os::unix::fs::symlink(&sub, &l2).unwrap();
         assert_eq!(resolve(&l2.join("../v.mp4")), resolve(&input.join("v.mp4")));
-        assert!(check_not_input(&l2.join("../v.mp4"), "-o", &[i]).is_err());
+        assert!(check_not_input(&l2.join("../v.mp4"), &[i]).is_err());
     }
 }

@@ -659,7 +659,7 @@ pub fn save(project: &Path, exports: &[PathBuf], output: &Path, force: bool) -> 
         .collect();
     let mut inputs: Vec<&Path> = vec![project, &source];
     inputs.extend(manifests.iter().map(|m| m.as_path()));
-    crate::output::check_file(output, "-o", force, &inputs)?;
+    crate::output::check_file(output, force, &inputs)?;
     crate::fsutil::write_atomic(output, text.as_bytes())?;
     Ok(output.to_path_buf())
 }

@@ -332,7 +332,7 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
     let export_images = export.join(crate::export::IMAGE_DIR);
     let export_masks = export.join(crate::export::MASK_DIR);
     let manifest_path = export.join(MANIFEST);
-    crate::output::check_not_input(&ws, "-o", &[&export_images, &export_masks, &manifest_path])?;
+    crate::output::check_not_input(&ws, &[&export_images, &export_masks, &manifest_path])?;
     if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
         return Err(Error::param(
             "output",
@@ -601,7 +601,7 @@ fn write_record(ws: &Path, rec: &Record) -> Result<()> {
 /// keyframer and COLMAP write (`images/ masks/ sparse/ dense/ logs/ database.db project.ini`) is a
 /// user's and stops the run before anything is removed.
 fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
-    let dir = crate::output::prepare_dir(ws, "-o", force, &[RECORD], &[])?;
+    let dir = crate::output::prepare_dir(ws, force, &[RECORD], &[])?;
     if dir.is_new() || !ws.join(RECORD).is_file() {
         return Ok(dir);
     }

@@ -326,9 +326,9 @@ pub fn segment_file(
     if let Some(c) = &desc.config {
         inputs.push(c);
     }
-    crate::output::check_file(output, "-o", force, &inputs)?;
+    crate::output::check_file(output, force, &inputs)?;
     if let Some(o) = overlay {
-        crate::output::check_file(o, "--overlay", force, &inputs)?;
+        crate::output::check_file(o, force, &inputs)?;
         if crate::output::resolve(o) == crate::output::resolve(output) {
             return Err(Error::param("overlay", "must differ from the mask output"));
         }

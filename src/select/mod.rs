@@ -150,9 +150,9 @@ pub fn identify(input: &Path) -> Result<(SourceKind, Fingerprint)> {
 /// The output rule for `select`: the project file and its checkpoint are regular files (or
 /// missing), not the input nor inside it; an existing project needs `--force`.
 pub(crate) fn check_outputs(s: &SelectSettings) -> Result<()> {
-    crate::output::check_file(&s.output, "-o", s.force, &[&s.input])?;
+    crate::output::check_file(&s.output, s.force, &[&s.input])?;
     let checkpoint = checkpoint_path(&s.output);
-    crate::output::check_file(&checkpoint, "-o", true, &[&s.input])?;
+    crate::output::check_file(&checkpoint, true, &[&s.input])?;
     // The checkpoint is replaced and removed without --force only when it is keyframer's own.
     if checkpoint.exists() && !s.force && !crate::analysis::is_checkpoint(&checkpoint) {
         return Err(Error::Output {

@@ -297,8 +297,7 @@ pub fn tum_line(t: f64, p: &Pose) -> String {
 /// Generates the sequence described by `s`.
 pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
     let seconds = validate(s)?;
-    let dir =
-        keyframer::output::prepare_dir(&s.out, "OUT", s.force, &["scene.json"], &[&s.textures])?;
+    let dir = keyframer::output::prepare_dir(&s.out, s.force, &["scene.json"], &[&s.textures])?;
     let r = (|| {
         for name in ["video.mp4", "poses.tum", "scene.json"] {
             keyframer::output::check_replaceable(&s.out.join(name))?;
