@@ -14,13 +14,10 @@ pub const WGSL: &str = include_str!("../../shaders/tenengrad.wgsl");
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct TenengradParams {
-    /// Image width.
     pub width: u32,
-    /// Image height.
     pub height: u32,
     /// u32 words per row of the packed gray input.
     pub stride: u32,
-    /// Unused.
     pub pad: u32,
 }
 
