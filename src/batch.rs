@@ -75,7 +75,6 @@ pub struct InputReport {
     pub input: PathBuf,
     /// Its output folder.
     pub folder: PathBuf,
-    /// Outcome.
     pub status: Status,
     /// Number of keyframes selected.
     pub keyframes: Option<usize>,
@@ -252,10 +251,7 @@ fn run_one(w: &Workflow, input: &Path, folder: &Path, s: &RunSettings) -> InputR
             }
         };
         let written = serde_json::to_string_pretty(&done)
-            .map_err(|e| Error::Output {
-                path: folder.join(DONE),
-                msg: e.to_string(),
-            })
+            .map_err(|e| Error::output(folder.join(DONE), e.to_string()))
             .and_then(|t| fsutil::write_atomic(&folder.join(DONE), t.as_bytes()));
         if let Err(e) = written {
             report.status = Status::Failed;
@@ -306,10 +302,9 @@ fn claim_folder(input: &Path, folder: &Path, force: bool) -> Result<()> {
         tool: "keyframer run".into(),
         input: crate::output::resolve(input),
     };
-    let marker_text = serde_json::to_string_pretty(&marker).map_err(|e| Error::Output {
-        path: folder.join(MARKER),
-        msg: e.to_string(),
-    })? + "\n";
+    let marker_text = serde_json::to_string_pretty(&marker)
+        .map_err(|e| Error::output(folder.join(MARKER), e.to_string()))?
+        + "\n";
     if folder.exists() {
         let empty = std::fs::read_dir(folder)
             .map(|mut d| d.next().is_none())
@@ -319,27 +314,18 @@ fn claim_folder(input: &Path, folder: &Path, force: bool) -> Result<()> {
             .map(|t| serde_json::from_str::<Marker>(&t).ok().map(|m| m.input));
         match recorded {
             None if !empty => {
-                return Err(Error::Output {
-                    path: folder.to_path_buf(),
-                    msg: "exists and was not made by `keyframer run`; move it away".into(),
-                })
+                return Err(Error::output(folder, "exists and was not made by `keyframer run`; move it away"))
             }
             Some(Some(other)) if other != marker.input && !force => {
-                return Err(Error::Output {
-                    path: folder.to_path_buf(),
-                    msg: format!(
+                return Err(Error::output(folder, format!(
                         "holds the results of another input ({}); pass --force to replace them",
                         other.display()
-                    ),
-                })
+                    )))
             }
             Some(None) if !force => {
-                return Err(Error::Output {
-                    path: folder.to_path_buf(),
-                    msg: format!(
+                return Err(Error::output(folder, format!(
                         "its {MARKER} does not say which input it belongs to (an older keyframer); pass --force to replace it"
-                    ),
-                })
+                    )))
             }
             _ => {}
         }

@@ -193,10 +193,7 @@ pub fn export(
         tool: "keyframer".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
         layout: LAYOUT,
-        created_unix_s: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs())
-            .unwrap_or(0),
+        created_unix_s: fsutil::now_unix_s(),
         project: fsutil::absolute(project_path),
         source: fsutil::absolute(&input),
         source_kind: meta.kind,
@@ -241,25 +238,24 @@ fn output_names(
                     n.push(format!(".{}", format.ext()));
                     n
                 };
-                name.into_string().map_err(|n| Error::Frame {
-                    path: p.to_path_buf(),
-                    index: i,
-                    msg: format!(
-                        "the file name {} is not valid UTF-8; rename it",
-                        n.to_string_lossy()
-                    ),
+                name.into_string().map_err(|n| {
+                    Error::frame(
+                        p,
+                        i,
+                        format!(
+                            "the file name {} is not valid UTF-8; rename it",
+                            n.to_string_lossy()
+                        ),
+                    )
                 })?
             }
             _ => format!("frame_{i:0digits$}.{}", format.ext()),
         };
         crate::output::plain_name(&name, &format!("image of frame {i}"), &project_input(src))?;
         if let Some(other) = seen.insert(name.clone(), i) {
-            return Err(Error::Output {
-                path: PathBuf::from(&name),
-                msg: format!(
+            return Err(Error::output(PathBuf::from(&name), format!(
                     "frames {other} and {i} would both be exported under this name; give --format so that every name differs, or rename one of the files"
-                ),
-            });
+                )));
         }
         names.push(name);
     }
@@ -295,12 +291,9 @@ fn byte_copy(src: &dyn source::FrameSource, settings: &ExportSettings, is_video:
 /// (keyframer could not tell what it wrote there).
 fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
     let refuse = |e: Error| {
-        Error::Output {
-        path: out.to_path_buf(),
-        msg: format!(
+        Error::output(out, format!(
             "{e}; keyframer cannot tell what it wrote in this folder, so it replaces nothing: choose a new --out"
-        ),
-    }
+        ))
     };
     let mut files = Vec::new();
     let path = out.join(MANIFEST);
@@ -363,10 +356,7 @@ fn check_targets(
         let p = out.join(&rel);
         crate::output::check_replaceable(&p)?;
         if p.exists() && !ours.contains(&rel) {
-            return Err(Error::Output {
-                path: p,
-                msg: "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out".into(),
-            });
+            return Err(Error::output(p, "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out"));
         }
     }
     for d in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
@@ -375,10 +365,7 @@ fn check_targets(
         let p = out.join(d);
         if let Ok(m) = std::fs::symlink_metadata(&p) {
             if !m.file_type().is_dir() {
-                return Err(Error::Output {
-                    path: p,
-                    msg: "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away".into(),
-                });
+                return Err(Error::output(p, "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away"));
             }
         }
     }
@@ -424,11 +411,7 @@ fn copy_originals(
     for (k, &index) in job.project.keyframes.iter().enumerate() {
         let from = src
             .file_of(index)
-            .ok_or_else(|| Error::Frame {
-                path: job.input.to_path_buf(),
-                index,
-                msg: "no such image in the folder".into(),
-            })?
+            .ok_or_else(|| Error::frame(job.input, index, "no such image in the folder"))?
             .to_path_buf();
         // A damaged file is never copied (OpenCV would read a cut JPEG as grey-filled).
         let damage = match src.damage_of(index) {
@@ -487,10 +470,12 @@ fn decode_and_encode(
             .project
             .keyframes
             .binary_search(&frame.index)
-            .map_err(|_| Error::Frame {
-                path: job.input.to_path_buf(),
-                index: frame.index,
-                msg: "the source delivered a frame that was not asked for".into(),
+            .map_err(|_| {
+                Error::frame(
+                    job.input,
+                    frame.index,
+                    "the source delivered a frame that was not asked for",
+                )
             })?;
         let name = &job.names[k];
         let fmt = if name.ends_with(".png") {
@@ -521,12 +506,14 @@ fn decode_and_encode(
         }
         Ok(missing)
     });
-    let not_read = result.map_err(|e| Error::Output {
-        path: job.input.to_path_buf(),
-        msg: format!(
-            "{e}; export stopped after {} of {total} images; nothing was written",
-            frames.len()
-        ),
+    let not_read = result.map_err(|e| {
+        Error::output(
+            job.input,
+            format!(
+                "{e}; export stopped after {} of {total} images; nothing was written",
+                frames.len()
+            ),
+        )
     })?;
     let reason = src
         .decode_failure()
@@ -546,12 +533,7 @@ fn decode_and_encode(
 /// Writes `manifest.json` atomically, then drops the journal: the manifest now lists exactly
 /// what is in `out`.
 fn write_manifest(out: &Path, manifest: &Manifest) -> Result<()> {
-    let mut text = serde_json::to_string_pretty(manifest).map_err(|e| Error::Output {
-        path: out.join(MANIFEST),
-        msg: e.to_string(),
-    })?;
-    text.push('\n');
-    fsutil::write_atomic(&out.join(MANIFEST), text.as_bytes())?;
+    fsutil::write_json(&out.join(MANIFEST), manifest)?;
     let _ = std::fs::remove_file(out.join(PENDING));
     Ok(())
 }
@@ -607,10 +589,8 @@ fn commit(out: &Path, staging: &Path, ours: &[PathBuf], frames: &[ExportedFrame]
         .collect();
     journal.sort();
     journal.dedup();
-    let text = serde_json::to_string(&journal).map_err(|e| Error::Output {
-        path: out.join(PENDING),
-        msg: e.to_string(),
-    })?;
+    let text = serde_json::to_string(&journal)
+        .map_err(|e| Error::output(out.join(PENDING), e.to_string()))?;
     fsutil::write_atomic(&out.join(PENDING), text.as_bytes())?;
     for rel in &new {
         let to = out.join(rel);

@@ -228,10 +228,7 @@ impl<'a> Saver<'a> {
                 .collect(),
             movement,
         };
-        let bytes = serde_json::to_vec(&c).map_err(|e| Error::Output {
-            path: r.path.clone(),
-            msg: e.to_string(),
-        })?;
+        let bytes = serde_json::to_vec(&c).map_err(|e| Error::output(&r.path, e.to_string()))?;
         crate::fsutil::write_atomic(&r.path, &bytes)?;
         log::debug!("checkpoint: {frames} frames -> {}", r.path.display());
         self.last = Instant::now();

@@ -100,10 +100,8 @@ impl SharpnessEngine for Opencv {
                 self.0
                     .iter()
                     .map(|&m| {
-                        score_opencv(&f.image, m).map_err(|e| Error::Frame {
-                            path: Default::default(),
-                            index: f.index,
-                            msg: e.to_string(),
+                        score_opencv(&f.image, m).map_err(|e| {
+                            Error::frame(std::path::PathBuf::new(), f.index, e.to_string())
                         })
                     })
                     .collect()

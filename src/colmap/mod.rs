@@ -90,7 +90,6 @@ pub enum Matcher {
 /// The COLMAP installation used.
 #[derive(Debug, Clone)]
 pub struct Colmap {
-    /// Binary.
     pub bin: PathBuf,
     /// Header line, e.g. "COLMAP 3.8 (Commit Unknown on Unknown without CUDA)".
     pub version: String,
@@ -193,7 +192,6 @@ pub struct Record {
     pub images: usize,
     /// Masks in the workspace.
     pub masks: usize,
-    /// Camera model.
     pub camera_model: String,
     /// Matcher (when sparse ran).
     pub matcher: Option<Matcher>,
@@ -220,13 +218,6 @@ pub struct Record {
 
 fn finished_default() -> bool {
     true
-}
-
-fn now_unix_s() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0)
 }
 
 /// Reads a workspace's `colmap.json`.
@@ -278,7 +269,7 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         models: Vec::new(),
         error: None,
         files: Vec::new(),
-        started_unix_s: now_unix_s(),
+        started_unix_s: fsutil::now_unix_s(),
         finished: true,
     };
     let runner = Runner {
@@ -587,12 +578,7 @@ fn summarise(m: &model::Model, rel: &Path) -> ModelSummary {
 }
 
 fn write_record(ws: &Path, rec: &Record) -> Result<()> {
-    let mut text = serde_json::to_string_pretty(rec).map_err(|e| Error::Output {
-        path: ws.join(RECORD),
-        msg: e.to_string(),
-    })?;
-    text.push('\n');
-    fsutil::write_atomic(&ws.join(RECORD), text.as_bytes())
+    fsutil::write_json(&ws.join(RECORD), rec)
 }
 
 /// Prepares the workspace through the one output rule (a folder without `colmap.json` is not
@@ -605,12 +591,9 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
     if dir.is_new() || !ws.join(RECORD).is_file() {
         return Ok(dir);
     }
-    let record = read_record(ws).map_err(|e| Error::Output {
-        path: ws.to_path_buf(),
-        msg: format!(
+    let record = read_record(ws).map_err(|e| Error::output(ws, format!(
             "{e}; keyframer cannot tell what it wrote in this workspace, so it replaces nothing: choose a new -o"
-        ),
-    })?;
+        )))?;
     let rec_path = ws.join(RECORD);
     let mut listed = Vec::new();
     for (i, f) in record.files.iter().enumerate() {
