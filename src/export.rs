@@ -168,10 +168,7 @@ pub fn export(
         inputs.push(n);
     }
     // The model is loaded and checked before anything is written.
-    let mut masker = match &settings.masks {
-        Some(m) => Some(Masker::new(m)?),
-        None => None,
-    };
+    let mut masker = settings.masks.as_ref().map(Masker::new).transpose()?;
     let dir = crate::output::prepare_dir(out, "--out", force, &[MANIFEST, PENDING], &inputs)?;
     let job = Job {
         project: &project,
@@ -253,9 +250,12 @@ fn output_names(
         };
         crate::output::plain_name(&name, &format!("image of frame {i}"), &project_input(src))?;
         if let Some(other) = seen.insert(name.clone(), i) {
-            return Err(Error::output(PathBuf::from(&name), format!(
+            return Err(Error::Output {
+                path: PathBuf::from(&name),
+                msg: format!(
                     "frames {other} and {i} would both be exported under this name; give --format so that every name differs, or rename one of the files"
-                )));
+                ),
+            });
         }
         names.push(name);
     }
@@ -291,9 +291,12 @@ fn byte_copy(src: &dyn source::FrameSource, settings: &ExportSettings, is_video:
 /// (keyframer could not tell what it wrote there).
 fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
     let refuse = |e: Error| {
-        Error::output(out, format!(
+        Error::Output {
+        path: out.to_path_buf(),
+        msg: format!(
             "{e}; keyframer cannot tell what it wrote in this folder, so it replaces nothing: choose a new --out"
-        ))
+        ),
+    }
     };
     let mut files = Vec::new();
     let path = out.join(MANIFEST);
@@ -356,7 +359,10 @@ fn check_targets(
         let p = out.join(&rel);
         crate::output::check_replaceable(&p)?;
         if p.exists() && !ours.contains(&rel) {
-            return Err(Error::output(p, "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out"));
+            return Err(Error::Output {
+                path: p,
+                msg: "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out".into(),
+            });
         }
     }
     for d in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
@@ -365,7 +371,10 @@ fn check_targets(
         let p = out.join(d);
         if let Ok(m) = std::fs::symlink_metadata(&p) {
             if !m.file_type().is_dir() {
-                return Err(Error::output(p, "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away"));
+                return Err(Error::Output {
+                    path: p,
+                    msg: "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away".into(),
+                });
             }
         }
     }
@@ -478,12 +487,7 @@ fn decode_and_encode(
                 )
             })?;
         let name = &job.names[k];
-        let fmt = if name.ends_with(".png") {
-            Format::Png
-        } else {
-            Format::Jpg
-        };
-        let bytes = encode(&img, fmt, job.settings.quality)?;
+        let bytes = encode(&img, format_of(name), job.settings.quality)?;
         fsutil::write_atomic(&images.join(name), &bytes)?;
         frames.push(ExportedFrame {
             index: frame.index,
@@ -528,6 +532,15 @@ fn decode_and_encode(
         }
     }));
     Ok((frames, missing))
+}
+
+/// The format an exported image's name says (`.png`, else JPEG).
+fn format_of(name: &str) -> Format {
+    if name.ends_with(".png") {
+        Format::Png
+    } else {
+        Format::Jpg
+    }
 }
 
 /// Writes `manifest.json` atomically, then drops the journal: the manifest now lists exactly
@@ -692,12 +705,7 @@ impl Masker {
             let mask_name = crate::segment::write_mask(&self.out.join(MASK_DIR), name, &mask)?;
             let overlay = if self.overlay {
                 let o = self.seg.overlay(image, map)?;
-                let fmt = if name.ends_with(".png") {
-                    Format::Png
-                } else {
-                    Format::Jpg
-                };
-                let bytes = encode(&o, fmt, 90)?;
+                let bytes = encode(&o, format_of(name), 90)?;
                 fsutil::write_atomic(&self.out.join(OVERLAY_DIR).join(name), &bytes)?;
                 Some(name.clone())
             } else {

@@ -260,26 +260,19 @@ impl Workflow {
             if let Some(m) = &settings.masks {
                 let desc = crate::model_desc::ModelDesc::load(&m.model)
                     .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
-                desc.class_ids(&m.classes).map_err(|e| {
-                    let msg = match e {
-                        Error::Param { msg, .. } => msg,
-                        other => other.to_string(),
-                    };
-                    file.error(&format!("export[{i}].masks.classes"), msg)
-                })?;
+                desc.class_ids(&m.classes)
+                    .map_err(|e| file.error(&format!("export[{i}].masks.classes"), param_msg(e)))?;
             }
             exports.push((e.name.clone(), settings));
         }
-        let hash = crate::fsutil::fnv1a64(file.text().as_bytes());
-        let wf = Workflow {
+        Ok(Workflow {
             path: path.to_path_buf(),
             file: content.clone(),
-            hash,
+            hash: crate::fsutil::fnv1a64(file.text().as_bytes()),
             movement,
             backend,
             exports,
-        };
-        Ok(wf)
+        })
     }
 
     /// How movement is measured (from `[analysis]`, defaults filled in).
@@ -295,6 +288,14 @@ impl Workflow {
     /// The exports in order: folder name and checked settings.
     pub fn exports(&self) -> &[(String, ExportSettings)] {
         &self.exports
+    }
+}
+
+/// A parameter error's message without the parameter's name; any other error in full.
+fn param_msg(e: Error) -> String {
+    match e {
+        Error::Param { msg, .. } => msg,
+        other => other.to_string(),
     }
 }
 
@@ -584,10 +585,7 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
                     field: format!("history[{k}].params"),
                     msg: format!(
                         "cannot be written as a workflow step ({}; TOML integers go up to 2^63 - 1)",
-                        match e {
-                            Error::Param { msg, .. } => msg,
-                            other => other.to_string(),
-                        }
+                        param_msg(e)
                     ),
                 })
             })

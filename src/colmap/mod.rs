@@ -268,21 +268,20 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         stages: Vec::new(),
         models: Vec::new(),
         error: None,
-        files: Vec::new(),
+        files: ours_now(&ws),
         started_unix_s: fsutil::now_unix_s(),
-        finished: true,
+        // The record comes first, marked unfinished: a kill during a stage leaves a workspace
+        // that a later `--force` knows as keyframer's (files appearing after `started_unix_s`
+        // are COLMAP's).
+        finished: false,
     };
+    write_record(&ws, &rec)?;
+    rec.finished = true;
     let runner = Runner {
         colmap: &colmap,
         ws: &ws,
         quiet,
     };
-    // The record comes first, marked unfinished: a kill during a stage leaves a workspace that a
-    // later `--force` knows as keyframer's (files appearing after `started_unix_s` are COLMAP's).
-    rec.files = ours_now(&ws);
-    rec.finished = false;
-    write_record(&ws, &rec)?;
-    rec.finished = true;
     let result = run_stages(&runner, &mut rec, a);
     if let Err(e) = &result {
         rec.error = Some(e.to_string());
@@ -591,9 +590,12 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
     if dir.is_new() || !ws.join(RECORD).is_file() {
         return Ok(dir);
     }
-    let record = read_record(ws).map_err(|e| Error::output(ws, format!(
+    let record = read_record(ws).map_err(|e| Error::Output {
+        path: ws.to_path_buf(),
+        msg: format!(
             "{e}; keyframer cannot tell what it wrote in this workspace, so it replaces nothing: choose a new -o"
-        )))?;
+        ),
+    })?;
     let rec_path = ws.join(RECORD);
     let mut listed = Vec::new();
     for (i, f) in record.files.iter().enumerate() {

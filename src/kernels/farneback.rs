@@ -568,11 +568,6 @@ impl FarnebackGpu {
         })
     }
 
-    /// The pyramid levels in use (index 0 = full resolution).
-    pub fn levels(&self) -> &[Level] {
-        &self.levels
-    }
-
     fn encode_pyramid(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
         let full = &self.levels[0];
         let mut pass = compute_pass(enc, "farneback pyramid");
@@ -764,11 +759,6 @@ impl FarnebackGpu {
         self.flow_between_from(0, 1, initial)?;
         self.read_flow()
     }
-}
-
-/// Gray image of a frame for Farneback (BGR converted with cv::cvtColor, gray kept).
-pub fn to_gray(frame: &Mat) -> Result<Mat> {
-    super::gray::opencv(frame)
 }
 
 /// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).

@@ -93,16 +93,17 @@ impl SharpnessGpu {
         let batch = ((BATCH_BUDGET_BYTES / bgr_bytes) as usize).clamp(1, MAX_BATCH);
         let stride = gray_stride(width);
         let gray_pipe = ctx.pipeline("gray", gray::WGSL, "main")?;
+        // Also tenengrad.wgsl's parameters (`TenengradParams`).
+        let gray_params = gray::GrayParams {
+            width,
+            height,
+            stride,
+            pad: 0,
+        };
         let (metric_pipe, metric_params): (_, Vec<u8>) = match metric {
             Metric::Tenengrad => (
                 ctx.pipeline("tenengrad", tenengrad::WGSL, "main")?,
-                bytemuck::bytes_of(&tenengrad::TenengradParams {
-                    width,
-                    height,
-                    stride,
-                    pad: 0,
-                })
-                .to_vec(),
+                bytemuck::bytes_of(&gray_params).to_vec(),
             ),
             Metric::Laplacian { ksize } => {
                 if ksize != 1 && ksize != 3 {
@@ -120,15 +121,7 @@ impl SharpnessGpu {
                 )
             }
         };
-        let gray_u = ctx.uniform(
-            "gray params",
-            &gray::GrayParams {
-                width,
-                height,
-                stride,
-                pad: 0,
-            },
-        );
+        let gray_u = ctx.uniform("gray params", &gray_params);
         let metric_u =
             ctx.buffer_init("metric params", wgpu::BufferUsages::UNIFORM, &metric_params);
         let gray_buf = ctx.storage_buffer("gray", u64::from(stride) * u64::from(height) * 4);
