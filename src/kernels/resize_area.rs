@@ -118,12 +118,8 @@ impl ResizeAreaGpu {
 
     /// Records the resize of one bound (src, dst) pair.
     pub fn encode(&self, pass: &mut wgpu::ComputePass<'_>, bg: &wgpu::BindGroup) {
-        dispatch(
-            pass,
-            &self.pipe,
-            bg,
-            groups(self.dst_bytes().div_ceil(4) as u32),
-        );
+        let words = self.dst_bytes().div_ceil(4) as u32;
+        dispatch(pass, &self.pipe, bg, groups(words));
     }
 
     /// Resizes an 8-bit gray `Mat` of the source size (uploaded in gray.wgsl's layout) and reads
