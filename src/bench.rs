@@ -12,7 +12,6 @@ use std::time::Instant;
 pub struct SharpnessRow {
     pub width: u32,
     pub height: u32,
-    /// Metric timed.
     pub metric: String,
     /// OpenCV CPU, ms per frame.
     pub opencv_ms: f64,

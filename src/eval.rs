@@ -170,7 +170,6 @@ pub struct Report {
     pub registered: usize,
     /// registered / selected.
     pub registered_ratio: Option<f64>,
-    /// 3D points.
     pub points3d: usize,
     /// Mean of the points' reprojection errors (px).
     pub mean_reprojection_error: Option<f64>,

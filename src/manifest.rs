@@ -178,9 +178,7 @@ pub struct Manifest {
     pub project: PathBuf,
     /// The input the frames came from.
     pub source: PathBuf,
-    /// Input kind.
     pub source_kind: SourceKind,
-    /// Settings used.
     pub settings: ExportSettings,
     /// Size of every exported image.
     pub width: u32,

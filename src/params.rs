@@ -241,7 +241,6 @@ impl Derotate {
 /// How movement is measured.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MovementRequest {
-    /// Farneback parameters.
     pub farneback: FarnebackParams,
     /// Statistic of the flow magnitudes.
     pub statistic: Statistic,

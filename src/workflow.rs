@@ -3,8 +3,7 @@
 //! and turned into the same validated settings the `select` / `export` flags produce.
 
 use crate::error::{Error, Result};
-use crate::manifest::{ExportSettings, Format};
-use crate::manifest::{MaskSettings, SegRuntime};
+use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
 use crate::params::{Backend, Derotate, FarnebackParams, MovementRequest, Statistic};
 use crate::project::Project;
 use crate::steps::{Applied, Step};
@@ -187,7 +186,6 @@ fn sample_to_table(s: &Step) -> Result<toml::Table> {
 pub struct Workflow {
     /// Where it was read from.
     pub path: PathBuf,
-    /// Its content.
     pub file: WorkflowFile,
     /// FNV-1a hash of the file's text: a changed workflow redoes finished inputs.
     pub hash: u64,
@@ -610,6 +608,11 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             )
         })?;
     let s = &m.settings;
+    let (resize, scale) = match s.resize {
+        Some(Resize::Size { width, height }) => (Some(format!("{width}x{height}")), None),
+        Some(Resize::Scale(f)) => (None, Some(f)),
+        None => (None, None),
+    };
     Ok(Export {
         name: dir
             .file_name()
@@ -617,16 +620,8 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             .unwrap_or_else(|| "export".into()),
         format: s.format.map(|f| f.ext().to_string()),
         quality: Some(s.quality),
-        resize: match s.resize {
-            Some(crate::manifest::Resize::Size { width, height }) => {
-                Some(format!("{width}x{height}"))
-            }
-            _ => None,
-        },
-        scale: match s.resize {
-            Some(crate::manifest::Resize::Scale(f)) => Some(f),
-            _ => None,
-        },
+        resize,
+        scale,
         crop: s
             .crop
             .map(|c| format!("{},{},{},{}", c.x, c.y, c.width, c.height)),

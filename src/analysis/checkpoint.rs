@@ -25,7 +25,6 @@ pub struct Resume {
 /// A running analysis's saved state: frames 0..`frames` are complete.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Checkpoint {
-    /// Format version.
     pub version: u32,
     /// The input it belongs to.
     pub fingerprint: Fingerprint,

@@ -63,9 +63,7 @@ impl SharpnessEngine for Gpu {
         let mut out = vec![Vec::new(); frames.len()];
         let mats: Vec<&Mat> = frames.iter().map(|f| &f.image).collect();
         for r in self.0.iter_mut() {
-            for (o, v) in out.iter_mut().zip(r.scores(&mats)?) {
-                o.push(v);
-            }
+            push_scores(&mut out, r.scores(&mats)?);
         }
         Ok(out)
     }

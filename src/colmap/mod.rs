@@ -165,7 +165,6 @@ pub struct ModelSummary {
     pub path: String,
     /// Registered images.
     pub registered_images: usize,
-    /// 3D points.
     pub points3d: usize,
     /// Mean of the points' reprojection errors (px).
     pub mean_reprojection_error: Option<f64>,
