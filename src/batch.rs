@@ -75,7 +75,6 @@ pub struct InputReport {
     pub input: PathBuf,
     /// Its output folder.
     pub folder: PathBuf,
-    /// Outcome.
     pub status: Status,
     /// Number of keyframes selected.
     pub keyframes: Option<usize>,
@@ -229,38 +228,27 @@ fn run_one(w: &Workflow, input: &Path, folder: &Path, s: &RunSettings) -> InputR
         seconds: 0.0,
         error: None,
     };
-    match process(w, input, folder, s, &mut report) {
-        Ok(status) => report.status = status,
-        Err(e) => {
-            report.status = Status::Failed;
-            report.error = Some(e.to_string());
-        }
-    }
+    let result = process(w, input, folder, s, &mut report).map(|status| report.status = status);
     report.seconds = t.elapsed().as_secs_f64();
-    if report.status == Status::Done || report.status == Status::Partial {
-        let done = match select::identify(input) {
-            Ok((_, fingerprint)) => Done {
-                workflow_hash: format!("{:016x}", w.hash),
-                input: fsutil::absolute(input),
-                fingerprint,
-                report: report.clone(),
-            },
-            Err(e) => {
-                report.status = Status::Failed;
-                report.error = Some(e.to_string());
-                return report;
-            }
-        };
-        let written = serde_json::to_string_pretty(&done)
-            .map_err(|e| Error::Output {
-                path: folder.join(DONE),
-                msg: e.to_string(),
-            })
-            .and_then(|t| fsutil::write_atomic(&folder.join(DONE), t.as_bytes()));
-        if let Err(e) = written {
-            report.status = Status::Failed;
-            report.error = Some(e.to_string());
+    // Done and partial inputs are recorded as finished; a failure to record them fails them.
+    let result = result.and_then(|()| {
+        if !matches!(report.status, Status::Done | Status::Partial) {
+            return Ok(());
         }
+        let (_, fingerprint) = select::identify(input)?;
+        let done = Done {
+            workflow_hash: format!("{:016x}", w.hash),
+            input: fsutil::absolute(input),
+            fingerprint,
+            report: report.clone(),
+        };
+        let text = serde_json::to_string_pretty(&done)
+            .map_err(|e| Error::output(folder.join(DONE), e.to_string()))?;
+        fsutil::write_atomic(&folder.join(DONE), text.as_bytes())
+    });
+    if let Err(e) = result {
+        report.status = Status::Failed;
+        report.error = Some(e.to_string());
     }
     report
 }
@@ -306,10 +294,9 @@ fn claim_folder(input: &Path, folder: &Path, force: bool) -> Result<()> {
         tool: "keyframer run".into(),
         input: crate::output::resolve(input),
     };
-    let marker_text = serde_json::to_string_pretty(&marker).map_err(|e| Error::Output {
-        path: folder.join(MARKER),
-        msg: e.to_string(),
-    })? + "\n";
+    let marker_text = serde_json::to_string_pretty(&marker)
+        .map_err(|e| Error::output(folder.join(MARKER), e.to_string()))?
+        + "\n";
     if folder.exists() {
         let empty = std::fs::read_dir(folder)
             .map(|mut d| d.next().is_none())
@@ -317,31 +304,21 @@ fn claim_folder(input: &Path, folder: &Path, force: bool) -> Result<()> {
         let recorded = crate::output::read_text(&folder.join(MARKER))
             .ok()
             .map(|t| serde_json::from_str::<Marker>(&t).ok().map(|m| m.input));
-        match recorded {
+        let refusal = match recorded {
             None if !empty => {
-                return Err(Error::Output {
-                    path: folder.to_path_buf(),
-                    msg: "exists and was not made by `keyframer run`; move it away".into(),
-                })
+                Some("exists and was not made by `keyframer run`; move it away".to_string())
             }
-            Some(Some(other)) if other != marker.input && !force => {
-                return Err(Error::Output {
-                    path: folder.to_path_buf(),
-                    msg: format!(
-                        "holds the results of another input ({}); pass --force to replace them",
-                        other.display()
-                    ),
-                })
-            }
-            Some(None) if !force => {
-                return Err(Error::Output {
-                    path: folder.to_path_buf(),
-                    msg: format!(
-                        "its {MARKER} does not say which input it belongs to (an older keyframer); pass --force to replace it"
-                    ),
-                })
-            }
-            _ => {}
+            Some(Some(other)) if other != marker.input && !force => Some(format!(
+                "holds the results of another input ({}); pass --force to replace them",
+                other.display()
+            )),
+            Some(None) if !force => Some(format!(
+                "its {MARKER} does not say which input it belongs to (an older keyframer); pass --force to replace it"
+            )),
+            _ => None,
+        };
+        if let Some(msg) = refusal {
+            return Err(Error::output(folder, msg));
         }
         crate::output::clear_stale_temps_of(folder, None);
         fsutil::write_atomic(&folder.join(MARKER), marker_text.as_bytes())?;

@@ -10,11 +10,8 @@ use std::time::Instant;
 /// One row of the sharpness table.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct SharpnessRow {
-    /// Frame width.
     pub width: u32,
-    /// Frame height.
     pub height: u32,
-    /// Metric timed.
     pub metric: String,
     /// OpenCV CPU, ms per frame.
     pub opencv_ms: f64,
@@ -87,9 +84,7 @@ pub fn render_sharpness(adapter: &str, frames: usize, rows: &[SharpnessRow]) -> 
 /// One row of the Farneback table.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct FlowRow {
-    /// Frame width.
     pub width: u32,
-    /// Frame height.
     pub height: u32,
     /// Parameter set label.
     pub params: String,

@@ -28,19 +28,12 @@ pub struct Settings {
     pub tradeoffs: bool,
 }
 
-fn tool_error(what: &str, msg: impl Into<String>) -> Error {
-    Error::Param {
-        name: what.into(),
-        msg: msg.into(),
-    }
-}
-
 fn run_tool(cmd: &mut Command, what: &str) -> Result<std::process::Output> {
     let out = cmd
         .output()
-        .map_err(|e| tool_error(what, format!("cannot start: {e}")))?;
+        .map_err(|e| Error::param(what, format!("cannot start: {e}")))?;
     if !out.status.success() {
-        return Err(tool_error(
+        return Err(Error::param(
             what,
             format!(
                 "failed ({}): {}",
@@ -60,14 +53,9 @@ fn clip_tool() -> Result<PathBuf> {
     let beside = std::env::current_exe()
         .ok()
         .and_then(|e| e.parent().map(|d| d.join(CLIP_TOOL)));
-    let on_path = std::env::var_os("PATH")
-        .into_iter()
-        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
-        .map(|d| d.join(CLIP_TOOL));
     beside
-        .into_iter()
-        .chain(on_path)
-        .find(|p| p.is_file())
+        .filter(|p| p.is_file())
+        .or_else(|| crate::info::find_on_path(CLIP_TOOL))
         .ok_or_else(|| {
             Error::input(
                 CLIP_TOOL,
@@ -96,7 +84,7 @@ fn clip(dir: &Path, name: &str, w: u32, h: u32, fps: u32, secs: u32) -> Result<P
         CLIP_TOOL,
     )?;
     if !out.is_file() {
-        return Err(tool_error(
+        return Err(Error::param(
             CLIP_TOOL,
             format!("succeeded but {} is missing", out.display()),
         ));
@@ -131,7 +119,7 @@ fn opencv_decode(clip: &Path) -> Result<(f64, usize)> {
 
 /// One child `select` run: wall seconds and peak RSS in MiB.
 fn analysis(clip: &Path, project: &Path, backend: &str, extra: &[String]) -> Result<(f64, f64)> {
-    let exe = std::env::current_exe().map_err(|e| tool_error("keyframer", e.to_string()))?;
+    let exe = std::env::current_exe().map_err(|e| Error::param("keyframer", e.to_string()))?;
     let _ = std::fs::remove_file(project);
     let t = Instant::now();
     let out = run_tool(
@@ -264,7 +252,7 @@ fn tradeoffs(s: &Settings) -> Result<String> {
         "{:>6} {:>6} {:>9} {:>12} {:>10} {:>10} {:>14}\n",
         "width", "stride", "analyse s", "movement/s", "P90", "keyframes", "mean |shift|"
     );
-    let exe = std::env::current_exe().map_err(|e| tool_error("keyframer", e.to_string()))?;
+    let exe = std::env::current_exe().map_err(|e| Error::param("keyframer", e.to_string()))?;
     let mut reference: Option<(Vec<f64>, Vec<usize>)> = None;
     for (w, k) in settings {
         let project = s.dir.join(format!("tradeoff-{w}-{k}.json"));

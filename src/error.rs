@@ -87,6 +87,23 @@ impl Error {
         }
     }
 
+    /// Shorthand for [`Error::Frame`].
+    pub fn frame(path: impl Into<PathBuf>, index: usize, msg: impl Into<String>) -> Self {
+        Error::Frame {
+            path: path.into(),
+            index,
+            msg: msg.into(),
+        }
+    }
+
+    /// Shorthand for [`Error::Output`].
+    pub fn output(path: impl Into<PathBuf>, msg: impl Into<String>) -> Self {
+        Error::Output {
+            path: path.into(),
+            msg: msg.into(),
+        }
+    }
+
     /// Shorthand for [`Error::Param`].
     pub fn param(name: impl Into<String>, msg: impl Into<String>) -> Self {
         Error::Param {

@@ -28,15 +28,11 @@ pub struct EvalSettings {
 /// Summary statistics of a list of distances.
 #[derive(Debug, Clone, Copy, Serialize, PartialEq)]
 pub struct Stats {
-    /// Number of values.
     pub count: usize,
-    /// Mean.
     pub mean: f64,
     /// Population standard deviation (divides by n).
     pub std: f64,
-    /// 10 % quantile.
     pub q10: f64,
-    /// 90 % quantile.
     pub q90: f64,
 }
 
@@ -165,7 +161,6 @@ pub struct GtReport {
 pub struct Report {
     /// The model folder evaluated.
     pub model: PathBuf,
-    /// Its format.
     pub format: Format,
     /// Models found (1 for a single model folder).
     pub models: usize,
@@ -175,7 +170,6 @@ pub struct Report {
     pub registered: usize,
     /// registered / selected.
     pub registered_ratio: Option<f64>,
-    /// 3D points.
     pub points3d: usize,
     /// Mean of the points' reprojection errors (px).
     pub mean_reprojection_error: Option<f64>,

@@ -168,10 +168,7 @@ pub fn export(
         inputs.push(n);
     }
     // The model is loaded and checked before anything is written.
-    let mut masker = match &settings.masks {
-        Some(m) => Some(Masker::new(m)?),
-        None => None,
-    };
+    let mut masker = settings.masks.as_ref().map(Masker::new).transpose()?;
     let dir = crate::output::prepare_dir(out, force, &[MANIFEST, PENDING], &inputs)?;
     let job = Job {
         project: &project,
@@ -193,10 +190,7 @@ pub fn export(
         tool: "keyframer".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
         layout: LAYOUT,
-        created_unix_s: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs())
-            .unwrap_or(0),
+        created_unix_s: fsutil::now_unix_s(),
         project: fsutil::absolute(project_path),
         source: fsutil::absolute(&input),
         source_kind: meta.kind,
@@ -241,13 +235,15 @@ fn output_names(
                     n.push(format!(".{}", format.ext()));
                     n
                 };
-                name.into_string().map_err(|n| Error::Frame {
-                    path: p.to_path_buf(),
-                    index: i,
-                    msg: format!(
-                        "the file name {} is not valid UTF-8; rename it",
-                        n.to_string_lossy()
-                    ),
+                name.into_string().map_err(|n| {
+                    Error::frame(
+                        p,
+                        i,
+                        format!(
+                            "the file name {} is not valid UTF-8; rename it",
+                            n.to_string_lossy()
+                        ),
+                    )
                 })?
             }
             _ => format!("frame_{i:0digits$}.{}", format.ext()),
@@ -424,11 +420,7 @@ fn copy_originals(
     for (k, &index) in job.project.keyframes.iter().enumerate() {
         let from = src
             .file_of(index)
-            .ok_or_else(|| Error::Frame {
-                path: job.input.to_path_buf(),
-                index,
-                msg: "no such image in the folder".into(),
-            })?
+            .ok_or_else(|| Error::frame(job.input, index, "no such image in the folder"))?
             .to_path_buf();
         // A damaged file is never copied (OpenCV would read a cut JPEG as grey-filled).
         let damage = match src.damage_of(index) {
@@ -487,18 +479,15 @@ fn decode_and_encode(
             .project
             .keyframes
             .binary_search(&frame.index)
-            .map_err(|_| Error::Frame {
-                path: job.input.to_path_buf(),
-                index: frame.index,
-                msg: "the source delivered a frame that was not asked for".into(),
+            .map_err(|_| {
+                Error::frame(
+                    job.input,
+                    frame.index,
+                    "the source delivered a frame that was not asked for",
+                )
             })?;
         let name = &job.names[k];
-        let fmt = if name.ends_with(".png") {
-            Format::Png
-        } else {
-            Format::Jpg
-        };
-        let bytes = encode(&img, fmt, job.settings.quality)?;
+        let bytes = encode(&img, format_of(name), job.settings.quality)?;
         fsutil::write_atomic(&images.join(name), &bytes)?;
         frames.push(ExportedFrame {
             index: frame.index,
@@ -521,12 +510,14 @@ fn decode_and_encode(
         }
         Ok(missing)
     });
-    let not_read = result.map_err(|e| Error::Output {
-        path: job.input.to_path_buf(),
-        msg: format!(
-            "{e}; export stopped after {} of {total} images; nothing was written",
-            frames.len()
-        ),
+    let not_read = result.map_err(|e| {
+        Error::output(
+            job.input,
+            format!(
+                "{e}; export stopped after {} of {total} images; nothing was written",
+                frames.len()
+            ),
+        )
     })?;
     let reason = src
         .decode_failure()
@@ -543,15 +534,19 @@ fn decode_and_encode(
     Ok((frames, missing))
 }
 
+/// The format an exported image's name says (`.png`, else JPEG).
+fn format_of(name: &str) -> Format {
+    if name.ends_with(".png") {
+        Format::Png
+    } else {
+        Format::Jpg
+    }
+}
+
 /// Writes `manifest.json` atomically, then drops the journal: the manifest now lists exactly
 /// what is in `out`.
 fn write_manifest(out: &Path, manifest: &Manifest) -> Result<()> {
-    let mut text = serde_json::to_string_pretty(manifest).map_err(|e| Error::Output {
-        path: out.join(MANIFEST),
-        msg: e.to_string(),
-    })?;
-    text.push('\n');
-    fsutil::write_atomic(&out.join(MANIFEST), text.as_bytes())?;
+    fsutil::write_json(&out.join(MANIFEST), manifest)?;
     let _ = std::fs::remove_file(out.join(PENDING));
     Ok(())
 }
@@ -607,10 +602,8 @@ fn commit(out: &Path, staging: &Path, ours: &[PathBuf], frames: &[ExportedFrame]
         .collect();
     journal.sort();
     journal.dedup();
-    let text = serde_json::to_string(&journal).map_err(|e| Error::Output {
-        path: out.join(PENDING),
-        msg: e.to_string(),
-    })?;
+    let text = serde_json::to_string(&journal)
+        .map_err(|e| Error::output(out.join(PENDING), e.to_string()))?;
     fsutil::write_atomic(&out.join(PENDING), text.as_bytes())?;
     for rel in &new {
         let to = out.join(rel);
@@ -712,12 +705,7 @@ impl Masker {
             let mask_name = crate::segment::write_mask(&self.out.join(MASK_DIR), name, &mask)?;
             let overlay = if self.overlay {
                 let o = self.seg.overlay(image, map)?;
-                let fmt = if name.ends_with(".png") {
-                    Format::Png
-                } else {
-                    Format::Jpg
-                };
-                let bytes = encode(&o, fmt, 90)?;
+                let bytes = encode(&o, format_of(name), 90)?;
                 fsutil::write_atomic(&self.out.join(OVERLAY_DIR).join(name), &bytes)?;
                 Some(name.clone())
             } else {

@@ -69,12 +69,6 @@ pub fn read(path: &Path) -> Result<(u32, u32, Vec<f32>)> {
     Ok((w as u32, h as u32, v))
 }
 
-/// Reads a `.flo` file as a CV_32FC2 matrix.
-pub fn read_mat(path: &Path) -> Result<Mat> {
-    let (w, h, v) = read(path)?;
-    to_mat(path, w, h, &v)
-}
-
 /// Reads a `.flo` file that must be `width` x `height` (an initial flow for two images of that
 /// size), as a CV_32FC2 matrix.
 pub fn read_sized(path: &Path, width: u32, height: u32) -> Result<Mat> {
@@ -85,10 +79,6 @@ pub fn read_sized(path: &Path, width: u32, height: u32) -> Result<Mat> {
             format!("the flow is {w}x{h} but the images are {width}x{height}"),
         ));
     }
-    to_mat(path, w, h, &v)
-}
-
-fn to_mat(path: &Path, w: u32, h: u32, v: &[f32]) -> Result<Mat> {
     let mut m = Mat::new_rows_cols_with_default(
         h as i32,
         w as i32,

@@ -12,42 +12,50 @@ use std::path::{Component, Path, PathBuf};
 /// (created exclusively, so a link or FIFO planted under a guessed name is never followed) and is
 /// removed on failure.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_via_temp(path, |f| f.write_all(bytes))
+}
+
+/// Copies `from` to `to` atomically (temporary file + rename), byte for byte.
+pub fn copy_atomic(from: &Path, to: &Path) -> Result<()> {
+    let mut src = fs::File::open(from).map_err(|e| Error::io(to, e))?;
+    write_via_temp(to, |f| std::io::copy(&mut src, f).map(drop))
+}
+
+/// Writes `value` as pretty JSON with a final newline, atomically.
+pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    let mut text =
+        serde_json::to_string_pretty(value).map_err(|e| Error::output(path, e.to_string()))?;
+    text.push('\n');
+    write_atomic(path, text.as_bytes())
+}
+
+/// The [`write_atomic`] protocol with `fill` writing the temporary's content.
+fn write_via_temp(
+    path: &Path,
+    fill: impl FnOnce(&mut fs::File) -> std::io::Result<()>,
+) -> Result<()> {
     let tmp = temp_sibling(path);
     let result = (|| -> std::io::Result<()> {
         let mut f = fs::OpenOptions::new()
             .write(true)
             .create_new(true)
             .open(&tmp)?;
-        f.write_all(bytes)?;
+        fill(&mut f)?;
         f.sync_data()?;
-        Ok(())
+        fs::rename(&tmp, path)
     })();
-    finish_atomic(&tmp, path, result)
+    result.map_err(|e| {
+        let _ = fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
 }
 
-/// Copies `from` to `to` atomically (temporary file + rename), byte for byte.
-pub fn copy_atomic(from: &Path, to: &Path) -> Result<()> {
-    let tmp = temp_sibling(to);
-    let result = (|| -> std::io::Result<()> {
-        let mut src = fs::File::open(from)?;
-        let mut f = fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)?;
-        std::io::copy(&mut src, &mut f)?;
-        f.sync_data()?;
-        Ok(())
-    })();
-    finish_atomic(&tmp, to, result)
-}
-
-fn finish_atomic(tmp: &Path, path: &Path, result: std::io::Result<()>) -> Result<()> {
-    let result = result.and_then(|()| fs::rename(tmp, path));
-    if let Err(e) = result {
-        let _ = fs::remove_file(tmp);
-        return Err(Error::io(path, e));
-    }
-    Ok(())
+/// Seconds since the Unix epoch (0 for a clock set before it).
+pub fn now_unix_s() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0)
 }
 
 fn temp_sibling(path: &Path) -> PathBuf {

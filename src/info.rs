@@ -14,7 +14,6 @@ pub struct Info {
     pub selected_adapter: Result<AdapterSummary, String>,
     /// All adapters found, best first.
     pub adapters: Vec<AdapterSummary>,
-    /// OpenCV version string.
     pub opencv_version: String,
     /// OpenCV video I/O backends available for reading files.
     pub opencv_video_backends: Vec<String>,

@@ -41,9 +41,7 @@ pub struct Crop {
     pub x: u32,
     /// Top edge.
     pub y: u32,
-    /// Width.
     pub width: u32,
-    /// Height.
     pub height: u32,
 }
 
@@ -180,9 +178,7 @@ pub struct Manifest {
     pub project: PathBuf,
     /// The input the frames came from.
     pub source: PathBuf,
-    /// Input kind.
     pub source_kind: SourceKind,
-    /// Settings used.
     pub settings: ExportSettings,
     /// Size of every exported image.
     pub width: u32,
@@ -204,9 +200,7 @@ fn layout_one() -> u32 {
 /// A keyframe that could not be exported.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MissingFrame {
-    /// Frame index.
     pub index: usize,
-    /// Why.
     pub reason: String,
 }
 
@@ -299,7 +293,6 @@ pub struct MaskSettings {
     pub classes: Vec<String>,
     /// Grow the hidden area by this many pixels (of the exported image).
     pub dilate: u32,
-    /// Runtime.
     pub backend: SegRuntime,
     /// Also write colour overlays of the class map.
     pub overlay: bool,

@@ -137,26 +137,15 @@ impl FarnebackParams {
                 format!("must be at most {}, got {}", Self::MAX_LEVELS, self.levels),
             );
         }
-        if !(1..=Self::MAX_WINSIZE).contains(&self.winsize) {
-            return bad(
-                "winsize",
-                format!(
-                    "must be between 1 and {}, got {}",
-                    Self::MAX_WINSIZE,
-                    self.winsize
-                ),
-            );
-        }
-        if !(1..=Self::MAX_ITERATIONS).contains(&self.iterations) {
-            return bad(
-                "iterations",
-                format!(
-                    "must be between 1 and {}, got {}",
-                    Self::MAX_ITERATIONS,
-                    self.iterations
-                ),
-            );
-        }
+        let up_to = |name: &str, v: u32, max: u32| {
+            if (1..=max).contains(&v) {
+                Ok(())
+            } else {
+                bad(name, format!("must be between 1 and {max}, got {v}"))
+            }
+        };
+        up_to("winsize", self.winsize, Self::MAX_WINSIZE)?;
+        up_to("iterations", self.iterations, Self::MAX_ITERATIONS)?;
         if self.poly_n != 5 && self.poly_n != 7 {
             return bad("poly_n", format!("must be 5 or 7, got {}", self.poly_n));
         }
@@ -192,9 +181,7 @@ impl Statistic {
             Statistic::TrimmedMean { trim } => ("trimmed-mean", Some(trim)),
         }
     }
-}
 
-impl Statistic {
     /// Checks the trim fraction.
     pub fn validate(&self) -> Result<()> {
         if let Statistic::TrimmedMean { trim } = self {
@@ -254,7 +241,6 @@ impl Derotate {
 /// How movement is measured.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MovementRequest {
-    /// Farneback parameters.
     pub farneback: FarnebackParams,
     /// Statistic of the flow magnitudes.
     pub statistic: Statistic,
@@ -291,9 +277,7 @@ pub struct StationaryRequest {
 /// Movement between consecutive frames.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MovementSeries {
-    /// Analysis width.
     pub width: u32,
-    /// Analysis height.
     pub height: u32,
     /// Factor from analysis pixels to full-resolution pixels.
     pub scale_to_full: f64,

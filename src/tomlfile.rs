@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 
 /// A parsed TOML file that can still point at its own lines.
 pub struct TomlFile<T> {
-    /// The deserialized value.
     pub value: T,
     path: PathBuf,
     what: &'static str,
@@ -71,7 +70,6 @@ impl<T> TomlFile<T> {
         &self.text
     }
 
-    /// The file's path.
     pub fn path(&self) -> &Path {
         &self.path
     }

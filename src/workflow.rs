@@ -3,8 +3,7 @@
 //! and turned into the same validated settings the `select` / `export` flags produce.
 
 use crate::error::{Error, Result};
-use crate::manifest::{ExportSettings, Format};
-use crate::manifest::{MaskSettings, SegRuntime};
+use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
 use crate::params::{Backend, Derotate, FarnebackParams, MovementRequest, Statistic};
 use crate::project::Project;
 use crate::steps::{Applied, Step};
@@ -187,7 +186,6 @@ fn sample_to_table(s: &Step) -> Result<toml::Table> {
 pub struct Workflow {
     /// Where it was read from.
     pub path: PathBuf,
-    /// Its content.
     pub file: WorkflowFile,
     /// FNV-1a hash of the file's text: a changed workflow redoes finished inputs.
     pub hash: u64,
@@ -260,26 +258,19 @@ impl Workflow {
             if let Some(m) = &settings.masks {
                 let desc = crate::model_desc::ModelDesc::load(&m.model)
                     .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
-                desc.class_ids(&m.classes).map_err(|e| {
-                    let msg = match e {
-                        Error::Param { msg, .. } => msg,
-                        other => other.to_string(),
-                    };
-                    file.error(&format!("export[{i}].masks.classes"), msg)
-                })?;
+                desc.class_ids(&m.classes)
+                    .map_err(|e| file.error(&format!("export[{i}].masks.classes"), param_msg(e)))?;
             }
             exports.push((e.name.clone(), settings));
         }
-        let hash = crate::fsutil::fnv1a64(file.text().as_bytes());
-        let wf = Workflow {
+        Ok(Workflow {
             path: path.to_path_buf(),
             file: content.clone(),
-            hash,
+            hash: crate::fsutil::fnv1a64(file.text().as_bytes()),
             movement,
             backend,
             exports,
-        };
-        Ok(wf)
+        })
     }
 
     /// How movement is measured (from `[analysis]`, defaults filled in).
@@ -295,6 +286,14 @@ impl Workflow {
     /// The exports in order: folder name and checked settings.
     pub fn exports(&self) -> &[(String, ExportSettings)] {
         &self.exports
+    }
+}
+
+/// A parameter error's message without the parameter's name; any other error in full.
+fn param_msg(e: Error) -> String {
+    match e {
+        Error::Param { msg, .. } => msg,
+        other => other.to_string(),
     }
 }
 
@@ -584,10 +583,7 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
                     field: format!("history[{k}].params"),
                     msg: format!(
                         "cannot be written as a workflow step ({}; TOML integers go up to 2^63 - 1)",
-                        match e {
-                            Error::Param { msg, .. } => msg,
-                            other => other.to_string(),
-                        }
+                        param_msg(e)
                     ),
                 })
             })
@@ -612,6 +608,11 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             )
         })?;
     let s = &m.settings;
+    let (resize, scale) = match s.resize {
+        Some(Resize::Size { width, height }) => (Some(format!("{width}x{height}")), None),
+        Some(Resize::Scale(f)) => (None, Some(f)),
+        None => (None, None),
+    };
     Ok(Export {
         name: dir
             .file_name()
@@ -619,16 +620,8 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             .unwrap_or_else(|| "export".into()),
         format: s.format.map(|f| f.ext().to_string()),
         quality: Some(s.quality),
-        resize: match s.resize {
-            Some(crate::manifest::Resize::Size { width, height }) => {
-                Some(format!("{width}x{height}"))
-            }
-            _ => None,
-        },
-        scale: match s.resize {
-            Some(crate::manifest::Resize::Scale(f)) => Some(f),
-            _ => None,
-        },
+        resize,
+        scale,
         crop: s
             .crop
             .map(|c| format!("{},{},{},{}", c.x, c.y, c.width, c.height)),

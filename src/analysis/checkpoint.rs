@@ -25,7 +25,6 @@ pub struct Resume {
 /// A running analysis's saved state: frames 0..`frames` are complete.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Checkpoint {
-    /// Format version.
     pub version: u32,
     /// The input it belongs to.
     pub fingerprint: Fingerprint,
@@ -228,10 +227,7 @@ impl<'a> Saver<'a> {
                 .collect(),
             movement,
         };
-        let bytes = serde_json::to_vec(&c).map_err(|e| Error::Output {
-            path: r.path.clone(),
-            msg: e.to_string(),
-        })?;
+        let bytes = serde_json::to_vec(&c).map_err(|e| Error::output(&r.path, e.to_string()))?;
         crate::fsutil::write_atomic(&r.path, &bytes)?;
         log::debug!("checkpoint: {frames} frames -> {}", r.path.display());
         self.last = Instant::now();

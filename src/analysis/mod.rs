@@ -392,14 +392,10 @@ fn problems_of(src: &dyn FrameSource, input: &Path) -> Vec<String> {
         .collect()
 }
 
-fn with_path(e: crate::Error, input: &Path) -> crate::Error {
+fn with_path(e: Error, input: &Path) -> Error {
     match e {
-        crate::Error::Frame { path, index, msg } if path.as_os_str().is_empty() => {
-            crate::Error::Frame {
-                path: input.to_path_buf(),
-                index,
-                msg,
-            }
+        Error::Frame { path, index, msg } if path.as_os_str().is_empty() => {
+            Error::frame(input, index, msg)
         }
         other => other,
     }

@@ -63,9 +63,7 @@ impl SharpnessEngine for Gpu {
         let mut out = vec![Vec::new(); frames.len()];
         let mats: Vec<&Mat> = frames.iter().map(|f| &f.image).collect();
         for r in self.0.iter_mut() {
-            for (o, v) in out.iter_mut().zip(r.scores(&mats)?) {
-                o.push(v);
-            }
+            push_scores(&mut out, r.scores(&mats)?);
         }
         Ok(out)
     }
@@ -100,10 +98,8 @@ impl SharpnessEngine for Opencv {
                 self.0
                     .iter()
                     .map(|&m| {
-                        score_opencv(&f.image, m).map_err(|e| Error::Frame {
-                            path: Default::default(),
-                            index: f.index,
-                            msg: e.to_string(),
+                        score_opencv(&f.image, m).map_err(|e| {
+                            Error::frame(std::path::PathBuf::new(), f.index, e.to_string())
                         })
                     })
                     .collect()

@@ -29,7 +29,6 @@ pub fn mul(a: &Mat3, b: &Mat3) -> Mat3 {
     from_na(&(to_na(a) * to_na(b)))
 }
 
-/// Transpose.
 pub fn transpose(a: &Mat3) -> Mat3 {
     from_na(&to_na(a).transpose())
 }
@@ -39,7 +38,6 @@ pub fn mul_vec(a: &Mat3, v: &Vec3) -> Vec3 {
     (to_na(a) * Vector3::from(*v)).into()
 }
 
-/// Determinant.
 pub fn det(a: &Mat3) -> f64 {
     to_na(a).determinant()
 }
@@ -110,7 +108,6 @@ pub struct Sim3 {
     pub scale: f64,
     /// Rotation (proper: determinant +1).
     pub rotation: Mat3,
-    /// Translation.
     pub translation: Vec3,
 }
 

@@ -90,7 +90,6 @@ pub enum Matcher {
 /// The COLMAP installation used.
 #[derive(Debug, Clone)]
 pub struct Colmap {
-    /// Binary.
     pub bin: PathBuf,
     /// Header line, e.g. "COLMAP 3.8 (Commit Unknown on Unknown without CUDA)".
     pub version: String,
@@ -166,7 +165,6 @@ pub struct ModelSummary {
     pub path: String,
     /// Registered images.
     pub registered_images: usize,
-    /// 3D points.
     pub points3d: usize,
     /// Mean of the points' reprojection errors (px).
     pub mean_reprojection_error: Option<f64>,
@@ -193,7 +191,6 @@ pub struct Record {
     pub images: usize,
     /// Masks in the workspace.
     pub masks: usize,
-    /// Camera model.
     pub camera_model: String,
     /// Matcher (when sparse ran).
     pub matcher: Option<Matcher>,
@@ -220,13 +217,6 @@ pub struct Record {
 
 fn finished_default() -> bool {
     true
-}
-
-fn now_unix_s() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0)
 }
 
 /// Reads a workspace's `colmap.json`.
@@ -277,21 +267,20 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         stages: Vec::new(),
         models: Vec::new(),
         error: None,
-        files: Vec::new(),
-        started_unix_s: now_unix_s(),
-        finished: true,
+        files: ours_now(&ws),
+        started_unix_s: fsutil::now_unix_s(),
+        // The record comes first, marked unfinished: a kill during a stage leaves a workspace
+        // that a later `--force` knows as keyframer's (files appearing after `started_unix_s`
+        // are COLMAP's).
+        finished: false,
     };
+    write_record(&ws, &rec)?;
+    rec.finished = true;
     let runner = Runner {
         colmap: &colmap,
         ws: &ws,
         quiet,
     };
-    // The record comes first, marked unfinished: a kill during a stage leaves a workspace that a
-    // later `--force` knows as keyframer's (files appearing after `started_unix_s` are COLMAP's).
-    rec.files = ours_now(&ws);
-    rec.finished = false;
-    write_record(&ws, &rec)?;
-    rec.finished = true;
     let result = run_stages(&runner, &mut rec, a);
     if let Err(e) = &result {
         rec.error = Some(e.to_string());
@@ -587,12 +576,7 @@ fn summarise(m: &model::Model, rel: &Path) -> ModelSummary {
 }
 
 fn write_record(ws: &Path, rec: &Record) -> Result<()> {
-    let mut text = serde_json::to_string_pretty(rec).map_err(|e| Error::Output {
-        path: ws.join(RECORD),
-        msg: e.to_string(),
-    })?;
-    text.push('\n');
-    fsutil::write_atomic(&ws.join(RECORD), text.as_bytes())
+    fsutil::write_json(&ws.join(RECORD), rec)
 }
 
 /// Prepares the workspace through the one output rule (a folder without `colmap.json` is not

@@ -13,9 +13,7 @@ pub const ADAPTER_ENV: &str = "KEYFRAMER_ADAPTER";
 
 /// A device and queue plus the adapter facts `keyframer info` reports.
 pub struct GpuContext {
-    /// The logical device.
     pub device: wgpu::Device,
-    /// Its queue.
     pub queue: wgpu::Queue,
     /// The adapter the device was made from.
     pub info: wgpu::AdapterInfo,
@@ -247,6 +245,69 @@ impl GpuContext {
         })
     }
 
+    /// A buffer holding `bytes` (size rounded up to 4, at least 16) with `usage` and COPY_DST.
+    pub fn buffer_init(
+        &self,
+        label: &str,
+        usage: wgpu::BufferUsages,
+        bytes: &[u8],
+    ) -> wgpu::Buffer {
+        let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: (bytes.len() as u64).next_multiple_of(4).max(16),
+            usage: usage | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&buf, 0, bytes);
+        buf
+    }
+
+    /// A uniform buffer holding `v`.
+    pub fn uniform<T: bytemuck::Pod>(&self, label: &str, v: &T) -> wgpu::Buffer {
+        self.buffer_init(label, wgpu::BufferUsages::UNIFORM, bytemuck::bytes_of(v))
+    }
+
+    /// A bind group of `pipe`'s group 0 binding each buffer whole at its index.
+    pub fn bind(
+        &self,
+        label: &str,
+        pipe: &wgpu::ComputePipeline,
+        entries: &[(u32, &wgpu::Buffer)],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<_> = entries
+            .iter()
+            .map(|(b, buf)| (*b, buf.as_entire_binding()))
+            .collect();
+        self.bind_resources(label, pipe, &entries)
+    }
+
+    /// As [`GpuContext::bind`], for any binding resources (e.g. part of a buffer).
+    pub fn bind_resources(
+        &self,
+        label: &str,
+        pipe: &wgpu::ComputePipeline,
+        entries: &[(u32, wgpu::BindingResource<'_>)],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = entries
+            .iter()
+            .map(|(binding, r)| wgpu::BindGroupEntry {
+                binding: *binding,
+                resource: r.clone(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout: &pipe.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    }
+
+    /// A command encoder labelled `label`.
+    pub fn encoder(&self, label: &str) -> wgpu::CommandEncoder {
+        self.device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
+    }
+
     /// Uploads the pixels of `mat` (checked to be `typ` and `width` x `height`; `what` names the
     /// runner in errors) into `buffer`, padded with zeros to a multiple of 4 bytes in `scratch`.
     #[allow(clippy::too_many_arguments)]
@@ -297,11 +358,7 @@ impl GpuContext {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mut enc = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("readback"),
-            });
+        let mut enc = self.encoder("readback");
         enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
         self.queue.submit([enc.finish()]);
         self.map_and_copy(&staging)
@@ -325,6 +382,26 @@ impl GpuContext {
         staging.unmap();
         Ok(out)
     }
+}
+
+/// A compute pass of `enc` labelled `label`.
+pub fn compute_pass<'a>(enc: &'a mut wgpu::CommandEncoder, label: &str) -> wgpu::ComputePass<'a> {
+    enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(label),
+        timestamp_writes: None,
+    })
+}
+
+/// Records `pipe` with bind group `bg` over `groups` (x, y) workgroups.
+pub fn dispatch(
+    pass: &mut wgpu::ComputePass<'_>,
+    pipe: &wgpu::ComputePipeline,
+    bg: &wgpu::BindGroup,
+    groups: (u32, u32),
+) {
+    pass.set_pipeline(pipe);
+    pass.set_bind_group(0, bg, &[]);
+    pass.dispatch_workgroups(groups.0, groups.1, 1);
 }
 
 /// Keeps the first few faults (the first one explains the rest).

@@ -5,7 +5,7 @@
 //! (farneback_flow). The OpenCV twin is `opencv` (the OpenCV call itself).
 
 use crate::error::{CvContext, Error, Result};
-use crate::gpu::GpuContext;
+use crate::gpu::{compute_pass, dispatch, GpuContext};
 pub use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
@@ -65,9 +65,7 @@ pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>
 /// One pyramid level as OpenCV derives it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Level {
-    /// Level size.
     pub width: u32,
-    /// Level size.
     pub height: u32,
     /// pyr_scale^k.
     pub scale: f64,
@@ -263,6 +261,24 @@ struct ResizeParams {
     pad1: [f32; 3],
 }
 
+impl ResizeParams {
+    /// INTER_LINEAR resize of `channels` channels from `src` to `dst`, values scaled by `factor`.
+    fn new(src: (u32, u32), dst: &Level, channels: u32, factor: f32) -> ResizeParams {
+        ResizeParams {
+            src_w: src.0,
+            src_h: src.1,
+            dst_w: dst.width,
+            dst_h: dst.height,
+            channels,
+            pad0: 0,
+            scale_x: (1.0 / (f64::from(dst.width) / f64::from(src.0))) as f32,
+            scale_y: (1.0 / (f64::from(dst.height) / f64::from(src.1))) as f32,
+            factor,
+            pad1: [0.0; 3],
+        }
+    }
+}
+
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 struct PolyParams {
@@ -342,54 +358,6 @@ pub struct FarnebackGpu {
     pad: Vec<u8>,
 }
 
-fn storage(ctx: &GpuContext, label: &str, bytes: u64) -> wgpu::Buffer {
-    ctx.storage_buffer(label, bytes)
-}
-
-fn init_buffer(
-    ctx: &GpuContext,
-    label: &str,
-    usage: wgpu::BufferUsages,
-    bytes: &[u8],
-) -> wgpu::Buffer {
-    let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size: (bytes.len() as u64).next_multiple_of(4).max(16),
-        usage: usage | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    ctx.queue.write_buffer(&buf, 0, bytes);
-    buf
-}
-
-fn uniform<T: Pod>(ctx: &GpuContext, label: &str, v: &T) -> wgpu::Buffer {
-    init_buffer(
-        ctx,
-        label,
-        wgpu::BufferUsages::UNIFORM,
-        bytemuck::bytes_of(v),
-    )
-}
-
-fn bind_at(
-    ctx: &GpuContext,
-    pipe: &wgpu::ComputePipeline,
-    entries: &[(u32, &wgpu::Buffer)],
-) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry<'_>> = entries
-        .iter()
-        .map(|(b, buf)| wgpu::BindGroupEntry {
-            binding: *b,
-            resource: buf.as_entire_binding(),
-        })
-        .collect();
-    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipe.get_bind_group_layout(0),
-        entries: &entries,
-    })
-}
-
 fn groups16(w: u32, h: u32) -> (u32, u32) {
     (w.div_ceil(16), h.div_ceil(16))
 }
@@ -419,6 +387,11 @@ impl FarnebackGpu {
             )));
         }
         let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
+        let flow_entries = if params.gaussian {
+            ("cols", "rows")
+        } else {
+            ("box_cols", "box_rows")
+        };
         let pipes = Pipes {
             smooth_rows: p("farneback_smooth", SMOOTH_WGSL, "rows")?,
             smooth_cols: p("farneback_smooth", SMOOTH_WGSL, "cols")?,
@@ -426,54 +399,40 @@ impl FarnebackGpu {
             poly_cols: p("farneback_polyexp", POLYEXP_WGSL, "cols")?,
             poly_rows: p("farneback_polyexp", POLYEXP_WGSL, "rows")?,
             matrices: p("farneback_matrices", MATRICES_WGSL, "main")?,
-            flow_cols: p(
-                "farneback_flow",
-                FLOW_WGSL,
-                if params.gaussian { "cols" } else { "box_cols" },
-            )?,
-            flow_rows: p(
-                "farneback_flow",
-                FLOW_WGSL,
-                if params.gaussian { "rows" } else { "box_rows" },
-            )?,
+            flow_cols: p("farneback_flow", FLOW_WGSL, flow_entries.0)?,
+            flow_rows: p("farneback_flow", FLOW_WGSL, flow_entries.1)?,
         };
         // Shared scratch buffers (full-resolution sized; passes run one after another).
-        let tmp = storage(&ctx, "smooth tmp", full * 4);
-        let smoothed = storage(&ctx, "smoothed", full * 4);
-        let img = storage(&ctx, "level image", full * 4);
-        let rows3 = storage(&ctx, "polyexp rows", full * 12);
-        let m = storage(&ctx, "matrices", full * 20);
-        let vsum = storage(&ctx, "window sums", full * 20);
+        let tmp = ctx.storage_buffer("smooth tmp", full * 4);
+        let smoothed = ctx.storage_buffer("smoothed", full * 4);
+        let img = ctx.storage_buffer("level image", full * 4);
+        let rows3 = ctx.storage_buffer("polyexp rows", full * 12);
+        let m = ctx.storage_buffer("matrices", full * 20);
+        let vsum = ctx.storage_buffer("window sums", full * 20);
+        let f32_buffer = |label: &str, w: &[f32]| {
+            ctx.buffer_init(label, wgpu::BufferUsages::STORAGE, bytemuck::cast_slice(w))
+        };
         let (kern, ig) = poly_weights(params.poly_n, params.poly_sigma);
-        let kern_buf = init_buffer(
-            &ctx,
-            "poly kernel",
-            wgpu::BufferUsages::STORAGE,
-            bytemuck::cast_slice(&kern),
-        );
+        let kern_buf = f32_buffer("poly kernel", &kern);
         let (win, win_scale) = window_weights(params.winsize, params.gaussian);
-        let win_buf = init_buffer(
-            &ctx,
-            "window weights",
-            wgpu::BufferUsages::STORAGE,
-            bytemuck::cast_slice(&win),
-        );
+        // The box window (box_cols, box_rows) binds no weights: entry 3 only when gaussian.
+        let win_entries = if params.gaussian { 4 } else { 3 };
+        let win_buf = f32_buffer("window weights", &win);
 
         let flow: Vec<wgpu::Buffer> = levels
             .iter()
-            .map(|l| storage(&ctx, "flow", u64::from(l.width) * u64::from(l.height) * 8))
+            .map(|l| ctx.storage_buffer("flow", u64::from(l.width) * u64::from(l.height) * 8))
             .collect();
 
+        let bind = |pipe: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
+            ctx.bind("farneback", pipe, entries)
+        };
         let make_slot = |_: usize| -> FrameSlot {
-            let gray = storage(&ctx, "gray upload", full);
+            let gray = ctx.storage_buffer("gray upload", full);
             let r: Vec<wgpu::Buffer> = levels
                 .iter()
                 .map(|l| {
-                    storage(
-                        &ctx,
-                        "expansion",
-                        u64::from(l.width) * u64::from(l.height) * 20,
-                    )
+                    ctx.storage_buffer("expansion", u64::from(l.width) * u64::from(l.height) * 20)
                 })
                 .collect();
             let level_groups = levels
@@ -481,14 +440,8 @@ impl FarnebackGpu {
                 .zip(&r)
                 .map(|(l, r_buf)| {
                     let radius = (l.smooth.len() / 2) as u32;
-                    let weights = init_buffer(
-                        &ctx,
-                        "smooth weights",
-                        wgpu::BufferUsages::STORAGE,
-                        bytemuck::cast_slice(&l.smooth),
-                    );
-                    let sp = uniform(
-                        &ctx,
+                    let smooth_w = f32_buffer("smooth weights", &l.smooth);
+                    let sp = ctx.uniform(
                         "smooth params",
                         &SmoothParams {
                             width,
@@ -497,24 +450,11 @@ impl FarnebackGpu {
                             radius,
                         },
                     );
-                    let rp = uniform(
-                        &ctx,
+                    let rp = ctx.uniform(
                         "resize params",
-                        &ResizeParams {
-                            src_w: width,
-                            src_h: height,
-                            dst_w: l.width,
-                            dst_h: l.height,
-                            channels: 1,
-                            pad0: 0,
-                            scale_x: (1.0 / (f64::from(l.width) / f64::from(width))) as f32,
-                            scale_y: (1.0 / (f64::from(l.height) / f64::from(height))) as f32,
-                            factor: 1.0,
-                            pad1: [0.0; 3],
-                        },
+                        &ResizeParams::new((width, height), l, 1, 1.0),
                     );
-                    let pp = uniform(
-                        &ctx,
+                    let pp = ctx.uniform(
                         "polyexp params",
                         &PolyParams {
                             width: l.width,
@@ -525,24 +465,20 @@ impl FarnebackGpu {
                         },
                     );
                     [
-                        bind_at(
-                            &ctx,
+                        bind(
                             &pipes.smooth_rows,
-                            &[(0, &gray), (1, &tmp), (3, &weights), (4, &sp)],
+                            &[(0, &gray), (1, &tmp), (3, &smooth_w), (4, &sp)],
                         ),
-                        bind_at(
-                            &ctx,
+                        bind(
                             &pipes.smooth_cols,
-                            &[(1, &tmp), (2, &smoothed), (3, &weights), (4, &sp)],
+                            &[(1, &tmp), (2, &smoothed), (3, &smooth_w), (4, &sp)],
                         ),
-                        bind_at(&ctx, &pipes.resize, &[(0, &smoothed), (1, &img), (2, &rp)]),
-                        bind_at(
-                            &ctx,
+                        bind(&pipes.resize, &[(0, &smoothed), (1, &img), (2, &rp)]),
+                        bind(
                             &pipes.poly_cols,
                             &[(0, &img), (1, &rows3), (3, &kern_buf), (4, &pp)],
                         ),
-                        bind_at(
-                            &ctx,
+                        bind(
                             &pipes.poly_rows,
                             &[(1, &rows3), (2, r_buf), (3, &kern_buf), (4, &pp)],
                         ),
@@ -562,8 +498,7 @@ impl FarnebackGpu {
                 .iter()
                 .enumerate()
                 .map(|(k, l)| {
-                    let sz = uniform(
-                        &ctx,
+                    let sz = ctx.uniform(
                         "level size",
                         &SizeParams {
                             width: l.width,
@@ -571,8 +506,7 @@ impl FarnebackGpu {
                             pad: [0; 2],
                         },
                     );
-                    let fp = uniform(
-                        &ctx,
+                    let fp = ctx.uniform(
                         "flow params",
                         &FlowParams {
                             width: l.width,
@@ -584,31 +518,22 @@ impl FarnebackGpu {
                         },
                     );
                     let upsample = levels.get(k + 1).map(|c| {
-                        let up = uniform(
-                            &ctx,
+                        let up = ctx.uniform(
                             "flow upsample params",
-                            &ResizeParams {
-                                src_w: c.width,
-                                src_h: c.height,
-                                dst_w: l.width,
-                                dst_h: l.height,
-                                channels: 2,
-                                pad0: 0,
-                                scale_x: (1.0 / (f64::from(l.width) / f64::from(c.width))) as f32,
-                                scale_y: (1.0 / (f64::from(l.height) / f64::from(c.height))) as f32,
-                                factor: (1.0 / params.pyr_scale) as f32,
-                                pad1: [0.0; 3],
-                            },
+                            &ResizeParams::new(
+                                (c.width, c.height),
+                                l,
+                                2,
+                                (1.0 / params.pyr_scale) as f32,
+                            ),
                         );
-                        bind_at(
-                            &ctx,
-                            &pipes.resize,
-                            &[(0, &flow[k + 1]), (1, &flow[k]), (2, &up)],
-                        )
+                        bind(&pipes.resize, &[(0, &flow[k + 1]), (1, &flow[k]), (2, &up)])
                     });
+                    let cols = [(0, &m), (1, &vsum), (4, &fp), (3, &win_buf)];
+                    let rows = [(1, &vsum), (2, &flow[k]), (4, &fp), (3, &win_buf)];
                     LevelFlow {
-                        matrices: bind_at(
-                            &ctx,
+                        matrices: ctx.bind(
+                            "farneback",
                             &pipes.matrices,
                             &[
                                 (0, &prev.r[k]),
@@ -618,28 +543,8 @@ impl FarnebackGpu {
                                 (4, &sz),
                             ],
                         ),
-                        cols: if params.gaussian {
-                            bind_at(
-                                &ctx,
-                                &pipes.flow_cols,
-                                &[(0, &m), (1, &vsum), (3, &win_buf), (4, &fp)],
-                            )
-                        } else {
-                            bind_at(&ctx, &pipes.flow_cols, &[(0, &m), (1, &vsum), (4, &fp)])
-                        },
-                        rows: if params.gaussian {
-                            bind_at(
-                                &ctx,
-                                &pipes.flow_rows,
-                                &[(1, &vsum), (2, &flow[k]), (3, &win_buf), (4, &fp)],
-                            )
-                        } else {
-                            bind_at(
-                                &ctx,
-                                &pipes.flow_rows,
-                                &[(1, &vsum), (2, &flow[k]), (4, &fp)],
-                            )
-                        },
+                        cols: bind(&pipes.flow_cols, &cols[..win_entries]),
+                        rows: bind(&pipes.flow_rows, &rows[..win_entries]),
                         upsample,
                     }
                 })
@@ -663,45 +568,21 @@ impl FarnebackGpu {
         })
     }
 
-    /// The pyramid levels in use (index 0 = full resolution).
-    pub fn levels(&self) -> &[Level] {
-        &self.levels
-    }
-
-    fn upload(&mut self, slot: usize, gray: &Mat) -> Result<()> {
-        let (w, h) = (self.levels[0].width, self.levels[0].height);
-        let buf = &self.slots[slot].gray;
-        self.ctx.upload_mat(
-            buf,
-            gray,
-            opencv::core::CV_8UC1,
-            w,
-            h,
-            "Farneback (8-bit gray)",
-            &mut self.pad,
-        )
-    }
-
     fn encode_pyramid(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
         let full = &self.levels[0];
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("farneback pyramid"),
-            timestamp_writes: None,
-        });
+        let mut pass = compute_pass(enc, "farneback pyramid");
         for (l, g) in self.levels.iter().zip(&self.slots[slot].levels) {
-            let (fx, fy) = groups16(full.width, full.height);
-            let (lx, ly) = groups16(l.width, l.height);
+            let f = groups16(full.width, full.height);
+            let lg = groups16(l.width, l.height);
             let steps: [(&wgpu::ComputePipeline, (u32, u32)); 5] = [
-                (&self.pipes.smooth_rows, (fx, fy)),
-                (&self.pipes.smooth_cols, (fx, fy)),
-                (&self.pipes.resize, (lx, ly)),
-                (&self.pipes.poly_cols, (lx, ly)),
-                (&self.pipes.poly_rows, (lx, ly)),
+                (&self.pipes.smooth_rows, f),
+                (&self.pipes.smooth_cols, f),
+                (&self.pipes.resize, lg),
+                (&self.pipes.poly_cols, lg),
+                (&self.pipes.poly_rows, lg),
             ];
-            for ((pipe, (x, y)), bg) in steps.into_iter().zip(g) {
-                pass.set_pipeline(pipe);
-                pass.set_bind_group(0, bg, &[]);
-                pass.dispatch_workgroups(x, y, 1);
+            for ((pipe, groups), bg) in steps.into_iter().zip(g) {
+                dispatch(&mut pass, pipe, bg, groups);
             }
         }
     }
@@ -714,22 +595,15 @@ impl FarnebackGpu {
         if !initial {
             enc.clear_buffer(&self.flow[top], 0, None);
         }
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("farneback flow"),
-            timestamp_writes: None,
-        });
+        let mut pass = compute_pass(enc, "farneback flow");
         for k in (0..=top).rev() {
             let l = &self.levels[k];
             let lf = &per_level[k];
             let (x, y) = groups16(l.width, l.height);
             if let Some(up) = &lf.upsample {
-                pass.set_pipeline(&self.pipes.resize);
-                pass.set_bind_group(0, up, &[]);
-                pass.dispatch_workgroups(x, y, 1);
+                dispatch(&mut pass, &self.pipes.resize, up, (x, y));
             }
-            pass.set_pipeline(&self.pipes.matrices);
-            pass.set_bind_group(0, &lf.matrices, &[]);
-            pass.dispatch_workgroups(x, y, 1);
+            dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
             let (cx, cy, rx, ry) = if self.params.gaussian {
                 (x, y, x, y)
             } else {
@@ -741,16 +615,10 @@ impl FarnebackGpu {
                 )
             };
             for i in 0..self.params.iterations {
-                pass.set_pipeline(&self.pipes.flow_cols);
-                pass.set_bind_group(0, &lf.cols, &[]);
-                pass.dispatch_workgroups(cx, cy, 1);
-                pass.set_pipeline(&self.pipes.flow_rows);
-                pass.set_bind_group(0, &lf.rows, &[]);
-                pass.dispatch_workgroups(rx, ry, 1);
+                dispatch(&mut pass, &self.pipes.flow_cols, &lf.cols, (cx, cy));
+                dispatch(&mut pass, &self.pipes.flow_rows, &lf.rows, (rx, ry));
                 if i + 1 < self.params.iterations {
-                    pass.set_pipeline(&self.pipes.matrices);
-                    pass.set_bind_group(0, &lf.matrices, &[]);
-                    pass.dispatch_workgroups(x, y, 1);
+                    dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
                 }
             }
         }
@@ -761,13 +629,12 @@ impl FarnebackGpu {
         if slot >= SLOTS {
             return Err(Error::param("slot", format!("must be below {SLOTS}")));
         }
-        self.upload(slot, gray)?;
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("farneback pyramid"),
-            });
+        let (w, h) = (self.levels[0].width, self.levels[0].height);
+        let buf = &self.slots[slot].gray;
+        let what = "Farneback (8-bit gray)";
+        self.ctx
+            .upload_mat(buf, gray, opencv::core::CV_8UC1, w, h, what, &mut self.pad)?;
+        let mut enc = self.ctx.encoder("farneback pyramid");
         self.encode_pyramid(&mut enc, slot);
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
@@ -787,12 +654,7 @@ impl FarnebackGpu {
                 "smaller than the level-0 image",
             ));
         }
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("farneback pyramid"),
-            });
+        let mut enc = self.ctx.encoder("farneback pyramid");
         enc.copy_buffer_to_buffer(gray, 0, &self.slots[slot].gray, 0, bytes);
         self.encode_pyramid(&mut enc, slot);
         self.ctx.queue.submit([enc.finish()]);
@@ -819,12 +681,7 @@ impl FarnebackGpu {
                 format!("need two distinct slots below {SLOTS}"),
             ));
         }
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("farneback flow"),
-            });
+        let mut enc = self.ctx.encoder("farneback flow");
         if let Some(init) = initial {
             let top = self
                 .levels
@@ -902,11 +759,6 @@ impl FarnebackGpu {
         self.flow_between_from(0, 1, initial)?;
         self.read_flow()
     }
-}
-
-/// Gray image of a frame for Farneback (BGR converted with cv::cvtColor, gray kept).
-pub fn to_gray(frame: &Mat) -> Result<Mat> {
-    super::gray::opencv(frame)
 }
 
 /// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).

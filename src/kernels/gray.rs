@@ -12,13 +12,10 @@ pub const WGSL: &str = include_str!("../../shaders/gray.wgsl");
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct GrayParams {
-    /// Image width.
     pub width: u32,
-    /// Image height.
     pub height: u32,
     /// u32 words per row of the packed gray output.
     pub stride: u32,
-    /// Unused.
     pub pad: u32,
 }
 

@@ -13,9 +13,7 @@ pub const WGSL: &str = include_str!("../../shaders/laplacian.wgsl");
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct LaplacianParams {
-    /// Image width.
     pub width: u32,
-    /// Image height.
     pub height: u32,
     /// u32 words per row of the packed gray input.
     pub stride: u32,

@@ -5,7 +5,7 @@
 //! the statistic measures the translation-induced (parallax) part of the motion.
 
 use crate::error::{Error, Result};
-use crate::gpu::GpuContext;
+use crate::gpu::{compute_pass, dispatch, GpuContext};
 pub use crate::params::{Derotate, Statistic};
 use bytemuck::{Pod, Zeroable};
 use nalgebra::{Matrix3, Vector3};
@@ -290,13 +290,6 @@ struct Params {
 
 const BINS: usize = 4096;
 
-fn entry(binding: u32, buf: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
-    wgpu::BindGroupEntry {
-        binding,
-        resource: buf.as_entire_binding(),
-    }
-}
-
 /// The device passes of `MovementGpu` (entry points of shaders/movement.wgsl).
 #[derive(Clone, Copy)]
 enum Pass {
@@ -347,36 +340,26 @@ impl MovementGpu {
         let total = n.div_ceil(256);
         let gx = total.min(65_535);
         let groups = (gx, total.div_ceil(gx));
-        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("movement params"),
-            size: std::mem::size_of::<Params>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params = ctx.uniform("movement params", &Params::zeroed());
         let hist = ctx.storage_buffer("movement histogram", (2 * BINS * 4) as u64);
         let counts = ctx.storage_buffer("movement counts", 16);
         let partials =
             ctx.storage_buffer("movement partials", u64::from(groups.0 * groups.1) * 3 * 4);
-        let hist_bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("movement histogram"),
-            layout: &hist_pipe.get_bind_group_layout(0),
-            entries: &[entry(0, flow), entry(1, &hist), entry(4, &params)],
-        });
-        let sums_bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("movement sums"),
-            layout: &sums_pipe.get_bind_group_layout(0),
-            entries: &[
-                entry(0, flow),
-                entry(2, &counts),
-                entry(3, &partials),
-                entry(4, &params),
-            ],
-        });
-        let rot_bg = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("movement rotation sums"),
-            layout: &rot_pipe.get_bind_group_layout(0),
-            entries: &[entry(0, flow), entry(3, &partials), entry(4, &params)],
-        });
+        let hist_bg = ctx.bind(
+            "movement histogram",
+            &hist_pipe,
+            &[(0, flow), (1, &hist), (4, &params)],
+        );
+        let sums_bg = ctx.bind(
+            "movement sums",
+            &sums_pipe,
+            &[(0, flow), (2, &counts), (3, &partials), (4, &params)],
+        );
+        let rot_bg = ctx.bind(
+            "movement rotation sums",
+            &rot_pipe,
+            &[(0, flow), (3, &partials), (4, &params)],
+        );
         Ok(MovementGpu {
             ctx,
             n,
@@ -454,12 +437,7 @@ impl MovementGpu {
         self.ctx
             .queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(p));
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("movement"),
-            });
+        let mut enc = self.ctx.encoder("movement");
         let (pipe, bg) = match which {
             Pass::Histogram => {
                 enc.clear_buffer(&self.hist, 0, None);
@@ -471,15 +449,12 @@ impl MovementGpu {
             }
             Pass::RotationSums => (&self.rot_pipe, &self.rot_bg),
         };
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("movement"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(pipe);
-            pass.set_bind_group(0, bg, &[]);
-            pass.dispatch_workgroups(self.groups.0, self.groups.1, 1);
-        }
+        dispatch(
+            &mut compute_pass(&mut enc, "movement"),
+            pipe,
+            bg,
+            self.groups,
+        );
         self.ctx.queue.submit([enc.finish()]);
     }
 

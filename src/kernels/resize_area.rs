@@ -3,7 +3,7 @@
 
 use super::gray_stride;
 use crate::error::{CvContext, Error, Result};
-use crate::gpu::GpuContext;
+use crate::gpu::{compute_pass, dispatch, GpuContext};
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
@@ -16,15 +16,11 @@ pub const WGSL: &str = include_str!("../../shaders/resize_area.wgsl");
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct ResizeAreaParams {
-    /// Source width.
     pub src_w: u32,
-    /// Source height.
     pub src_h: u32,
     /// u32 words per source row (gray.wgsl's packed layout).
     pub src_stride: u32,
-    /// Output width.
     pub dst_w: u32,
-    /// Output height.
     pub dst_h: u32,
     /// Horizontal factor.
     pub kx: u32,
@@ -97,13 +93,7 @@ impl ResizeAreaGpu {
             scale: 1.0f32 / (kx * ky) as f32,
         };
         let pipe = ctx.pipeline("resize_area", WGSL, "main")?;
-        let params = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("resize_area params"),
-            size: std::mem::size_of::<ResizeAreaParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        ctx.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
+        let params = ctx.uniform("resize_area params", &p);
         Ok(ResizeAreaGpu {
             ctx,
             pipe,
@@ -119,35 +109,17 @@ impl ResizeAreaGpu {
 
     /// A bind group reading the gray buffer `src` and writing `dst`.
     pub fn bind(&self, src: &wgpu::Buffer, dst: &wgpu::Buffer) -> wgpu::BindGroup {
-        let entries = [
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: src.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: dst.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 2,
-                resource: self.params.as_entire_binding(),
-            },
-        ];
-        self.ctx
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("resize_area"),
-                layout: &self.pipe.get_bind_group_layout(0),
-                entries: &entries,
-            })
+        self.ctx.bind(
+            "resize_area",
+            &self.pipe,
+            &[(0, src), (1, dst), (2, &self.params)],
+        )
     }
 
     /// Records the resize of one bound (src, dst) pair.
     pub fn encode(&self, pass: &mut wgpu::ComputePass<'_>, bg: &wgpu::BindGroup) {
-        let (x, y) = groups(self.dst_bytes().div_ceil(4) as u32);
-        pass.set_pipeline(&self.pipe);
-        pass.set_bind_group(0, bg, &[]);
-        pass.dispatch_workgroups(x, y, 1);
+        let words = self.dst_bytes().div_ceil(4) as u32;
+        dispatch(pass, &self.pipe, bg, groups(words));
     }
 
     /// Resizes an 8-bit gray `Mat` of the source size (uploaded in gray.wgsl's layout) and reads
@@ -174,19 +146,8 @@ impl ResizeAreaGpu {
         self.ctx.queue.write_buffer(&src, 0, &packed);
         let dst = self.ctx.storage_buffer("resize_area dst", self.dst_bytes());
         let bg = self.bind(&src, &dst);
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("resize_area"),
-            });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("resize_area"),
-                timestamp_writes: None,
-            });
-            self.encode(&mut pass, &bg);
-        }
+        let mut enc = self.ctx.encoder("resize_area");
+        self.encode(&mut compute_pass(&mut enc, "resize_area"), &bg);
         self.ctx.queue.submit([enc.finish()]);
         let mut bytes = self.ctx.read_back(&dst, self.dst_bytes())?;
         bytes.truncate(self.dst_bytes() as usize);

@@ -7,7 +7,7 @@
 use super::resize_area::ResizeAreaGpu;
 use super::{gray, gray_groups, gray_stride, laplacian, tenengrad, tile_groups};
 use crate::error::{Error, Result};
-use crate::gpu::GpuContext;
+use crate::gpu::{compute_pass, dispatch, GpuContext};
 pub use crate::params::Metric;
 use opencv::core::Mat;
 use std::sync::Arc;
@@ -74,37 +74,6 @@ struct AttachedResize {
     groups: Vec<wgpu::BindGroup>,
 }
 
-fn uniform(ctx: &GpuContext, label: &str, bytes: &[u8]) -> wgpu::Buffer {
-    let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size: bytes.len() as u64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    ctx.queue.write_buffer(&buf, 0, bytes);
-    buf
-}
-
-fn bind(
-    ctx: &GpuContext,
-    pipe: &wgpu::ComputePipeline,
-    entries: &[wgpu::BindingResource<'_>],
-) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry<'_>> = entries
-        .iter()
-        .enumerate()
-        .map(|(i, r)| wgpu::BindGroupEntry {
-            binding: i as u32,
-            resource: r.clone(),
-        })
-        .collect();
-    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipe.get_bind_group_layout(0),
-        entries: &entries,
-    })
-}
-
 impl SharpnessGpu {
     /// Prepares buffers and pipelines for `width` x `height` frames.
     pub fn new(ctx: Arc<GpuContext>, metric: Metric, width: u32, height: u32) -> Result<Self> {
@@ -124,16 +93,17 @@ impl SharpnessGpu {
         let batch = ((BATCH_BUDGET_BYTES / bgr_bytes) as usize).clamp(1, MAX_BATCH);
         let stride = gray_stride(width);
         let gray_pipe = ctx.pipeline("gray", gray::WGSL, "main")?;
+        // Also tenengrad.wgsl's parameters (`TenengradParams`).
+        let gray_params = gray::GrayParams {
+            width,
+            height,
+            stride,
+            pad: 0,
+        };
         let (metric_pipe, metric_params): (_, Vec<u8>) = match metric {
             Metric::Tenengrad => (
                 ctx.pipeline("tenengrad", tenengrad::WGSL, "main")?,
-                bytemuck::bytes_of(&tenengrad::TenengradParams {
-                    width,
-                    height,
-                    stride,
-                    pad: 0,
-                })
-                .to_vec(),
+                bytemuck::bytes_of(&gray_params).to_vec(),
             ),
             Metric::Laplacian { ksize } => {
                 if ksize != 1 && ksize != 3 {
@@ -151,17 +121,9 @@ impl SharpnessGpu {
                 )
             }
         };
-        let gray_u = uniform(
-            &ctx,
-            "gray params",
-            bytemuck::bytes_of(&gray::GrayParams {
-                width,
-                height,
-                stride,
-                pad: 0,
-            }),
-        );
-        let metric_u = uniform(&ctx, "metric params", &metric_params);
+        let gray_u = ctx.uniform("gray params", &gray_params);
+        let metric_u =
+            ctx.buffer_init("metric params", wgpu::BufferUsages::UNIFORM, &metric_params);
         let gray_buf = ctx.storage_buffer("gray", u64::from(stride) * u64::from(height) * 4);
         let totals = ctx.storage_buffer("totals", TOTALS_SLOT * batch as u64);
         let readback = ctx.device.create_buffer(&wgpu::BufferDescriptor {
@@ -179,22 +141,18 @@ impl SharpnessGpu {
                     size: wgpu::BufferSize::new(totals_of(metric) * 8),
                 };
                 Slot {
-                    gray_bg: bind(
-                        &ctx,
+                    gray_bg: ctx.bind(
+                        "gray",
                         &gray_pipe,
-                        &[
-                            bgr.as_entire_binding(),
-                            gray_buf.as_entire_binding(),
-                            gray_u.as_entire_binding(),
-                        ],
+                        &[(0, &bgr), (1, &gray_buf), (2, &gray_u)],
                     ),
-                    metric_bg: bind(
-                        &ctx,
+                    metric_bg: ctx.bind_resources(
+                        "metric",
                         &metric_pipe,
                         &[
-                            gray_buf.as_entire_binding(),
-                            wgpu::BindingResource::Buffer(totals_slot),
-                            metric_u.as_entire_binding(),
+                            (0, gray_buf.as_entire_binding()),
+                            (1, wgpu::BindingResource::Buffer(totals_slot)),
+                            (2, metric_u.as_entire_binding()),
                         ],
                     ),
                     bgr,
@@ -273,16 +231,9 @@ impl SharpnessGpu {
             TOTALS_SLOT * slot as u64,
             Some(totals_of(self.metric) * 8),
         );
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("sharpness"),
-            timestamp_writes: None,
-        });
-        pass.set_pipeline(&self.gray_pipe);
-        pass.set_bind_group(0, &s.gray_bg, &[]);
-        pass.dispatch_workgroups(gx, gy, 1);
-        pass.set_pipeline(&self.metric_pipe);
-        pass.set_bind_group(0, &s.metric_bg, &[]);
-        pass.dispatch_workgroups(tx, ty, 1);
+        let mut pass = compute_pass(enc, "sharpness");
+        dispatch(&mut pass, &self.gray_pipe, &s.gray_bg, (gx, gy));
+        dispatch(&mut pass, &self.metric_pipe, &s.metric_bg, (tx, ty));
         if let Some(r) = &self.resize {
             r.gpu.encode(&mut pass, &r.groups[slot]);
         }
@@ -295,12 +246,7 @@ impl SharpnessGpu {
             for (i, f) in chunk.iter().enumerate() {
                 self.upload(i, f)?;
             }
-            let mut enc = self
-                .ctx
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("sharpness batch"),
-                });
+            let mut enc = self.ctx.encoder("sharpness batch");
             for i in 0..chunk.len() {
                 self.encode(&mut enc, i);
             }
@@ -325,12 +271,7 @@ impl SharpnessGpu {
     /// The gray image the gpu computes for `frame` (for checking against cv::cvtColor).
     pub fn gray_of(&mut self, frame: &Mat) -> Result<Vec<u8>> {
         self.upload(0, frame)?;
-        let mut enc = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("gray"),
-            });
+        let mut enc = self.ctx.encoder("gray");
         self.encode(&mut enc, 0);
         self.ctx.queue.submit([enc.finish()]);
         let stride = gray_stride(self.width) as usize;

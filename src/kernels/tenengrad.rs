@@ -2,7 +2,6 @@
 //! (shaders/tenengrad.wgsl); the OpenCV twin uses cv::Sobel and Mat::dot.
 
 use crate::error::{CvContext, Result};
-use bytemuck::{Pod, Zeroable};
 use opencv::core::{self, Mat};
 use opencv::imgproc;
 use opencv::prelude::MatTraitConst;
@@ -10,19 +9,8 @@ use opencv::prelude::MatTraitConst;
 /// WGSL source.
 pub const WGSL: &str = include_str!("../../shaders/tenengrad.wgsl");
 
-/// Uniform parameters of tenengrad.wgsl.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub struct TenengradParams {
-    /// Image width.
-    pub width: u32,
-    /// Image height.
-    pub height: u32,
-    /// u32 words per row of the packed gray input.
-    pub stride: u32,
-    /// Unused.
-    pub pad: u32,
-}
+/// Uniform parameters of tenengrad.wgsl: those of gray.wgsl, whose packed output it reads.
+pub type TenengradParams = super::gray::GrayParams;
 
 /// Score from the exact total of Gx² + Gy² over `n` pixels.
 pub fn from_totals(sum_sq: u64, n: u64) -> f64 {

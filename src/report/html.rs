@@ -113,7 +113,7 @@ pub fn page(p: &PageInput) -> Result<String> {
         data: hover_data(pr, tl),
     }
     .render()
-    .map_err(|e| Error::param("-o", format!("rendering the report page failed: {e}")))
+    .map_err(|e| Error::param("output", format!("rendering the report page failed: {e}")))
 }
 
 /// The curves of all panels, top to bottom.

@@ -200,11 +200,11 @@ impl CodecKeyframeSource {
             let _ = e.read_to_string(&mut err);
         }
         let _ = self.child.wait();
-        Error::Frame {
-            path: self.path.clone(),
-            index: self.index.keyframes.get(self.next).copied().unwrap_or(0),
-            msg: format!("{what} {}", err.trim()),
-        }
+        Error::frame(
+            &self.path,
+            self.index.keyframes.get(self.next).copied().unwrap_or(0),
+            format!("{what} {}", err.trim()),
+        )
     }
 }
 

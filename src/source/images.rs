@@ -242,11 +242,11 @@ fn dimensions(file: &Path, index: usize) -> Result<(u32, u32)> {
     let m = imgcodecs::imread(file, imgcodecs::IMREAD_COLOR)
         .cv(|| format!("imread {}", file.display()))?;
     if m.empty() {
-        return Err(Error::Frame {
-            path: file.to_path_buf(),
+        return Err(Error::frame(
+            file,
             index,
-            msg: "cannot read as an image (damaged or unsupported file)".into(),
-        });
+            "cannot read as an image (damaged or unsupported file)",
+        ));
     }
     Ok((m.cols() as u32, m.rows() as u32))
 }

@@ -30,7 +30,6 @@ pub enum SourceKind {
 /// Facts about an input, as `keyframer probe` reports them.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Metadata {
-    /// Input kind.
     pub kind: SourceKind,
     /// Number of frames (decoded count when `frame_count_exact`, else the container's claim).
     pub frame_count: usize,
@@ -63,7 +62,6 @@ pub struct Frame {
 
 /// A stream of frames in index order.
 pub trait FrameSource: Send {
-    /// The input's path.
     fn path(&self) -> &Path;
     /// Metadata known so far.
     fn metadata(&self) -> &Metadata;

@@ -172,11 +172,11 @@ impl VideoSource {
             .retrieve(&mut image, 0)
             .cv(|| format!("retrieve {} frame {index}", self.path.display()))?;
         if !ok || image.empty() {
-            return Err(Error::Frame {
-                path: self.path.clone(),
+            return Err(Error::frame(
+                &self.path,
                 index,
-                msg: "the decoder returned no image".into(),
-            });
+                "the decoder returned no image",
+            ));
         }
         let turn = match self.meta.rotation_deg {
             90 => Some(cvcore::ROTATE_90_COUNTERCLOCKWISE),
@@ -193,17 +193,17 @@ impl VideoSource {
         if self.meta.width != 0
             && (image.cols() as u32 != self.meta.width || image.rows() as u32 != self.meta.height)
         {
-            return Err(Error::Frame {
-                path: self.path.clone(),
+            return Err(Error::frame(
+                &self.path,
                 index,
-                msg: format!(
+                format!(
                     "frame size changed from {}x{} to {}x{} inside the stream",
                     self.meta.width,
                     self.meta.height,
                     image.cols(),
                     image.rows()
                 ),
-            });
+            ));
         }
         Ok(Some(Frame {
             index,
