@@ -637,7 +637,7 @@ mod font {
             Ok(())
         })
         .clone()
-        .map_err(|msg| Error::param("--timeline", msg))
+        .map_err(|msg| Error::param("timeline", msg))
     }
 }
 
