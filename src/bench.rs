@@ -2,7 +2,7 @@
 //! and their ratio. Never used as a timed assertion; this machine is noisy.
 
 use crate::error::Result;
-use crate::gpu::GpuContext;
+use crate::gpu::{GpuContext, PerFrame};
 use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
 use std::sync::Arc;
 use std::time::Instant;
@@ -17,6 +17,8 @@ pub struct SharpnessRow {
     pub opencv_ms: f64,
     /// gpu backend (upload, kernels, readback), ms per frame.
     pub gpu_ms: f64,
+    /// What the gpu backend asked of the device, per frame.
+    pub per_frame: PerFrame,
 }
 
 /// Sizes the sharpness benchmark runs at.
@@ -44,7 +46,7 @@ pub fn sharpness(ctx: &Arc<GpuContext>, frames: usize) -> Result<Vec<SharpnessRo
             let opencv_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
             let mut gpu = SharpnessGpu::new(ctx.clone(), metric, w, h)?;
             gpu.scores(&list[..1])?; // warm-up: pipeline and first submission
-            let t = Instant::now();
+            let (t, before) = (Instant::now(), ctx.counts());
             gpu.scores(&list)?;
             let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
             rows.push(SharpnessRow {
@@ -53,6 +55,7 @@ pub fn sharpness(ctx: &Arc<GpuContext>, frames: usize) -> Result<Vec<SharpnessRo
                 metric: metric.to_string(),
                 opencv_ms,
                 gpu_ms,
+                per_frame: PerFrame::of(ctx.counts() - before, frames),
             });
         }
     }
@@ -65,17 +68,23 @@ pub fn render_sharpness(adapter: &str, frames: usize, rows: &[SharpnessRow]) -> 
         "sharpness, {frames} frames per cell, gpu = {adapter} (upload + kernels + readback)\n"
     );
     s += &format!(
-        "{:>10} {:>13} {:>12} {:>12} {:>14}\n",
-        "size", "metric", "opencv ms/f", "gpu ms/f", "opencv/gpu"
+        "{:>10} {:>13} {:>12} {:>12} {:>14}{}\n",
+        "size",
+        "metric",
+        "opencv ms/f",
+        "gpu ms/f",
+        "opencv/gpu",
+        PerFrame::HEADER
     );
     for r in rows {
         s += &format!(
-            "{:>10} {:>13} {:>12.2} {:>12.2} {:>14.2}\n",
+            "{:>10} {:>13} {:>12.2} {:>12.2} {:>14.2}{}\n",
             format!("{}x{}", r.width, r.height),
             r.metric,
             r.opencv_ms,
             r.gpu_ms,
-            r.opencv_ms / r.gpu_ms
+            r.opencv_ms / r.gpu_ms,
+            r.per_frame.columns()
         );
     }
     s
@@ -92,6 +101,8 @@ pub struct FlowRow {
     pub opencv_ms: f64,
     /// gpu backend streaming a video (one pyramid per new frame, flow, no readback), ms per pair.
     pub gpu_ms: f64,
+    /// What the gpu backend asked of the device, per pair.
+    pub per_frame: PerFrame,
 }
 
 /// Sizes the Farneback benchmark runs at.
@@ -130,7 +141,7 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize) -> Result<Vec<FlowRow>> {
             gpu.load(1, &frames[1])?;
             gpu.flow_between(0, 1)?;
             gpu.read_flow()?; // warm-up
-            let t = Instant::now();
+            let (t, before) = (Instant::now(), ctx.counts());
             for i in 0..pairs {
                 let (from, to) = (i % 2, (i + 1) % 2);
                 gpu.load(to, &frames[to])?;
@@ -144,6 +155,7 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize) -> Result<Vec<FlowRow>> {
                 params: label.into(),
                 opencv_ms,
                 gpu_ms,
+                per_frame: PerFrame::of(ctx.counts() - before, pairs),
             });
         }
     }
@@ -156,17 +168,23 @@ pub fn render_flow(adapter: &str, pairs: usize, rows: &[FlowRow]) -> String {
         "farneback, {pairs} pairs per cell, gpu = {adapter} (streaming: one pyramid per frame + flow)\n"
     );
     s += &format!(
-        "{:>10} {:>20} {:>12} {:>12} {:>12}\n",
-        "size", "params", "opencv ms", "gpu ms", "opencv/gpu"
+        "{:>10} {:>20} {:>12} {:>12} {:>12}{}\n",
+        "size",
+        "params",
+        "opencv ms",
+        "gpu ms",
+        "opencv/gpu",
+        PerFrame::HEADER
     );
     for r in rows {
         s += &format!(
-            "{:>10} {:>20} {:>12.1} {:>12.1} {:>12.2}\n",
+            "{:>10} {:>20} {:>12.1} {:>12.1} {:>12.2}{}\n",
             format!("{}x{}", r.width, r.height),
             r.params,
             r.opencv_ms,
             r.gpu_ms,
-            r.opencv_ms / r.gpu_ms
+            r.opencv_ms / r.gpu_ms,
+            r.per_frame.columns()
         );
     }
     s

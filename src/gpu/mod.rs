@@ -6,6 +6,7 @@
 use crate::error::{Error, Result};
 pub use crate::params::Backend;
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 
 /// Environment variable naming the adapter to use (case-insensitive substring of its name).
@@ -23,6 +24,94 @@ pub struct GpuContext {
     /// Validation errors and device loss wgpu reported outside any error scope (wgpu's default
     /// handler would panic); [`GpuContext::check`] turns them into an error.
     faults: Arc<Mutex<Vec<String>>>,
+    counters: Counters,
+}
+
+/// What the host asked of the device so far: the budget issue 16 sets per analysed frame (at
+/// most one blocking wait per 16 frames, 1 KiB read back) is checked against these.
+#[derive(Debug, Default)]
+struct Counters {
+    dispatches: AtomicU64,
+    uploaded: AtomicU64,
+    read_back: AtomicU64,
+    waits: AtomicU64,
+}
+
+/// A snapshot of a context's counters; subtract two to get the work between them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Counts {
+    /// Compute dispatches recorded.
+    pub dispatches: u64,
+    /// Bytes written from the host into device buffers.
+    pub uploaded: u64,
+    /// Bytes copied from the device to the host.
+    pub read_back: u64,
+    /// Times the host blocked until the device finished.
+    pub waits: u64,
+}
+
+impl std::ops::Sub for Counts {
+    type Output = Counts;
+    fn sub(self, o: Counts) -> Counts {
+        Counts {
+            dispatches: self.dispatches - o.dispatches,
+            uploaded: self.uploaded - o.uploaded,
+            read_back: self.read_back - o.read_back,
+            waits: self.waits - o.waits,
+        }
+    }
+}
+
+/// A context's counters divided by the frames they served.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct PerFrame {
+    /// Compute dispatches.
+    pub dispatches: f64,
+    /// Bytes uploaded.
+    pub uploaded: f64,
+    /// Bytes read back.
+    pub read_back: f64,
+    /// Blocking waits for the device.
+    pub waits: f64,
+}
+
+impl PerFrame {
+    /// `c` over `frames` frames.
+    pub fn of(c: Counts, frames: usize) -> PerFrame {
+        let n = frames.max(1) as f64;
+        PerFrame {
+            dispatches: c.dispatches as f64 / n,
+            uploaded: c.uploaded as f64 / n,
+            read_back: c.read_back as f64 / n,
+            waits: c.waits as f64 / n,
+        }
+    }
+
+    /// Columns of `bench`'s tables.
+    pub const HEADER: &'static str = "  disp/f  up KiB/f  back B/f  waits/f";
+
+    pub fn columns(&self) -> String {
+        format!(
+            " {:>7.1} {:>9.1} {:>9.0} {:>8.2}",
+            self.dispatches,
+            self.uploaded / 1024.0,
+            self.read_back,
+            self.waits
+        )
+    }
+}
+
+impl std::fmt::Display for PerFrame {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:.1} dispatches, {:.1} KiB uploaded, {:.0} B read back, {:.2} blocking waits per frame",
+            self.dispatches,
+            self.uploaded / 1024.0,
+            self.read_back,
+            self.waits
+        )
+    }
 }
 
 /// Facts about one adapter, for `keyframer info`.
@@ -162,6 +251,7 @@ impl GpuContext {
             limits,
             pipelines: Mutex::new(HashMap::new()),
             faults,
+            counters: Counters::default(),
         })
     }
 
@@ -186,10 +276,44 @@ impl GpuContext {
 
     /// Waits until the device has finished the submitted work, then [`GpuContext::check`]s it.
     pub fn wait(&self) -> Result<()> {
+        self.counters.waits.fetch_add(1, Relaxed);
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| Error::Gpu(format!("device poll failed: {e}")))?;
         self.check()
+    }
+
+    /// The counters so far.
+    pub fn counts(&self) -> Counts {
+        let c = &self.counters;
+        Counts {
+            dispatches: c.dispatches.load(Relaxed),
+            uploaded: c.uploaded.load(Relaxed),
+            read_back: c.read_back.load(Relaxed),
+            waits: c.waits.load(Relaxed),
+        }
+    }
+
+    /// Writes `bytes` into `buffer` at `offset` (counted as uploaded).
+    pub fn write(&self, buffer: &wgpu::Buffer, offset: u64, bytes: &[u8]) {
+        self.counters
+            .uploaded
+            .fetch_add(bytes.len() as u64, Relaxed);
+        self.queue.write_buffer(buffer, offset, bytes);
+    }
+
+    /// Records `pipe` with bind group `bg` over `groups` (x, y) workgroups (counted).
+    pub fn dispatch(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        pipe: &wgpu::ComputePipeline,
+        bg: &wgpu::BindGroup,
+        groups: (u32, u32),
+    ) {
+        self.counters.dispatches.fetch_add(1, Relaxed);
+        pass.set_pipeline(pipe);
+        pass.set_bind_group(0, bg, &[]);
+        pass.dispatch_workgroups(groups.0, groups.1, 1);
     }
 
     /// Summary of the adapter and the device limits.
@@ -258,7 +382,7 @@ impl GpuContext {
             usage: usage | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        self.queue.write_buffer(&buf, 0, bytes);
+        self.write(&buf, 0, bytes);
         buf
     }
 
@@ -339,12 +463,12 @@ impl GpuContext {
         };
         let bytes = mat.data_bytes().map_err(|e| Error::Gpu(e.to_string()))?;
         if bytes.len() % 4 == 0 {
-            self.queue.write_buffer(buffer, 0, bytes);
+            self.write(buffer, 0, bytes);
         } else {
             scratch.clear();
             scratch.extend_from_slice(bytes);
             scratch.resize(bytes.len().next_multiple_of(4), 0);
-            self.queue.write_buffer(buffer, 0, scratch);
+            self.write(buffer, 0, scratch);
         }
         Ok(())
     }
@@ -380,6 +504,7 @@ impl GpuContext {
             .map_err(|e| Error::Gpu(format!("mapped range: {e}")))?
             .to_vec();
         staging.unmap();
+        self.counters.read_back.fetch_add(out.len() as u64, Relaxed);
         Ok(out)
     }
 }
@@ -390,18 +515,6 @@ pub fn compute_pass<'a>(enc: &'a mut wgpu::CommandEncoder, label: &str) -> wgpu:
         label: Some(label),
         timestamp_writes: None,
     })
-}
-
-/// Records `pipe` with bind group `bg` over `groups` (x, y) workgroups.
-pub fn dispatch(
-    pass: &mut wgpu::ComputePass<'_>,
-    pipe: &wgpu::ComputePipeline,
-    bg: &wgpu::BindGroup,
-    groups: (u32, u32),
-) {
-    pass.set_pipeline(pipe);
-    pass.set_bind_group(0, bg, &[]);
-    pass.dispatch_workgroups(groups.0, groups.1, 1);
 }
 
 /// Keeps the first few faults (the first one explains the rest).

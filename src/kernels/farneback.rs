@@ -5,7 +5,7 @@
 //! (farneback_flow). The OpenCV twin is `opencv` (the OpenCV call itself).
 
 use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, dispatch, GpuContext};
+use crate::gpu::{compute_pass, GpuContext};
 pub use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
@@ -582,7 +582,7 @@ impl FarnebackGpu {
                 (&self.pipes.poly_rows, lg),
             ];
             for ((pipe, groups), bg) in steps.into_iter().zip(g) {
-                dispatch(&mut pass, pipe, bg, groups);
+                self.ctx.dispatch(&mut pass, pipe, bg, groups);
             }
         }
     }
@@ -601,9 +601,10 @@ impl FarnebackGpu {
             let lf = &per_level[k];
             let (x, y) = groups16(l.width, l.height);
             if let Some(up) = &lf.upsample {
-                dispatch(&mut pass, &self.pipes.resize, up, (x, y));
+                self.ctx.dispatch(&mut pass, &self.pipes.resize, up, (x, y));
             }
-            dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
+            self.ctx
+                .dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
             let (cx, cy, rx, ry) = if self.params.gaussian {
                 (x, y, x, y)
             } else {
@@ -615,10 +616,13 @@ impl FarnebackGpu {
                 )
             };
             for i in 0..self.params.iterations {
-                dispatch(&mut pass, &self.pipes.flow_cols, &lf.cols, (cx, cy));
-                dispatch(&mut pass, &self.pipes.flow_rows, &lf.rows, (rx, ry));
+                self.ctx
+                    .dispatch(&mut pass, &self.pipes.flow_cols, &lf.cols, (cx, cy));
+                self.ctx
+                    .dispatch(&mut pass, &self.pipes.flow_rows, &lf.rows, (rx, ry));
                 if i + 1 < self.params.iterations {
-                    dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
+                    self.ctx
+                        .dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
                 }
             }
         }

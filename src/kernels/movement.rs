@@ -5,7 +5,7 @@
 //! the statistic measures the translation-induced (parallax) part of the motion.
 
 use crate::error::{Error, Result};
-use crate::gpu::{compute_pass, dispatch, GpuContext};
+use crate::gpu::{compute_pass, GpuContext};
 pub use crate::params::{Derotate, Statistic};
 use bytemuck::{Pod, Zeroable};
 use nalgebra::{Matrix3, Vector3};
@@ -449,7 +449,7 @@ impl MovementGpu {
             }
             Pass::RotationSums => (&self.rot_pipe, &self.rot_bg),
         };
-        dispatch(
+        self.ctx.dispatch(
             &mut compute_pass(&mut enc, "movement"),
             pipe,
             bg,

@@ -3,7 +3,7 @@
 
 use super::gray_stride;
 use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, dispatch, GpuContext};
+use crate::gpu::{compute_pass, GpuContext};
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
@@ -119,7 +119,7 @@ impl ResizeAreaGpu {
     /// Records the resize of one bound (src, dst) pair.
     pub fn encode(&self, pass: &mut wgpu::ComputePass<'_>, bg: &wgpu::BindGroup) {
         let words = self.dst_bytes().div_ceil(4) as u32;
-        dispatch(pass, &self.pipe, bg, groups(words));
+        self.ctx.dispatch(pass, &self.pipe, bg, groups(words));
     }
 
     /// Resizes an 8-bit gray `Mat` of the source size (uploaded in gray.wgsl's layout) and reads
@@ -143,7 +143,7 @@ impl ResizeAreaGpu {
         let src = self
             .ctx
             .storage_buffer("resize_area src", packed.len() as u64);
-        self.ctx.queue.write_buffer(&src, 0, &packed);
+        self.ctx.write(&src, 0, &packed);
         let dst = self.ctx.storage_buffer("resize_area dst", self.dst_bytes());
         let bg = self.bind(&src, &dst);
         let mut enc = self.ctx.encoder("resize_area");

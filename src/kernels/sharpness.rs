@@ -7,7 +7,7 @@
 use super::resize_area::ResizeAreaGpu;
 use super::{gray, gray_groups, gray_stride, laplacian, tenengrad, tile_groups};
 use crate::error::{Error, Result};
-use crate::gpu::{compute_pass, dispatch, GpuContext};
+use crate::gpu::{compute_pass, GpuContext};
 pub use crate::params::Metric;
 use opencv::core::Mat;
 use std::sync::Arc;
@@ -232,8 +232,10 @@ impl SharpnessGpu {
             Some(totals_of(self.metric) * 8),
         );
         let mut pass = compute_pass(enc, "sharpness");
-        dispatch(&mut pass, &self.gray_pipe, &s.gray_bg, (gx, gy));
-        dispatch(&mut pass, &self.metric_pipe, &s.metric_bg, (tx, ty));
+        self.ctx
+            .dispatch(&mut pass, &self.gray_pipe, &s.gray_bg, (gx, gy));
+        self.ctx
+            .dispatch(&mut pass, &self.metric_pipe, &s.metric_bg, (tx, ty));
         if let Some(r) = &self.resize {
             r.gpu.encode(&mut pass, &r.groups[slot]);
         }

@@ -396,6 +396,7 @@ impl Known {
         } else {
             gpu::resolve_backend(s.backend, s.adapter.as_deref())
         };
+        let before = ctx.as_ref().map(|c| c.counts());
         let a = analysis::analyse_with(
             &s.input,
             open,
@@ -405,6 +406,10 @@ impl Known {
             s.quiet,
             resume.as_ref(),
         )?;
+        if let (Some(c), Some(before)) = (&ctx, before) {
+            let work = gpu::PerFrame::of(c.counts() - before, a.metadata.frame_count);
+            log::info!("gpu backend: {work}");
+        }
         if cached.is_some_and(|m| m.frame_count != a.metadata.frame_count) {
             log::warn!("the input decodes to a different frame count than cached; cache replaced");
             self.cache = Cache::default();

@@ -267,3 +267,24 @@ fn gpu_faults_are_errors_not_panics() {
     let fresh = super::sharpness::ctx();
     assert!(fresh.read_back(&fresh.storage_buffer("b", 4), 4).is_ok());
 }
+
+#[test]
+fn the_gpu_context_counts_what_the_host_asks_of_the_device() {
+    let ctx = ctx();
+    let frames: Vec<Mat> = (0..3)
+        .map(|s| keyframer::synthetic::pattern(64, 48, s).unwrap())
+        .collect();
+    let list: Vec<&Mat> = frames.iter().collect();
+    let mut gpu = SharpnessGpu::new(ctx.clone(), Metric::Tenengrad, 64, 48).unwrap();
+    let before = ctx.counts();
+    let scores = gpu.scores(&list).unwrap();
+    let c = ctx.counts() - before;
+    assert_eq!(scores.len(), 3);
+    // Each frame's BGR bytes go up (64 x 48 x 3), at least one dispatch each, and the totals
+    // come back; reading them back needs at least one blocking wait.
+    assert!(c.uploaded >= 3 * 64 * 48 * 3, "{c:?}");
+    assert!(c.dispatches >= 3, "{c:?}");
+    assert!(c.read_back > 0 && c.waits >= 1, "{c:?}");
+    let per = keyframer::gpu::PerFrame::of(c, 3);
+    assert_eq!(per.waits, c.waits as f64 / 3.0);
+}
