@@ -726,7 +726,6 @@ impl SelectArgs {
     }
 }
 
-/// A step's parameter error named by its flag (the blur sampler names its parameter itself).
 /// The flag of `command` (a subcommand path like `["workflow", "save"]`) that sets the library's
 /// parameter `key` (`levels`, `farneback.levels`, `masks.classes`, `quality`), as the user typed
 /// it (`--levels`, `--mask-classes` for `export` and `--classes` for `segment`); None when no flag
