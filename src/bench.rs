@@ -15,6 +15,8 @@ pub struct SharpnessRow {
     pub metric: String,
     /// OpenCV CPU, ms per frame.
     pub opencv_ms: f64,
+    /// Rows per invocation of the gpu kernel (its strip shape).
+    pub strip_rows: u32,
     /// gpu backend (upload, kernels, readback), ms per frame.
     pub gpu_ms: f64,
     /// What the gpu backend asked of the device, per frame.
@@ -24,13 +26,22 @@ pub struct SharpnessRow {
 /// Sizes the sharpness benchmark runs at.
 pub const SHARPNESS_SIZES: [(u32, u32); 3] = [(640, 360), (1920, 1080), (3840, 2160)];
 
-/// Times every metric at every size on `frames` frames (4 distinct synthetic frames, cycled).
-pub fn sharpness(ctx: &Arc<GpuContext>, frames: usize) -> Result<Vec<SharpnessRow>> {
+/// Times every metric at every size on `frames` frames (4 distinct synthetic frames, cycled),
+/// the gpu kernels once per strip height in `shapes` (empty: the adapter's choice), each after
+/// one warm-up batch (first touches of its textures), so the times are the steady state of a
+/// long video.
+pub fn sharpness(
+    ctx: &Arc<GpuContext>,
+    frames: usize,
+    shapes: &[u32],
+) -> Result<Vec<SharpnessRow>> {
     let metrics = [
         Metric::Tenengrad,
         Metric::Laplacian { ksize: 1 },
         Metric::Laplacian { ksize: 3 },
     ];
+    let own = [crate::kernels::strip::strip_rows_for(ctx)];
+    let shapes = if shapes.is_empty() { &own[..] } else { shapes };
     let frames = frames.max(1);
     let mut rows = Vec::new();
     for (w, h) in SHARPNESS_SIZES {
@@ -44,19 +55,23 @@ pub fn sharpness(ctx: &Arc<GpuContext>, frames: usize) -> Result<Vec<SharpnessRo
                 score_opencv(f, metric)?;
             }
             let opencv_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
-            let mut gpu = SharpnessGpu::new(ctx.clone(), metric, w, h)?;
-            gpu.scores(&list[..1])?; // warm-up: pipeline and first submission
-            let (t, before) = (Instant::now(), ctx.counts());
-            gpu.scores(&list)?;
-            let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
-            rows.push(SharpnessRow {
-                width: w,
-                height: h,
-                metric: metric.to_string(),
-                opencv_ms,
-                gpu_ms,
-                per_frame: PerFrame::of(ctx.counts() - before, frames),
-            });
+            for &strip_rows in shapes {
+                let mut gpu =
+                    SharpnessGpu::with_strip_rows(ctx.clone(), metric, (w, h), strip_rows)?;
+                gpu.scores(&list[..gpu.batch_size().min(frames)])?; // warm-up
+                let (t, before) = (Instant::now(), ctx.counts());
+                gpu.scores(&list)?;
+                let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
+                rows.push(SharpnessRow {
+                    width: w,
+                    height: h,
+                    metric: metric.to_string(),
+                    opencv_ms,
+                    strip_rows,
+                    gpu_ms,
+                    per_frame: PerFrame::of(ctx.counts() - before, frames),
+                });
+            }
         }
     }
     Ok(rows)
@@ -65,23 +80,25 @@ pub fn sharpness(ctx: &Arc<GpuContext>, frames: usize) -> Result<Vec<SharpnessRo
 /// The table as text.
 pub fn render_sharpness(adapter: &str, frames: usize, rows: &[SharpnessRow]) -> String {
     let mut s = format!(
-        "sharpness, {frames} frames per cell, gpu = {adapter} (upload + kernels + readback)\n"
+        "sharpness, {frames} frames per cell, gpu = {adapter} (upload + kernels + readback, after a warm-up batch)\n"
     );
     s += &format!(
-        "{:>10} {:>13} {:>12} {:>12} {:>14}{}\n",
+        "{:>10} {:>13} {:>12} {:>5} {:>12} {:>14}{}\n",
         "size",
         "metric",
         "opencv ms/f",
+        "rows",
         "gpu ms/f",
         "opencv/gpu",
         PerFrame::HEADER
     );
     for r in rows {
         s += &format!(
-            "{:>10} {:>13} {:>12.2} {:>12.2} {:>14.2}{}\n",
+            "{:>10} {:>13} {:>12.2} {:>5} {:>12.2} {:>14.2}{}\n",
             format!("{}x{}", r.width, r.height),
             r.metric,
             r.opencv_ms,
+            r.strip_rows,
             r.gpu_ms,
             r.opencv_ms / r.gpu_ms,
             r.per_frame.columns()

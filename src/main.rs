@@ -149,7 +149,7 @@ fn bench(a: &cli::BenchArgs) -> Result<Outcome> {
             );
         }
         cli::BenchWhat::Sharpness => {
-            let rows = keyframer::bench::sharpness(&ctx, a.frames)?;
+            let rows = keyframer::bench::sharpness(&ctx, a.frames, &a.strip_rows)?;
             print!(
                 "{}",
                 keyframer::bench::render_sharpness(&ctx.info.name, a.frames, &rows)

@@ -229,6 +229,7 @@ impl GpuContext {
         limits.max_storage_buffers_per_shader_stage =
             have.max_storage_buffers_per_shader_stage.min(8);
         limits.max_compute_workgroup_storage_size = have.max_compute_workgroup_storage_size;
+        limits.max_texture_dimension_2d = have.max_texture_dimension_2d;
         raise(&mut limits, &have);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("keyframer"),
@@ -445,32 +446,34 @@ impl GpuContext {
         what: &str,
         scratch: &mut Vec<u8>,
     ) -> Result<()> {
-        use opencv::prelude::*;
-        if mat.typ() != typ || mat.cols() as u32 != width || mat.rows() as u32 != height {
-            return Err(Error::Gpu(format!(
-                "frame is {}x{} of type {}; the {what} runner takes {width}x{height} of type {typ}",
-                mat.cols(),
-                mat.rows(),
-                mat.typ()
-            )));
-        }
-        let owned;
-        let mat = if mat.is_continuous() {
-            mat
-        } else {
-            owned = mat.try_clone().map_err(|e| Error::Gpu(e.to_string()))?;
-            &owned
-        };
-        let bytes = mat.data_bytes().map_err(|e| Error::Gpu(e.to_string()))?;
+        let bytes = mat_bytes(mat, typ, (width, height), what)?;
         if bytes.len() % 4 == 0 {
-            self.write(buffer, 0, bytes);
+            self.write(buffer, 0, &bytes);
         } else {
             scratch.clear();
-            scratch.extend_from_slice(bytes);
+            scratch.extend_from_slice(&bytes);
             scratch.resize(bytes.len().next_multiple_of(4), 0);
             self.write(buffer, 0, scratch);
         }
         Ok(())
+    }
+
+    /// Writes `bytes` (rows of `bytes_per_row`, whole texels) into all of `texture` (counted as
+    /// uploaded).
+    pub fn write_texture(&self, texture: &wgpu::Texture, bytes: &[u8], bytes_per_row: u32) {
+        self.counters
+            .uploaded
+            .fetch_add(bytes.len() as u64, Relaxed);
+        self.queue.write_texture(
+            texture.as_image_copy(),
+            bytes,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(bytes_per_row),
+                rows_per_image: None,
+            },
+            texture.size(),
+        );
     }
 
     /// Copies the first `size` bytes of `buffer` to the host (submits and waits).
@@ -507,6 +510,33 @@ impl GpuContext {
         self.counters.read_back.fetch_add(out.len() as u64, Relaxed);
         Ok(out)
     }
+}
+
+/// The pixel bytes of `mat`, checked to be of type `typ` and `size` (width, height); `what`
+/// names the runner in errors. Borrowed when `mat` is continuous.
+pub fn mat_bytes<'a>(
+    mat: &'a opencv::core::Mat,
+    typ: i32,
+    (width, height): (u32, u32),
+    what: &str,
+) -> Result<std::borrow::Cow<'a, [u8]>> {
+    use opencv::prelude::*;
+    if mat.typ() != typ || mat.cols() as u32 != width || mat.rows() as u32 != height {
+        return Err(Error::Gpu(format!(
+            "frame is {}x{} of type {}; the {what} runner takes {width}x{height} of type {typ}",
+            mat.cols(),
+            mat.rows(),
+            mat.typ()
+        )));
+    }
+    let cv = |e: opencv::Error| Error::Gpu(e.to_string());
+    if mat.is_continuous() {
+        return mat.data_bytes().map(std::borrow::Cow::Borrowed).map_err(cv);
+    }
+    let owned = mat.try_clone().map_err(cv)?;
+    Ok(std::borrow::Cow::Owned(
+        owned.data_bytes().map_err(cv)?.to_vec(),
+    ))
 }
 
 /// A compute pass of `enc` labelled `label`.

@@ -1,23 +1,9 @@
-//! `gray`: 8-bit BGR to gray, bit-identical to cv::cvtColor(COLOR_BGR2GRAY) (shaders/gray.wgsl).
+//! `gray`: 8-bit BGR to gray, bit-identical to cv::cvtColor(COLOR_BGR2GRAY). On the device it is
+//! part of the sharpness pass (shaders/strip.wgsl `gray_strip_row`); this is the OpenCV twin.
 
 use crate::error::{CvContext, Result};
-use bytemuck::{Pod, Zeroable};
 use opencv::core::Mat;
 use opencv::imgproc;
-
-/// WGSL source.
-pub const WGSL: &str = include_str!("../../shaders/gray.wgsl");
-
-/// Uniform parameters of gray.wgsl.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub struct GrayParams {
-    pub width: u32,
-    pub height: u32,
-    /// u32 words per row of the packed gray output.
-    pub stride: u32,
-    pub pad: u32,
-}
 
 /// OpenCV twin: gray image of a BGR frame (a gray frame is returned as is).
 pub fn opencv(bgr: &Mat) -> Result<Mat> {

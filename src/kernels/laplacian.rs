@@ -2,24 +2,14 @@
 //! (shaders/laplacian.wgsl); the OpenCV twin uses cv::Laplacian and cv::meanStdDev.
 
 use crate::error::{CvContext, Result};
-use bytemuck::{Pod, Zeroable};
 use opencv::core::{self, Mat, Vector};
 use opencv::imgproc;
 
-/// WGSL source.
-pub const WGSL: &str = include_str!("../../shaders/laplacian.wgsl");
-
-/// Uniform parameters of laplacian.wgsl.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub struct LaplacianParams {
-    pub width: u32,
-    pub height: u32,
-    /// u32 words per row of the packed gray input.
-    pub stride: u32,
-    /// Aperture: 1 or 3.
-    pub ksize: u32,
-}
+/// WGSL source, after its prelude (shaders/strip.wgsl, whose `StripParams` it takes).
+pub const WGSL: &str = concat!(
+    include_str!("../../shaders/strip.wgsl"),
+    include_str!("../../shaders/laplacian.wgsl")
+);
 
 /// The offset the shader adds to each Laplacian value to keep sums unsigned.
 pub fn offset(ksize: u32) -> i64 {

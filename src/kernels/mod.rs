@@ -8,12 +8,12 @@ pub mod laplacian;
 pub mod movement;
 pub mod resize_area;
 pub mod sharpness;
+pub mod strip;
 pub mod tenengrad;
 pub mod tolerance;
 
-/// Every WGSL stage with its name, for validation and for `keyframer info`.
+/// Every WGSL stage with its name (the sharpness kernels with their strip.wgsl prelude), for validation and for `keyframer info`.
 pub const SHADERS: &[(&str, &str)] = &[
-    ("gray", gray::WGSL),
     ("tenengrad", tenengrad::WGSL),
     ("laplacian", laplacian::WGSL),
     ("farneback_smooth", farneback::SMOOTH_WGSL),
@@ -28,16 +28,6 @@ pub const SHADERS: &[(&str, &str)] = &[
 /// Words (4 gray pixels each) per row of a packed gray image of `width` pixels.
 pub fn gray_stride(width: u32) -> u32 {
     width.div_ceil(4)
-}
-
-/// Workgroups of gray.wgsl (64 words per group) for a `width` x `height` image.
-pub fn gray_groups(width: u32, height: u32) -> (u32, u32) {
-    (gray_stride(width).div_ceil(64), height)
-}
-
-/// Workgroups of the 32x32-pixel-tile kernels (tenengrad, laplacian).
-pub fn tile_groups(width: u32, height: u32) -> (u32, u32) {
-    (width.div_ceil(32), height.div_ceil(32))
 }
 
 /// Validates a WGSL source with naga (no adapter needed); returns naga's message on failure.
@@ -66,8 +56,9 @@ mod tests {
     #[test]
     fn dispatch_shapes() {
         assert_eq!(super::gray_stride(641), 161);
-        assert_eq!(super::gray_groups(641, 359), (3, 359));
-        assert_eq!(super::tile_groups(641, 359), (21, 12));
-        assert_eq!(super::tile_groups(3840, 2160), (120, 68));
+        assert_eq!(super::strip::groups(641, 359, 36), (6, 10));
+        assert_eq!(super::strip::groups(3840, 2160, 36), (30, 60));
+        assert_eq!(super::strip::texels_per_row(1920), 360);
+        assert_eq!(super::strip::texels_per_row(641), 121);
     }
 }

@@ -1,11 +1,13 @@
 //! Sharpness scores per frame (Tenengrad or Laplacian variance) with two backends: the gpu runner
-//! chains gray → metric for a batch of frames in one submission and reads back only the exact
-//! 64-bit totals; the opencv backend runs the OpenCV twins. With a resize attached, the same
-//! submission also downsizes each frame's device gray (resize_area) into a small buffer per batch
-//! slot, which the movement pass loads into Farneback without a CPU round trip.
+//! uploads a batch of frames as BGR textures and scores each in one strip pass that converts to
+//! gray in registers ([`strip`]); it reads back only the exact 64-bit totals. The opencv backend
+//! runs the OpenCV twins. With a resize attached, the same pass also writes the frame's gray, and
+//! the submission downsizes it (resize_area) into a small buffer per batch slot, which the
+//! movement pass loads into Farneback without a CPU round trip.
 
 use super::resize_area::ResizeAreaGpu;
-use super::{gray, gray_groups, gray_stride, laplacian, tenengrad, tile_groups};
+use super::strip::{self, StripParams};
+use super::{gray, gray_stride, laplacian, tenengrad};
 use crate::error::{Error, Result};
 use crate::gpu::{compute_pass, GpuContext};
 pub use crate::params::Metric;
@@ -39,8 +41,7 @@ pub fn score_opencv(frame: &Mat, metric: Metric) -> Result<f64> {
 
 /// Per-frame resources of one batch slot.
 struct Slot {
-    bgr: wgpu::Buffer,
-    gray_bg: wgpu::BindGroup,
+    frame: wgpu::Texture,
     metric_bg: wgpu::BindGroup,
 }
 
@@ -52,16 +53,19 @@ const MAX_BATCH: usize = 16;
 const TOTALS_SLOT: u64 = 256;
 
 /// GPU sharpness for frames of one size: several frames per submission, only scores read back.
+/// One pass per frame reads its BGR texture once ([`strip`]); the gray image is written only
+/// when a resize is attached (or for [`SharpnessGpu::gray_of`]).
 pub struct SharpnessGpu {
     ctx: Arc<GpuContext>,
     metric: Metric,
     width: u32,
     height: u32,
+    strip_rows: u32,
     gray: wgpu::Buffer,
+    params: wgpu::Buffer,
     totals: wgpu::Buffer,
     readback: wgpu::Buffer,
     slots: Vec<Slot>,
-    gray_pipe: Arc<wgpu::ComputePipeline>,
     metric_pipe: Arc<wgpu::ComputePipeline>,
     pad: Vec<u8>,
     resize: Option<AttachedResize>,
@@ -75,56 +79,47 @@ struct AttachedResize {
 }
 
 impl SharpnessGpu {
-    /// Prepares buffers and pipelines for `width` x `height` frames.
+    /// Prepares textures, buffers and pipelines for `width` x `height` frames, in strips of the
+    /// adapter's height ([`strip::strip_rows_for`]).
     pub fn new(ctx: Arc<GpuContext>, metric: Metric, width: u32, height: u32) -> Result<Self> {
-        if width == 0 || height == 0 {
+        let rows = strip::strip_rows_for(&ctx);
+        SharpnessGpu::with_strip_rows(ctx, metric, (width, height), rows)
+    }
+
+    /// As [`SharpnessGpu::new`] with `strip_rows` rows per invocation (for `bench`).
+    pub fn with_strip_rows(
+        ctx: Arc<GpuContext>,
+        metric: Metric,
+        (width, height): (u32, u32),
+        strip_rows: u32,
+    ) -> Result<Self> {
+        if width == 0 || height == 0 || strip_rows == 0 {
             return Err(Error::param("frame size", "must not be empty"));
         }
-        let n = u64::from(width) * u64::from(height);
-        let bgr_bytes = (n * 3).next_multiple_of(4);
-        let max_binding = ctx.limits.max_storage_buffer_binding_size;
-        if bgr_bytes > max_binding {
-            return Err(Error::Gpu(format!(
-                "a {width}x{height} frame needs {} MiB buffers; this adapter binds at most {} MiB",
-                bgr_bytes >> 20,
-                max_binding >> 20
-            )));
-        }
-        let batch = ((BATCH_BUDGET_BYTES / bgr_bytes) as usize).clamp(1, MAX_BATCH);
-        let stride = gray_stride(width);
-        let gray_pipe = ctx.pipeline("gray", gray::WGSL, "main")?;
-        // Also tenengrad.wgsl's parameters (`TenengradParams`).
-        let gray_params = gray::GrayParams {
-            width,
-            height,
-            stride,
-            pad: 0,
-        };
-        let (metric_pipe, metric_params): (_, Vec<u8>) = match metric {
-            Metric::Tenengrad => (
-                ctx.pipeline("tenengrad", tenengrad::WGSL, "main")?,
-                bytemuck::bytes_of(&gray_params).to_vec(),
-            ),
-            Metric::Laplacian { ksize } => {
-                if ksize != 1 && ksize != 3 {
-                    return Err(Error::param("laplacian ksize", "must be 1 or 3"));
-                }
-                (
-                    ctx.pipeline("laplacian", laplacian::WGSL, "main")?,
-                    bytemuck::bytes_of(&laplacian::LaplacianParams {
-                        width,
-                        height,
-                        stride,
-                        ksize,
-                    })
-                    .to_vec(),
-                )
+        let frame_bytes = u64::from(strip::texels_per_row(width)) * 16 * u64::from(height);
+        let batch = ((BATCH_BUDGET_BYTES / frame_bytes) as usize).clamp(1, MAX_BATCH);
+        let (name, wgsl, ksize) = match metric {
+            Metric::Tenengrad => ("tenengrad", tenengrad::WGSL, 0),
+            Metric::Laplacian { ksize: k @ (1 | 3) } => ("laplacian", laplacian::WGSL, k),
+            Metric::Laplacian { .. } => {
+                return Err(Error::param("laplacian ksize", "must be 1 or 3"));
             }
         };
-        let gray_u = ctx.uniform("gray params", &gray_params);
-        let metric_u =
-            ctx.buffer_init("metric params", wgpu::BufferUsages::UNIFORM, &metric_params);
-        let gray_buf = ctx.storage_buffer("gray", u64::from(stride) * u64::from(height) * 4);
+        let metric_pipe = ctx.pipeline(name, wgsl, "main")?;
+        let stride = gray_stride(width);
+        let params = ctx.uniform(
+            "strip params",
+            &StripParams {
+                width,
+                height,
+                strip_rows,
+                stride,
+                ksize,
+                write_gray: 0,
+                pad: [0; 2],
+            },
+        );
+        let gray = ctx.storage_buffer("gray", u64::from(stride) * u64::from(height) * 4);
         let totals = ctx.storage_buffer("totals", TOTALS_SLOT * batch as u64);
         let readback = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("totals readback"),
@@ -134,45 +129,48 @@ impl SharpnessGpu {
         });
         let slots = (0..batch)
             .map(|i| {
-                let bgr = ctx.storage_buffer("bgr", bgr_bytes);
+                let frame = strip::frame_texture(&ctx, width, height)?;
+                let view = frame.create_view(&Default::default());
                 let totals_slot = wgpu::BufferBinding {
                     buffer: &totals,
                     offset: TOTALS_SLOT * i as u64,
                     size: wgpu::BufferSize::new(totals_of(metric) * 8),
                 };
-                Slot {
-                    gray_bg: ctx.bind(
-                        "gray",
-                        &gray_pipe,
-                        &[(0, &bgr), (1, &gray_buf), (2, &gray_u)],
-                    ),
-                    metric_bg: ctx.bind_resources(
-                        "metric",
-                        &metric_pipe,
-                        &[
-                            (0, gray_buf.as_entire_binding()),
-                            (1, wgpu::BindingResource::Buffer(totals_slot)),
-                            (2, metric_u.as_entire_binding()),
-                        ],
-                    ),
-                    bgr,
-                }
+                let metric_bg = ctx.bind_resources(
+                    name,
+                    &metric_pipe,
+                    &[
+                        (0, wgpu::BindingResource::TextureView(&view)),
+                        (1, wgpu::BindingResource::Buffer(totals_slot)),
+                        (2, params.as_entire_binding()),
+                        (3, gray.as_entire_binding()),
+                    ],
+                );
+                Ok(Slot { frame, metric_bg })
             })
-            .collect();
+            .collect::<Result<_>>()?;
         Ok(SharpnessGpu {
             ctx,
             metric,
             width,
             height,
-            gray: gray_buf,
+            strip_rows,
+            gray,
+            params,
             totals,
             readback,
             slots,
-            gray_pipe,
             metric_pipe,
             pad: Vec::new(),
             resize: None,
         })
+    }
+
+    /// Whether the pass also writes the gray image.
+    fn set_write_gray(&self, on: bool) {
+        let at = std::mem::offset_of!(StripParams, write_gray) as u64;
+        self.ctx
+            .write(&self.params, at, bytemuck::bytes_of(&u32::from(on)));
     }
 
     /// From now on every scored frame is also resized on the device to `dst` (width, height)
@@ -184,6 +182,7 @@ impl SharpnessGpu {
             .map(|_| self.ctx.storage_buffer("resized gray", gpu.dst_bytes()))
             .collect();
         let groups = small.iter().map(|b| gpu.bind(&self.gray, b)).collect();
+        self.set_write_gray(true);
         self.resize = Some(AttachedResize {
             gpu,
             small: small.clone(),
@@ -211,21 +210,14 @@ impl SharpnessGpu {
     }
 
     fn upload(&mut self, slot: usize, frame: &Mat) -> Result<()> {
-        self.ctx.upload_mat(
-            &self.slots[slot].bgr,
-            frame,
-            opencv::core::CV_8UC3,
-            self.width,
-            self.height,
-            "sharpness (8-bit BGR)",
-            &mut self.pad,
-        )
+        let what = "sharpness (8-bit BGR)";
+        let tex = &self.slots[slot].frame;
+        strip::upload(&self.ctx, tex, frame, self.width, what, &mut self.pad)
     }
 
     fn encode(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
         let s = &self.slots[slot];
-        let (gx, gy) = gray_groups(self.width, self.height);
-        let (tx, ty) = tile_groups(self.width, self.height);
+        let groups = strip::groups(self.width, self.height, self.strip_rows);
         enc.clear_buffer(
             &self.totals,
             TOTALS_SLOT * slot as u64,
@@ -233,9 +225,7 @@ impl SharpnessGpu {
         );
         let mut pass = compute_pass(enc, "sharpness");
         self.ctx
-            .dispatch(&mut pass, &self.gray_pipe, &s.gray_bg, (gx, gy));
-        self.ctx
-            .dispatch(&mut pass, &self.metric_pipe, &s.metric_bg, (tx, ty));
+            .dispatch(&mut pass, &self.metric_pipe, &s.metric_bg, groups);
         if let Some(r) = &self.resize {
             r.gpu.encode(&mut pass, &r.groups[slot]);
         }
@@ -272,6 +262,7 @@ impl SharpnessGpu {
 
     /// The gray image the gpu computes for `frame` (for checking against cv::cvtColor).
     pub fn gray_of(&mut self, frame: &Mat) -> Result<Vec<u8>> {
+        self.set_write_gray(true);
         self.upload(0, frame)?;
         let mut enc = self.ctx.encoder("gray");
         self.encode(&mut enc, 0);
@@ -280,6 +271,7 @@ impl SharpnessGpu {
         let bytes = self
             .ctx
             .read_back(&self.gray, (stride * self.height as usize * 4) as u64)?;
+        self.set_write_gray(self.resize.is_some());
         let (w, h) = (self.width as usize, self.height as usize);
         Ok((0..h)
             .flat_map(|y| bytes[y * stride * 4..y * stride * 4 + w].to_vec())

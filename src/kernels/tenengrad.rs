@@ -1,16 +1,16 @@
 //! `tenengrad`: sharpness as the mean of Gx² + Gy² of the 3x3 Sobel gradients of the gray image
-//! (shaders/tenengrad.wgsl); the OpenCV twin uses cv::Sobel and Mat::dot.
+//! (shaders/tenengrad.wgsl, read from the BGR frame in strips); the OpenCV twin uses cv::Sobel and Mat::dot.
 
 use crate::error::{CvContext, Result};
 use opencv::core::{self, Mat};
 use opencv::imgproc;
 use opencv::prelude::MatTraitConst;
 
-/// WGSL source.
-pub const WGSL: &str = include_str!("../../shaders/tenengrad.wgsl");
-
-/// Uniform parameters of tenengrad.wgsl: those of gray.wgsl, whose packed output it reads.
-pub type TenengradParams = super::gray::GrayParams;
+/// WGSL source, after its prelude (shaders/strip.wgsl, whose `StripParams` it takes).
+pub const WGSL: &str = concat!(
+    include_str!("../../shaders/strip.wgsl"),
+    include_str!("../../shaders/tenengrad.wgsl")
+);
 
 /// Score from the exact total of Gx² + Gy² over `n` pixels.
 pub fn from_totals(sum_sq: u64, n: u64) -> f64 {

@@ -69,6 +69,36 @@ fn odd_sizes_match_opencv() {
     }
 }
 
+/// Every position of the frame's last column within a 16-pixel strip (widths 1..=34), frames
+/// one to a few rows high, and strip heights from 1 row to taller than the frame: the strip
+/// kernels' left/right/top/bottom reflections and partial strips equal OpenCV's.
+#[test]
+fn strip_borders_match_opencv() {
+    let ctx = ctx();
+    for w in 1..=34 {
+        for h in [1, 2, 5] {
+            let img = synthetic(w, h, (w * 7 + h) as u64);
+            for metric in METRICS {
+                let c = score_opencv(&img, metric).unwrap();
+                for rows in [1, 3, 36] {
+                    let mut gpu = SharpnessGpu::with_strip_rows(
+                        ctx.clone(),
+                        metric,
+                        (w as u32, h as u32),
+                        rows,
+                    )
+                    .unwrap();
+                    let g = gpu.scores(&[&img]).unwrap()[0];
+                    assert!(
+                        rel_err(g, c) <= SHARPNESS_REL || (g == 0.0 && c.abs() < 1e-9),
+                        "{w}x{h} {metric} strip {rows} rows: gpu {g} opencv {c}"
+                    );
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn uhd_frame_matches_opencv() {
     let ctx = ctx();
