@@ -2,7 +2,7 @@
 //! started from a given flow (a `.flo` of the images' size, checked before anything runs).
 
 use crate::error::{Error, Result};
-use crate::gpu::{self, Backend};
+use crate::gpu::{self, Backend, BackendChoice};
 use crate::kernels::{farneback, movement};
 use crate::params::FarnebackParams;
 use opencv::core::Mat;
@@ -39,7 +39,7 @@ pub fn between_files(
     b: &Path,
     initial: Option<&Path>,
     params: &FarnebackParams,
-    backend: Backend,
+    backend: BackendChoice,
     adapter: Option<&str>,
 ) -> Result<FlowResult> {
     params.validate()?;

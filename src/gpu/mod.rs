@@ -2,10 +2,13 @@
 //! one named by `--adapter` / `KEYFRAMER_ADAPTER`), requests downlevel limits raised only where the
 //! adapter allows (a tool that needs more asks through [`GpuContext::with_limits`]), caches compute
 //! pipelines by name, and uploads / reads back buffers. Faults the device reports (validation
-//! errors, device loss) become errors, never panics.
+//! errors, device loss) become errors, never panics; [`choice`] resolves the backend to use.
+
+mod choice;
 
 use crate::error::{Error, Result};
-pub use crate::params::Backend;
+pub use crate::params::{Backend, BackendChoice};
+pub use choice::{auto_backend, resolve_backend, AdapterClass, AutoDecision};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, LazyLock, Mutex};
@@ -131,7 +134,7 @@ pub struct AdapterSummary {
     pub graphics_api: String,
     /// Discrete, integrated, virtual, CPU or other.
     pub device_type: String,
-    /// True for software rasterisers (device type CPU).
+    /// True for software rasterisers ([`AdapterClass::Software`]).
     pub software: bool,
     /// Driver name and version.
     pub driver: String,
@@ -170,13 +173,43 @@ pub fn adapters() -> Vec<wgpu::Adapter> {
     list
 }
 
+/// The adapter a context for `wanted` (or `KEYFRAMER_ADAPTER`; else the best) is made on.
+pub fn pick_adapter(wanted: Option<&str>) -> Result<wgpu::Adapter> {
+    let env = std::env::var(ADAPTER_ENV).ok();
+    let wanted = wanted.or(env.as_deref()).filter(|w| !w.is_empty());
+    let mut list = adapters();
+    if list.is_empty() {
+        return Err(Error::Gpu(
+            "no wgpu adapter found (install mesa-vulkan-drivers for the lavapipe software adapter)"
+                .into(),
+        ));
+    }
+    let Some(w) = wanted else {
+        return Ok(list.swap_remove(0));
+    };
+    let lw = w.to_lowercase();
+    match list
+        .iter()
+        .position(|a| a.get_info().name.to_lowercase().contains(&lw))
+    {
+        Some(i) => Ok(list.swap_remove(i)),
+        None => {
+            let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
+            Err(Error::Gpu(format!(
+                "no adapter matches `{w}`; available: {}",
+                names.join(", ")
+            )))
+        }
+    }
+}
+
 /// Summary of an adapter's identity and relevant limits.
 pub fn summarize(info: &wgpu::AdapterInfo, limits: &wgpu::Limits) -> AdapterSummary {
     AdapterSummary {
         name: info.name.clone(),
         graphics_api: format!("{:?}", info.backend),
         device_type: format!("{:?}", info.device_type),
-        software: info.device_type == wgpu::DeviceType::Cpu,
+        software: AdapterClass::of(info) == AdapterClass::Software,
         driver: format!("{} {}", info.driver, info.driver_info)
             .trim()
             .to_string(),
@@ -204,30 +237,7 @@ impl GpuContext {
         wanted: Option<&str>,
         raise: impl FnOnce(&mut wgpu::Limits, &wgpu::Limits),
     ) -> Result<GpuContext> {
-        let env = std::env::var(ADAPTER_ENV).ok();
-        let wanted = wanted.or(env.as_deref()).filter(|w| !w.is_empty());
-        let list = adapters();
-        if list.is_empty() {
-            return Err(Error::Gpu(
-                "no wgpu adapter found (install mesa-vulkan-drivers for the lavapipe software adapter)"
-                    .into(),
-            ));
-        }
-        let adapter = match wanted {
-            Some(w) => {
-                let lw = w.to_lowercase();
-                list.iter()
-                    .find(|a| a.get_info().name.to_lowercase().contains(&lw))
-                    .ok_or_else(|| {
-                        let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
-                        Error::Gpu(format!(
-                            "no adapter matches `{w}`; available: {}",
-                            names.join(", ")
-                        ))
-                    })?
-            }
-            None => &list[0],
-        };
+        let adapter = pick_adapter(wanted)?;
         let info = adapter.get_info();
         let have = adapter.limits();
         let mut limits = wgpu::Limits::downlevel_defaults();
@@ -546,26 +556,6 @@ fn record(faults: &Mutex<Vec<String>>, msg: String) {
                 .collect();
             f.push(lines.join(": "));
         }
-    }
-}
-
-/// Resolves the requested backend: `gpu` without a usable adapter warns and returns `opencv`.
-/// Returns the context when the gpu backend is used: one per process and adapter, shared by
-/// every stage, worker and `run` job (pipelines compile once; a context that reported a fault
-/// is replaced).
-pub fn resolve_backend(
-    requested: Backend,
-    adapter: Option<&str>,
-) -> (Backend, Option<Arc<GpuContext>>) {
-    match requested {
-        Backend::Opencv => (Backend::Opencv, None),
-        Backend::Gpu => match shared(adapter) {
-            Ok(ctx) => (Backend::Gpu, Some(ctx)),
-            Err(e) => {
-                log::warn!("{e}; falling back to the opencv backend");
-                (Backend::Opencv, None)
-            }
-        },
     }
 }
 

@@ -8,7 +8,7 @@ pub mod preview;
 use crate::analysis::{self, MovementRequest, Request, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
-use crate::gpu::{self, Backend};
+use crate::gpu::{self, Backend, BackendChoice};
 use crate::params::Metric;
 use crate::project::{
     Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
@@ -40,8 +40,8 @@ pub struct SelectSettings {
     pub steps: Vec<Step>,
     /// How movement is measured for the stationary and spacing samplers.
     pub movement: MovementRequest,
-    /// Kernel backend for the analysis.
-    pub backend: Backend,
+    /// Kernel backend asked for the analysis (projects record the one used).
+    pub backend: BackendChoice,
     /// GPU adapter choice (part of its name).
     pub adapter: Option<String>,
     /// Frame rate to assume for image folders.
