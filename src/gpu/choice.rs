@@ -1,9 +1,9 @@
 //! Which backend runs an analysis: `auto`'s rule per adapter class (one place, said once per
-//! process) and the resolution of a requested backend to the one used. Projects record the
-//! resolved backend only.
+//! process), the resolution of a requested backend to the one used, and the redo on opencv after
+//! a GPU fault. Projects record the resolved backend only.
 
 use super::{pick_adapter, shared, GpuContext};
-use crate::error::Error;
+use crate::error::{Error, Result};
 use crate::params::{Backend, BackendChoice};
 use std::sync::{Arc, Mutex};
 
@@ -139,4 +139,33 @@ pub fn resolve_backend(
             }
         },
     }
+}
+
+/// Runs `work` on `backend` (with `ctx` on gpu). A GPU fault while it ran (an error the device
+/// reported, or any [`Error::Gpu`]) is warned about, naming the fault, and `work` is redone on
+/// opencv, whose result (saying opencv) is returned; other errors are returned as they are.
+pub fn or_opencv<T>(
+    what: &str,
+    backend: Backend,
+    ctx: Option<&Arc<GpuContext>>,
+    mut work: impl FnMut(Backend, Option<&Arc<GpuContext>>) -> Result<T>,
+) -> Result<T> {
+    if let (Backend::Gpu, Some(c)) = (backend, ctx) {
+        let fault = match work(Backend::Gpu, Some(c)) {
+            Ok(v) => match c.check() {
+                Ok(()) => return Ok(v),
+                Err(fault) => fault,
+            },
+            Err(e) => match (c.check(), e) {
+                (Err(fault), _) | (Ok(()), fault @ Error::Gpu(_)) => fault,
+                (Ok(()), other) => return Err(other),
+            },
+        };
+        let fault = match fault {
+            Error::Gpu(msg) => msg,
+            other => other.to_string(),
+        };
+        log::warn!("{what} failed on the gpu backend ({fault}); redoing it on the opencv backend");
+    }
+    work(Backend::Opencv, None)
 }

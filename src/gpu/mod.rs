@@ -8,7 +8,7 @@ mod choice;
 
 use crate::error::{Error, Result};
 pub use crate::params::{Backend, BackendChoice};
-pub use choice::{auto_backend, resolve_backend, AdapterClass, AutoDecision};
+pub use choice::{auto_backend, or_opencv, resolve_backend, AdapterClass, AutoDecision};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, LazyLock, Mutex};
