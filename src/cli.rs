@@ -274,7 +274,8 @@ pub enum BackendArg {
     /// gpu on a hardware adapter, opencv on a software one (lavapipe, llvmpipe, WARP,
     /// SwiftShader) or without an adapter; said once on stderr, shown by `keyframer info`.
     Auto,
-    /// WGSL compute shaders through wgpu (falls back to opencv without an adapter).
+    /// WGSL compute shaders through wgpu (opencv, with a warning, without an adapter or after a
+    /// GPU fault).
     Gpu,
     /// OpenCV on the CPU.
     Opencv,
