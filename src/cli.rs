@@ -4,7 +4,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use keyframer::analysis::MovementRequest;
 use keyframer::error::{Error, Result};
 use keyframer::export::{ExportSettings, Format};
-use keyframer::gpu::Backend;
+use keyframer::gpu::BackendChoice;
 use keyframer::kernels::farneback::FarnebackParams;
 use keyframer::kernels::movement::{Derotate, Statistic};
 use keyframer::kernels::sharpness::Metric;
@@ -39,7 +39,8 @@ pub struct Cli {
 /// Subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// GPU adapter, OpenCV version and video backends, COLMAP availability.
+    /// GPU adapter, what `--backend auto` picks here and why, OpenCV version and video backends,
+    /// COLMAP availability.
     Info(InfoArgs),
     /// Frame count, fps, resolution, duration, codec and rotation of an input.
     Probe(ProbeArgs),
@@ -274,17 +275,22 @@ pub enum BenchWhat {
 /// Which kernels implementation to use.
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum BackendArg {
-    /// WGSL compute shaders through wgpu (falls back to opencv without an adapter).
+    /// gpu on a hardware adapter, opencv on a software one (lavapipe, llvmpipe, WARP,
+    /// SwiftShader) or without an adapter; said once on stderr, shown by `keyframer info`.
+    Auto,
+    /// WGSL compute shaders through wgpu (opencv, with a warning, without an adapter or after a
+    /// GPU fault).
     Gpu,
     /// OpenCV on the CPU.
     Opencv,
 }
 
-impl From<BackendArg> for Backend {
+impl From<BackendArg> for BackendChoice {
     fn from(b: BackendArg) -> Self {
         match b {
-            BackendArg::Gpu => Backend::Gpu,
-            BackendArg::Opencv => Backend::Opencv,
+            BackendArg::Auto => BackendChoice::Auto,
+            BackendArg::Gpu => BackendChoice::Gpu,
+            BackendArg::Opencv => BackendChoice::Opencv,
         }
     }
 }
@@ -293,7 +299,7 @@ impl From<BackendArg> for Backend {
 #[derive(Debug, Args)]
 pub struct AnalysisArgs {
     /// Kernel backend.
-    #[arg(long, value_enum, default_value = "gpu")]
+    #[arg(long, value_enum, default_value = "auto")]
     pub backend: BackendArg,
     /// GPU adapter to use: a case-insensitive part of its name (default: hardware first, then
     /// software; also KEYFRAMER_ADAPTER).

@@ -2,7 +2,7 @@
 //! started from a given flow (a `.flo` of the images' size, checked before anything runs).
 
 use crate::error::{Error, Result};
-use crate::gpu::{self, Backend};
+use crate::gpu::{self, Backend, BackendChoice};
 use crate::kernels::{farneback, movement};
 use crate::params::FarnebackParams;
 use opencv::core::Mat;
@@ -13,7 +13,8 @@ use std::path::Path;
 pub struct FlowResult {
     /// The flow field, CV_32FC2, the images' size.
     pub field: Mat,
-    /// The backend that computed it (gpu falls back to opencv without an adapter).
+    /// The backend that computed it (gpu falls back to opencv without an adapter or after a
+    /// GPU fault).
     pub backend: Backend,
     /// Median flow magnitude in pixels.
     pub median_px: f64,
@@ -39,7 +40,7 @@ pub fn between_files(
     b: &Path,
     initial: Option<&Path>,
     params: &FarnebackParams,
-    backend: Backend,
+    backend: BackendChoice,
     adapter: Option<&str>,
 ) -> Result<FlowResult> {
     params.validate()?;
@@ -62,12 +63,19 @@ pub fn between_files(
         .map(|p| crate::flo::read_sized(p, w, h))
         .transpose()?;
     let (backend, ctx) = gpu::resolve_backend(backend, adapter);
-    let field =
-        match (backend, ctx) {
-            (Backend::Gpu, Some(ctx)) => farneback::FarnebackGpu::new(ctx, *params, w, h)?
-                .flow_from(&ga, &gb, initial.as_ref())?,
-            _ => farneback::opencv(&ga, &gb, params, initial.as_ref())?,
-        };
+    let (field, backend) = gpu::or_opencv("the flow", backend, ctx.as_ref(), |b, c| {
+        Ok(match c {
+            Some(c) => (
+                farneback::FarnebackGpu::new(c.clone(), *params, w, h)?.flow_from(
+                    &ga,
+                    &gb,
+                    initial.as_ref(),
+                )?,
+                b,
+            ),
+            None => (farneback::opencv(&ga, &gb, params, initial.as_ref())?, b),
+        })
+    })?;
     let mags = movement::magnitudes(&field)?;
     let median_px = movement::cpu(&mags, movement::Statistic::Median)?;
     Ok(FlowResult {

@@ -1,7 +1,7 @@
-//! `info`: what this machine offers keyframer: wgpu adapters and limits, OpenCV version and video
-//! I/O backends, and whether `colmap` is on PATH.
+//! `info`: what this machine offers keyframer: wgpu adapters and limits, what `--backend auto`
+//! resolves to and why, OpenCV version and video I/O backends, and whether `colmap` is on PATH.
 
-use crate::gpu::{self, AdapterSummary};
+use crate::gpu::{self, AdapterSummary, AutoDecision};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -14,6 +14,8 @@ pub struct Info {
     pub selected_adapter: Result<AdapterSummary, String>,
     /// All adapters found, best first.
     pub adapters: Vec<AdapterSummary>,
+    /// The backend `--backend auto` (the default) resolves to here, and why.
+    pub backend_auto: AutoDecision,
     pub opencv_version: String,
     /// OpenCV video I/O backends available for reading files.
     pub opencv_video_backends: Vec<String>,
@@ -34,6 +36,7 @@ pub fn gather(adapter: Option<&str>) -> Info {
         version: env!("CARGO_PKG_VERSION").into(),
         selected_adapter,
         adapters,
+        backend_auto: gpu::auto_backend(adapter),
         opencv_version: opencv::core::get_version_string().unwrap_or_default(),
         opencv_video_backends: video_backends(),
         colmap: find_on_path("colmap"),
@@ -85,6 +88,7 @@ pub fn render(info: &Info) -> String {
             a.name, a.graphics_api, a.device_type
         );
     }
+    s += &format!("{}\n", info.backend_auto);
     s += &format!("opencv: {}\n", info.opencv_version);
     s += &format!(
         "  video backends: {}\n",

@@ -376,17 +376,14 @@ fn probe(a: &cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
 fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
     let (backend, ctx) =
         gpu::resolve_backend(a.analysis.backend.into(), a.analysis.adapter.as_deref());
-    let r = analysis::analyse(
-        &a.input,
-        &source::OpenOptions::default(),
-        &analysis::Request {
-            sharpness: vec![a.metric],
-            ..Default::default()
-        },
-        backend,
-        ctx.as_ref(),
-        quiet,
-    )?;
+    let request = analysis::Request {
+        sharpness: vec![a.metric],
+        ..Default::default()
+    };
+    let r = gpu::or_opencv("the analysis", backend, ctx.as_ref(), |backend, ctx| {
+        let open = source::OpenOptions::default();
+        analysis::analyse(&a.input, &open, &request, backend, ctx, quiet)
+    })?;
     let scores = &r.sharpness[0].1;
     let ts = r.timestamps_s.as_deref();
     if a.json {

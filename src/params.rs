@@ -27,6 +27,36 @@ impl std::fmt::Display for Backend {
     }
 }
 
+/// The backend a command or workflow asks for. Projects record the [`Backend`] it resolved to
+/// (`crate::gpu::resolve_backend`), never `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BackendChoice {
+    /// The gpu backend where it pays off on this machine's adapter, else opencv
+    /// (`crate::gpu::auto_backend`).
+    #[default]
+    Auto,
+    /// The gpu backend (opencv when there is no usable adapter).
+    Gpu,
+    /// The opencv backend.
+    Opencv,
+}
+
+impl FromStr for BackendChoice {
+    type Err = String;
+
+    /// `auto`, `gpu` or `opencv`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(BackendChoice::Auto),
+            "gpu" => Ok(BackendChoice::Gpu),
+            "opencv" => Ok(BackendChoice::Opencv),
+            _ => Err(format!(
+                "invalid value '{s}' for '--backend <BACKEND>' [possible values: auto, gpu, opencv]"
+            )),
+        }
+    }
+}
+
 /// A sharpness measure.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(try_from = "String", into = "String")]

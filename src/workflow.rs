@@ -4,7 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
-use crate::params::{Backend, Derotate, FarnebackParams, MovementRequest, Statistic};
+use crate::params::{BackendChoice, Derotate, FarnebackParams, MovementRequest, Statistic};
 use crate::project::Project;
 use crate::steps::{Applied, Step};
 use crate::tomlfile::{self, TomlFile};
@@ -18,7 +18,7 @@ pub const VERSION: u32 = 1;
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AnalysisSection {
-    /// `gpu` (default) or `opencv`.
+    /// `auto` (default), `gpu` or `opencv`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub backend: Option<String>,
     /// GPU adapter, part of its name.
@@ -192,7 +192,7 @@ pub struct Workflow {
     /// How movement is measured (from `[analysis]`, defaults filled in).
     movement: MovementRequest,
     /// `[analysis]` backend.
-    backend: Backend,
+    backend: BackendChoice,
     /// Each `[[export]]`: its folder name and checked settings.
     exports: Vec<(String, ExportSettings)>,
 }
@@ -237,14 +237,8 @@ impl Workflow {
         let an = w.analysis.clone().unwrap_or_default();
         let movement = movement_request(&an).map_err(|e| locate(&file, e))?;
         let backend = match an.backend.as_deref() {
-            None | Some("gpu") => Backend::Gpu,
-            Some("opencv") => Backend::Opencv,
-            Some(other) => {
-                return Err(file.error(
-                    "analysis.backend",
-                    format!("invalid value '{other}' for '--backend <BACKEND>' [possible values: gpu, opencv]"),
-                ))
-            }
+            None => BackendChoice::Auto,
+            Some(b) => b.parse().map_err(|e| file.error("analysis.backend", e))?,
         };
         if let Some(f) = an.images_fps.filter(|f| !(f.is_finite() && *f > 0.0)) {
             return Err(file.error(
@@ -279,7 +273,7 @@ impl Workflow {
     }
 
     /// The `[analysis]` backend.
-    pub fn backend(&self) -> Backend {
+    pub fn backend(&self) -> BackendChoice {
         self.backend
     }
 

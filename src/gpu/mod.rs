@@ -1,16 +1,26 @@
 //! GPU context: picks a wgpu adapter (hardware first, then a software one such as lavapipe, or the
 //! one named by `--adapter` / `KEYFRAMER_ADAPTER`), requests downlevel limits raised only where the
 //! adapter allows (a tool that needs more asks through [`GpuContext::with_limits`]), caches compute
-//! pipelines by name, and uploads / reads back buffers.
+//! pipelines by name, and uploads / reads back buffers. Faults the device reports (validation
+//! errors, device loss) become errors, never panics; [`choice`] resolves the backend to use.
+
+mod choice;
 
 use crate::error::{Error, Result};
-pub use crate::params::Backend;
+pub use crate::params::{Backend, BackendChoice};
+pub use choice::{auto_backend, or_opencv, resolve_backend, AdapterClass, AutoDecision};
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, LazyLock, Mutex};
 
 /// Environment variable naming the adapter to use (case-insensitive substring of its name).
 pub const ADAPTER_ENV: &str = "KEYFRAMER_ADAPTER";
+
+/// Test-only: `KEYFRAMER_TEST_GPU_FAULT=1` makes the process's first dispatch ask for more
+/// workgroups than the device allows (a validation error), so tests see a real GPU fault taken.
+static TEST_FAULT: LazyLock<AtomicBool> = LazyLock::new(|| {
+    AtomicBool::new(std::env::var_os("KEYFRAMER_TEST_GPU_FAULT").is_some_and(|v| v == "1"))
+});
 
 /// A device and queue plus the adapter facts `keyframer info` reports.
 pub struct GpuContext {
@@ -124,7 +134,7 @@ pub struct AdapterSummary {
     pub graphics_api: String,
     /// Discrete, integrated, virtual, CPU or other.
     pub device_type: String,
-    /// True for software rasterisers (device type CPU).
+    /// True for software rasterisers ([`AdapterClass::Software`]).
     pub software: bool,
     /// Driver name and version.
     pub driver: String,
@@ -163,13 +173,43 @@ pub fn adapters() -> Vec<wgpu::Adapter> {
     list
 }
 
+/// The adapter a context for `wanted` (or `KEYFRAMER_ADAPTER`; else the best) is made on.
+pub fn pick_adapter(wanted: Option<&str>) -> Result<wgpu::Adapter> {
+    let env = std::env::var(ADAPTER_ENV).ok();
+    let wanted = wanted.or(env.as_deref()).filter(|w| !w.is_empty());
+    let mut list = adapters();
+    if list.is_empty() {
+        return Err(Error::Gpu(
+            "no wgpu adapter found (install mesa-vulkan-drivers for the lavapipe software adapter)"
+                .into(),
+        ));
+    }
+    let Some(w) = wanted else {
+        return Ok(list.swap_remove(0));
+    };
+    let lw = w.to_lowercase();
+    match list
+        .iter()
+        .position(|a| a.get_info().name.to_lowercase().contains(&lw))
+    {
+        Some(i) => Ok(list.swap_remove(i)),
+        None => {
+            let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
+            Err(Error::Gpu(format!(
+                "no adapter matches `{w}`; available: {}",
+                names.join(", ")
+            )))
+        }
+    }
+}
+
 /// Summary of an adapter's identity and relevant limits.
 pub fn summarize(info: &wgpu::AdapterInfo, limits: &wgpu::Limits) -> AdapterSummary {
     AdapterSummary {
         name: info.name.clone(),
         graphics_api: format!("{:?}", info.backend),
         device_type: format!("{:?}", info.device_type),
-        software: info.device_type == wgpu::DeviceType::Cpu,
+        software: AdapterClass::of(info) == AdapterClass::Software,
         driver: format!("{} {}", info.driver, info.driver_info)
             .trim()
             .to_string(),
@@ -197,30 +237,7 @@ impl GpuContext {
         wanted: Option<&str>,
         raise: impl FnOnce(&mut wgpu::Limits, &wgpu::Limits),
     ) -> Result<GpuContext> {
-        let env = std::env::var(ADAPTER_ENV).ok();
-        let wanted = wanted.or(env.as_deref()).filter(|w| !w.is_empty());
-        let list = adapters();
-        if list.is_empty() {
-            return Err(Error::Gpu(
-                "no wgpu adapter found (install mesa-vulkan-drivers for the lavapipe software adapter)"
-                    .into(),
-            ));
-        }
-        let adapter = match wanted {
-            Some(w) => {
-                let lw = w.to_lowercase();
-                list.iter()
-                    .find(|a| a.get_info().name.to_lowercase().contains(&lw))
-                    .ok_or_else(|| {
-                        let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
-                        Error::Gpu(format!(
-                            "no adapter matches `{w}`; available: {}",
-                            names.join(", ")
-                        ))
-                    })?
-            }
-            None => &list[0],
-        };
+        let adapter = pick_adapter(wanted)?;
         let info = adapter.get_info();
         let have = adapter.limits();
         let mut limits = wgpu::Limits::downlevel_defaults();
@@ -270,7 +287,7 @@ impl GpuContext {
                 "the GPU device on {} reported an error ({} in all); its results are not used: {}",
                 self.info.name,
                 faults.len(),
-                first.lines().next().unwrap_or_default()
+                first
             ))),
         }
     }
@@ -314,6 +331,15 @@ impl GpuContext {
         self.counters.dispatches.fetch_add(1, Relaxed);
         pass.set_pipeline(pipe);
         pass.set_bind_group(0, bg, &[]);
+        let groups = match TEST_FAULT.swap(false, Relaxed) {
+            true => (
+                self.limits
+                    .max_compute_workgroups_per_dimension
+                    .saturating_add(1),
+                1,
+            ),
+            false => groups,
+        };
         pass.dispatch_workgroups(groups.0, groups.1, 1);
     }
 
@@ -547,33 +573,19 @@ pub fn compute_pass<'a>(enc: &'a mut wgpu::CommandEncoder, label: &str) -> wgpu:
     })
 }
 
-/// Keeps the first few faults (the first one explains the rest).
+/// Keeps the first few faults (the first one explains the rest), each on one line: wgpu's
+/// "Validation Error / Caused by: / In a … / the rule broken" joined by ": ".
 fn record(faults: &Mutex<Vec<String>>, msg: String) {
     if let Ok(mut f) = faults.lock() {
         if f.len() < 8 {
             log::debug!("gpu fault: {msg}");
-            f.push(msg);
+            let lines: Vec<&str> = msg
+                .lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty() && *l != "Caused by:")
+                .collect();
+            f.push(lines.join(": "));
         }
-    }
-}
-
-/// Resolves the requested backend: `gpu` without a usable adapter warns and returns `opencv`.
-/// Returns the context when the gpu backend is used: one per process and adapter, shared by
-/// every stage, worker and `run` job (pipelines compile once; a context that reported a fault
-/// is replaced).
-pub fn resolve_backend(
-    requested: Backend,
-    adapter: Option<&str>,
-) -> (Backend, Option<Arc<GpuContext>>) {
-    match requested {
-        Backend::Opencv => (Backend::Opencv, None),
-        Backend::Gpu => match shared(adapter) {
-            Ok(ctx) => (Backend::Gpu, Some(ctx)),
-            Err(e) => {
-                log::warn!("{e}; falling back to the opencv backend");
-                (Backend::Opencv, None)
-            }
-        },
     }
 }
 
@@ -597,4 +609,37 @@ fn shared(adapter: Option<&str>) -> Result<Arc<GpuContext>> {
     );
     list.push((key, ctx.clone()));
     Ok(ctx)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A dispatch over the device's workgroup limit is a validation error: `wait` and `check`
+    /// return it (naming the adapter and wgpu's cause), nothing panics, later reads fail.
+    #[test]
+    fn a_validation_error_is_an_error_not_a_panic() {
+        let ctx = GpuContext::new(None).expect("a wgpu adapter (lavapipe in CI)");
+        let src = "@group(0) @binding(0) var<storage, read_write> b: array<u32>;\n\
+                   @compute @workgroup_size(1) fn main() { b[0] = 1u; }";
+        let pipe = ctx.pipeline("fault", src, "main").expect("pipeline");
+        let buf = ctx.storage_buffer("fault", 4);
+        let bg = ctx.bind("fault", &pipe, &[(0, &buf)]);
+        assert!(ctx.check().is_ok(), "a fresh context has no fault");
+        let mut enc = ctx.encoder("fault");
+        {
+            let mut pass = compute_pass(&mut enc, "fault");
+            let over = ctx.limits.max_compute_workgroups_per_dimension + 1;
+            ctx.dispatch(&mut pass, &pipe, &bg, (over, 1));
+        }
+        ctx.queue.submit([enc.finish()]);
+        let waited = ctx.wait().expect_err("the over-limit dispatch is reported");
+        assert!(matches!(waited, Error::Gpu(_)), "{waited}");
+        let msg = waited.to_string();
+        assert!(msg.contains(&ctx.info.name), "{msg}");
+        assert!(msg.contains("dispatch group size dimension"), "{msg}");
+        let checked = ctx.check().expect_err("the fault stays recorded");
+        assert_eq!(checked.to_string(), waited.to_string());
+        assert!(ctx.read_back(&buf, 4).is_err(), "reads after a fault fail");
+    }
 }

@@ -8,7 +8,7 @@ pub mod preview;
 use crate::analysis::{self, MovementRequest, Request, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
-use crate::gpu::{self, Backend};
+use crate::gpu::{self, Backend, BackendChoice};
 use crate::params::Metric;
 use crate::project::{
     Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
@@ -40,8 +40,8 @@ pub struct SelectSettings {
     pub steps: Vec<Step>,
     /// How movement is measured for the stationary and spacing samplers.
     pub movement: MovementRequest,
-    /// Kernel backend for the analysis.
-    pub backend: Backend,
+    /// Kernel backend asked for the analysis (projects record the one used).
+    pub backend: BackendChoice,
     /// GPU adapter choice (part of its name).
     pub adapter: Option<String>,
     /// Frame rate to assume for image folders.
@@ -396,20 +396,24 @@ impl Known {
         } else {
             gpu::resolve_backend(s.backend, s.adapter.as_deref())
         };
-        let before = ctx.as_ref().map(|c| c.counts());
-        let a = analysis::analyse_with(
-            &s.input,
-            open,
-            &plan.request(s),
-            backend,
-            ctx.as_ref(),
-            s.quiet,
-            resume.as_ref(),
-        )?;
-        if let (Some(c), Some(before)) = (&ctx, before) {
-            let work = gpu::PerFrame::of(c.counts() - before, a.metadata.frame_count);
-            log::info!("gpu backend: {work}");
-        }
+        let request = plan.request(s);
+        let a = gpu::or_opencv("the analysis", backend, ctx.as_ref(), |backend, ctx| {
+            let before = ctx.map(|c| c.counts());
+            let a = analysis::analyse_with(
+                &s.input,
+                open,
+                &request,
+                backend,
+                ctx,
+                s.quiet,
+                resume.as_ref(),
+            )?;
+            if let (Some(c), Some(before)) = (ctx, before) {
+                let work = gpu::PerFrame::of(c.counts() - before, a.metadata.frame_count);
+                log::info!("gpu backend: {work}");
+            }
+            Ok(a)
+        })?;
         if cached.is_some_and(|m| m.frame_count != a.metadata.frame_count) {
             log::warn!("the input decodes to a different frame count than cached; cache replaced");
             self.cache = Cache::default();
@@ -493,8 +497,9 @@ impl AutoThresholds {
             return Ok(t);
         }
         let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
-        let sample =
-            analysis::sample_movement(&s.input, open, s.movement, 40, backend, ctx.as_ref())?;
+        let sample = gpu::or_opencv("the movement sample", backend, ctx.as_ref(), |b, c| {
+            analysis::sample_movement(&s.input, open, s.movement, 40, b, c)
+        })?;
         let meta = known.metadata(s, open)?;
         if wants_auto_stationary {
             let p = steps::auto::stationary_threshold(&sample);

@@ -13,11 +13,11 @@ fn example_workflow(dir: &Path) -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("workflows/example.toml"),
     )
     .unwrap();
-    assert!(text.contains("backend = \"gpu\""));
+    assert!(text.contains("backend = \"auto\""));
     let p = dir.join("example.toml");
     std::fs::write(
         &p,
-        text.replace("backend = \"gpu\"", "backend = \"opencv\""),
+        text.replace("backend = \"auto\"", "backend = \"opencv\""),
     )
     .unwrap();
     p
@@ -88,6 +88,41 @@ fn results(out: &Path, inputs: &[PathBuf]) -> Vec<(Vec<usize>, Files)> {
             (keys, files)
         })
         .collect()
+}
+
+/// A workflow without `backend` runs on `auto`: `run -j 2` says the decision once for all its
+/// jobs, and every project records the backend it resolved to (opencv on a software adapter).
+#[test]
+fn auto_backend_is_said_once_per_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let wf = d.join("wf.toml");
+    let text = "version = 1\n[[sample]]\nplugin = \"every-nth\"\nn = 4\n\
+                [[sample]]\nplugin = \"blur\"\nwindow = 2\n";
+    std::fs::write(&wf, text).unwrap();
+    let inputs: Vec<PathBuf> = (0..3)
+        .map(|i| testsrc(d, &format!("v{i}.mp4"), 64, 48, "10", 1.0))
+        .collect();
+    let info: serde_json::Value = serde_json::from_str(&kf_ok(&["info", "--json"])).unwrap();
+    let want = info["backend_auto"]["backend"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    if info["selected_adapter"]["Ok"]["software"] == true {
+        assert_eq!(want, "opencv", "{info}");
+    }
+    let out = d.join("out");
+    let mut args = vec!["run", s(&wf)];
+    args.extend(inputs.iter().map(|p| s(p)));
+    args.extend(["--out", s(&out), "-j", "2"]);
+    let (code, err) = code_and_stderr(&kf_loud(&args));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(err.matches("backend auto:").count(), 1, "{err}");
+    assert!(err.contains(&format!("backend auto: {want} (")), "{err}");
+    for i in &inputs {
+        let p = json(&out.join(folder_name(i)).join("project.json"));
+        assert_eq!(p["cache"]["sharpness"][0]["backend"], want.as_str(), "{p}");
+    }
 }
 
 #[test]

@@ -655,7 +655,7 @@ fn workflow_relation_errors_name_line_and_key() {
         ),
         (
             "version = 1\n[analysis]\nbackend = \"opencV\"\n",
-            "w.toml:3: invalid workflow at `analysis.backend`: invalid value 'opencV' for '--backend <BACKEND>' [possible values: gpu, opencv]",
+            "w.toml:3: invalid workflow at `analysis.backend`: invalid value 'opencV' for '--backend <BACKEND>' [possible values: auto, gpu, opencv]",
         ),
         (
             "version = 1\n[[sample]]\nplugin = \"boundaries\"\nstart = \"soon\"\n",

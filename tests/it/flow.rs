@@ -298,7 +298,7 @@ fn flow_command_writes_flo() {
     let b = testdata("opencv-doc/basketball2.png");
     let g = d.path().join("g.flo");
     let c = d.path().join("c.flo");
-    kf_ok(&["flow", s(&a), s(&b), "-o", s(&g)]);
+    kf_ok(&["flow", s(&a), s(&b), "-o", s(&g), "--backend", "gpu"]);
     kf_ok(&["flow", s(&a), s(&b), "-o", s(&c), "--backend", "opencv"]);
     let (w, h, fg) = keyframer::flo::read(&g).unwrap();
     let (_, _, fc) = keyframer::flo::read(&c).unwrap();

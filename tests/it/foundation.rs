@@ -621,26 +621,88 @@ fn rotation_metadata_is_applied() {
     );
 }
 
-/// Without a usable adapter the gpu backend warns once and the opencv backend does the work.
+/// Without a usable adapter the gpu backend warns once and the opencv backend does the work;
+/// `auto` takes opencv and says why.
 #[test]
 fn missing_adapter_falls_back_to_opencv() {
     let d = tempfile::tempdir().unwrap();
     let clip = testsrc(d.path(), "c.mp4", 160, 90, "30", 1.0);
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
-        .args(["score", s(&clip), "--json"])
-        .env("KEYFRAMER_ADAPTER", "no-such-adapter")
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    assert_eq!(
-        err.matches("falling back to the opencv backend").count(),
-        1,
-        "{err}"
+    let score = |backend: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"))
+            .args(["score", s(&clip), "--json", "--backend", backend])
+            .env("KEYFRAMER_ADAPTER", "no-such-adapter")
+            .output()
+            .unwrap()
+    };
+    for backend in ["gpu", "auto"] {
+        let out = score(backend);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+        let (fell_back, said) = match backend {
+            "gpu" => (1, 0),
+            _ => (0, 1),
+        };
+        assert_eq!(
+            err.matches("falling back to the opencv backend").count(),
+            fell_back,
+            "{err}"
+        );
+        let auto = "backend auto: opencv (no adapter matches `no-such-adapter`";
+        assert_eq!(err.matches(auto).count(), said, "{err}");
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(v["backend"], "opencv");
+        assert_eq!(v["scores"].as_array().unwrap().len(), 30);
+    }
+}
+
+/// `--backend auto`, the default, takes opencv on a software adapter (lavapipe here) and gpu on a
+/// hardware one, says so once per process (even when the analysis and the `--spacing auto`
+/// sample both resolve it), `info` shows the same decision, and the project records the backend
+/// used. `--backend gpu` still forces the WGSL kernels.
+#[test]
+fn auto_backend_is_the_default_said_once_and_recorded_resolved() {
+    let info: serde_json::Value = serde_json::from_str(&kf_ok(&["info", "--json"])).unwrap();
+    let adapter = &info["selected_adapter"]["Ok"];
+    let software = adapter["software"]
+        .as_bool()
+        .expect("an adapter (lavapipe in CI)");
+    let (class, want) = match software {
+        true => ("software", "opencv"),
+        false => ("hardware", "gpu"),
+    };
+    assert_eq!(info["backend_auto"]["backend"], want, "{info}");
+    let reason = info["backend_auto"]["reason"].as_str().unwrap();
+    let name = adapter["name"].as_str().unwrap();
+    assert!(
+        reason.starts_with(&format!("{name} is a {class} adapter; --backend ")),
+        "{reason}"
     );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(v["backend"], "opencv");
-    assert_eq!(v["scores"].as_array().unwrap().len(), 30);
+    let line = format!("backend auto: {want} ({reason})");
+    assert!(kf_ok(&["info"]).contains(&line), "info names the decision");
+
+    let d = tempfile::tempdir().unwrap();
+    let clip = testsrc(d.path(), "c.mp4", 160, 90, "30", 2.0);
+    let select = |project: &Path, extra: &[&str]| {
+        let mut args = vec!["select", s(&clip), "--blur", "--spacing", "auto"];
+        args.extend(extra);
+        args.extend(["-o", s(project)]);
+        let (code, err) = code_and_stderr(&kf_loud(&args));
+        assert_eq!(code, 0, "{err}");
+        let cache = json(project)["cache"].clone();
+        let used = [&cache["sharpness"][0], &cache["movement"][0]].map(|c| c["backend"].clone());
+        (err, used)
+    };
+    let (err, used) = select(&d.path().join("auto.json"), &[]);
+    assert_eq!(err.matches("backend auto:").count(), 1, "{err}");
+    assert!(err.contains(&line), "{err}");
+    assert_eq!(
+        used,
+        [want, want],
+        "the project records the resolved backend"
+    );
+    let (err, used) = select(&d.path().join("gpu.json"), &["--backend", "gpu"]);
+    assert!(!err.contains("backend auto"), "{err}");
+    assert_eq!(used, ["gpu", "gpu"]);
 }
 
 /// A full disk: a clear error naming the file, and the disk as it was: the output folder the

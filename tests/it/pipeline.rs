@@ -287,3 +287,73 @@ fn reselecting_a_10000_frame_project_decodes_nothing() {
     assert_ne!(before, after);
     assert!(!after.is_empty());
 }
+
+/// A GPU fault is an error, never a panic. `KEYFRAMER_TEST_GPU_FAULT=1` (a test-only hook) makes
+/// the process's first dispatch invalid: `select` and `flow` warn naming the fault and redo the
+/// work on opencv (exit 0, the keyframes of `--backend opencv`, the project says opencv); `bench`,
+/// which has no opencv to fall back to, exits 1 with the fault in its message.
+#[test]
+fn a_gpu_fault_is_warned_and_the_analysis_redone_on_opencv() {
+    let d = tempfile::tempdir().unwrap();
+    let clip = varying_pan(d.path(), "pan.mp4", 160, 120, 3);
+    let faulty = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+            .args(args)
+            .env("KEYFRAMER_TEST_GPU_FAULT", "1")
+            .output()
+            .unwrap();
+        let (code, err) = code_and_stderr(&out);
+        assert!(!err.contains("panicked"), "{err}");
+        (code, err)
+    };
+    let fault = "dispatch group size dimension";
+    fn select<'a>(clip: &'a Path, backend: &'a str, project: &'a Path) -> [&'a str; 9] {
+        let (c, p) = (s(clip), s(project));
+        [
+            "select",
+            c,
+            "--blur",
+            "--spacing",
+            "10",
+            "--backend",
+            backend,
+            "-o",
+            p,
+        ]
+    }
+    let g = d.path().join("gpu.json");
+    let (code, err) = faulty(&select(&clip, "gpu", &g));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        err.matches("the analysis failed on the gpu backend (")
+            .count(),
+        1,
+        "{err}"
+    );
+    assert!(err.contains(fault), "the warning names the fault: {err}");
+    assert!(err.contains("redoing it on the opencv backend"), "{err}");
+    let o = d.path().join("opencv.json");
+    kf_ok(&select(&clip, "opencv", &o));
+    assert!(keyframes(&o).len() >= 3, "{:?}", keyframes(&o));
+    assert_eq!(keyframes(&g), keyframes(&o));
+    let c = cache(&g);
+    assert_eq!(c["sharpness"][0]["backend"], "opencv");
+    assert_eq!(c["movement"][0]["backend"], "opencv");
+
+    let (a, b) = (
+        testdata("opencv-doc/basketball1.png"),
+        testdata("opencv-doc/basketball2.png"),
+    );
+    let flo = d.path().join("f.flo");
+    let (code, err) = faulty(&["flow", s(&a), s(&b), "-o", s(&flo), "--backend", "gpu"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("the flow failed on the gpu backend ("),
+        "{err}"
+    );
+    assert!(err.contains("flow (opencv) ->"), "{err}");
+
+    let (code, err) = faulty(&["bench", "sharpness", "--frames", "1"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("error: GPU: ") && err.contains(fault), "{err}");
+}
