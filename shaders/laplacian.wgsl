@@ -9,21 +9,32 @@
 // Workgroup: 8 x 1. Dispatch: ceil(ceil(width / 16) / 8) x ceil(height / strip_rows).
 // Twin: src/kernels/laplacian.rs `opencv` (cv::Laplacian CV_64F; cv::meanStdDev).
 
-// L of four pixels from the rows above (a), at (b) and below (c).
-fn lap4(al: vec4<i32>, ap: vec4<i32>, ar: vec4<i32>, bl: vec4<i32>, bp: vec4<i32>,
-        br: vec4<i32>, cl: vec4<i32>, cp: vec4<i32>, cr: vec4<i32>) -> vec4<i32> {
-    if (params.ksize == 1u) {
-        return ap + cp + bl + br - 4 * bp;
-    }
-    return 2 * (al + ar + cl + cr) - 8 * bp;
+// A row's parts: p the pixels, n = left + right neighbours (four pixels per vector).
+// ksize 1: L = p(above) + p(below) + n(at) - 4 p(at); ksize 3: L = 2 (n(above) + n(below)) - 8 p(at).
+struct Parts {
+    p0: vec4<i32>, p1: vec4<i32>, p2: vec4<i32>, p3: vec4<i32>,
+    n0: vec4<i32>, n1: vec4<i32>, n2: vec4<i32>, n3: vec4<i32>,
 }
 
-// (sum of L + offset, sum of L^2) over the row's pixels inside the frame.
-fn lap_row(a: Span, b: Span, c: Span, e: Edge, offset: vec4<i32>) -> vec2<u32> {
-    let l0 = lap4(a.l0, a.p0, a.r0, b.l0, b.p0, b.r0, c.l0, c.p0, c.r0);
-    let l1 = lap4(a.l1, a.p1, a.r1, b.l1, b.p1, b.r1, c.l1, c.p1, c.r1);
-    let l2 = lap4(a.l2, a.p2, a.r2, b.l2, b.p2, b.r2, c.l2, c.p2, c.r2);
-    let l3 = lap4(a.l3, a.p3, a.r3, b.l3, b.p3, b.r3, c.l3, c.p3, c.r3);
+fn parts(r: Row) -> Parts {
+    let x = span(r);
+    return Parts(x.p0, x.p1, x.p2, x.p3, x.l0 + x.r0, x.l1 + x.r1, x.l2 + x.r2, x.l3 + x.r3);
+}
+
+fn lap4(pa: vec4<i32>, na: vec4<i32>, pb: vec4<i32>, nb: vec4<i32>, pc: vec4<i32>,
+        nc: vec4<i32>) -> vec4<i32> {
+    if (params.ksize == 1u) {
+        return pa + pc + nb - 4 * pb;
+    }
+    return 2 * (na + nc) - 8 * pb;
+}
+
+// (sum of L + offset, sum of L^2) over the pixels of the middle row (b) inside the frame.
+fn lap_row(a: Parts, b: Parts, c: Parts, e: Edge, offset: vec4<i32>) -> vec2<u32> {
+    let l0 = lap4(a.p0, a.n0, b.p0, b.n0, c.p0, c.n0);
+    let l1 = lap4(a.p1, a.n1, b.p1, b.n1, c.p1, c.n1);
+    let l2 = lap4(a.p2, a.n2, b.p2, b.n2, c.p2, c.n2);
+    let l3 = lap4(a.p3, a.n3, b.p3, b.n3, c.p3, c.n3);
     let sum = dot(vec4<u32>(l0 + offset), e.in0) + dot(vec4<u32>(l1 + offset), e.in1)
         + dot(vec4<u32>(l2 + offset), e.in2) + dot(vec4<u32>(l3 + offset), e.in3);
     let sq = dot(vec4<u32>(l0 * l0), e.in0) + dot(vec4<u32>(l1 * l1), e.in1)
@@ -42,16 +53,21 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let y1 = min(y0 + i32(params.strip_rows), h);
     let e = edge_of(k);
     let offset = vec4<i32>(select(2040, 1020, params.ksize == 1u));
-    var a = gray_row(k, reflect101(y0 - 1, h), e);
-    var b = gray_row(k, y0, e);
+    let first = gray_row(k, y0, e);
+    if (params.write_gray == 1u) {
+        write_gray_row(k, y0, first);
+    }
+    var a = parts(gray_row(k, reflect101(y0 - 1, h), e));
+    var b = parts(first);
     var total_l = vec2<u32>(0u, 0u);
     var total_sq = vec2<u32>(0u, 0u);
     for (var y = y0; y < y1; y = y + 1) {
-        let c = gray_row(k, reflect101(y + 1, h), e);
-        if (params.write_gray == 1u) {
-            write_gray_row(k, y, b);
+        let below = gray_row(k, reflect101(y + 1, h), e);
+        if (params.write_gray == 1u && y + 1 < y1) {
+            write_gray_row(k, y + 1, below);
         }
-        let t = lap_row(span(a), span(b), span(c), e, offset);
+        let c = parts(below);
+        let t = lap_row(a, b, c, e, offset);
         total_l = acc64(total_l, t.x);
         total_sq = acc64(total_sq, t.y);
         a = b;

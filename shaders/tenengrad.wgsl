@@ -6,21 +6,34 @@
 // Workgroup: 8 x 1. Dispatch: ceil(ceil(width / 16) / 8) x ceil(height / strip_rows).
 // Twin: src/kernels/tenengrad.rs `opencv` (cv::Sobel ksize 3, CV_16S; Mat::dot).
 
-// Gx^2 + Gy^2 of four pixels from the rows above (a), at (b) and below (c): left neighbours,
-// pixels, right neighbours.
-fn sobel4(al: vec4<i32>, ap: vec4<i32>, ar: vec4<i32>, bl: vec4<i32>, br: vec4<i32>,
-          cl: vec4<i32>, cp: vec4<i32>, cr: vec4<i32>) -> vec4<u32> {
-    let gx = (ar - al) + 2 * (br - bl) + (cr - cl);
-    let gy = (cl + 2 * cp + cr) - (al + 2 * ap + ar);
+// A row's horizontal Sobel parts: d = right - left, s = left + 2 pixel + right (four pixels per
+// vector); Gx = d(above) + 2 d(at) + d(below), Gy = s(below) - s(above).
+struct Parts {
+    d0: vec4<i32>, d1: vec4<i32>, d2: vec4<i32>, d3: vec4<i32>,
+    s0: vec4<i32>, s1: vec4<i32>, s2: vec4<i32>, s3: vec4<i32>,
+}
+
+fn parts(r: Row) -> Parts {
+    let x = span(r);
+    return Parts(
+        x.r0 - x.l0, x.r1 - x.l1, x.r2 - x.l2, x.r3 - x.l3,
+        x.l0 + 2 * x.p0 + x.r0, x.l1 + 2 * x.p1 + x.r1,
+        x.l2 + 2 * x.p2 + x.r2, x.l3 + 2 * x.p3 + x.r3,
+    );
+}
+
+fn sq4(da: vec4<i32>, db: vec4<i32>, dc: vec4<i32>, sa: vec4<i32>, sc: vec4<i32>) -> vec4<u32> {
+    let gx = da + 2 * db + dc;
+    let gy = sc - sa;
     return vec4<u32>(gx * gx + gy * gy);
 }
 
-fn sobel_row(a: Span, b: Span, c: Span, e: Edge) -> u32 {
-    let s0 = sobel4(a.l0, a.p0, a.r0, b.l0, b.r0, c.l0, c.p0, c.r0);
-    let s1 = sobel4(a.l1, a.p1, a.r1, b.l1, b.r1, c.l1, c.p1, c.r1);
-    let s2 = sobel4(a.l2, a.p2, a.r2, b.l2, b.r2, c.l2, c.p2, c.r2);
-    let s3 = sobel4(a.l3, a.p3, a.r3, b.l3, b.r3, c.l3, c.p3, c.r3);
-    return dot(s0, e.in0) + dot(s1, e.in1) + dot(s2, e.in2) + dot(s3, e.in3);
+// Sum of Gx^2 + Gy^2 over the pixels of the middle row (b) inside the frame.
+fn sobel_row(a: Parts, b: Parts, c: Parts, e: Edge) -> u32 {
+    return dot(sq4(a.d0, b.d0, c.d0, a.s0, c.s0), e.in0)
+        + dot(sq4(a.d1, b.d1, c.d1, a.s1, c.s1), e.in1)
+        + dot(sq4(a.d2, b.d2, c.d2, a.s2, c.s2), e.in2)
+        + dot(sq4(a.d3, b.d3, c.d3, a.s3, c.s3), e.in3);
 }
 
 @compute @workgroup_size(8, 1, 1)
@@ -33,15 +46,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let y1 = min(y0 + i32(params.strip_rows), h);
     let e = edge_of(k);
-    var a = gray_row(k, reflect101(y0 - 1, h), e);
-    var b = gray_row(k, y0, e);
+    let first = gray_row(k, y0, e);
+    if (params.write_gray == 1u) {
+        write_gray_row(k, y0, first);
+    }
+    var a = parts(gray_row(k, reflect101(y0 - 1, h), e));
+    var b = parts(first);
     var total = vec2<u32>(0u, 0u);
     for (var y = y0; y < y1; y = y + 1) {
-        let c = gray_row(k, reflect101(y + 1, h), e);
-        if (params.write_gray == 1u) {
-            write_gray_row(k, y, b);
+        let below = gray_row(k, reflect101(y + 1, h), e);
+        if (params.write_gray == 1u && y + 1 < y1) {
+            write_gray_row(k, y + 1, below);
         }
-        total = acc64(total, sobel_row(span(a), span(b), span(c), e));
+        let c = parts(below);
+        total = acc64(total, sobel_row(a, b, c, e));
         a = b;
         b = c;
     }
