@@ -39,9 +39,10 @@ impl AdapterClass {
     }
 
     /// The backend `auto` uses on this class of adapter. Software adapters get opencv: on Mesa
-    /// lavapipe (2 cores) `keyframer bench sharpness --frames 12` measured opencv/gpu 0.05–0.10
-    /// (gpu 10–20x slower) and `keyframer bench flow --frames 4` 0.09–0.11 (about 10x slower),
-    /// because the shaders run on the same CPU cores as OpenCV's SIMD code, less efficiently.
+    /// lavapipe (2 cores) the strip sharpness kernels come close to OpenCV
+    /// (`keyframer bench sharpness --frames 16`: opencv/gpu 0.5 for 1080p Tenengrad, 0.85–1.0
+    /// for the Laplacians) but Farnebäck does not (`keyframer bench flow --frames 4`: 0.09–0.11,
+    /// about 10x slower), because the shaders run on the same CPU cores as OpenCV's SIMD code.
     /// Flip a class to gpu here once `bench` measures the kernels at least as fast there.
     pub fn auto_backend(self) -> Backend {
         match self {
