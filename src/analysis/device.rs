@@ -105,10 +105,14 @@ impl DeviceMovement {
         shapes.extend(flow.copy_shapes());
         let stationary = stationary
             .map(|st| {
-                let plan = gates[1];
-                let words = RECORD_WORDS;
-                let c = ctx.clone();
-                StationaryGpu::new(c, st, scale, &frame, &results, words, &shapes, plan)
+                StationaryGpu::new(
+                    ctx.clone(),
+                    st,
+                    scale,
+                    (&frame, &results),
+                    &shapes,
+                    gates[1],
+                )
             })
             .transpose()?;
         Ok(DeviceMovement {

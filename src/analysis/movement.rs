@@ -117,7 +117,7 @@ struct Measured {
 
 impl Measured {
     /// Whether the consecutive movement is the one from the previous frame.
-    fn from_previous(&self) -> bool {
+    fn measured_from_previous(&self) -> bool {
         self.from.is_some_and(|a| a + 1 == self.index)
     }
 }
@@ -304,7 +304,7 @@ impl MovementPass {
                     index: m.index,
                     slot: cur,
                     from,
-                    from_previous: m.from_previous(),
+                    from_previous: m.measured_from_previous(),
                     candidate: m.candidate,
                 })?;
                 self.pending.push_back(m);
@@ -436,7 +436,7 @@ fn step(
     let Some(st) = stationary.as_mut().filter(|_| m.candidate) else {
         return Ok(false);
     };
-    let quick = consecutive.filter(|_| m.from_previous());
+    let quick = consecutive.filter(|_| m.measured_from_previous());
     st.step(m.index, |reference| match quick {
         Some(c) if reference + 1 == m.index => Ok(c * scale),
         _ => Ok(from_reference()? * scale),

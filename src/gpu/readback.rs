@@ -123,14 +123,28 @@ impl Readback {
         }
     }
 
-    /// The copies that have landed, oldest first (blocking as `until` says).
+    /// The copies that have landed, oldest first, blocking (one wait) only as far as `until`
+    /// asks beyond what has landed already.
     pub fn take(&mut self, ctx: &GpuContext, until: Until) -> Result<Vec<Vec<u8>>> {
-        match (until, self.flights.front()) {
-            (_, None) => return Ok(Vec::new()),
-            (Until::Landed, _) => ctx.poll()?,
-            (Until::Oldest, Some(f)) => ctx.wait_for(Some(f.submission.clone()))?,
-            (Until::All, Some(_)) => ctx.wait()?,
+        if self.flights.is_empty() {
+            return Ok(Vec::new());
         }
+        ctx.poll()?;
+        let mut out = self.landed(ctx)?;
+        let wait = match until {
+            Until::Landed => None,
+            Until::Oldest => self.flights.front().filter(|_| out.is_empty()),
+            Until::All => self.flights.back(),
+        };
+        if let Some(f) = wait {
+            ctx.wait_for(Some(f.submission.clone()))?;
+            out.extend(self.landed(ctx)?);
+        }
+        Ok(out)
+    }
+
+    /// Takes the copies whose mapping completed, oldest first, up to the first that has not.
+    fn landed(&mut self, ctx: &GpuContext) -> Result<Vec<Vec<u8>>> {
         let mut out = Vec::new();
         while let Some(f) = self.flights.front() {
             if !mapped(&f.mapping, false)? {

@@ -348,6 +348,9 @@ struct LevelFlow {
 /// current frame).
 pub const SLOTS: usize = 3;
 
+/// Per ordered slot pair (from, to): one item per pyramid level.
+type PerPair<T> = Vec<((usize, usize), Vec<T>)>;
+
 /// Farneback flow on the GPU for frames of one size.
 pub struct FarnebackGpu {
     ctx: Arc<GpuContext>,
@@ -356,9 +359,11 @@ pub struct FarnebackGpu {
     pipes: Pipes,
     slots: Vec<FrameSlot>,
     /// Per ordered slot pair (from, to): per level bind groups.
-    flows: Vec<((usize, usize), Vec<LevelFlow>)>,
-    /// Per ordered slot pair (from, to): per level, the copy of the expansion and its workgroups.
-    copies: Vec<((usize, usize), Vec<(wgpu::BindGroup, (u32, u32))>)>,
+    flows: PerPair<LevelFlow>,
+    /// Per ordered slot pair (from, to): per level, the copy of the expansion.
+    copies: PerPair<wgpu::BindGroup>,
+    /// Per level: the workgroups of the copy.
+    copy_groups: Vec<(u32, u32)>,
     flow: Vec<wgpu::Buffer>,
     pad: Vec<u8>,
 }
@@ -562,7 +567,7 @@ impl FarnebackGpu {
                 flows.push(((from, to), make_flows(&slots[from], &slots[to])));
             }
         }
-        let copies = copies(&ctx, &pipes.copy, &slots);
+        let (copies, copy_groups) = copies(&ctx, &pipes.copy, &slots);
         Ok(FarnebackGpu {
             ctx,
             params,
@@ -571,6 +576,7 @@ impl FarnebackGpu {
             slots,
             flows,
             copies,
+            copy_groups,
             flow,
             pad: Vec::new(),
         })
@@ -603,10 +609,7 @@ impl FarnebackGpu {
 
     /// The workgroups of [`FarnebackGpu::encode_copy`]'s dispatches (one per level).
     pub fn copy_shapes(&self) -> Vec<(u32, u32)> {
-        self.copies
-            .first()
-            .map(|(_, c)| c.iter().map(|(_, g)| *g).collect())
-            .unwrap_or_default()
+        self.copy_groups.clone()
     }
 
     /// Records the copy of slot `from`'s expansion pyramid into slot `to` (the flow from `to`
@@ -626,7 +629,7 @@ impl FarnebackGpu {
                 Error::param("slots", format!("need two distinct slots below {SLOTS}"))
             })?;
         let mut pass = compute_pass(enc, "farneback copy");
-        for (k, (bg, groups)) in per_level.iter().enumerate() {
+        for (k, (bg, groups)) in per_level.iter().zip(&self.copy_groups).enumerate() {
             self.ctx
                 .dispatch_gated(&mut pass, (&self.pipes.copy, bg), *groups, gate, k);
         }
@@ -825,32 +828,39 @@ impl FarnebackGpu {
     }
 }
 
-/// Per ordered slot pair, per level: the bind group copying the expansion and its workgroups.
+/// Per ordered slot pair, per level: the bind group copying the expansion; per level: the
+/// copy's workgroups.
 fn copies(
     ctx: &GpuContext,
     pipe: &wgpu::ComputePipeline,
     slots: &[FrameSlot],
-) -> Vec<((usize, usize), Vec<(wgpu::BindGroup, (u32, u32))>)> {
+) -> (PerPair<wgpu::BindGroup>, Vec<(u32, u32)>) {
+    let Some(first) = slots.first() else {
+        return (Vec::new(), Vec::new());
+    };
+    let (groups, params): (Vec<_>, Vec<_>) = first
+        .r
+        .iter()
+        .map(|r| {
+            let words = (r.size() / 4) as u32;
+            let total = words.div_ceil(256);
+            let gx = total.clamp(1, 65_535);
+            let params = ctx.uniform("copy params", &[words, gx, 0, 0]);
+            ((gx, total.div_ceil(gx)), params)
+        })
+        .unzip();
     let mut out = Vec::new();
     for (from, a) in slots.iter().enumerate() {
         for (to, b) in slots.iter().enumerate().filter(|&(t, _)| t != from) {
-            let per_level = a
-                .r
-                .iter()
-                .zip(&b.r)
-                .map(|(src, dst)| {
-                    let words = (src.size() / 4) as u32;
-                    let total = words.div_ceil(256);
-                    let gx = total.clamp(1, 65_535);
-                    let params = ctx.uniform("copy params", &[words, gx, 0, 0]);
-                    let bg = ctx.bind("farneback copy", pipe, &[(0, src), (1, dst), (2, &params)]);
-                    (bg, (gx, total.div_ceil(gx)))
+            let per_level = (a.r.iter().zip(&b.r).zip(&params))
+                .map(|((src, dst), p)| {
+                    ctx.bind("farneback copy", pipe, &[(0, src), (1, dst), (2, p)])
                 })
                 .collect();
             out.push(((from, to), per_level));
         }
     }
-    out
+    (out, groups)
 }
 
 /// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).

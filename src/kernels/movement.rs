@@ -363,38 +363,35 @@ impl MovementGpu {
         let partials =
             ctx.storage_buffer("movement partials", u64::from(groups.0 * groups.1) * 3 * 4);
         let sel = ctx.storage_buffer("movement selection", SEL_BYTES);
-        let with = |entry: &str, binds: &[(u32, &wgpu::Buffer)]| -> Result<_> {
+        let table = [
+            (0, flow),
+            (1, &hist),
+            (3, &partials),
+            (4, &consts),
+            (6, &sel),
+        ];
+        // The pass `entry` with the bindings it uses, and its radix round's uniform (binding 5).
+        let with = |entry: &str, used: &[u32], radix: Option<&wgpu::Buffer>| -> Result<Pass> {
             let p = pipe(entry)?;
-            let bg = ctx.bind(entry, &p, binds);
+            let binds: Vec<(u32, &wgpu::Buffer)> = (table.iter().copied())
+                .filter(|(b, _)| used.contains(b))
+                .chain(radix.map(|r| (5, r)))
+                .collect();
+            let bg = ctx.bind(entry, &p, &binds);
             Ok((p, bg))
         };
-        let init = with("init", &[(4, &consts), (6, &sel)])?;
-        let rotation_sums = with(
-            "rotation_sums",
-            &[(0, flow), (3, &partials), (4, &consts), (6, &sel)],
-        )?;
-        let solve = with("solve", &[(3, &partials), (4, &consts), (6, &sel)])?;
-        let sums = with(
-            "sums",
-            &[
-                (0, flow),
-                (1, &hist),
-                (3, &partials),
-                (4, &consts),
-                (6, &sel),
-            ],
-        )?;
+        let init = with("init", &[4, 6], None)?;
+        let rotation_sums = with("rotation_sums", &[0, 3, 4, 6], None)?;
+        let solve = with("solve", &[3, 4, 6], None)?;
+        let sums = with("sums", &[0, 1, 3, 4, 6], None)?;
         let rounds = RADIX
             .iter()
             .enumerate()
             .map(|(k, &(shift, bits, prefix_shift))| {
                 let radix = ctx.uniform("movement radix", &[shift, bits, prefix_shift, k as u32]);
                 Ok([
-                    with(
-                        "histogram",
-                        &[(0, flow), (1, &hist), (4, &consts), (5, &radix), (6, &sel)],
-                    )?,
-                    with("pick", &[(1, &hist), (5, &radix), (6, &sel)])?,
+                    with("histogram", &[0, 1, 4, 6], Some(&radix))?,
+                    with("pick", &[1, 6], Some(&radix))?,
                 ])
             })
             .collect::<Result<Vec<_>>>()?;

@@ -5,6 +5,7 @@
 //! decided without the host reading anything back in between.
 
 use crate::gpu::{compute_pass, GpuContext};
+use crate::kernels::movement::RECORD_WORDS;
 use crate::params::StationaryRequest;
 use bytemuck::{Pod, Zeroable};
 use std::sync::Arc;
@@ -50,17 +51,13 @@ pub struct StationaryGpu {
 
 impl StationaryGpu {
     /// The step of `req` on movements (analysis pixels) times `scale`; frames name their record
-    /// (of `record` words) in `results` through `frame`. The gated dispatches have the sizes
-    /// `shapes`: the first `plan` of them measure from the reference, the rest keep a frame as
-    /// the reference.
-    #[allow(clippy::too_many_arguments)]
+    /// in `results` through `frame`. The gated dispatches have the sizes `shapes`: the first
+    /// `plan` of them measure from the reference, the rest keep a frame as the reference.
     pub fn new(
         ctx: Arc<GpuContext>,
         req: &StationaryRequest,
         scale: f64,
-        frame: &wgpu::Buffer,
-        results: &wgpu::Buffer,
-        record: u32,
+        (frame, results): (&wgpu::Buffer, &wgpu::Buffer),
         shapes: &[(u32, u32)],
         plan: usize,
     ) -> crate::error::Result<StationaryGpu> {
@@ -70,7 +67,7 @@ impl StationaryGpu {
             threshold: words(req.threshold),
             scale: words(scale),
             reset_delta: u32::try_from(req.reset_delta).unwrap_or(u32::MAX),
-            record,
+            record: RECORD_WORDS,
             plan_end: words_of(plan),
             keep_begin: words_of(plan),
             keep_end: words_of(shapes.len()),
