@@ -5,7 +5,7 @@
 //! (farneback_flow). The OpenCV twin is `opencv` (the OpenCV call itself).
 
 use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, Gate, GpuContext};
+use crate::gpu::{compute_pass, GpuContext};
 pub use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
@@ -22,8 +22,6 @@ pub const POLYEXP_WGSL: &str = include_str!("../../shaders/farneback_polyexp.wgs
 pub const MATRICES_WGSL: &str = include_str!("../../shaders/farneback_matrices.wgsl");
 /// Flow update.
 pub const FLOW_WGSL: &str = include_str!("../../shaders/farneback_flow.wgsl");
-/// Word copy (a slot's pyramid into another).
-pub const COPY_WGSL: &str = include_str!("../../shaders/copy.wgsl");
 
 /// OpenCV's flags for the window type.
 fn flags(p: &FarnebackParams) -> i32 {
@@ -319,7 +317,6 @@ struct Pipes {
     matrices: Arc<wgpu::ComputePipeline>,
     flow_cols: Arc<wgpu::ComputePipeline>,
     flow_rows: Arc<wgpu::ComputePipeline>,
-    copy: Arc<wgpu::ComputePipeline>,
 }
 
 /// Pixels per invocation of the running-sum box passes (RUN in farneback_flow.wgsl).
@@ -348,9 +345,6 @@ struct LevelFlow {
 /// current frame).
 pub const SLOTS: usize = 3;
 
-/// Per ordered slot pair (from, to): one item per pyramid level.
-type PerPair<T> = Vec<((usize, usize), Vec<T>)>;
-
 /// Farneback flow on the GPU for frames of one size.
 pub struct FarnebackGpu {
     ctx: Arc<GpuContext>,
@@ -359,11 +353,7 @@ pub struct FarnebackGpu {
     pipes: Pipes,
     slots: Vec<FrameSlot>,
     /// Per ordered slot pair (from, to): per level bind groups.
-    flows: PerPair<LevelFlow>,
-    /// Per ordered slot pair (from, to): per level, the copy of the expansion.
-    copies: PerPair<wgpu::BindGroup>,
-    /// Per level: the workgroups of the copy.
-    copy_groups: Vec<(u32, u32)>,
+    flows: Vec<((usize, usize), Vec<LevelFlow>)>,
     flow: Vec<wgpu::Buffer>,
     pad: Vec<u8>,
 }
@@ -411,7 +401,6 @@ impl FarnebackGpu {
             matrices: p("farneback_matrices", MATRICES_WGSL, "main")?,
             flow_cols: p("farneback_flow", FLOW_WGSL, flow_entries.0)?,
             flow_rows: p("farneback_flow", FLOW_WGSL, flow_entries.1)?,
-            copy: p("copy", COPY_WGSL, "main")?,
         };
         // Shared scratch buffers (full-resolution sized; passes run one after another).
         let tmp = ctx.storage_buffer("smooth tmp", full * 4);
@@ -567,7 +556,6 @@ impl FarnebackGpu {
                 flows.push(((from, to), make_flows(&slots[from], &slots[to])));
             }
         }
-        let (copies, copy_groups) = copies(&ctx, &pipes.copy, &slots);
         Ok(FarnebackGpu {
             ctx,
             params,
@@ -575,65 +563,9 @@ impl FarnebackGpu {
             pipes,
             slots,
             flows,
-            copies,
-            copy_groups,
             flow,
             pad: Vec::new(),
         })
-    }
-
-    /// The workgroups of the flow's dispatches, in the order of its gate entries: per level, the
-    /// matrix update (and upsampling), the window's column pass, its row pass.
-    pub fn flow_shapes(&self) -> Vec<(u32, u32)> {
-        let mut out = Vec::new();
-        for l in &self.levels {
-            let (x, y) = groups16(l.width, l.height);
-            if self.params.gaussian {
-                out.extend([(x, y); 3]);
-            } else {
-                out.extend([
-                    (x, y),
-                    (
-                        l.width.div_ceil(16),
-                        l.height.div_ceil(BOX_RUN).div_ceil(16),
-                    ),
-                    (
-                        l.width.div_ceil(BOX_RUN).div_ceil(16),
-                        l.height.div_ceil(16),
-                    ),
-                ]);
-            }
-        }
-        out
-    }
-
-    /// The workgroups of [`FarnebackGpu::encode_copy`]'s dispatches (one per level).
-    pub fn copy_shapes(&self) -> Vec<(u32, u32)> {
-        self.copy_groups.clone()
-    }
-
-    /// Records the copy of slot `from`'s expansion pyramid into slot `to` (the flow from `to`
-    /// then starts from `from`'s frame), gated by `gate` when given.
-    pub fn encode_copy(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        from: usize,
-        to: usize,
-        gate: Option<Gate<'_>>,
-    ) -> Result<()> {
-        let (_, per_level) = self
-            .copies
-            .iter()
-            .find(|(k, _)| *k == (from, to))
-            .ok_or_else(|| {
-                Error::param("slots", format!("need two distinct slots below {SLOTS}"))
-            })?;
-        let mut pass = compute_pass(enc, "farneback copy");
-        for (k, (bg, groups)) in per_level.iter().zip(&self.copy_groups).enumerate() {
-            self.ctx
-                .dispatch_gated(&mut pass, (&self.pipes.copy, bg), *groups, gate, k);
-        }
-        Ok(())
     }
 
     fn encode_pyramid(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
@@ -655,48 +587,45 @@ impl FarnebackGpu {
         }
     }
 
-    /// Records the flow from slot `from` to slot `to` into [`FarnebackGpu::flow_buffer`]
-    /// (continuing the coarsest level's flow when `initial`), gated by `gate` when given (entries
-    /// as [`FarnebackGpu::flow_shapes`] lists them).
-    pub fn encode_flow(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        (from, to): (usize, usize),
-        initial: bool,
-        gate: Option<Gate<'_>>,
-    ) -> Result<()> {
-        let (_, per_level) = self
-            .flows
-            .iter()
-            .find(|(k, _)| *k == (from, to))
-            .ok_or_else(|| {
-                Error::param("slots", format!("need two distinct slots below {SLOTS}"))
-            })?;
+    fn encode_flow(&self, enc: &mut wgpu::CommandEncoder, from: usize, to: usize, initial: bool) {
+        let Some((_, per_level)) = self.flows.iter().find(|(k, _)| *k == (from, to)) else {
+            return;
+        };
         let top = self.levels.len() - 1;
         if !initial {
             enc.clear_buffer(&self.flow[top], 0, None);
         }
-        let shapes = self.flow_shapes();
         let mut pass = compute_pass(enc, "farneback flow");
-        let mut run = |pipe: &wgpu::ComputePipeline, bg: &wgpu::BindGroup, shape: usize| {
-            self.ctx
-                .dispatch_gated(&mut pass, (pipe, bg), shapes[shape], gate, shape);
-        };
         for k in (0..=top).rev() {
+            let l = &self.levels[k];
             let lf = &per_level[k];
+            let (x, y) = groups16(l.width, l.height);
             if let Some(up) = &lf.upsample {
-                run(&self.pipes.resize, up, 3 * k);
+                self.ctx.dispatch(&mut pass, &self.pipes.resize, up, (x, y));
             }
-            run(&self.pipes.matrices, &lf.matrices, 3 * k);
+            self.ctx
+                .dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
+            let (cx, cy, rx, ry) = if self.params.gaussian {
+                (x, y, x, y)
+            } else {
+                (
+                    l.width.div_ceil(16),
+                    l.height.div_ceil(BOX_RUN).div_ceil(16),
+                    l.width.div_ceil(BOX_RUN).div_ceil(16),
+                    l.height.div_ceil(16),
+                )
+            };
             for i in 0..self.params.iterations {
-                run(&self.pipes.flow_cols, &lf.cols, 3 * k + 1);
-                run(&self.pipes.flow_rows, &lf.rows, 3 * k + 2);
+                self.ctx
+                    .dispatch(&mut pass, &self.pipes.flow_cols, &lf.cols, (cx, cy));
+                self.ctx
+                    .dispatch(&mut pass, &self.pipes.flow_rows, &lf.rows, (rx, ry));
                 if i + 1 < self.params.iterations {
-                    run(&self.pipes.matrices, &lf.matrices, 3 * k);
+                    self.ctx
+                        .dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
                 }
             }
         }
-        Ok(())
     }
 
     /// Uploads `gray` into `slot` and computes its expansion pyramid on the device.
@@ -750,6 +679,12 @@ impl FarnebackGpu {
         to: usize,
         initial: Option<&Mat>,
     ) -> Result<()> {
+        if from >= SLOTS || to >= SLOTS || from == to {
+            return Err(Error::param(
+                "slots",
+                format!("need two distinct slots below {SLOTS}"),
+            ));
+        }
         let mut enc = self.ctx.encoder("farneback flow");
         if let Some(init) = initial {
             let top = self
@@ -780,9 +715,11 @@ impl FarnebackGpu {
                 .convert_to(&mut scaled, opencv::core::CV_32FC2, top.scale, 0.0)
                 .cv(|| "scale initial flow".into())?;
             let bytes = scaled.data_bytes().cv(|| "initial flow bytes".into())?;
-            self.ctx.write(&self.flow[self.levels.len() - 1], 0, bytes);
+            self.ctx
+                .queue
+                .write_buffer(&self.flow[self.levels.len() - 1], 0, bytes);
         }
-        self.encode_flow(&mut enc, (from, to), initial.is_some(), None)?;
+        self.encode_flow(&mut enc, from, to, initial.is_some());
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
@@ -826,41 +763,6 @@ impl FarnebackGpu {
         self.flow_between_from(0, 1, initial)?;
         self.read_flow()
     }
-}
-
-/// Per ordered slot pair, per level: the bind group copying the expansion; per level: the
-/// copy's workgroups.
-fn copies(
-    ctx: &GpuContext,
-    pipe: &wgpu::ComputePipeline,
-    slots: &[FrameSlot],
-) -> (PerPair<wgpu::BindGroup>, Vec<(u32, u32)>) {
-    let Some(first) = slots.first() else {
-        return (Vec::new(), Vec::new());
-    };
-    let (groups, params): (Vec<_>, Vec<_>) = first
-        .r
-        .iter()
-        .map(|r| {
-            let words = (r.size() / 4) as u32;
-            let total = words.div_ceil(256);
-            let gx = total.clamp(1, 65_535);
-            let params = ctx.uniform("copy params", &[words, gx, 0, 0]);
-            ((gx, total.div_ceil(gx)), params)
-        })
-        .unzip();
-    let mut out = Vec::new();
-    for (from, a) in slots.iter().enumerate() {
-        for (to, b) in slots.iter().enumerate().filter(|&(t, _)| t != from) {
-            let per_level = (a.r.iter().zip(&b.r).zip(&params))
-                .map(|((src, dst), p)| {
-                    ctx.bind("farneback copy", pipe, &[(0, src), (1, dst), (2, p)])
-                })
-                .collect();
-            out.push(((from, to), per_level));
-        }
-    }
-    (out, groups)
 }
 
 /// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).
