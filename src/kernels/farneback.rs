@@ -12,12 +12,13 @@ use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use std::sync::Arc;
 
-/// WGSL sources of the stages.
-pub const SMOOTH_WGSL: &str = include_str!("../../shaders/farneback_smooth.wgsl");
+/// WGSL of the pyramid stages (level images and expansions), after its prelude.
+pub const PYRAMID_WGSL: &str = concat!(
+    include_str!("../../shaders/border.wgsl"),
+    include_str!("../../shaders/farneback_pyramid.wgsl")
+);
 /// INTER_LINEAR resize.
 pub const RESIZE_WGSL: &str = include_str!("../../shaders/farneback_resize.wgsl");
-/// Polynomial expansion.
-pub const POLYEXP_WGSL: &str = include_str!("../../shaders/farneback_polyexp.wgsl");
 /// Matrix update.
 pub const MATRICES_WGSL: &str = include_str!("../../shaders/farneback_matrices.wgsl");
 /// Flow update.
@@ -239,15 +240,6 @@ pub fn window_weights(winsize: u32, gaussian: bool) -> (Vec<f32>, f32) {
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct SmoothParams {
-    width: u32,
-    height: u32,
-    stride: u32,
-    radius: u32,
-}
-
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
 struct ResizeParams {
     src_w: u32,
     src_h: u32,
@@ -279,14 +271,23 @@ impl ResizeParams {
     }
 }
 
+/// Uniform parameters of one pyramid level (`PyrParams` in farneback_pyramid.wgsl).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct PolyParams {
-    width: u32,
-    height: u32,
-    n: u32,
-    pad: u32,
+struct PyrParams {
+    src_w: u32,
+    src_h: u32,
+    dst_w: u32,
+    dst_h: u32,
+    radius: u32,
+    strip_rows: u32,
+    poly_n: u32,
+    pad0: u32,
+    scale_x: f32,
+    scale_y: f32,
+    pad1: [f32; 2],
     ig: [f32; 4],
+    poly: [[f32; 4]; 8],
 }
 
 #[repr(C)]
@@ -308,27 +309,256 @@ struct FlowParams {
     pad1: [f32; 3],
 }
 
+/// Texels of replicated border left and right of a level image (HALO in farneback_pyramid.wgsl).
+const HALO: u32 = 2;
+
+/// Smoothing taps a level's uniform holds (`Taps` in farneback_pyramid.wgsl).
+const MAX_TAPS: usize = 1024;
+
+/// Texels (four pixels each) of a row of `w` pixels.
+fn texels(w: u32) -> u32 {
+    w.div_ceil(4)
+}
+
+/// A texture usable as a shader input and a storage output.
+fn texture(
+    ctx: &GpuContext,
+    label: &str,
+    (w, h): (u32, u32),
+    format: wgpu::TextureFormat,
+) -> wgpu::Texture {
+    ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: w.max(1),
+            height: h.max(1),
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::STORAGE_BINDING
+            | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    })
+}
+
+fn view(t: &wgpu::Texture) -> wgpu::TextureView {
+    t.create_view(&Default::default())
+}
+
+/// A binding of a texture view.
+fn tv(v: &wgpu::TextureView) -> wgpu::BindingResource<'_> {
+    wgpu::BindingResource::TextureView(v)
+}
+
 struct Pipes {
-    smooth_rows: Arc<wgpu::ComputePipeline>,
-    smooth_cols: Arc<wgpu::ComputePipeline>,
+    level0: Arc<wgpu::ComputePipeline>,
+    vsmooth: Arc<wgpu::ComputePipeline>,
+    hsmooth: Arc<wgpu::ComputePipeline>,
+    polyexp: Arc<wgpu::ComputePipeline>,
     resize: Arc<wgpu::ComputePipeline>,
-    poly_cols: Arc<wgpu::ComputePipeline>,
-    poly_rows: Arc<wgpu::ComputePipeline>,
     matrices: Arc<wgpu::ComputePipeline>,
     flow_cols: Arc<wgpu::ComputePipeline>,
     flow_rows: Arc<wgpu::ComputePipeline>,
 }
 
+impl Pipes {
+    fn new(ctx: &GpuContext, gaussian: bool) -> Result<Pipes> {
+        let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
+        let (cols, rows) = if gaussian {
+            ("cols", "rows")
+        } else {
+            ("box_cols", "box_rows")
+        };
+        Ok(Pipes {
+            level0: p("farneback_pyramid", PYRAMID_WGSL, "level0")?,
+            vsmooth: p("farneback_pyramid", PYRAMID_WGSL, "vsmooth")?,
+            hsmooth: p("farneback_pyramid", PYRAMID_WGSL, "hsmooth")?,
+            polyexp: p("farneback_pyramid", PYRAMID_WGSL, "polyexp")?,
+            resize: p("farneback_resize", RESIZE_WGSL, "main")?,
+            matrices: p("farneback_matrices", MATRICES_WGSL, "main")?,
+            flow_cols: p("farneback_flow", FLOW_WGSL, cols)?,
+            flow_rows: p("farneback_flow", FLOW_WGSL, rows)?,
+        })
+    }
+}
+
 /// Pixels per invocation of the running-sum box passes (RUN in farneback_flow.wgsl).
 const BOX_RUN: u32 = 16;
 
-/// Bind groups that compute one frame's expansion pyramid.
+/// The pyramid's scratch shared by the slots (passes run one after another): the gray frame as
+/// a texture, each level's image and (below level 0) the vertical part of its smoothing, each
+/// level's uniforms, and the bind groups of the smoothing (vsmooth, hsmooth per level > 0).
+struct PyramidScratch {
+    gray: wgpu::TextureView,
+    images: Vec<wgpu::TextureView>,
+    params: Vec<wgpu::Buffer>,
+    smooth: Vec<[wgpu::BindGroup; 2]>,
+}
+
+impl PyramidScratch {
+    fn new(
+        ctx: &GpuContext,
+        pipes: &Pipes,
+        levels: &[Level],
+        p: &FarnebackParams,
+        strip_rows: u32,
+    ) -> Result<PyramidScratch> {
+        use wgpu::TextureFormat::{Rgba32Float, Rgba8Uint};
+        let (w, h) = (levels[0].width, levels[0].height);
+        let gray = view(&texture(ctx, "gray", (texels(w), h), Rgba8Uint));
+        let (kern, ig) = poly_weights(p.poly_n, p.poly_sigma);
+        let n = p.poly_n as usize;
+        let mut poly = [[0f32; 4]; 8];
+        for (k, t) in poly.iter_mut().enumerate().take(n + 1) {
+            *t = [kern[k], kern[n + 1 + k], kern[2 * (n + 1) + k], 0.0];
+        }
+        let mut images = Vec::new();
+        let mut params = Vec::new();
+        let mut smooth = Vec::new();
+        for (k, l) in levels.iter().enumerate() {
+            let radius = l.smooth.len() / 2;
+            if radius + 2 > MAX_TAPS {
+                return Err(Error::Gpu(format!("Farneback level {k} smooths with {} taps; the shaders hold {MAX_TAPS} (use a smaller analysis resolution)", 2 * radius + 1)));
+            }
+            let rp = ResizeParams::new((w, h), l, 1, 1.0);
+            let u = ctx.uniform(
+                "pyramid params",
+                &PyrParams {
+                    src_w: w,
+                    src_h: h,
+                    dst_w: l.width,
+                    dst_h: l.height,
+                    radius: radius as u32,
+                    strip_rows,
+                    poly_n: p.poly_n,
+                    pad0: 0,
+                    scale_x: rp.scale_x,
+                    scale_y: rp.scale_y,
+                    pad1: [0.0; 2],
+                    ig: ig.map(|v| v as f32),
+                    poly,
+                },
+            );
+            let image = view(&texture(
+                ctx,
+                "level image",
+                (texels(l.width) + 2 * HALO, l.height),
+                Rgba32Float,
+            ));
+            if k > 0 {
+                let mut taps = vec![[0f32; 4]; MAX_TAPS];
+                for (t, v) in taps.iter_mut().zip(&l.smooth[radius..]) {
+                    t[0] = *v;
+                }
+                let taps = ctx.buffer_init(
+                    "smoothing taps",
+                    wgpu::BufferUsages::UNIFORM,
+                    bytemuck::cast_slice(&taps),
+                );
+                let vert = view(&texture(
+                    ctx,
+                    "vertical smoothing",
+                    (texels(w), 2 * l.height),
+                    Rgba32Float,
+                ));
+                let b = |pipe: &wgpu::ComputePipeline,
+                         input: &wgpu::TextureView,
+                         output: &wgpu::TextureView,
+                         at: u32| {
+                    ctx.bind_resources(
+                        "farneback pyramid",
+                        pipe,
+                        &[
+                            (at, tv(input)),
+                            (1, tv(output)),
+                            (6, u.as_entire_binding()),
+                            (7, taps.as_entire_binding()),
+                        ],
+                    )
+                };
+                smooth.push([
+                    b(&pipes.vsmooth, &gray, &vert, 3),
+                    b(&pipes.hsmooth, &vert, &image, 4),
+                ]);
+            }
+            images.push(image);
+            params.push(u);
+        }
+        Ok(PyramidScratch {
+            gray,
+            images,
+            params,
+            smooth,
+        })
+    }
+}
+
+/// One frame's expansion pyramid on the device and the bind groups that compute it.
 struct FrameSlot {
     gray: wgpu::Buffer,
-    /// Per level: smooth rows, smooth cols, resize, poly cols, poly rows.
-    levels: Vec<[wgpu::BindGroup; 5]>,
-    /// Per level: the expansion R (5 x f32 per pixel).
-    r: Vec<wgpu::Buffer>,
+    /// Per level: expansion channels 0..3 per pixel (Rgba32Float).
+    ra: Vec<wgpu::TextureView>,
+    /// Per level: channel 4 of each pixel and of its right neighbour (Rg32Float).
+    rb: Vec<wgpu::TextureView>,
+    level0: wgpu::BindGroup,
+    polyexp: Vec<wgpu::BindGroup>,
+}
+
+impl FrameSlot {
+    fn new(
+        ctx: &GpuContext,
+        pipes: &Pipes,
+        levels: &[Level],
+        scratch: &PyramidScratch,
+    ) -> FrameSlot {
+        use wgpu::TextureFormat::{Rg32Float, Rgba32Float};
+        let (w, h) = (levels[0].width, levels[0].height);
+        let gray = ctx.storage_buffer("gray upload", u64::from(w) * u64::from(h));
+        let level0 = ctx.bind_resources(
+            "farneback pyramid",
+            &pipes.level0,
+            &[
+                (0, gray.as_entire_binding()),
+                (1, tv(&scratch.images[0])),
+                (2, tv(&scratch.gray)),
+                (6, scratch.params[0].as_entire_binding()),
+            ],
+        );
+        let size = |l: &Level| (l.width, l.height);
+        let ra: Vec<_> = levels
+            .iter()
+            .map(|l| view(&texture(ctx, "expansion", size(l), Rgba32Float)))
+            .collect();
+        let rb: Vec<_> = levels
+            .iter()
+            .map(|l| view(&texture(ctx, "expansion xy", size(l), Rg32Float)))
+            .collect();
+        let polyexp = (0..levels.len())
+            .map(|k| {
+                ctx.bind_resources(
+                    "farneback pyramid",
+                    &pipes.polyexp,
+                    &[
+                        (4, tv(&scratch.images[k])),
+                        (1, tv(&ra[k])),
+                        (5, tv(&rb[k])),
+                        (6, scratch.params[k].as_entire_binding()),
+                    ],
+                )
+            })
+            .collect();
+        FrameSlot {
+            gray,
+            ra,
+            rb,
+            level0,
+            polyexp,
+        }
+    }
 }
 
 /// Bind groups of the flow iterations of one level for one (prev, next) slot order.
@@ -345,17 +575,39 @@ struct LevelFlow {
 /// current frame).
 pub const SLOTS: usize = 3;
 
+/// Rows per invocation of the pyramid's strip passes on `ctx`'s adapter: software adapters run
+/// each invocation on a CPU SIMD lane and gain from long strips (fewer re-read window rows);
+/// hardware GPUs need many short strips for occupancy.
+pub fn strip_rows_for(ctx: &GpuContext) -> u32 {
+    if ctx.summary().software {
+        16
+    } else {
+        4
+    }
+}
+
 /// Farneback flow on the GPU for frames of one size.
 pub struct FarnebackGpu {
     ctx: Arc<GpuContext>,
     params: FarnebackParams,
     levels: Vec<Level>,
     pipes: Pipes,
+    strip_rows: u32,
+    scratch: PyramidScratch,
     slots: Vec<FrameSlot>,
     /// Per ordered slot pair (from, to): per level bind groups.
     flows: Vec<((usize, usize), Vec<LevelFlow>)>,
     flow: Vec<wgpu::Buffer>,
     pad: Vec<u8>,
+}
+
+/// One dispatch: its kind (for profiles), pipeline, bind group and workgroups.
+#[derive(Clone, Copy)]
+struct Step<'a> {
+    kind: &'static str,
+    pipe: &'a wgpu::ComputePipeline,
+    bg: &'a wgpu::BindGroup,
+    groups: (u32, u32),
 }
 
 fn groups16(w: u32, h: u32) -> (u32, u32) {
@@ -370,6 +622,19 @@ impl FarnebackGpu {
         width: u32,
         height: u32,
     ) -> Result<Self> {
+        let strip_rows = strip_rows_for(&ctx);
+        Self::with_strip_rows(ctx, params, width, height, strip_rows)
+    }
+
+    /// As [`FarnebackGpu::new`] with `strip_rows` rows per invocation of the strip passes (for
+    /// `bench`).
+    pub fn with_strip_rows(
+        ctx: Arc<GpuContext>,
+        params: FarnebackParams,
+        width: u32,
+        height: u32,
+        strip_rows: u32,
+    ) -> Result<Self> {
         params.validate()?;
         if width < 2 || height < 2 {
             return Err(Error::param(
@@ -379,41 +644,22 @@ impl FarnebackGpu {
         }
         let levels = levels(width, height, &params);
         let full = u64::from(width) * u64::from(height);
-        if full * 20 > ctx.limits.max_storage_buffer_binding_size {
+        let max = ctx.limits.max_texture_dimension_2d;
+        if full * 20 > ctx.limits.max_storage_buffer_binding_size || width > max || height > max {
             return Err(Error::Gpu(format!(
-                "Farneback at {width}x{height} needs {} MiB buffers; this adapter binds at most {} MiB (use a smaller analysis resolution)",
+                "Farneback at {width}x{height} needs {} MiB buffers and {width}x{height} textures; this adapter binds at most {} MiB and {max}x{max} (use a smaller analysis resolution)",
                 (full * 20) >> 20,
                 ctx.limits.max_storage_buffer_binding_size >> 20
             )));
         }
-        let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
-        let flow_entries = if params.gaussian {
-            ("cols", "rows")
-        } else {
-            ("box_cols", "box_rows")
-        };
-        let pipes = Pipes {
-            smooth_rows: p("farneback_smooth", SMOOTH_WGSL, "rows")?,
-            smooth_cols: p("farneback_smooth", SMOOTH_WGSL, "cols")?,
-            resize: p("farneback_resize", RESIZE_WGSL, "main")?,
-            poly_cols: p("farneback_polyexp", POLYEXP_WGSL, "cols")?,
-            poly_rows: p("farneback_polyexp", POLYEXP_WGSL, "rows")?,
-            matrices: p("farneback_matrices", MATRICES_WGSL, "main")?,
-            flow_cols: p("farneback_flow", FLOW_WGSL, flow_entries.0)?,
-            flow_rows: p("farneback_flow", FLOW_WGSL, flow_entries.1)?,
-        };
-        // Shared scratch buffers (full-resolution sized; passes run one after another).
-        let tmp = ctx.storage_buffer("smooth tmp", full * 4);
-        let smoothed = ctx.storage_buffer("smoothed", full * 4);
-        let img = ctx.storage_buffer("level image", full * 4);
-        let rows3 = ctx.storage_buffer("polyexp rows", full * 12);
+        let strip_rows = strip_rows.max(1);
+        let pipes = Pipes::new(&ctx, params.gaussian)?;
+        let scratch = PyramidScratch::new(&ctx, &pipes, &levels, &params, strip_rows)?;
         let m = ctx.storage_buffer("matrices", full * 20);
         let vsum = ctx.storage_buffer("window sums", full * 20);
         let f32_buffer = |label: &str, w: &[f32]| {
             ctx.buffer_init(label, wgpu::BufferUsages::STORAGE, bytemuck::cast_slice(w))
         };
-        let (kern, ig) = poly_weights(params.poly_n, params.poly_sigma);
-        let kern_buf = f32_buffer("poly kernel", &kern);
         let (win, win_scale) = window_weights(params.winsize, params.gaussian);
         // The box window (box_cols, box_rows) binds no weights: entry 3 only when gaussian.
         let win_entries = if params.gaussian { 4 } else { 3 };
@@ -427,71 +673,9 @@ impl FarnebackGpu {
         let bind = |pipe: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
             ctx.bind("farneback", pipe, entries)
         };
-        let make_slot = |_: usize| -> FrameSlot {
-            let gray = ctx.storage_buffer("gray upload", full);
-            let r: Vec<wgpu::Buffer> = levels
-                .iter()
-                .map(|l| {
-                    ctx.storage_buffer("expansion", u64::from(l.width) * u64::from(l.height) * 20)
-                })
-                .collect();
-            let level_groups = levels
-                .iter()
-                .zip(&r)
-                .map(|(l, r_buf)| {
-                    let radius = (l.smooth.len() / 2) as u32;
-                    let smooth_w = f32_buffer("smooth weights", &l.smooth);
-                    let sp = ctx.uniform(
-                        "smooth params",
-                        &SmoothParams {
-                            width,
-                            height,
-                            stride: width,
-                            radius,
-                        },
-                    );
-                    let rp = ctx.uniform(
-                        "resize params",
-                        &ResizeParams::new((width, height), l, 1, 1.0),
-                    );
-                    let pp = ctx.uniform(
-                        "polyexp params",
-                        &PolyParams {
-                            width: l.width,
-                            height: l.height,
-                            n: params.poly_n,
-                            pad: 0,
-                            ig: [ig[0] as f32, ig[1] as f32, ig[2] as f32, ig[3] as f32],
-                        },
-                    );
-                    [
-                        bind(
-                            &pipes.smooth_rows,
-                            &[(0, &gray), (1, &tmp), (3, &smooth_w), (4, &sp)],
-                        ),
-                        bind(
-                            &pipes.smooth_cols,
-                            &[(1, &tmp), (2, &smoothed), (3, &smooth_w), (4, &sp)],
-                        ),
-                        bind(&pipes.resize, &[(0, &smoothed), (1, &img), (2, &rp)]),
-                        bind(
-                            &pipes.poly_cols,
-                            &[(0, &img), (1, &rows3), (3, &kern_buf), (4, &pp)],
-                        ),
-                        bind(
-                            &pipes.poly_rows,
-                            &[(1, &rows3), (2, r_buf), (3, &kern_buf), (4, &pp)],
-                        ),
-                    ]
-                })
-                .collect();
-            FrameSlot {
-                gray,
-                levels: level_groups,
-                r,
-            }
-        };
-        let slots: Vec<FrameSlot> = (0..SLOTS).map(make_slot).collect();
+        let slots: Vec<FrameSlot> = (0..SLOTS)
+            .map(|_| FrameSlot::new(&ctx, &pipes, &levels, &scratch))
+            .collect();
 
         let make_flows = |prev: &FrameSlot, next: &FrameSlot| -> Vec<LevelFlow> {
             levels
@@ -532,15 +716,17 @@ impl FarnebackGpu {
                     let cols = [(0, &m), (1, &vsum), (4, &fp), (3, &win_buf)];
                     let rows = [(1, &vsum), (2, &flow[k]), (4, &fp), (3, &win_buf)];
                     LevelFlow {
-                        matrices: ctx.bind(
+                        matrices: ctx.bind_resources(
                             "farneback",
                             &pipes.matrices,
                             &[
-                                (0, &prev.r[k]),
-                                (1, &next.r[k]),
-                                (2, &flow[k]),
-                                (3, &m),
-                                (4, &sz),
+                                (0, tv(&prev.ra[k])),
+                                (1, tv(&next.ra[k])),
+                                (5, tv(&prev.rb[k])),
+                                (6, tv(&next.rb[k])),
+                                (2, flow[k].as_entire_binding()),
+                                (3, m.as_entire_binding()),
+                                (4, sz.as_entire_binding()),
                             ],
                         ),
                         cols: bind(&pipes.flow_cols, &cols[..win_entries]),
@@ -561,6 +747,8 @@ impl FarnebackGpu {
             params,
             levels,
             pipes,
+            strip_rows,
+            scratch,
             slots,
             flows,
             flow,
@@ -568,43 +756,69 @@ impl FarnebackGpu {
         })
     }
 
-    fn encode_pyramid(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
-        let full = &self.levels[0];
-        let mut pass = compute_pass(enc, "farneback pyramid");
-        for (l, g) in self.levels.iter().zip(&self.slots[slot].levels) {
-            let f = groups16(full.width, full.height);
-            let lg = groups16(l.width, l.height);
-            let steps: [(&wgpu::ComputePipeline, (u32, u32)); 5] = [
-                (&self.pipes.smooth_rows, f),
-                (&self.pipes.smooth_cols, f),
-                (&self.pipes.resize, lg),
-                (&self.pipes.poly_cols, lg),
-                (&self.pipes.poly_rows, lg),
-            ];
-            for ((pipe, groups), bg) in steps.into_iter().zip(g) {
-                self.ctx.dispatch(&mut pass, pipe, bg, groups);
+    /// The dispatches that compute `slot`'s expansion pyramid, in order.
+    fn pyramid_steps(&self, slot: usize) -> Vec<Step<'_>> {
+        let s = &self.slots[slot];
+        let (w, h) = (self.levels[0].width, self.levels[0].height);
+        let by8 = |n: u32| n.div_ceil(8);
+        let mut steps = vec![Step {
+            kind: "level0",
+            pipe: &self.pipes.level0,
+            bg: &s.level0,
+            groups: (by8(w.div_ceil(16)), h.div_ceil(self.strip_rows)),
+        }];
+        for (k, l) in self.levels.iter().enumerate() {
+            if k > 0 {
+                let [v, hz] = &self.scratch.smooth[k - 1];
+                steps.push(Step {
+                    kind: "vsmooth",
+                    pipe: &self.pipes.vsmooth,
+                    bg: v,
+                    groups: (by8(texels(w)), l.height),
+                });
+                steps.push(Step {
+                    kind: "hsmooth",
+                    pipe: &self.pipes.hsmooth,
+                    bg: hz,
+                    groups: (by8(texels(l.width) + 2 * HALO), l.height),
+                });
             }
+            steps.push(Step {
+                kind: "polyexp",
+                pipe: &self.pipes.polyexp,
+                bg: &s.polyexp[k],
+                groups: (
+                    by8(l.width.div_ceil(16)),
+                    l.height.div_ceil(self.strip_rows),
+                ),
+            });
         }
+        steps
     }
 
-    fn encode_flow(&self, enc: &mut wgpu::CommandEncoder, from: usize, to: usize, initial: bool) {
+    /// The dispatches of the flow from slot `from` to slot `to`, coarsest level first.
+    fn flow_steps(&self, from: usize, to: usize) -> Vec<Step<'_>> {
         let Some((_, per_level)) = self.flows.iter().find(|(k, _)| *k == (from, to)) else {
-            return;
+            return Vec::new();
         };
-        let top = self.levels.len() - 1;
-        if !initial {
-            enc.clear_buffer(&self.flow[top], 0, None);
-        }
-        let mut pass = compute_pass(enc, "farneback flow");
-        for k in (0..=top).rev() {
-            let l = &self.levels[k];
-            let lf = &per_level[k];
+        let mut steps = Vec::new();
+        for (l, lf) in self.levels.iter().zip(per_level).rev() {
             let (x, y) = groups16(l.width, l.height);
             if let Some(up) = &lf.upsample {
-                self.ctx.dispatch(&mut pass, &self.pipes.resize, up, (x, y));
+                steps.push(Step {
+                    kind: "upsample",
+                    pipe: &self.pipes.resize,
+                    bg: up,
+                    groups: (x, y),
+                });
             }
-            self.ctx
-                .dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
+            let matrices = Step {
+                kind: "matrices",
+                pipe: &self.pipes.matrices,
+                bg: &lf.matrices,
+                groups: (x, y),
+            };
+            steps.push(matrices);
             let (cx, cy, rx, ry) = if self.params.gaussian {
                 (x, y, x, y)
             } else {
@@ -616,16 +830,68 @@ impl FarnebackGpu {
                 )
             };
             for i in 0..self.params.iterations {
-                self.ctx
-                    .dispatch(&mut pass, &self.pipes.flow_cols, &lf.cols, (cx, cy));
-                self.ctx
-                    .dispatch(&mut pass, &self.pipes.flow_rows, &lf.rows, (rx, ry));
+                steps.push(Step {
+                    kind: "window cols",
+                    pipe: &self.pipes.flow_cols,
+                    bg: &lf.cols,
+                    groups: (cx, cy),
+                });
+                steps.push(Step {
+                    kind: "window rows",
+                    pipe: &self.pipes.flow_rows,
+                    bg: &lf.rows,
+                    groups: (rx, ry),
+                });
                 if i + 1 < self.params.iterations {
-                    self.ctx
-                        .dispatch(&mut pass, &self.pipes.matrices, &lf.matrices, (x, y));
+                    steps.push(matrices);
                 }
             }
         }
+        steps
+    }
+
+    /// Records `steps` in one compute pass of `enc`.
+    fn encode(&self, enc: &mut wgpu::CommandEncoder, label: &str, steps: &[Step<'_>]) {
+        let mut pass = compute_pass(enc, label);
+        for s in steps {
+            self.ctx.dispatch(&mut pass, s.pipe, s.bg, s.groups);
+        }
+    }
+
+    /// Clears the coarsest level's flow (the start of a flow without an initial field).
+    fn clear_top(&self, enc: &mut wgpu::CommandEncoder) {
+        enc.clear_buffer(&self.flow[self.levels.len() - 1], 0, None);
+    }
+
+    /// Development aid: runs the pyramid of slot 0 and the flow from slot 0 to slot 1 (frames
+    /// loaded before) one dispatch at a time, waiting for each, `rounds` times; returns per
+    /// dispatch kind (in first-use order) the dispatches per pair and the mean ms per pair.
+    pub fn profile(&self, rounds: usize) -> Result<Vec<(&'static str, usize, f64)>> {
+        let mut out: Vec<(&'static str, usize, f64)> = Vec::new();
+        let steps = [self.pyramid_steps(0), self.flow_steps(0, 1)].concat();
+        let rounds = rounds.max(1);
+        for _ in 0..rounds {
+            let mut enc = self.ctx.encoder("farneback profile");
+            self.clear_top(&mut enc);
+            self.ctx.queue.submit([enc.finish()]);
+            self.ctx.wait()?;
+            for s in &steps {
+                let t = std::time::Instant::now();
+                let mut enc = self.ctx.encoder("farneback profile");
+                self.encode(&mut enc, "farneback profile", std::slice::from_ref(s));
+                self.ctx.queue.submit([enc.finish()]);
+                self.ctx.wait()?;
+                let ms = t.elapsed().as_secs_f64() * 1e3 / rounds as f64;
+                match out.iter_mut().find(|(k, _, _)| *k == s.kind) {
+                    Some(e) => e.2 += ms,
+                    None => out.push((s.kind, 0, ms)),
+                }
+            }
+        }
+        for (kind, n, _) in out.iter_mut() {
+            *n = steps.iter().filter(|s| s.kind == *kind).count();
+        }
+        Ok(out)
     }
 
     /// Uploads `gray` into `slot` and computes its expansion pyramid on the device.
@@ -639,7 +905,7 @@ impl FarnebackGpu {
         self.ctx
             .upload_mat(buf, gray, opencv::core::CV_8UC1, w, h, what, &mut self.pad)?;
         let mut enc = self.ctx.encoder("farneback pyramid");
-        self.encode_pyramid(&mut enc, slot);
+        self.encode(&mut enc, "farneback pyramid", &self.pyramid_steps(slot));
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
@@ -660,7 +926,7 @@ impl FarnebackGpu {
         }
         let mut enc = self.ctx.encoder("farneback pyramid");
         enc.copy_buffer_to_buffer(gray, 0, &self.slots[slot].gray, 0, bytes);
-        self.encode_pyramid(&mut enc, slot);
+        self.encode(&mut enc, "farneback pyramid", &self.pyramid_steps(slot));
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
@@ -719,7 +985,10 @@ impl FarnebackGpu {
                 .queue
                 .write_buffer(&self.flow[self.levels.len() - 1], 0, bytes);
         }
-        self.encode_flow(&mut enc, from, to, initial.is_some());
+        if initial.is_none() {
+            self.clear_top(&mut enc);
+        }
+        self.encode(&mut enc, "farneback flow", &self.flow_steps(from, to));
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
