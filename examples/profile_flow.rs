@@ -1,11 +1,30 @@
 //! Times the stages of the GPU Farneback (development aid): per dispatch kind, ms per frame pair
-//! (one pyramid + one flow, each dispatch waited for alone), at the sizes and parameter sets of
+//! (one pyramid + one flow, each dispatch waited for alone; CPU time of the process, which runs
+//! lavapipe's threads), at the sizes and parameter sets of
 //! `keyframer bench flow`, plus the whole pair streamed as `bench` runs it and OpenCV's time.
 //! Usage: `cargo run --release --example profile_flow [WIDTHxHEIGHT ...]` (default 640x360).
 use keyframer::kernels::farneback::{self, FarnebackGpu, FarnebackParams};
 use std::time::Instant;
 
+/// CPU time of all the process's threads (ms): lavapipe runs the dispatches on its own threads,
+/// and CPU time is far less disturbed by other processes than wall time.
+fn cpu_ms() -> f64 {
+    let mut ns = 0u64;
+    if let Ok(tasks) = std::fs::read_dir("/proc/self/task") {
+        for t in tasks.flatten() {
+            let stat = std::fs::read_to_string(t.path().join("schedstat")).unwrap_or_default();
+            ns += stat
+                .split_whitespace()
+                .next()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0);
+        }
+    }
+    ns as f64 / 1e6
+}
+
 fn main() -> anyhow::Result<()> {
+    env_logger::init();
     let sizes: Vec<(u32, u32)> = std::env::args()
         .skip(1)
         .filter_map(|a| {
@@ -35,13 +54,17 @@ fn main() -> anyhow::Result<()> {
                     .and_then(|m| keyframer::kernels::gray::opencv(&m))
             })
             .collect::<Result<_, _>>()?;
+        let only = std::env::var("PROFILE_ONLY").unwrap_or_default();
         for (label, p) in [("tutorial", tutorial), ("l5 w13 i10", heavy)] {
+            if !label.starts_with(only.as_str()) {
+                continue;
+            }
             let mut f = FarnebackGpu::new(ctx.clone(), p, w, h)?;
             f.load(0, &frames[0])?;
             f.load(1, &frames[1])?;
             f.flow_between(0, 1)?;
             ctx.wait()?;
-            let stages = f.profile(3)?;
+            let stages = f.profile(5, &cpu_ms)?;
             let rounds = 4;
             let t = Instant::now();
             for i in 0..rounds {

@@ -17,9 +17,10 @@
 //   beyond n weigh 0). Dispatch ceil(ceil(w_k / 16) / 8) x ceil(h_k / strip_rows).
 // Level images (`out4` of level0 / hsmooth, `src` of polyexp) carry HALO texels left and right
 // repeating the border pixels, and their pixels right of the width repeat the last one, so the
-// expansion reads its 7 neighbours without tests. Expansion R: `out4` texel per pixel = channels
-// 0..3 ([r_y, r_x, r_yy, r_xx] in OpenCV's order), `out2` per pixel = channel 4 (r_xy) of the
-// pixel and of its right neighbour (the bilinear sampling of the flow update reads both at once).
+// expansion reads its 7 neighbours without tests. Expansion R (`out4` of polyexp): texel 2 x =
+// channels 0..3 of pixel x ([r_y, r_x, r_yy, r_xx] in OpenCV's order), texel 2 x + 1 = channel 4
+// (r_xy) of pixel x and of its right neighbour (the bilinear sampling of the flow update reads
+// both at once).
 // Twin: cv::calcOpticalFlowFarneback (src/kernels/farneback.rs `opencv`).
 
 struct PyrParams {
@@ -56,9 +57,8 @@ const HALO: i32 = 2;
 @group(0) @binding(0) var<storage, read> gray: array<u32>;
 @group(0) @binding(1) var out4: texture_storage_2d<rgba32float, write>;
 @group(0) @binding(2) var out_gray: texture_storage_2d<rgba8uint, write>;
-@group(0) @binding(3) var gray_tex: texture_2d<u32>;
-@group(0) @binding(4) var src: texture_2d<f32>;
-@group(0) @binding(5) var out2: texture_storage_2d<rg32float, write>;
+@group(0) @binding(3) var gray_tex: texture_storage_2d<rgba8uint, read>;
+@group(0) @binding(4) var src: texture_storage_2d<rgba32float, read>;
 @group(0) @binding(6) var<uniform> params: PyrParams;
 @group(0) @binding(7) var<uniform> taps: Taps;
 
@@ -217,7 +217,7 @@ fn vsmooth(@builtin(global_invocation_id) gid: vec3<u32>) {
     var s0 = vec4<f32>(0.0);
     var s1 = vec4<f32>(0.0);
     for (var u = -r; u <= r + 1; u = u + 1) {
-        let g = vec4<f32>(textureLoad(gray_tex, vec2<i32>(t, reflect101(c.s + u, h)), 0));
+        let g = vec4<f32>(textureLoad(gray_tex, vec2<i32>(t, reflect101(c.s + u, h))));
         s0 = s0 + tap(u) * g;
         s1 = s1 + tap(u - 1) * g;
     }
@@ -227,7 +227,7 @@ fn vsmooth(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 // Pixel p of row `row` of the vertical smoothing.
 fn vert_at(p: i32, row: i32) -> f32 {
-    return pick(textureLoad(src, vec2<i32>(p >> 2u, row), 0), u32(p) & 3u);
+    return pick(textureLoad(src, vec2<i32>(p >> 2u, row)), u32(p) & 3u);
 }
 
 @compute @workgroup_size(8, 1, 1)
@@ -323,14 +323,14 @@ fn load_span(j: i32, y: i32) -> Span {
     let last = i32(textureDimensions(src).x) - 1;
     let x = 4 * j;
     return Span(
-        textureLoad(src, vec2<i32>(min(x, last), y), 0),
-        textureLoad(src, vec2<i32>(min(x + 1, last), y), 0),
-        textureLoad(src, vec2<i32>(min(x + 2, last), y), 0),
-        textureLoad(src, vec2<i32>(min(x + 3, last), y), 0),
-        textureLoad(src, vec2<i32>(min(x + 4, last), y), 0),
-        textureLoad(src, vec2<i32>(min(x + 5, last), y), 0),
-        textureLoad(src, vec2<i32>(min(x + 6, last), y), 0),
-        textureLoad(src, vec2<i32>(min(x + 7, last), y), 0),
+        textureLoad(src, vec2<i32>(min(x, last), y)),
+        textureLoad(src, vec2<i32>(min(x + 1, last), y)),
+        textureLoad(src, vec2<i32>(min(x + 2, last), y)),
+        textureLoad(src, vec2<i32>(min(x + 3, last), y)),
+        textureLoad(src, vec2<i32>(min(x + 4, last), y)),
+        textureLoad(src, vec2<i32>(min(x + 5, last), y)),
+        textureLoad(src, vec2<i32>(min(x + 6, last), y)),
+        textureLoad(src, vec2<i32>(min(x + 7, last), y)),
     );
 }
 
@@ -427,20 +427,21 @@ fn store_r(x0: i32, y: i32, b: Sums, next4: f32) {
     let c3 = b.b1 * ig.y + b.b4 * ig.z;
     let c4 = b.b6 * ig.w;
     let w = i32(params.dst_w);
-    textureStore(out4, vec2<i32>(x0, y), vec4<f32>(c0.x, c1.x, c2.x, c3.x));
-    textureStore(out2, vec2<i32>(x0, y), vec4<f32>(c4.x, c4.y, 0.0, 0.0));
+    store_px(x0, y, vec4<f32>(c0.x, c1.x, c2.x, c3.x), vec4<f32>(c4.x, c4.y, 0.0, 0.0));
     if (x0 + 1 < w) {
-        textureStore(out4, vec2<i32>(x0 + 1, y), vec4<f32>(c0.y, c1.y, c2.y, c3.y));
-        textureStore(out2, vec2<i32>(x0 + 1, y), vec4<f32>(c4.y, c4.z, 0.0, 0.0));
+        store_px(x0 + 1, y, vec4<f32>(c0.y, c1.y, c2.y, c3.y), vec4<f32>(c4.y, c4.z, 0.0, 0.0));
     }
     if (x0 + 2 < w) {
-        textureStore(out4, vec2<i32>(x0 + 2, y), vec4<f32>(c0.z, c1.z, c2.z, c3.z));
-        textureStore(out2, vec2<i32>(x0 + 2, y), vec4<f32>(c4.z, c4.w, 0.0, 0.0));
+        store_px(x0 + 2, y, vec4<f32>(c0.z, c1.z, c2.z, c3.z), vec4<f32>(c4.z, c4.w, 0.0, 0.0));
     }
     if (x0 + 3 < w) {
-        textureStore(out4, vec2<i32>(x0 + 3, y), vec4<f32>(c0.w, c1.w, c2.w, c3.w));
-        textureStore(out2, vec2<i32>(x0 + 3, y), vec4<f32>(c4.w, next4, 0.0, 0.0));
+        store_px(x0 + 3, y, vec4<f32>(c0.w, c1.w, c2.w, c3.w), vec4<f32>(c4.w, next4, 0.0, 0.0));
     }
+}
+
+fn store_px(x: i32, y: i32, a: vec4<f32>, b: vec4<f32>) {
+    textureStore(out4, vec2<i32>(2 * x, y), a);
+    textureStore(out4, vec2<i32>(2 * x + 1, y), b);
 }
 
 @compute @workgroup_size(8, 1, 1)

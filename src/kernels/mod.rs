@@ -17,8 +17,6 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("tenengrad", tenengrad::WGSL),
     ("laplacian", laplacian::WGSL),
     ("farneback_pyramid", farneback::PYRAMID_WGSL),
-    ("farneback_resize", farneback::RESIZE_WGSL),
-    ("farneback_matrices", farneback::MATRICES_WGSL),
     ("farneback_flow", farneback::FLOW_WGSL),
     ("movement", movement::WGSL),
     ("resize_area", resize_area::WGSL),
