@@ -64,9 +64,12 @@ fn main() -> anyhow::Result<()> {
             f.load(1, &frames[1])?;
             f.flow_between(0, 1)?;
             ctx.wait()?;
-            let stages = f.profile(5, &cpu_ms)?;
-            let rounds = 4;
-            let t = Instant::now();
+            let rounds = std::env::var("PROFILE_ROUNDS")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(5);
+            let stages = f.profile(rounds, &cpu_ms)?;
+            let (t, c0) = (Instant::now(), cpu_ms());
             for i in 0..rounds {
                 let (from, to) = (i % 2, (i + 1) % 2);
                 f.load(to, &frames[to])?;
@@ -74,10 +77,16 @@ fn main() -> anyhow::Result<()> {
             }
             ctx.wait()?;
             let streamed = t.elapsed().as_secs_f64() * 1e3 / rounds as f64;
-            let t = Instant::now();
-            farneback::opencv(&frames[0], &frames[1], &p, None)?;
-            let cv = t.elapsed().as_secs_f64() * 1e3;
-            println!("{w}x{h} {label}: streamed {streamed:.1} ms/pair, opencv {cv:.1} ms");
+            let streamed_cpu = (cpu_ms() - c0) / rounds as f64;
+            let (t, c) = (Instant::now(), cpu_ms());
+            for _ in 0..rounds {
+                farneback::opencv(&frames[0], &frames[1], &p, None)?;
+            }
+            let cv = t.elapsed().as_secs_f64() * 1e3 / rounds as f64;
+            let cv_cpu = (cpu_ms() - c) / rounds as f64;
+            println!(
+                "{w}x{h} {label}: streamed {streamed:.1} ms/pair ({streamed_cpu:.1} ms CPU), opencv {cv:.1} ms ({cv_cpu:.1} ms CPU)"
+            );
             let total: f64 = stages.iter().map(|s| s.2).sum();
             for (kind, n, ms) in &stages {
                 println!("  {kind:>12}: {n:>3} dispatches {ms:>8.2} ms");

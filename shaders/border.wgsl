@@ -32,14 +32,10 @@ fn pick(v: vec4<f32>, c: u32) -> f32 {
 
 // Texel `t` of a row of `w` pixels with BORDER_REPLICATE beyond the row: texels left of the row
 // repeat pixel 0 (component x of texel 0, `v` when t < 0), pixels at and right of `w` repeat
-// pixel w - 1 (`v` is then the row's last texel, fetched with t clamped).
+// pixel w - 1 (`v` is then the row's last texel, fetched with t clamped). Branch free: llvmpipe
+// runs both sides of a branch that differs between lanes.
 fn replicate4(v: vec4<f32>, t: i32, w: i32) -> vec4<f32> {
-    if (t < 0) {
-        return vec4<f32>(v.x);
-    }
     let p = vec4<i32>(4 * t) + vec4<i32>(0, 1, 2, 3);
-    if (p.w < w) {
-        return v;
-    }
-    return select(v, vec4<f32>(pick(v, u32(w - 1) & 3u)), p >= vec4<i32>(w));
+    let c = select(u32(w - 1) & 3u, 0u, t < 0);
+    return select(v, vec4<f32>(pick(v, c)), p >= vec4<i32>(w) | vec4<bool>(t < 0));
 }

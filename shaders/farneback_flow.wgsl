@@ -18,8 +18,9 @@
 //   Dispatch ceil(ceil(w / 4) / 8) x h.
 // - `vbox` / `vgauss`: vertical window of M into VS, one texel column and strip_rows rows per
 //   invocation (vbox: running sums). Dispatch ceil((ceil(w / 4) + 2 halo) / 8) x ceil(h / strip_rows).
-// - `hbox` / `hgauss`: horizontal window of VS, solve, then M (or, with `last`, the flow), `run`
-//   texels per invocation (hbox: running sums). Dispatch ceil(ceil(ceil(w / 4) / run) / 8) x h.
+// - `hbox0`..`hbox3` (radius & 3) / `hgauss`: horizontal window of VS, solve, then M (or, with
+//   `last`, the flow), `run` texels per invocation (hbox: running sums). Dispatch
+//   ceil(ceil(ceil(w / 4) / run) / 8) x h.
 // Twin: cv::calcOpticalFlowFarneback (src/kernels/farneback.rs `opencv`).
 
 struct FlowParams {
@@ -102,14 +103,15 @@ fn tap(i: i32) -> f32 {
 
 // ---- matrices ----
 
-// OpenCV's border damping of a pixel i pixels from the edge (1 from 5 on).
-fn border_weight(i: i32) -> f32 {
-    return select(select(0.4472, 0.14, i < 2), 1.0, i >= 5);
+// OpenCV's border damping of pixels i pixels from the edge (1 from 5 on).
+fn border_weight(i: vec4<i32>) -> vec4<f32> {
+    return select(select(vec4<f32>(0.4472), vec4<f32>(0.14), i < vec4<i32>(2)), vec4<f32>(1.0),
+                  i >= vec4<i32>(5));
 }
 
 // M of pixel (x, y) with flow d (FarnebackUpdateMatrices for one pixel); a0 = R0 channels 0..3
-// of the pixel, e0 = its channel 4.
-fn matrices(x: i32, y: i32, d: vec2<f32>, a0: vec4<f32>, e0: f32) -> array<f32, 5> {
+// of the pixel, e0 = its channel 4, s = its border damping factor.
+fn matrices(x: i32, y: i32, d: vec2<f32>, a0: vec4<f32>, e0: f32, s: f32) -> array<f32, 5> {
     let w = i32(params.width);
     let h = i32(params.height);
     var fx = f32(x) + d.x;
@@ -118,34 +120,31 @@ fn matrices(x: i32, y: i32, d: vec2<f32>, a0: vec4<f32>, e0: f32) -> array<f32, 
     let y1 = i32(floor(fy));
     fx = fx - f32(x1);
     fy = fy - f32(y1);
-    var r2 = 0.0;
-    var r3 = 0.0;
-    var r4 = a0.z;
-    var r5 = a0.w;
-    var r6 = e0 * 0.5;
-    if (x1 >= 0 && x1 < w - 1 && y1 >= 0 && y1 < h - 1) {
-        let a00 = (1.0 - fx) * (1.0 - fy);
-        let a01 = fx * (1.0 - fy);
-        let a10 = (1.0 - fx) * fy;
-        let a11 = fx * fy;
-        let q = a00 * textureLoad(r1, vec2<i32>(2 * x1, y1))
-            + a01 * textureLoad(r1, vec2<i32>(2 * x1 + 2, y1))
-            + a10 * textureLoad(r1, vec2<i32>(2 * x1, y1 + 1))
-            + a11 * textureLoad(r1, vec2<i32>(2 * x1 + 2, y1 + 1));
-        let e_0 = textureLoad(r1, vec2<i32>(2 * x1 + 1, y1));
-        let e_1 = textureLoad(r1, vec2<i32>(2 * x1 + 1, y1 + 1));
-        r2 = q.x;
-        r3 = q.y;
-        r4 = (a0.z + q.z) * 0.5;
-        r5 = (a0.w + q.w) * 0.5;
-        r6 = (e0 + (a00 * e_0.x + a01 * e_0.y + a10 * e_1.x + a11 * e_1.y)) * 0.25;
-    }
+    // R1 around the moved pixel, read at a clamped place and used only inside (branch free).
+    let inside = x1 >= 0 && x1 < w - 1 && y1 >= 0 && y1 < h - 1;
+    let cx = clamp(x1, 0, w - 2);
+    let cy = clamp(y1, 0, h - 2);
+    let a00 = (1.0 - fx) * (1.0 - fy);
+    let a01 = fx * (1.0 - fy);
+    let a10 = (1.0 - fx) * fy;
+    let a11 = fx * fy;
+    let q = a00 * textureLoad(r1, vec2<i32>(2 * cx, cy))
+        + a01 * textureLoad(r1, vec2<i32>(2 * cx + 2, cy))
+        + a10 * textureLoad(r1, vec2<i32>(2 * cx, cy + 1))
+        + a11 * textureLoad(r1, vec2<i32>(2 * cx + 2, cy + 1));
+    let e_0 = textureLoad(r1, vec2<i32>(2 * cx + 1, cy));
+    let e_1 = textureLoad(r1, vec2<i32>(2 * cx + 1, cy + 1));
+    let e = a00 * e_0.x + a01 * e_0.y + a10 * e_1.x + a11 * e_1.y;
+    var r2 = select(0.0, q.x, inside);
+    var r3 = select(0.0, q.y, inside);
+    var r4 = select(a0.z, (a0.z + q.z) * 0.5, inside);
+    var r5 = select(a0.w, (a0.w + q.w) * 0.5, inside);
+    var r6 = select(e0 * 0.5, (e0 + e) * 0.25, inside);
     r2 = (a0.x - r2) * 0.5;
     r3 = (a0.y - r3) * 0.5;
     r2 = r2 + r4 * d.y + r6 * d.x;
     r3 = r3 + r6 * d.y + r5 * d.x;
     // OpenCV multiplies only near the border; a factor of 1 changes nothing elsewhere.
-    let s = border_weight(x) * border_weight(w - x - 1) * border_weight(y) * border_weight(h - y - 1);
     r2 = r2 * s;
     r3 = r3 * s;
     r4 = r4 * s;
@@ -158,14 +157,18 @@ fn matrices(x: i32, y: i32, d: vec2<f32>, a0: vec4<f32>, e0: f32) -> array<f32, 
 // Writes M of texel t of row y (pixels right of the width are clamped to the last one) for the
 // flow (u, v) of its four pixels.
 fn store_matrices(t: i32, y: i32, u: vec4<f32>, v: vec4<f32>) {
-    let last = i32(params.width) - 1;
-    let x = min(vec4<i32>(4 * t) + vec4<i32>(0, 1, 2, 3), vec4<i32>(last));
+    let w = i32(params.width);
+    let h = i32(params.height);
+    let x = min(vec4<i32>(4 * t) + vec4<i32>(0, 1, 2, 3), vec4<i32>(w - 1));
+    // ((left * right) * top) * bottom, OpenCV's order.
+    let by = border_weight(vec4<i32>(y, h - y - 1, 5, 5));
+    let s = border_weight(x) * border_weight(vec4<i32>(w - 1) - x) * by.x * by.y;
     let e01 = textureLoad(r0, vec2<i32>(2 * x.x + 1, y));
     let e23 = textureLoad(r0, vec2<i32>(2 * x.z + 1, y));
-    let a = matrices(x.x, y, vec2<f32>(u.x, v.x), textureLoad(r0, vec2<i32>(2 * x.x, y)), e01.x);
-    let b = matrices(x.y, y, vec2<f32>(u.y, v.y), textureLoad(r0, vec2<i32>(2 * x.y, y)), e01.y);
-    let c = matrices(x.z, y, vec2<f32>(u.z, v.z), textureLoad(r0, vec2<i32>(2 * x.z, y)), e23.x);
-    let d = matrices(x.w, y, vec2<f32>(u.w, v.w), textureLoad(r0, vec2<i32>(2 * x.w, y)), e23.y);
+    let a = matrices(x.x, y, vec2<f32>(u.x, v.x), textureLoad(r0, vec2<i32>(2 * x.x, y)), e01.x, s.x);
+    let b = matrices(x.y, y, vec2<f32>(u.y, v.y), textureLoad(r0, vec2<i32>(2 * x.y, y)), e01.y, s.y);
+    let c = matrices(x.z, y, vec2<f32>(u.z, v.z), textureLoad(r0, vec2<i32>(2 * x.z, y)), e23.x, s.z);
+    let d = matrices(x.w, y, vec2<f32>(u.w, v.w), textureLoad(r0, vec2<i32>(2 * x.w, y)), e23.y, s.w);
     textureStore(m_out, vec2<i32>(7 * t, y), vec4<f32>(a[0], b[0], c[0], d[0]));
     textureStore(m_out, vec2<i32>(7 * t + 1, y), vec4<f32>(a[1], b[1], c[1], d[1]));
     textureStore(m_out, vec2<i32>(7 * t + 2, y), vec4<f32>(a[2], b[2], c[2], d[2]));
@@ -246,22 +249,30 @@ fn start(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 // ---- vertical window ----
 
-// M of texel t (any, borders replicated) of row y (clamped into the level).
+// The raw M of texel t (clamped into the row) of row y (clamped into the level); `replicated`
+// turns sums of such texels into those of the replicated border.
 fn m_at(t: i32, y: i32) -> M4 {
-    let n = texels_per_row();
-    let w = i32(params.width);
     let yy = clamp(y, 0, i32(params.height) - 1);
-    let x = 7 * clamp(t, 0, n - 1);
+    let x = 7 * clamp(t, 0, texels_per_row() - 1);
     return M4(
-        replicate4(textureLoad(m_in, vec2<i32>(x, yy)), t, w),
-        replicate4(textureLoad(m_in, vec2<i32>(x + 1, yy)), t, w),
-        replicate4(textureLoad(m_in, vec2<i32>(x + 2, yy)), t, w),
-        replicate4(textureLoad(m_in, vec2<i32>(x + 3, yy)), t, w),
-        replicate4(textureLoad(m_in, vec2<i32>(x + 4, yy)), t, w),
+        textureLoad(m_in, vec2<i32>(x, yy)),
+        textureLoad(m_in, vec2<i32>(x + 1, yy)),
+        textureLoad(m_in, vec2<i32>(x + 2, yy)),
+        textureLoad(m_in, vec2<i32>(x + 3, yy)),
+        textureLoad(m_in, vec2<i32>(x + 4, yy)),
     );
 }
 
-fn store_vs(t: i32, y: i32, s: M4) {
+// Sums of m_at(t, ..) as the sums of texel t with BORDER_REPLICATE (see `replicate4`): a
+// selection of components, so fixing the sum equals summing the fixed texels.
+fn replicated(s: M4, t: i32) -> M4 {
+    let w = i32(params.width);
+    return M4(replicate4(s.c0, t, w), replicate4(s.c1, t, w), replicate4(s.c2, t, w),
+              replicate4(s.c3, t, w), replicate4(s.c4, t, w));
+}
+
+fn store_vs(t: i32, y: i32, v: M4) {
+    let s = replicated(v, t);
     let x = 5 * (t + i32(params.halo));
     textureStore(vs_out, vec2<i32>(x, y), s.c0);
     textureStore(vs_out, vec2<i32>(x + 1, y), s.c1);
@@ -373,8 +384,9 @@ fn solve(t: i32, y: i32, b: M4) {
     }
 }
 
-@compute @workgroup_size(8, 1, 1)
-fn hbox(@builtin(global_invocation_id) gid: vec3<u32>) {
+// The box window of one run; se = radius & 3 (a constant in each entry point, so the texel
+// shifts are swizzles).
+fn hbox_run(gid: vec3<u32>, se: u32) {
     let n = texels_per_row();
     let t0 = i32(gid.x * params.run);
     let y = i32(gid.y);
@@ -395,8 +407,7 @@ fn hbox(@builtin(global_invocation_id) gid: vec3<u32>) {
         s4 = s4 + dot(v.c4, inside);
     }
     // Pixel x adds VS at x + m and drops VS at x - m - 1: texel pairs slid one texel per step.
-    let se = u32(m) & 3u;
-    let sl = u32(-m - 1) & 3u;
+    let sl = 3u - se;
     var e_prev = vs_at((4 * t0 + m) >> 2u, y);
     var l_prev = vs_at((4 * t0 - m - 1) >> 2u, y);
     for (var t = t0; t < t1; t = t + 1) {
@@ -411,6 +422,26 @@ fn hbox(@builtin(global_invocation_id) gid: vec3<u32>) {
         e_prev = e_next;
         l_prev = l_next;
     }
+}
+
+@compute @workgroup_size(8, 1, 1)
+fn hbox0(@builtin(global_invocation_id) gid: vec3<u32>) {
+    hbox_run(gid, 0u);
+}
+
+@compute @workgroup_size(8, 1, 1)
+fn hbox1(@builtin(global_invocation_id) gid: vec3<u32>) {
+    hbox_run(gid, 1u);
+}
+
+@compute @workgroup_size(8, 1, 1)
+fn hbox2(@builtin(global_invocation_id) gid: vec3<u32>) {
+    hbox_run(gid, 2u);
+}
+
+@compute @workgroup_size(8, 1, 1)
+fn hbox3(@builtin(global_invocation_id) gid: vec3<u32>) {
+    hbox_run(gid, 3u);
 }
 
 @compute @workgroup_size(8, 1, 1)

@@ -12,12 +12,12 @@
 // - `hsmooth` (level k > 0): the horizontal part at the two source columns of each destination
 //   pixel, then the bilinear weights; the horizontal tap loop covers both columns at once.
 //   Dispatch ceil((ceil(w_k / 4) + 2 HALO) / 8) x h_k.
-// - `polyexp`: the expansion of one level in strips of 16 pixels x strip_rows rows: per row the
-//   vertical sums of 32 pixels, then the horizontal taps (unrolled, constant offsets, taps
-//   beyond n weigh 0). Dispatch ceil(ceil(w_k / 16) / 8) x ceil(h_k / strip_rows).
-// Level images (`out4` of level0 / hsmooth, `src` of polyexp) carry HALO texels left and right
+// - `polyexp5`, `polyexp7` (n): the expansion of one level in strips of 16 pixels x strip_rows
+//   rows: per row the vertical sums of 32 pixels, then the horizontal taps (unrolled, constant
+//   offsets). Dispatch ceil(ceil(w_k / 16) / 8) x ceil(h_k / strip_rows).
+// Level images (`out4` of level0 / hsmooth, `src` of polyexp*) carry HALO texels left and right
 // repeating the border pixels, and their pixels right of the width repeat the last one, so the
-// expansion reads its 7 neighbours without tests. Expansion R (`out4` of polyexp): texel 2 x =
+// expansion reads its 7 neighbours without tests. Expansion R (`out4` of polyexp*): texel 2 x =
 // channels 0..3 of pixel x ([r_y, r_x, r_yy, r_xx] in OpenCV's order), texel 2 x + 1 = channel 4
 // (r_xy) of pixel x and of its right neighbour (the bilinear sampling of the flow update reads
 // both at once).
@@ -133,25 +133,35 @@ fn row121(g: GrayRow) -> array<vec4<f32>, 4> {
     );
 }
 
-// Stores texel i (0..3) of strip k of row y: the level image (with its halo) and the gray.
+// Stores texel i (0..3) of strip k of row y: the level image and the gray.
 fn store_level0(k: i32, y: i32, i: i32, v: vec4<f32>, g: vec4<f32>) {
+    let t = 4 * k + i;
+    if (t < (i32(params.src_w) + 3) / 4) {
+        textureStore(out4, vec2<i32>(t + HALO, y), replicate4(v, t, i32(params.src_w)));
+        textureStore(out_gray, vec2<i32>(t, y), vec4<u32>(g));
+    }
+}
+
+// The level image's halo of row y: `first` (pixel 0) left, `last` (pixel w - 1) right; stored
+// by the strips holding those pixels.
+fn store_halo(k: i32, y: i32, first: f32, last: f32) {
     let w = i32(params.src_w);
     let w4 = (w + 3) / 4;
-    let t = 4 * k + i;
-    if (t >= w4) {
-        return;
+    if (k == 0) {
+        textureStore(out4, vec2<i32>(0, y), vec4<f32>(first));
+        textureStore(out4, vec2<i32>(1, y), vec4<f32>(first));
     }
-    let out = replicate4(v, t, w);
-    textureStore(out4, vec2<i32>(t + HALO, y), out);
-    textureStore(out_gray, vec2<i32>(t, y), vec4<u32>(g));
-    if (t == 0) {
-        textureStore(out4, vec2<i32>(0, y), vec4<f32>(out.x));
-        textureStore(out4, vec2<i32>(1, y), vec4<f32>(out.x));
+    if ((w - 1) / 16 == k) {
+        textureStore(out4, vec2<i32>(w4 + HALO, y), vec4<f32>(last));
+        textureStore(out4, vec2<i32>(w4 + HALO + 1, y), vec4<f32>(last));
     }
-    if (t == w4 - 1) {
-        textureStore(out4, vec2<i32>(w4 + HALO, y), vec4<f32>(out.w));
-        textureStore(out4, vec2<i32>(w4 + HALO + 1, y), vec4<f32>(out.w));
-    }
+}
+
+// Pixel i (0..15) of four texels.
+fn pick16(a: vec4<f32>, b: vec4<f32>, c: vec4<f32>, d: vec4<f32>, i: u32) -> f32 {
+    let q = i & 3u;
+    return select(select(pick(a, q), pick(b, q), i >= 4u), select(pick(c, q), pick(d, q), i >= 12u),
+                  i >= 8u);
 }
 
 @compute @workgroup_size(8, 1, 1)
@@ -170,10 +180,15 @@ fn level0(@builtin(global_invocation_id) gid: vec3<u32>) {
         let below = gray_row(k, reflect101(y + 1, h));
         let c = row121(below);
         let s = 1.0 / 16.0;
-        store_level0(k, y, 0, (a[0] + 2.0 * b[0] + c[0]) * s, mid.p0);
-        store_level0(k, y, 1, (a[1] + 2.0 * b[1] + c[1]) * s, mid.p1);
-        store_level0(k, y, 2, (a[2] + 2.0 * b[2] + c[2]) * s, mid.p2);
-        store_level0(k, y, 3, (a[3] + 2.0 * b[3] + c[3]) * s, mid.p3);
+        let v0 = (a[0] + 2.0 * b[0] + c[0]) * s;
+        let v1 = (a[1] + 2.0 * b[1] + c[1]) * s;
+        let v2 = (a[2] + 2.0 * b[2] + c[2]) * s;
+        let v3 = (a[3] + 2.0 * b[3] + c[3]) * s;
+        store_level0(k, y, 0, v0, mid.p0);
+        store_level0(k, y, 1, v1, mid.p1);
+        store_level0(k, y, 2, v2, mid.p2);
+        store_level0(k, y, 3, v3, mid.p3);
+        store_halo(k, y, v0.x, pick16(v0, v1, v2, v3, u32(i32(params.src_w) - 1 - 16 * k) & 15u));
         a = b;
         b = c;
         mid = below;
@@ -402,8 +417,8 @@ fn htap(b: Sums, v: Vert, c: u32, k: u32) -> Sums {
     );
 }
 
-// b1..b6 of the four pixels at span offset c (constant).
-fn horizontal(v: Vert, c: u32) -> Sums {
+// b1..b6 of the four pixels at span offset c (constant) for n = 5 or 7 (constant).
+fn horizontal(v: Vert, c: u32, n: u32) -> Sums {
     let g0 = params.poly[0].x;
     var b = Sums(px4(v.g, c) * g0, vec4<f32>(0.0), px4(v.xg, c) * g0, vec4<f32>(0.0),
                  px4(v.xxg, c) * g0, vec4<f32>(0.0));
@@ -412,8 +427,10 @@ fn horizontal(v: Vert, c: u32) -> Sums {
     b = htap(b, v, c, 3u);
     b = htap(b, v, c, 4u);
     b = htap(b, v, c, 5u);
-    b = htap(b, v, c, 6u);
-    b = htap(b, v, c, 7u);
+    if (n == 7u) {
+        b = htap(b, v, c, 6u);
+        b = htap(b, v, c, 7u);
+    }
     return b;
 }
 
@@ -445,7 +462,17 @@ fn store_px(x: i32, y: i32, a: vec4<f32>, b: vec4<f32>) {
 }
 
 @compute @workgroup_size(8, 1, 1)
-fn polyexp(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn polyexp5(@builtin(global_invocation_id) gid: vec3<u32>) {
+    polyexp_strip(gid, 5u);
+}
+
+@compute @workgroup_size(8, 1, 1)
+fn polyexp7(@builtin(global_invocation_id) gid: vec3<u32>) {
+    polyexp_strip(gid, 7u);
+}
+
+// The expansion of one strip for n = 5 or 7 (constant in each entry point).
+fn polyexp_strip(gid: vec3<u32>, n: u32) {
     let j = i32(gid.x);
     let w = i32(params.dst_w);
     let h = i32(params.dst_h);
@@ -457,11 +484,11 @@ fn polyexp(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x0 = 16 * j;
     for (var y = y0; y < y1; y = y + 1) {
         let v = vertical(j, y);
-        let b0 = horizontal(v, 8u);
-        let b1 = horizontal(v, 12u);
-        let b2 = horizontal(v, 16u);
-        let b3 = horizontal(v, 20u);
-        let next = horizontal(v, 24u).b6.x * params.ig.w;
+        let b0 = horizontal(v, 8u, n);
+        let b1 = horizontal(v, 12u, n);
+        let b2 = horizontal(v, 16u, n);
+        let b3 = horizontal(v, 20u, n);
+        let next = horizontal(v, 24u, n).b6.x * params.ig.w;
         store_r(x0, y, b0, b1.b6.x * params.ig.w);
         if (x0 + 4 < w) {
             store_r(x0 + 4, y, b1, b2.b6.x * params.ig.w);

@@ -354,18 +354,27 @@ struct Pipes {
 }
 
 impl Pipes {
-    fn new(ctx: &GpuContext, gaussian: bool) -> Result<Pipes> {
+    fn new(ctx: &GpuContext, params: &FarnebackParams) -> Result<Pipes> {
         let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
-        let (cols, rows) = if gaussian {
+        let hbox = ["hbox0", "hbox1", "hbox2", "hbox3"][(params.winsize / 2 % 4) as usize];
+        let (cols, rows) = if params.gaussian {
             ("vgauss", "hgauss")
         } else {
-            ("vbox", "hbox")
+            ("vbox", hbox)
         };
         Ok(Pipes {
             level0: p("farneback_pyramid", PYRAMID_WGSL, "level0")?,
             vsmooth: p("farneback_pyramid", PYRAMID_WGSL, "vsmooth")?,
             hsmooth: p("farneback_pyramid", PYRAMID_WGSL, "hsmooth")?,
-            polyexp: p("farneback_pyramid", PYRAMID_WGSL, "polyexp")?,
+            polyexp: p(
+                "farneback_pyramid",
+                PYRAMID_WGSL,
+                if params.poly_n == 7 {
+                    "polyexp7"
+                } else {
+                    "polyexp5"
+                },
+            )?,
             start: p("farneback_flow", FLOW_WGSL, "start")?,
             vwin: p("farneback_flow", FLOW_WGSL, cols)?,
             hwin: p("farneback_flow", FLOW_WGSL, rows)?,
@@ -784,14 +793,14 @@ impl FarnebackGpu {
         };
         let n = texels(width);
         let halo = window_halo(params.winsize);
-        if 5 * (n + 2 * halo) > max {
+        if 5 * (n + 2 * halo) > max || 7 * n > max {
             return Err(Error::Gpu(format!(
                 "Farneback at width {width} with winsize {} needs {} texel wide textures; this adapter allows {max}",
                 params.winsize,
                 5 * (n + 2 * halo)
             )));
         }
-        let pipes = Pipes::new(&ctx, params.gaussian)?;
+        let pipes = Pipes::new(&ctx, &params)?;
         let scratch = PyramidScratch::new(&ctx, &pipes, &levels, &params, strip_rows)?;
         let slots: Vec<FrameSlot> = (0..SLOTS)
             .map(|_| FrameSlot::new(&ctx, &pipes, &levels, &scratch))
