@@ -19,6 +19,8 @@
 
 use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
+use time::format_description::well_known::Rfc3339;
+use time::OffsetDateTime;
 
 /// One telemetry entry.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -39,7 +41,8 @@ pub struct Fix {
     /// Exposure time, seconds.
     pub shutter_s: Option<f64>,
     pub fnum: Option<f64>,
-    /// Line of the entry's time line in its file (for messages).
+    /// Where the fix is in its file, for messages: an SRT entry's time line, a GPX track point's
+    /// number (from 1, over all tracks and segments), 0 for an image's EXIF.
     pub line: usize,
 }
 
@@ -48,7 +51,7 @@ pub struct Fix {
 pub struct Track {
     pub path: PathBuf,
     pub fixes: Vec<Fix>,
-    /// `FILE:LINE: what` for every entry skipped or suspicious.
+    /// `FILE:line N: what` (GPX: `FILE:point N: what`) for every entry skipped or suspicious.
     pub warnings: Vec<String>,
 }
 
@@ -106,10 +109,18 @@ pub fn parse_dji_srt(path: &Path, text: &str) -> Track {
             Ok(fix) => track.fixes.push(fix),
             Err(why) => track
                 .warnings
-                .push(format!("{name}:{line}: {why} (entry skipped)")),
+                .push(format!("{name}:line {line}: {why} (entry skipped)")),
         }
         i = end;
     }
+    check_order_and_jumps(&mut track, "line");
+    track
+}
+
+/// Sorts the fixes by time (warning when they were not) and warns of every jump between
+/// consecutive fixes (`unit` names what `Fix::line` counts).
+fn check_order_and_jumps(track: &mut Track, unit: &str) {
+    let name = track.path.display().to_string();
     if !track.fixes.windows(2).all(|w| w[0].t_s <= w[1].t_s) {
         track
             .warnings
@@ -120,7 +131,7 @@ pub fn parse_dji_srt(path: &Path, text: &str) -> Track {
         let d = distance_m(&w[0], &w[1]);
         if d > JUMP_M_PER_S * (w[1].t_s - w[0].t_s).max(1.0) {
             track.warnings.push(format!(
-                "{name}:{}: the position jumps {:.0} m from line {} in {:.3} s",
+                "{name}:{unit} {}: the position jumps {:.0} m from {unit} {} in {:.3} s",
                 w[1].line,
                 d,
                 w[0].line,
@@ -128,7 +139,140 @@ pub fn parse_dji_srt(path: &Path, text: &str) -> Track {
             ));
         }
     }
-    track
+}
+
+/// Reads the track points of a GPX file (every track and segment) as fixes timed in seconds
+/// from `start` (the video's creation time) plus `offset_s` (`--telemetry-offset`, to correct
+/// the camera's clock): a point at `start + offset_s` is at the video's first frame. Points
+/// without a time are skipped with a warning. Fails when the file cannot be read or parsed, or
+/// holds no timed point.
+pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Track> {
+    let file = std::fs::File::open(path).map_err(|source| Error::Io {
+        path: path.into(),
+        source,
+    })?;
+    let gpx = gpx::read(std::io::BufReader::new(file))
+        .map_err(|e| Error::input(path, format!("not a readable GPX file: {e}")))?;
+    let mut track = Track {
+        path: path.into(),
+        fixes: Vec::new(),
+        warnings: Vec::new(),
+    };
+    let points = gpx
+        .tracks
+        .iter()
+        .flat_map(|t| &t.segments)
+        .flat_map(|s| &s.points);
+    for (k, p) in points.enumerate() {
+        let Some(time) = p.time else {
+            let msg = format!("{}:point {}: no time (skipped)", path.display(), k + 1);
+            track.warnings.push(msg);
+            continue;
+        };
+        let t = OffsetDateTime::from(time) - start;
+        let pos = p.point();
+        track.fixes.push(Fix {
+            t_s: t.as_seconds_f64() - offset_s,
+            lat_deg: pos.y(),
+            lon_deg: pos.x(),
+            rel_alt_m: None,
+            abs_alt_m: p.elevation,
+            focal_35mm: None,
+            gimbal_pitch_deg: None,
+            iso: None,
+            shutter_s: None,
+            fnum: None,
+            line: k + 1,
+        });
+    }
+    if track.fixes.is_empty() {
+        return Err(Error::input(path, "no track point with a time"));
+    }
+    check_order_and_jumps(&mut track, "point");
+    Ok(track)
+}
+
+/// The creation time a video's container records (`ffprobe` format tag `creation_time`), which
+/// GPX tracks are aligned by; `None` when the container has none.
+pub fn creation_time(video: &Path) -> Result<Option<OffsetDateTime>> {
+    let out = std::process::Command::new("ffprobe")
+        .args(["-v", "error", "-show_entries", "format_tags=creation_time"])
+        .args(["-of", "default=noprint_wrappers=1:nokey=1"])
+        .arg(video)
+        .output()
+        .map_err(|e| Error::input(video, format!("cannot run ffprobe: {e}")))?;
+    if !out.status.success() {
+        return Err(Error::input(video, "ffprobe cannot read the container"));
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    Ok(text
+        .lines()
+        .find_map(|l| OffsetDateTime::parse(l.trim(), &Rfc3339).ok()))
+}
+
+/// The EXIF GPS position of one image (and its 35 mm focal length), `None` when it has none;
+/// an unreadable EXIF block is an error naming the image.
+pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
+    use exif::{In, Tag, Value};
+    let file = std::fs::File::open(image).map_err(|source| Error::Io {
+        path: image.into(),
+        source,
+    })?;
+    let exif = match exif::Reader::new().read_from_container(&mut std::io::BufReader::new(file)) {
+        Ok(e) => e,
+        Err(exif::Error::NotFound(_)) => return Ok(None),
+        Err(e) => return Err(Error::input(image, format!("unreadable EXIF: {e}"))),
+    };
+    let field = |t: Tag| exif.get_field(t, In::PRIMARY).map(|f| &f.value);
+    let degrees = |t: Tag, reference: Tag, negative: u8| -> Option<f64> {
+        let Some(Value::Rational(v)) = field(t) else {
+            return None;
+        };
+        let d = v
+            .iter()
+            .zip([1.0, 60.0, 3600.0])
+            .map(|(r, s)| r.to_f64() / s)
+            .sum::<f64>();
+        let flip = matches!(field(reference), Some(Value::Ascii(a))
+            if a.first().and_then(|s| s.first()).is_some_and(|c| c.eq_ignore_ascii_case(&negative)));
+        Some(if flip { -d } else { d })
+    };
+    let (Some(lat), Some(lon)) = (
+        degrees(Tag::GPSLatitude, Tag::GPSLatitudeRef, b'S'),
+        degrees(Tag::GPSLongitude, Tag::GPSLongitudeRef, b'W'),
+    ) else {
+        return Ok(None);
+    };
+    let altitude = match field(Tag::GPSAltitude) {
+        Some(Value::Rational(v)) => v.first().map(|r| {
+            let below =
+                matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
+            if below {
+                -r.to_f64()
+            } else {
+                r.to_f64()
+            }
+        }),
+        _ => None,
+    };
+    let focal = exif
+        .get_field(Tag::FocalLengthIn35mmFilm, In::PRIMARY)
+        .and_then(|f| f.value.get_uint(0))
+        .map(f64::from)
+        .filter(|f| *f > 0.0);
+    Ok(Some(Fix {
+        t_s: 0.0,
+        lat_deg: lat,
+        lon_deg: lon,
+        rel_alt_m: None,
+        abs_alt_m: altitude,
+        focal_35mm: focal,
+        gimbal_pitch_deg: None,
+        iso: None,
+        shutter_s: None,
+        fnum: None,
+        line: 0,
+    }))
 }
 
 /// `HH:MM:SS,mmm` (or with a dot) in seconds.
@@ -377,18 +521,18 @@ mod tests {
         let t = parse(text);
         assert_eq!(t.fixes.len(), 2);
         assert!(
-            t.warnings[0].starts_with("DJI_0001.SRT:2: no position"),
+            t.warnings[0].starts_with("DJI_0001.SRT:line 2: no position"),
             "{:?}",
             t.warnings
         );
         assert!(
-            t.warnings[1].starts_with("DJI_0001.SRT:6: position 0, 0"),
+            t.warnings[1].starts_with("DJI_0001.SRT:line 6: position 0, 0"),
             "{:?}",
             t.warnings
         );
         // 0.1 degree of latitude in one second.
         assert!(
-            t.warnings[2].starts_with("DJI_0001.SRT:14: the position jumps 11"),
+            t.warnings[2].starts_with("DJI_0001.SRT:line 14: the position jumps 11"),
             "{:?}",
             t.warnings
         );
@@ -408,6 +552,134 @@ mod tests {
         let video = d.path().join("x.MP4");
         assert_eq!(sidecar_of(&video), Some(p));
         assert_eq!(sidecar_of(&d.path().join("y.MP4")), None);
+    }
+
+    #[test]
+    fn gpx_points_are_timed_from_the_video_start_plus_the_offset() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("track.gpx");
+        std::fs::write(
+            &p,
+            r#"<?xml version="1.0" encoding="UTF-8"?>
+<gpx version="1.1" creator="test" xmlns="http://www.topografix.com/GPX/1/1">
+<trk><trkseg>
+<trkpt lat="47.0" lon="8.0"><ele>500.5</ele><time>2024-05-01T10:00:00Z</time></trkpt>
+<trkpt lat="47.0001" lon="8.0"><time>2024-05-01T10:00:02Z</time></trkpt>
+<trkpt lat="47.0002" lon="8.0"></trkpt>
+</trkseg></trk></gpx>"#,
+        )
+        .unwrap();
+        let start = OffsetDateTime::parse("2024-05-01T09:59:59Z", &Rfc3339).unwrap();
+        let t = read_gpx(&p, start, 0.5).unwrap();
+        assert_eq!(t.fixes.len(), 2);
+        assert_eq!((t.fixes[0].t_s, t.fixes[0].abs_alt_m), (0.5, Some(500.5)));
+        assert_eq!(
+            (t.fixes[1].t_s, t.fixes[1].lat_deg, t.fixes[1].line),
+            (2.5, 47.0001, 2)
+        );
+        assert!(
+            t.warnings[0].ends_with("track.gpx:point 3: no time (skipped)"),
+            "{:?}",
+            t.warnings
+        );
+        std::fs::write(&p, "<gpx").unwrap();
+        let e = read_gpx(&p, start, 0.0).unwrap_err().to_string();
+        assert!(
+            e.contains("track.gpx") && e.contains("not a readable GPX"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn exif_gps_with_south_west_and_below_sea_level() {
+        use exif::{Field, In, Rational, Tag, Value};
+        let field = |tag, value| Field {
+            tag,
+            ifd_num: In::PRIMARY,
+            value,
+        };
+        let dms = |d, m, s| {
+            Value::Rational(vec![
+                Rational::from((d, 1)),
+                Rational::from((m, 1)),
+                Rational::from((s, 100)),
+            ])
+        };
+        let fields = [
+            field(Tag::GPSLatitudeRef, Value::Ascii(vec![b"S".to_vec()])),
+            field(Tag::GPSLatitude, dms(33, 51, 3600)),
+            field(Tag::GPSLongitudeRef, Value::Ascii(vec![b"W".to_vec()])),
+            field(Tag::GPSLongitude, dms(70, 30, 0)),
+            field(Tag::GPSAltitudeRef, Value::Byte(vec![1])),
+            field(
+                Tag::GPSAltitude,
+                Value::Rational(vec![Rational::from((25, 2))]),
+            ),
+            field(Tag::FocalLengthIn35mmFilm, Value::Short(vec![24])),
+        ];
+        let mut w = exif::experimental::Writer::new();
+        for f in &fields {
+            w.push_field(f);
+        }
+        let mut buf = std::io::Cursor::new(Vec::new());
+        w.write(&mut buf, false).unwrap();
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("a.tif");
+        std::fs::write(&p, buf.into_inner()).unwrap();
+        let f = exif_fix(&p).unwrap().unwrap();
+        assert!(
+            (f.lat_deg + (33.0 + 51.0 / 60.0 + 36.0 / 3600.0)).abs() < 1e-12,
+            "{}",
+            f.lat_deg
+        );
+        assert!((f.lon_deg + 70.5).abs() < 1e-12, "{}", f.lon_deg);
+        assert_eq!((f.abs_alt_m, f.focal_35mm), (Some(-12.5), Some(24.0)));
+    }
+
+    #[test]
+    fn creation_time_from_the_container() {
+        let d = tempfile::tempdir().unwrap();
+        // MP4 stores the creation time in whole seconds.
+        let v = d.path().join("v.mp4");
+        let ok = std::process::Command::new("ffmpeg")
+            .args([
+                "-v",
+                "error",
+                "-f",
+                "lavfi",
+                "-i",
+                "testsrc=size=32x32:rate=5",
+                "-t",
+                "1",
+            ])
+            .args(["-metadata", "creation_time=2024-05-01T10:00:07Z"])
+            .arg(&v)
+            .status()
+            .unwrap();
+        assert!(ok.success());
+        let t = creation_time(&v).unwrap().unwrap();
+        assert_eq!(
+            t,
+            OffsetDateTime::parse("2024-05-01T10:00:07Z", &Rfc3339).unwrap()
+        );
+        let bare = d.path().join("bare.mkv");
+        let ok = std::process::Command::new("ffmpeg")
+            .args([
+                "-v",
+                "error",
+                "-f",
+                "lavfi",
+                "-i",
+                "testsrc=size=32x32:rate=5",
+                "-t",
+                "1",
+            ])
+            .args(["-map_metadata", "-1", "-fflags", "+bitexact"])
+            .arg(&bare)
+            .status()
+            .unwrap();
+        assert!(ok.success());
+        assert_eq!(creation_time(&bare).unwrap(), None);
     }
 
     #[test]
