@@ -414,14 +414,24 @@ fn gps_triple(body: &str) -> Option<(f64, f64, Option<f64>)> {
     }
 }
 
-/// Great-circle distance between two fixes (horizontal, metres; spherical Earth).
+/// Radii of curvature of the WGS84 ellipsoid at latitude `lat_deg`: (meridian, prime vertical),
+/// metres.
+pub fn wgs84_radii(lat_deg: f64) -> (f64, f64) {
+    const A: f64 = 6_378_137.0;
+    const E2: f64 = 6.694_379_990_14e-3;
+    let w = 1.0 - E2 * lat_deg.to_radians().sin().powi(2);
+    (A * (1.0 - E2) / w.powf(1.5), A / w.sqrt())
+}
+
+/// Horizontal distance between two fixes, metres: on the tangent plane with the ellipsoid's
+/// radii at their mean latitude, within millimetres over the hundreds of metres between
+/// consecutive fixes or keyframes (beyond a few kilometres it only serves to see a jump).
 pub fn distance_m(a: &Fix, b: &Fix) -> f64 {
-    const R: f64 = 6_371_008.8;
-    let (p1, p2) = (a.lat_deg.to_radians(), b.lat_deg.to_radians());
-    let dp = p2 - p1;
-    let dl = (b.lon_deg - a.lon_deg).to_radians();
-    let h = (dp / 2.0).sin().powi(2) + p1.cos() * p2.cos() * (dl / 2.0).sin().powi(2);
-    2.0 * R * h.sqrt().min(1.0).asin()
+    let lat = 0.5 * (a.lat_deg + b.lat_deg);
+    let (meridian, prime) = wgs84_radii(lat);
+    let north = (b.lat_deg - a.lat_deg).to_radians() * meridian;
+    let east = (b.lon_deg - a.lon_deg).to_radians() * prime * lat.to_radians().cos();
+    north.hypot(east)
 }
 
 /// The fix at time `t_s`, linear between the two entries around it (positions, altitudes and
@@ -690,7 +700,8 @@ mod tests {
         assert_eq!((f.rel_alt_m, f.abs_alt_m), (Some(12.5), Some(502.5)));
         assert_eq!(at(&t.fixes, 1.0).unwrap().lat_deg, 47.001);
         assert!(at(&t.fixes, 1.5).is_none() && at(&t.fixes, -0.1).is_none());
-        // 0.001 degree of latitude: 111.2 km per degree.
+        // 0.001 degree of latitude at 47.0005° N: the WGS84 meridian radius there is
+        // 6 369 620.58 m (a (1 - e²) / (1 - e² sin² φ)^1.5), so the arc is 111.1709 m.
         let d = distance_m(
             &t.fixes[0],
             &Fix {
@@ -698,6 +709,6 @@ mod tests {
                 ..t.fixes[1].clone()
             },
         );
-        assert!((d - 111.195).abs() < 0.01, "{d}");
+        assert!((d - 111.1709).abs() < 1e-4, "{d}");
     }
 }

@@ -93,6 +93,57 @@ fn pixel(m: &Mat, x: i32, y: i32) -> [f64; 3] {
     [p[0] as f64, p[1] as f64, p[2] as f64]
 }
 
+/// video.SRT holds every frame's true position: keyframer's parser reads it back, and the
+/// distances and heights it gives are those of poses.tum.
+#[test]
+fn scene_srt_gives_every_frame_its_true_position() {
+    use keyframer::source::telemetry::{creation_time, distance_m, read_dji_srt, sidecar_of};
+    let dir = survey();
+    let video = dir.join("video.mp4");
+    let srt = sidecar_of(&video).expect("video.SRT beside video.mp4");
+    let track = read_dji_srt(&srt).unwrap();
+    assert!(track.warnings.is_empty(), "{:?}", track.warnings);
+    let p = poses(dir);
+    let desc = json(&dir.join("scene.json"));
+    let tel = &desc["telemetry"];
+    let takeoff = tel["takeoff_z_m"].as_f64().unwrap();
+    let alt0 = tel["origin"]["alt_m"].as_f64().unwrap();
+    assert_eq!(track.fixes.len(), p.len());
+    let f0 = &track.fixes[0];
+    for (i, (f, (t, v))) in track.fixes.iter().zip(&p).enumerate() {
+        assert!((f.t_s - t).abs() < 1e-3, "frame {i}: {} vs {t}", f.t_s);
+        let truth = (v[0] - p[0].1[0]).hypot(v[1] - p[0].1[1]);
+        let d = distance_m(f0, f);
+        assert!((d - truth).abs() < 0.01, "frame {i}: {d} m vs {truth} m");
+        assert!(
+            (f.rel_alt_m.unwrap() - (v[2] - takeoff)).abs() < 1e-3,
+            "frame {i}"
+        );
+        assert!(
+            (f.abs_alt_m.unwrap() - (v[2] + alt0)).abs() < 1e-3,
+            "frame {i}"
+        );
+        let forward_z = rotation(&v[3..])[2][2];
+        let pitch = forward_z.asin().to_degrees();
+        assert!(
+            (f.gimbal_pitch_deg.unwrap() - pitch).abs() < 0.006,
+            "frame {i}"
+        );
+        assert_eq!(
+            f.focal_35mm,
+            tel["focal_35mm"]
+                .as_f64()
+                .map(|x| (x * 100.0).round() / 100.0)
+        );
+    }
+    let created = creation_time(&video).unwrap().unwrap();
+    let want = tel["start_utc"].as_str().unwrap();
+    assert_eq!(
+        created,
+        time::OffsetDateTime::parse(want, &time::format_description::well_known::Rfc3339).unwrap()
+    );
+}
+
 #[test]
 fn scene_video_has_one_pose_per_frame() {
     let dir = survey();

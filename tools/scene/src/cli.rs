@@ -1,6 +1,7 @@
 //! Flags of `keyframer-scene` and their conversion into [`SceneSettings`]; the one-line summary.
 
 use super::path::Preset;
+use super::srt::GeoOrigin;
 use super::{SceneReport, SceneSettings};
 use clap::{Parser, ValueEnum};
 use keyframer::error::{Error, Result};
@@ -17,7 +18,7 @@ pub enum PresetArg {
     HoverSurvey,
 }
 
-/// Renders a synthetic drone sequence (video.mp4, poses.tum, scene.json): a development tool of
+/// Renders a synthetic drone sequence (video.mp4, video.SRT, poses.tum, scene.json): a development tool of
 /// keyframer, synthetic data with exact ground truth.
 #[derive(Debug, Parser)]
 #[command(
@@ -25,7 +26,8 @@ pub enum PresetArg {
     version,
     long_about = "Development tool of keyframer: renders a synthetic drone flight over textured \
                   hilly terrain with driving cars, with motion blur, on the GPU (wgpu). Writes \
-                  OUT_DIR/video.mp4 (H.264, yuv420p, constant fps), poses.tum (camera-to-world \
+                  OUT_DIR/video.mp4 (H.264, yuv420p, constant fps), video.SRT (DJI-style \
+                  telemetry: each frame's true position around --origin), poses.tum (camera-to-world \
                   pose per frame at its mid-shutter time, OpenCV camera axes: x right, y down, z \
                   forward; world z up, metres) and scene.json (intrinsics, hovers, fast turns, \
                   objects).\nExit codes: 0 success; 1 usage or error."
@@ -64,6 +66,10 @@ pub struct SceneArgs {
     /// GPU adapter to use (part of its name).
     #[arg(long)]
     pub adapter: Option<String>,
+    /// Where the world origin is on Earth, LAT,LON,ALT (degrees, degrees, metres above sea
+    /// level), for video.SRT.
+    #[arg(long, default_value = "47.3769,8.5417,408")]
+    pub origin: String,
     /// No progress bar; only errors and warnings on stderr.
     #[arg(short, long)]
     pub quiet: bool,
@@ -76,6 +82,29 @@ pub fn parse_size(size: &str) -> Result<(u32, u32)> {
     let width: u32 = w.trim().parse().map_err(|_| bad())?;
     let height: u32 = h.trim().parse().map_err(|_| bad())?;
     Ok((width, height))
+}
+
+/// `LAT,LON,ALT` as a [`GeoOrigin`].
+pub fn parse_origin(text: &str) -> Result<GeoOrigin> {
+    let bad = |why: &str| Error::param("--origin", format!("`{text}`: {why}"));
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad("not LAT,LON,ALT numbers"))?;
+    let [lat_deg, lon_deg, alt_m] = v[..] else {
+        return Err(bad("not three numbers LAT,LON,ALT"));
+    };
+    if !(lat_deg.abs() < 85.0 && lon_deg.abs() <= 180.0 && alt_m.is_finite()) {
+        return Err(bad(
+            "latitude within ±85°, longitude within ±180° and a finite altitude",
+        ));
+    }
+    Ok(GeoOrigin {
+        lat_deg,
+        lon_deg,
+        alt_m,
+    })
 }
 
 impl SceneArgs {
@@ -114,6 +143,7 @@ impl SceneArgs {
             force: self.force,
             quiet: self.quiet,
             adapter: self.adapter.clone(),
+            origin: parse_origin(&self.origin)?,
         })
     }
 }

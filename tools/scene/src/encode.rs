@@ -14,8 +14,15 @@ pub struct Encoder {
 }
 
 impl Encoder {
-    /// Starts ffmpeg writing `path` (H.264, yuv420p, crf 18, constant `fps`).
-    pub fn start(path: &Path, width: u32, height: u32, fps: f64) -> Result<Encoder> {
+    /// Starts ffmpeg writing `path` (H.264, yuv420p, crf 18, constant `fps`, the container's
+    /// `creation_time` tag set to `created_utc`, RFC 3339).
+    pub fn start(
+        path: &Path,
+        width: u32,
+        height: u32,
+        fps: f64,
+        created_utc: &str,
+    ) -> Result<Encoder> {
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -42,6 +49,7 @@ impl Encoder {
                 "-i", "pipe:0", "-c:v", "libx264", "-preset", "medium", "-crf", "18",
             ])
             .args(["-pix_fmt", "yuv420p", "-r", &rate, "-f", "mp4"])
+            .args(["-metadata", &format!("creation_time={created_utc}")])
             .arg(&tmp)
             .stdin(Stdio::piped())
             .stdout(Stdio::null())

@@ -3,7 +3,9 @@
 //!
 //! - `keyframer-scene`: a synthetic drone sequence rendered with wgpu (this module). Writes into
 //!   an output folder, each file atomically and `scene.json` last: `video.mp4` (H.264, yuv420p,
-//!   constant frame rate), `poses.tum` (one camera-to-world pose per video frame, at the frame's
+//!   constant frame rate, `creation_time` set), `video.SRT` (DJI-style telemetry: every
+//!   frame's true camera position as latitude/longitude/altitude, [`srt`]), `poses.tum` (one
+//!   camera-to-world pose per video frame, at the frame's
 //!   mid-shutter time i / fps) and `scene.json` (settings, intrinsics, hovers, fast turns,
 //!   objects). The same settings and seed give the same poses and pixels.
 //! - `keyframer-bench-clip`: the H.264 clips of `keyframer bench pipeline` ([`bench_clip`]).
@@ -13,6 +15,7 @@ pub mod cli;
 pub mod math;
 pub mod path;
 pub mod render;
+pub mod srt;
 pub mod world;
 
 mod encode;
@@ -66,6 +69,8 @@ pub struct SceneSettings {
     pub quiet: bool,
     /// GPU adapter name part.
     pub adapter: Option<String>,
+    /// Where the world origin is on Earth (for video.SRT).
+    pub origin: srt::GeoOrigin,
 }
 
 /// An inclusive range of frame indices.
@@ -130,6 +135,19 @@ pub struct SceneDescription {
     pub terrain: TerrainInfo,
     /// Boxes: buildings, cars (with their loops), markers.
     pub objects: Vec<Object>,
+    /// video.SRT: the world origin on Earth, the take-off point's world height (`rel_alt` is
+    /// measured from it) and the 35 mm equivalent focal length written in every entry.
+    pub telemetry: Telemetry,
+}
+
+/// What video.SRT was written with.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Telemetry {
+    pub origin: srt::GeoOrigin,
+    pub takeoff_z_m: f64,
+    pub focal_35mm: f64,
+    /// Date and time of frame 0 (also the video's creation_time).
+    pub start_utc: String,
 }
 
 /// Axis conventions.
@@ -294,19 +312,22 @@ pub fn tum_line(t: f64, p: &Pose) -> String {
     )
 }
 
+/// The files a scene folder holds (scene.json last).
+const FILES: [&str; 4] = ["video.mp4", "video.SRT", "poses.tum", "scene.json"];
+
 /// Generates the sequence described by `s`.
 pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
     let seconds = validate(s)?;
     let dir = keyframer::output::prepare_dir(&s.out, s.force, &["scene.json"], &[&s.textures])?;
     let r = (|| {
-        for name in ["video.mp4", "poses.tum", "scene.json"] {
+        for name in FILES {
             keyframer::output::check_replaceable(&s.out.join(name))?;
         }
         render_scene(s, seconds)
     })();
     if r.is_err() && dir.is_new() {
-        // A folder this run made is removed again with what it holds (only our three files).
-        for name in ["video.mp4", "poses.tum", "scene.json"] {
+        // A folder this run made is removed again with what it holds (only our files).
+        for name in FILES {
             let _ = std::fs::remove_file(s.out.join(name));
         }
         dir.abandon();
@@ -372,7 +393,16 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let sun = SUN.unit();
     let sun4 = [sun.0 as f32, sun.1 as f32, sun.2 as f32, 0.0];
     let video = s.out.join("video.mp4");
-    let mut enc = encode::Encoder::start(&video, s.width, s.height, s.fps)?;
+    let mut enc = encode::Encoder::start(&video, s.width, s.height, s.fps, srt::START_UTC)?;
+    let first = flight.pose(0.0).centre;
+    let telemetry = Telemetry {
+        origin: s.origin,
+        takeoff_z_m: f64::from(terrain.height(first.0, first.1)),
+        // fx / width = f35 / 36 mm.
+        focal_35mm: FOCAL_PER_WIDTH * 36.0,
+        start_utc: srt::START_UTC.into(),
+    };
+    let mut sidecar = String::new();
     let bar = keyframer::progress::bar(frames as u64, "render", s.quiet);
     let started = std::time::Instant::now();
     let mut tum = String::new();
@@ -400,6 +430,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
         let t = i as f64 / s.fps;
         let pose = flight.pose(t);
         tum.push_str(&tum_line(t, &pose));
+        sidecar.push_str(&srt::entry(i, s.fps, &pose, &telemetry));
         let h = 0.01;
         let (a, b) = (flight.pose(t - h), flight.pose(t + h));
         let mut d = yaw(&b) - yaw(&a);
@@ -413,6 +444,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let render_seconds = started.elapsed().as_secs_f64();
     let sub_total: u64 = sub_counts.iter().map(|&c| c as u64).sum();
     keyframer::fsutil::write_atomic(&s.out.join("poses.tum"), tum.as_bytes())?;
+    keyframer::fsutil::write_atomic(&s.out.join("video.SRT"), sidecar.as_bytes())?;
 
     let half_shutter = 0.5 * SHUTTER / s.fps;
     let hovers = flight
@@ -507,6 +539,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
             sun: [sun.0, sun.1, sun.2],
         },
         objects,
+        telemetry,
     };
     let json = serde_json::to_string_pretty(&description)
         .map_err(|e| Error::Gpu(format!("scene.json: {e}")))?;
