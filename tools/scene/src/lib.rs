@@ -397,7 +397,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let first = flight.pose(0.0).centre;
     let telemetry = Telemetry {
         origin: s.origin,
-        takeoff_z_m: f64::from(terrain.height(first.0, first.1)),
+        takeoff_z_m: terrain.height(first.0, first.1),
         // fx / width = f35 / 36 mm.
         focal_35mm: FOCAL_PER_WIDTH * 36.0,
         start_utc: srt::START_UTC.into(),
