@@ -14,6 +14,7 @@ pub mod export;
 pub mod flo;
 pub mod flow;
 pub mod fsutil;
+pub mod geotag;
 pub mod gpu;
 pub mod info;
 pub mod kernels;

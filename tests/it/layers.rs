@@ -155,7 +155,9 @@ const LAYERS: [(&str, &[&str]); 4] = [
     ),
     (
         "engines",
-        &["analysis", "kernels", "gpu", "segment", "encode", "native"],
+        &[
+            "analysis", "kernels", "gpu", "segment", "encode", "geotag", "native",
+        ],
     ),
     (
         "formats",
