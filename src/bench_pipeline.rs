@@ -229,7 +229,10 @@ pub fn run(s: &Settings) -> Result<String> {
                 secs / cv,
                 fmt_ratio(secs, ff),
                 peak,
-                work.map_or("  -".into(), |w| w.columns())
+                work.map_or(
+                    format!(" {:>7} {:>9} {:>9} {:>8}", "-", "-", "-", "-"),
+                    |w| w.columns()
+                )
             );
         }
     }
