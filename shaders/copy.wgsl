@@ -1,23 +1,14 @@
-// copy.wgsl: dst = src, word by word (the stationary step keeps a frame's expansion pyramid as
+// copy.wgsl: dst = src, texel by texel (the stationary step keeps a frame's expansion pyramid as
 // its reference; dispatched indirectly, so the device decides whether it runs).
-// Bindings: 0 src, 1 dst, 2 params. Workgroup 256; ceil(words / 256) workgroups folded into 2-D
-// (groups_x per row).
+// Bindings: 0 src, 1 dst (textures of one size). Workgroup 8 x 8, one texel per invocation.
 
-struct Params {
-    words: u32,
-    groups_x: u32,
-    pad0: u32,
-    pad1: u32,
-}
+@group(0) @binding(0) var src: texture_storage_2d<rgba32float, read>;
+@group(0) @binding(1) var dst: texture_storage_2d<rgba32float, write>;
 
-@group(0) @binding(0) var<storage, read> src: array<u32>;
-@group(0) @binding(1) var<storage, read_write> dst: array<u32>;
-@group(0) @binding(2) var<uniform> params: Params;
-
-@compute @workgroup_size(256, 1, 1)
-fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    let i = (wid.y * params.groups_x + wid.x) * 256u + li;
-    if (i < params.words) {
-        dst[i] = src[i];
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    let size = textureDimensions(src);
+    if (id.x < size.x && id.y < size.y) {
+        textureStore(dst, id.xy, textureLoad(src, id.xy));
     }
 }

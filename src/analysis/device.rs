@@ -179,8 +179,7 @@ impl DeviceMovement {
         self.ctx.write(&self.frame, 0, bytemuck::bytes_of(&params));
         let mut enc = self.ctx.encoder("movement");
         if let Some(from) = w.from {
-            self.flow
-                .encode_flow(&mut enc, (from, w.slot), false, None)?;
+            self.flow.encode_flow(&mut enc, (from, w.slot), None)?;
             self.stat
                 .encode(&mut enc, self.statistic, &self.dest[0], None);
         }
@@ -194,7 +193,7 @@ impl DeviceMovement {
             let [statistic, keep] = self.gates;
             st.encode_plan(&mut enc);
             let pair = (REFERENCE, w.slot);
-            self.flow.encode_flow(&mut enc, pair, false, gate(0))?;
+            self.flow.encode_flow(&mut enc, pair, gate(0))?;
             self.stat
                 .encode(&mut enc, self.statistic, &self.dest[1], gate(statistic));
             st.encode_decide(&mut enc);

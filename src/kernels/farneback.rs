@@ -1,8 +1,8 @@
 //! `farneback`: dense optical flow as cv::calcOpticalFlowFarneback computes it, in WGSL stages that
-//! keep every intermediate on the device: per-level smoothing of the full-resolution image
-//! (farneback_smooth), INTER_LINEAR resize (farneback_resize), polynomial expansion
-//! (farneback_polyexp), matrix update (farneback_matrices) and windowed flow update
-//! (farneback_flow). The OpenCV twin is `opencv` (the OpenCV call itself).
+//! keep every intermediate on the device: the level images and their polynomial expansions
+//! (farneback_pyramid), the flow iterations (farneback_flow), and the copy of a slot's expansion
+//! pyramid into another (copy); flows and copies can be gated by sizes the device writes. The
+//! OpenCV twin is `opencv` (the OpenCV call itself).
 
 use crate::error::{CvContext, Error, Result};
 use crate::gpu::{compute_pass, Gate, GpuContext};
@@ -12,17 +12,17 @@ use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use std::sync::Arc;
 
-/// WGSL sources of the stages.
-pub const SMOOTH_WGSL: &str = include_str!("../../shaders/farneback_smooth.wgsl");
-/// INTER_LINEAR resize.
-pub const RESIZE_WGSL: &str = include_str!("../../shaders/farneback_resize.wgsl");
-/// Polynomial expansion.
-pub const POLYEXP_WGSL: &str = include_str!("../../shaders/farneback_polyexp.wgsl");
-/// Matrix update.
-pub const MATRICES_WGSL: &str = include_str!("../../shaders/farneback_matrices.wgsl");
-/// Flow update.
-pub const FLOW_WGSL: &str = include_str!("../../shaders/farneback_flow.wgsl");
-/// Word copy (a slot's pyramid into another).
+/// WGSL of the pyramid stages (level images and expansions), after its prelude.
+pub const PYRAMID_WGSL: &str = concat!(
+    include_str!("../../shaders/border.wgsl"),
+    include_str!("../../shaders/farneback_pyramid.wgsl")
+);
+/// WGSL of the flow iterations (matrices, windows, solve), after its prelude.
+pub const FLOW_WGSL: &str = concat!(
+    include_str!("../../shaders/border.wgsl"),
+    include_str!("../../shaders/farneback_flow.wgsl")
+);
+/// Texture copy (a slot's expansion pyramid into another).
 pub const COPY_WGSL: &str = include_str!("../../shaders/copy.wgsl");
 
 /// OpenCV's flags for the window type.
@@ -239,108 +239,479 @@ pub fn window_weights(winsize: u32, gaussian: bool) -> (Vec<f32>, f32) {
     (k, 1.0)
 }
 
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct SmoothParams {
-    width: u32,
-    height: u32,
-    stride: u32,
-    radius: u32,
+/// cv::resize's source step per destination pixel (x, y) from `src` to `dst` (as f32, the
+/// shaders' `scale_x`, `scale_y`).
+fn resize_steps(src: (u32, u32), dst: (u32, u32)) -> (f32, f32) {
+    let step = |s: u32, d: u32| (1.0 / (f64::from(d) / f64::from(s))) as f32;
+    (step(src.0, dst.0), step(src.1, dst.1))
 }
 
+/// Uniform parameters of one pyramid level (`PyrParams` in farneback_pyramid.wgsl).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct ResizeParams {
+struct PyrParams {
     src_w: u32,
     src_h: u32,
     dst_w: u32,
     dst_h: u32,
-    channels: u32,
+    radius: u32,
+    strip_rows: u32,
+    poly_n: u32,
     pad0: u32,
     scale_x: f32,
     scale_y: f32,
-    factor: f32,
-    pad1: [f32; 3],
-}
-
-impl ResizeParams {
-    /// INTER_LINEAR resize of `channels` channels from `src` to `dst`, values scaled by `factor`.
-    fn new(src: (u32, u32), dst: &Level, channels: u32, factor: f32) -> ResizeParams {
-        ResizeParams {
-            src_w: src.0,
-            src_h: src.1,
-            dst_w: dst.width,
-            dst_h: dst.height,
-            channels,
-            pad0: 0,
-            scale_x: (1.0 / (f64::from(dst.width) / f64::from(src.0))) as f32,
-            scale_y: (1.0 / (f64::from(dst.height) / f64::from(src.1))) as f32,
-            factor,
-            pad1: [0.0; 3],
-        }
-    }
-}
-
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct PolyParams {
-    width: u32,
-    height: u32,
-    n: u32,
-    pad: u32,
+    pad1: [f32; 2],
     ig: [f32; 4],
+    poly: [[f32; 4]; 8],
 }
 
+/// Uniform parameters of one level's flow dispatches (`FlowParams` in farneback_flow.wgsl).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct SizeParams {
-    width: u32,
-    height: u32,
-    pad: [u32; 2],
-}
-
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default)]
 struct FlowParams {
     width: u32,
     height: u32,
     radius: u32,
-    pad0: u32,
+    halo: u32,
+    strip_rows: u32,
+    run: u32,
+    /// start: 0 zero flow, 1 resize `flow_in`.
+    mode: u32,
+    /// Window passes: 0 write M, 1 write the level's flow (into M's texture), 2 write the final
+    /// flow.
+    last: u32,
+    src_w: u32,
+    src_h: u32,
+    flow_stride: u32,
+    flow_offset: u32,
     scale: f32,
-    pad1: [f32; 3],
+    factor: f32,
+    scale_x: f32,
+    scale_y: f32,
+}
+
+/// Texels of replicated border left and right of a level image (HALO in farneback_pyramid.wgsl).
+const HALO: u32 = 2;
+
+/// Smoothing taps a level's uniform holds (`Taps` in farneback_pyramid.wgsl).
+const MAX_TAPS: usize = 1024;
+
+/// Texels per invocation of the horizontal window pass.
+const FLOW_RUN: u32 = 8;
+
+/// Texels of replicated border left and right of the vertical window sums: the horizontal
+/// window reads radius + 1 pixels beyond a texel and one texel more.
+fn window_halo(winsize: u32) -> u32 {
+    (winsize / 2 + 1) / 4 + 2
+}
+
+/// Texels (four pixels each) of a row of `w` pixels.
+fn texels(w: u32) -> u32 {
+    w.div_ceil(4)
+}
+
+/// A texture usable as a shader input and a storage output.
+fn texture(
+    ctx: &GpuContext,
+    label: &str,
+    (w, h): (u32, u32),
+    format: wgpu::TextureFormat,
+) -> wgpu::Texture {
+    ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: w.max(1),
+            height: h.max(1),
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::STORAGE_BINDING
+            | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    })
+}
+
+fn view(t: &wgpu::Texture) -> wgpu::TextureView {
+    t.create_view(&Default::default())
+}
+
+/// A binding of a texture view.
+fn tv(v: &wgpu::TextureView) -> wgpu::BindingResource<'_> {
+    wgpu::BindingResource::TextureView(v)
 }
 
 struct Pipes {
-    smooth_rows: Arc<wgpu::ComputePipeline>,
-    smooth_cols: Arc<wgpu::ComputePipeline>,
-    resize: Arc<wgpu::ComputePipeline>,
-    poly_cols: Arc<wgpu::ComputePipeline>,
-    poly_rows: Arc<wgpu::ComputePipeline>,
-    matrices: Arc<wgpu::ComputePipeline>,
-    flow_cols: Arc<wgpu::ComputePipeline>,
-    flow_rows: Arc<wgpu::ComputePipeline>,
+    level0: Arc<wgpu::ComputePipeline>,
+    vsmooth: Arc<wgpu::ComputePipeline>,
+    hsmooth: Arc<wgpu::ComputePipeline>,
+    polyexp: Arc<wgpu::ComputePipeline>,
+    start: Arc<wgpu::ComputePipeline>,
+    /// Vertical and horizontal window (box or Gaussian).
+    vwin: Arc<wgpu::ComputePipeline>,
+    hwin: Arc<wgpu::ComputePipeline>,
     copy: Arc<wgpu::ComputePipeline>,
 }
 
-/// Pixels per invocation of the running-sum box passes (RUN in farneback_flow.wgsl).
-const BOX_RUN: u32 = 16;
-
-/// Bind groups that compute one frame's expansion pyramid.
-struct FrameSlot {
-    gray: wgpu::Buffer,
-    /// Per level: smooth rows, smooth cols, resize, poly cols, poly rows.
-    levels: Vec<[wgpu::BindGroup; 5]>,
-    /// Per level: the expansion R (5 x f32 per pixel).
-    r: Vec<wgpu::Buffer>,
+impl Pipes {
+    fn new(ctx: &GpuContext, params: &FarnebackParams) -> Result<Pipes> {
+        let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
+        let hbox = ["hbox0", "hbox1", "hbox2", "hbox3"][(params.winsize / 2 % 4) as usize];
+        let (cols, rows) = if params.gaussian {
+            ("vgauss", "hgauss")
+        } else {
+            ("vbox", hbox)
+        };
+        Ok(Pipes {
+            level0: p("farneback_pyramid", PYRAMID_WGSL, "level0")?,
+            vsmooth: p("farneback_pyramid", PYRAMID_WGSL, "vsmooth")?,
+            hsmooth: p("farneback_pyramid", PYRAMID_WGSL, "hsmooth")?,
+            polyexp: p(
+                "farneback_pyramid",
+                PYRAMID_WGSL,
+                if params.poly_n == 7 {
+                    "polyexp7"
+                } else {
+                    "polyexp5"
+                },
+            )?,
+            start: p("farneback_flow", FLOW_WGSL, "start")?,
+            vwin: p("farneback_flow", FLOW_WGSL, cols)?,
+            hwin: p("farneback_flow", FLOW_WGSL, rows)?,
+            copy: p("copy", COPY_WGSL, "main")?,
+        })
+    }
 }
 
-/// Bind groups of the flow iterations of one level for one (prev, next) slot order.
+/// The pyramid's scratch shared by the slots (passes run one after another): the gray frame as
+/// a texture, each level's image and (below level 0) the vertical part of its smoothing, each
+/// level's uniforms, and the bind groups of the smoothing (vsmooth, hsmooth per level > 0).
+struct PyramidScratch {
+    gray: wgpu::TextureView,
+    images: Vec<wgpu::TextureView>,
+    params: Vec<wgpu::Buffer>,
+    smooth: Vec<[wgpu::BindGroup; 2]>,
+}
+
+impl PyramidScratch {
+    fn new(
+        ctx: &GpuContext,
+        pipes: &Pipes,
+        levels: &[Level],
+        p: &FarnebackParams,
+        strip_rows: u32,
+    ) -> Result<PyramidScratch> {
+        use wgpu::TextureFormat::{Rgba32Float, Rgba8Uint};
+        let (w, h) = (levels[0].width, levels[0].height);
+        let gray = view(&texture(ctx, "gray", (texels(w), h), Rgba8Uint));
+        let (kern, ig) = poly_weights(p.poly_n, p.poly_sigma);
+        let n = p.poly_n as usize;
+        let mut poly = [[0f32; 4]; 8];
+        for (k, t) in poly.iter_mut().enumerate().take(n + 1) {
+            *t = [kern[k], kern[n + 1 + k], kern[2 * (n + 1) + k], 0.0];
+        }
+        let mut images = Vec::new();
+        let mut params = Vec::new();
+        let mut smooth = Vec::new();
+        for (k, l) in levels.iter().enumerate() {
+            let radius = l.smooth.len() / 2;
+            if radius + 2 > MAX_TAPS {
+                return Err(Error::Gpu(format!("Farneback level {k} smooths with {} taps; the shaders hold {MAX_TAPS} (use a smaller analysis resolution)", 2 * radius + 1)));
+            }
+            let (scale_x, scale_y) = resize_steps((w, h), (l.width, l.height));
+            let u = ctx.uniform(
+                "pyramid params",
+                &PyrParams {
+                    src_w: w,
+                    src_h: h,
+                    dst_w: l.width,
+                    dst_h: l.height,
+                    radius: radius as u32,
+                    strip_rows,
+                    poly_n: p.poly_n,
+                    pad0: 0,
+                    scale_x,
+                    scale_y,
+                    pad1: [0.0; 2],
+                    ig: ig.map(|v| v as f32),
+                    poly,
+                },
+            );
+            let image = view(&texture(
+                ctx,
+                "level image",
+                (texels(l.width) + 2 * HALO, l.height),
+                Rgba32Float,
+            ));
+            if k > 0 {
+                let mut taps = vec![[0f32; 4]; MAX_TAPS];
+                for (t, v) in taps.iter_mut().zip(&l.smooth[radius..]) {
+                    t[0] = *v;
+                }
+                let taps = ctx.buffer_init(
+                    "smoothing taps",
+                    wgpu::BufferUsages::UNIFORM,
+                    bytemuck::cast_slice(&taps),
+                );
+                let vert = view(&texture(
+                    ctx,
+                    "vertical smoothing",
+                    (texels(w), 2 * l.height),
+                    Rgba32Float,
+                ));
+                let b = |pipe: &wgpu::ComputePipeline,
+                         input: &wgpu::TextureView,
+                         output: &wgpu::TextureView,
+                         at: u32| {
+                    ctx.bind_resources(
+                        "farneback pyramid",
+                        pipe,
+                        &[
+                            (at, tv(input)),
+                            (1, tv(output)),
+                            (6, u.as_entire_binding()),
+                            (7, taps.as_entire_binding()),
+                        ],
+                    )
+                };
+                smooth.push([
+                    b(&pipes.vsmooth, &gray, &vert, 3),
+                    b(&pipes.hsmooth, &vert, &image, 4),
+                ]);
+            }
+            images.push(image);
+            params.push(u);
+        }
+        Ok(PyramidScratch {
+            gray,
+            images,
+            params,
+            smooth,
+        })
+    }
+}
+
+/// One frame's expansion pyramid on the device and the bind groups that compute it.
+struct FrameSlot {
+    gray: wgpu::Buffer,
+    /// Per level: the expansion (Rgba32Float, two texels per pixel: channels 0..3, then channel
+    /// 4 of the pixel and of its right neighbour).
+    r: Vec<wgpu::TextureView>,
+    level0: wgpu::BindGroup,
+    polyexp: Vec<wgpu::BindGroup>,
+}
+
+impl FrameSlot {
+    fn new(
+        ctx: &GpuContext,
+        pipes: &Pipes,
+        levels: &[Level],
+        scratch: &PyramidScratch,
+    ) -> FrameSlot {
+        let (w, h) = (levels[0].width, levels[0].height);
+        let gray = ctx.storage_buffer("gray upload", u64::from(w) * u64::from(h));
+        let level0 = ctx.bind_resources(
+            "farneback pyramid",
+            &pipes.level0,
+            &[
+                (0, gray.as_entire_binding()),
+                (1, tv(&scratch.images[0])),
+                (2, tv(&scratch.gray)),
+                (6, scratch.params[0].as_entire_binding()),
+            ],
+        );
+        let r: Vec<_> = levels
+            .iter()
+            .map(|l| {
+                let size = (2 * l.width, l.height);
+                view(&texture(
+                    ctx,
+                    "expansion",
+                    size,
+                    wgpu::TextureFormat::Rgba32Float,
+                ))
+            })
+            .collect();
+        let polyexp = (0..levels.len())
+            .map(|k| {
+                ctx.bind_resources(
+                    "farneback pyramid",
+                    &pipes.polyexp,
+                    &[
+                        (4, tv(&scratch.images[k])),
+                        (1, tv(&r[k])),
+                        (6, scratch.params[k].as_entire_binding()),
+                    ],
+                )
+            })
+            .collect();
+        FrameSlot {
+            gray,
+            r,
+            level0,
+            polyexp,
+        }
+    }
+}
+
+/// One level's flow scratch shared by the slot pairs (flows run one after another): M and the
+/// level's flow, the vertical window sums, at the coarsest level the initial flow (textures),
+/// the uniforms of the start (resize the coarser flow; at the coarsest level: zero, or the
+/// initial flow) and of the window passes (`mid` writes M, `last` the flow), and the vertical
+/// window's bind group.
+struct LevelScratch {
+    m: wgpu::TextureView,
+    vs: wgpu::TextureView,
+    initial: Option<(wgpu::Texture, wgpu::TextureView)>,
+    start: wgpu::Buffer,
+    start_initial: Option<wgpu::Buffer>,
+    mid: wgpu::Buffer,
+    last: wgpu::Buffer,
+    vwin: wgpu::BindGroup,
+}
+
+/// Window shape of the flow passes: rows per invocation of the vertical window, texels per
+/// invocation of the horizontal one.
+#[derive(Debug, Clone, Copy)]
+struct FlowShape {
+    strip_rows: u32,
+    run: u32,
+}
+
+impl LevelScratch {
+    fn new(
+        ctx: &GpuContext,
+        pipes: &Pipes,
+        levels: &[Level],
+        k: usize,
+        p: &FarnebackParams,
+        shape: FlowShape,
+        taps: &wgpu::Buffer,
+    ) -> LevelScratch {
+        use wgpu::TextureFormat::Rgba32Float;
+        let l = &levels[k];
+        let (n, h) = (texels(l.width), l.height);
+        let radius = p.winsize / 2;
+        let halo = window_halo(p.winsize);
+        let m = view(&texture(ctx, "matrices and flow", (7 * n, h), Rgba32Float));
+        let vs = view(&texture(
+            ctx,
+            "window sums",
+            (5 * (n + 2 * halo), h),
+            Rgba32Float,
+        ));
+        let base = FlowParams {
+            width: l.width,
+            height: l.height,
+            radius,
+            halo,
+            strip_rows: shape.strip_rows,
+            run: shape.run,
+            scale: window_weights(p.winsize, p.gaussian).1,
+            ..Default::default()
+        };
+        let uniform = |v: FlowParams| ctx.uniform("flow params", &v);
+        // From the flow in texels 7 t + 5, 7 t + 6 of the coarser level's M (the initial flow: 2 t,
+        // 2 t + 1).
+        let resize_from = |c: &Level, factor: f32, flow_stride: u32, flow_offset: u32| {
+            let (scale_x, scale_y) = resize_steps((c.width, c.height), (l.width, l.height));
+            uniform(FlowParams {
+                mode: 1,
+                src_w: c.width,
+                src_h: c.height,
+                flow_stride,
+                flow_offset,
+                factor,
+                scale_x,
+                scale_y,
+                ..base
+            })
+        };
+        let (start, start_initial) = match levels.get(k + 1) {
+            Some(c) => (resize_from(c, (1.0 / p.pyr_scale) as f32, 7, 5), None),
+            None => (uniform(base), Some(resize_from(l, 1.0, 2, 0))),
+        };
+        let initial = start_initial.as_ref().map(|_| {
+            let t = texture(ctx, "initial flow", (2 * n, h), Rgba32Float);
+            let v = view(&t);
+            (t, v)
+        });
+        let mid = uniform(base);
+        let last = uniform(FlowParams {
+            last: if k == 0 { 2 } else { 1 },
+            ..base
+        });
+        let mut entries = vec![(4, tv(&m)), (7, tv(&vs)), (11, mid.as_entire_binding())];
+        if p.gaussian {
+            entries.push((12, taps.as_entire_binding()));
+        }
+        let vwin = ctx.bind_resources("farneback flow", &pipes.vwin, &entries);
+        LevelScratch {
+            m,
+            vs,
+            initial,
+            start,
+            start_initial,
+            mid,
+            last,
+            vwin,
+        }
+    }
+}
+
+/// Bind groups of one level's flow for one (prev, next) slot order: the start (with the
+/// initial flow at the coarsest level), the horizontal window writing M or the flow, and the
+/// copy of prev's expansion into next's.
 struct LevelFlow {
-    matrices: wgpu::BindGroup,
-    cols: wgpu::BindGroup,
-    rows: wgpu::BindGroup,
-    /// Upsampling of the coarser level's flow into this level (None at the coarsest).
-    upsample: Option<wgpu::BindGroup>,
+    start: wgpu::BindGroup,
+    start_initial: Option<wgpu::BindGroup>,
+    hmid: wgpu::BindGroup,
+    hlast: wgpu::BindGroup,
+    copy: wgpu::BindGroup,
+}
+
+impl LevelFlow {
+    fn new(fb: &FarnebackGpu, k: usize, prev: &FrameSlot, next: &FrameSlot) -> LevelFlow {
+        let s = &fb.level_scratch[k];
+        let r = [(0, tv(&prev.r[k])), (1, tv(&next.r[k])), (5, tv(&s.m))];
+        // The flow the start reads: the coarser level's (in its M texture) or the initial one.
+        let flow_in = match (fb.level_scratch.get(k + 1), &s.initial) {
+            (Some(c), _) => &c.m,
+            (None, Some((_, v))) => v,
+            (None, None) => &s.m,
+        };
+        let start = |u: &wgpu::Buffer, flow: &wgpu::TextureView| {
+            let mut e = r.to_vec();
+            e.extend([(8, tv(flow)), (11, u.as_entire_binding())]);
+            fb.ctx.bind_resources("farneback flow", &fb.pipes.start, &e)
+        };
+        let hwin = |u: &wgpu::Buffer| {
+            let mut e = r.to_vec();
+            e.extend([
+                (6, tv(&s.vs)),
+                (10, fb.flow_out.as_entire_binding()),
+                (11, u.as_entire_binding()),
+            ]);
+            if fb.params.gaussian {
+                e.push((12, fb.taps.as_entire_binding()));
+            }
+            fb.ctx.bind_resources("farneback flow", &fb.pipes.hwin, &e)
+        };
+        LevelFlow {
+            start: start(&s.start, flow_in),
+            start_initial: s.start_initial.as_ref().map(|u| start(u, flow_in)),
+            hmid: hwin(&s.mid),
+            hlast: hwin(&s.last),
+            copy: fb.ctx.bind_resources(
+                "farneback copy",
+                &fb.pipes.copy,
+                &[(0, tv(&prev.r[k])), (1, tv(&next.r[k]))],
+            ),
+        }
+    }
 }
 
 /// Number of frame slots: each holds one frame's expansion pyramid on the device, so a video's
@@ -348,8 +719,16 @@ struct LevelFlow {
 /// current frame).
 pub const SLOTS: usize = 3;
 
-/// Per ordered slot pair (from, to): one item per pyramid level.
-type PerPair<T> = Vec<((usize, usize), Vec<T>)>;
+/// Rows per invocation of the pyramid's strip passes on `ctx`'s adapter: software adapters run
+/// each invocation on a CPU SIMD lane and gain from long strips (fewer re-read window rows);
+/// hardware GPUs need many short strips for occupancy.
+pub fn strip_rows_for(ctx: &GpuContext) -> u32 {
+    if ctx.summary().software {
+        16
+    } else {
+        4
+    }
+}
 
 /// Farneback flow on the GPU for frames of one size.
 pub struct FarnebackGpu {
@@ -357,19 +736,27 @@ pub struct FarnebackGpu {
     params: FarnebackParams,
     levels: Vec<Level>,
     pipes: Pipes,
+    strip_rows: u32,
+    flow_shape: FlowShape,
+    scratch: PyramidScratch,
     slots: Vec<FrameSlot>,
+    level_scratch: Vec<LevelScratch>,
+    /// Gaussian window taps (uniform, bound when `params.gaussian`).
+    taps: wgpu::Buffer,
     /// Per ordered slot pair (from, to): per level bind groups.
-    flows: PerPair<LevelFlow>,
-    /// Per ordered slot pair (from, to): per level, the copy of the expansion.
-    copies: PerPair<wgpu::BindGroup>,
-    /// Per level: the workgroups of the copy.
-    copy_groups: Vec<(u32, u32)>,
-    flow: Vec<wgpu::Buffer>,
+    flows: Vec<((usize, usize), Vec<LevelFlow>)>,
+    /// The full-resolution flow (2 x f32 per pixel).
+    flow_out: wgpu::Buffer,
     pad: Vec<u8>,
 }
 
-fn groups16(w: u32, h: u32) -> (u32, u32) {
-    (w.div_ceil(16), h.div_ceil(16))
+/// One dispatch: its kind (for profiles), pipeline, bind group and workgroups.
+#[derive(Clone, Copy)]
+struct Step<'a> {
+    kind: &'static str,
+    pipe: &'a wgpu::ComputePipeline,
+    bg: &'a wgpu::BindGroup,
+    groups: (u32, u32),
 }
 
 impl FarnebackGpu {
@@ -380,6 +767,19 @@ impl FarnebackGpu {
         width: u32,
         height: u32,
     ) -> Result<Self> {
+        let strip_rows = strip_rows_for(&ctx);
+        Self::with_strip_rows(ctx, params, width, height, strip_rows)
+    }
+
+    /// As [`FarnebackGpu::new`] with `strip_rows` rows per invocation of the strip passes (for
+    /// `bench`).
+    pub fn with_strip_rows(
+        ctx: Arc<GpuContext>,
+        params: FarnebackParams,
+        width: u32,
+        height: u32,
+        strip_rows: u32,
+    ) -> Result<Self> {
         params.validate()?;
         if width < 2 || height < 2 {
             return Err(Error::param(
@@ -389,231 +789,231 @@ impl FarnebackGpu {
         }
         let levels = levels(width, height, &params);
         let full = u64::from(width) * u64::from(height);
-        if full * 20 > ctx.limits.max_storage_buffer_binding_size {
+        let max = ctx.limits.max_texture_dimension_2d;
+        if full * 20 > ctx.limits.max_storage_buffer_binding_size || width > max || height > max {
             return Err(Error::Gpu(format!(
-                "Farneback at {width}x{height} needs {} MiB buffers; this adapter binds at most {} MiB (use a smaller analysis resolution)",
+                "Farneback at {width}x{height} needs {} MiB buffers and {width}x{height} textures; this adapter binds at most {} MiB and {max}x{max} (use a smaller analysis resolution)",
                 (full * 20) >> 20,
                 ctx.limits.max_storage_buffer_binding_size >> 20
             )));
         }
-        let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
-        let flow_entries = if params.gaussian {
-            ("cols", "rows")
-        } else {
-            ("box_cols", "box_rows")
+        let strip_rows = strip_rows.max(1);
+        let flow_shape = FlowShape {
+            strip_rows,
+            run: FLOW_RUN,
         };
-        let pipes = Pipes {
-            smooth_rows: p("farneback_smooth", SMOOTH_WGSL, "rows")?,
-            smooth_cols: p("farneback_smooth", SMOOTH_WGSL, "cols")?,
-            resize: p("farneback_resize", RESIZE_WGSL, "main")?,
-            poly_cols: p("farneback_polyexp", POLYEXP_WGSL, "cols")?,
-            poly_rows: p("farneback_polyexp", POLYEXP_WGSL, "rows")?,
-            matrices: p("farneback_matrices", MATRICES_WGSL, "main")?,
-            flow_cols: p("farneback_flow", FLOW_WGSL, flow_entries.0)?,
-            flow_rows: p("farneback_flow", FLOW_WGSL, flow_entries.1)?,
-            copy: p("copy", COPY_WGSL, "main")?,
-        };
-        // Shared scratch buffers (full-resolution sized; passes run one after another).
-        let tmp = ctx.storage_buffer("smooth tmp", full * 4);
-        let smoothed = ctx.storage_buffer("smoothed", full * 4);
-        let img = ctx.storage_buffer("level image", full * 4);
-        let rows3 = ctx.storage_buffer("polyexp rows", full * 12);
-        let m = ctx.storage_buffer("matrices", full * 20);
-        let vsum = ctx.storage_buffer("window sums", full * 20);
-        let f32_buffer = |label: &str, w: &[f32]| {
-            ctx.buffer_init(label, wgpu::BufferUsages::STORAGE, bytemuck::cast_slice(w))
-        };
-        let (kern, ig) = poly_weights(params.poly_n, params.poly_sigma);
-        let kern_buf = f32_buffer("poly kernel", &kern);
-        let (win, win_scale) = window_weights(params.winsize, params.gaussian);
-        // The box window (box_cols, box_rows) binds no weights: entry 3 only when gaussian.
-        let win_entries = if params.gaussian { 4 } else { 3 };
-        let win_buf = f32_buffer("window weights", &win);
-
-        let flow: Vec<wgpu::Buffer> = levels
-            .iter()
-            .map(|l| ctx.storage_buffer("flow", u64::from(l.width) * u64::from(l.height) * 8))
-            .collect();
-
-        let bind = |pipe: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
-            ctx.bind("farneback", pipe, entries)
-        };
-        let make_slot = |_: usize| -> FrameSlot {
-            let gray = ctx.storage_buffer("gray upload", full);
-            let r: Vec<wgpu::Buffer> = levels
-                .iter()
-                .map(|l| {
-                    ctx.storage_buffer("expansion", u64::from(l.width) * u64::from(l.height) * 20)
-                })
-                .collect();
-            let level_groups = levels
-                .iter()
-                .zip(&r)
-                .map(|(l, r_buf)| {
-                    let radius = (l.smooth.len() / 2) as u32;
-                    let smooth_w = f32_buffer("smooth weights", &l.smooth);
-                    let sp = ctx.uniform(
-                        "smooth params",
-                        &SmoothParams {
-                            width,
-                            height,
-                            stride: width,
-                            radius,
-                        },
-                    );
-                    let rp = ctx.uniform(
-                        "resize params",
-                        &ResizeParams::new((width, height), l, 1, 1.0),
-                    );
-                    let pp = ctx.uniform(
-                        "polyexp params",
-                        &PolyParams {
-                            width: l.width,
-                            height: l.height,
-                            n: params.poly_n,
-                            pad: 0,
-                            ig: [ig[0] as f32, ig[1] as f32, ig[2] as f32, ig[3] as f32],
-                        },
-                    );
-                    [
-                        bind(
-                            &pipes.smooth_rows,
-                            &[(0, &gray), (1, &tmp), (3, &smooth_w), (4, &sp)],
-                        ),
-                        bind(
-                            &pipes.smooth_cols,
-                            &[(1, &tmp), (2, &smoothed), (3, &smooth_w), (4, &sp)],
-                        ),
-                        bind(&pipes.resize, &[(0, &smoothed), (1, &img), (2, &rp)]),
-                        bind(
-                            &pipes.poly_cols,
-                            &[(0, &img), (1, &rows3), (3, &kern_buf), (4, &pp)],
-                        ),
-                        bind(
-                            &pipes.poly_rows,
-                            &[(1, &rows3), (2, r_buf), (3, &kern_buf), (4, &pp)],
-                        ),
-                    ]
-                })
-                .collect();
-            FrameSlot {
-                gray,
-                levels: level_groups,
-                r,
-            }
-        };
-        let slots: Vec<FrameSlot> = (0..SLOTS).map(make_slot).collect();
-
-        let make_flows = |prev: &FrameSlot, next: &FrameSlot| -> Vec<LevelFlow> {
-            levels
-                .iter()
-                .enumerate()
-                .map(|(k, l)| {
-                    let sz = ctx.uniform(
-                        "level size",
-                        &SizeParams {
-                            width: l.width,
-                            height: l.height,
-                            pad: [0; 2],
-                        },
-                    );
-                    let fp = ctx.uniform(
-                        "flow params",
-                        &FlowParams {
-                            width: l.width,
-                            height: l.height,
-                            radius: params.winsize / 2,
-                            pad0: 0,
-                            scale: win_scale,
-                            pad1: [0.0; 3],
-                        },
-                    );
-                    let upsample = levels.get(k + 1).map(|c| {
-                        let up = ctx.uniform(
-                            "flow upsample params",
-                            &ResizeParams::new(
-                                (c.width, c.height),
-                                l,
-                                2,
-                                (1.0 / params.pyr_scale) as f32,
-                            ),
-                        );
-                        bind(&pipes.resize, &[(0, &flow[k + 1]), (1, &flow[k]), (2, &up)])
-                    });
-                    let cols = [(0, &m), (1, &vsum), (4, &fp), (3, &win_buf)];
-                    let rows = [(1, &vsum), (2, &flow[k]), (4, &fp), (3, &win_buf)];
-                    LevelFlow {
-                        matrices: ctx.bind(
-                            "farneback",
-                            &pipes.matrices,
-                            &[
-                                (0, &prev.r[k]),
-                                (1, &next.r[k]),
-                                (2, &flow[k]),
-                                (3, &m),
-                                (4, &sz),
-                            ],
-                        ),
-                        cols: bind(&pipes.flow_cols, &cols[..win_entries]),
-                        rows: bind(&pipes.flow_rows, &rows[..win_entries]),
-                        upsample,
-                    }
-                })
-                .collect()
-        };
-        let mut flows = Vec::new();
-        for from in 0..SLOTS {
-            for to in (0..SLOTS).filter(|&t| t != from) {
-                flows.push(((from, to), make_flows(&slots[from], &slots[to])));
-            }
+        let n = texels(width);
+        let halo = window_halo(params.winsize);
+        if 5 * (n + 2 * halo) > max || 7 * n > max {
+            return Err(Error::Gpu(format!(
+                "Farneback at width {width} with winsize {} needs {} texel wide textures; this adapter allows {max}",
+                params.winsize,
+                5 * (n + 2 * halo)
+            )));
         }
-        let (copies, copy_groups) = copies(&ctx, &pipes.copy, &slots);
-        Ok(FarnebackGpu {
+        let pipes = Pipes::new(&ctx, &params)?;
+        let scratch = PyramidScratch::new(&ctx, &pipes, &levels, &params, strip_rows)?;
+        let slots: Vec<FrameSlot> = (0..SLOTS)
+            .map(|_| FrameSlot::new(&ctx, &pipes, &levels, &scratch))
+            .collect();
+        let mut taps = vec![[0f32; 4]; MAX_TAPS];
+        for (t, v) in taps
+            .iter_mut()
+            .zip(window_weights(params.winsize, params.gaussian).0)
+        {
+            t[0] = v;
+        }
+        let taps = ctx.buffer_init(
+            "window taps",
+            wgpu::BufferUsages::UNIFORM,
+            bytemuck::cast_slice(&taps),
+        );
+        let level_scratch = (0..levels.len())
+            .map(|k| LevelScratch::new(&ctx, &pipes, &levels, k, &params, flow_shape, &taps))
+            .collect();
+        let flow_out = ctx.storage_buffer("flow", (full * 8).next_multiple_of(16));
+        let mut fb = FarnebackGpu {
             ctx,
             params,
             levels,
             pipes,
+            strip_rows,
+            flow_shape,
+            scratch,
             slots,
-            flows,
-            copies,
-            copy_groups,
-            flow,
+            level_scratch,
+            taps,
+            flows: Vec::new(),
+            flow_out,
             pad: Vec::new(),
-        })
-    }
-
-    /// The workgroups of the flow's dispatches, in the order of its gate entries: per level, the
-    /// matrix update (and upsampling), the window's column pass, its row pass.
-    pub fn flow_shapes(&self) -> Vec<(u32, u32)> {
-        let mut out = Vec::new();
-        for l in &self.levels {
-            let (x, y) = groups16(l.width, l.height);
-            if self.params.gaussian {
-                out.extend([(x, y); 3]);
-            } else {
-                out.extend([
-                    (x, y),
-                    (
-                        l.width.div_ceil(16),
-                        l.height.div_ceil(BOX_RUN).div_ceil(16),
-                    ),
-                    (
-                        l.width.div_ceil(BOX_RUN).div_ceil(16),
-                        l.height.div_ceil(16),
-                    ),
-                ]);
+        };
+        let mut flows = Vec::new();
+        for from in 0..SLOTS {
+            for to in (0..SLOTS).filter(|&t| t != from) {
+                let (prev, next) = (&fb.slots[from], &fb.slots[to]);
+                let per_level = (0..fb.levels.len())
+                    .map(|k| LevelFlow::new(&fb, k, prev, next))
+                    .collect();
+                flows.push(((from, to), per_level));
             }
         }
-        out
+        fb.flows = flows;
+        Ok(fb)
+    }
+
+    /// The dispatches that compute `slot`'s expansion pyramid, in order.
+    fn pyramid_steps(&self, slot: usize) -> Vec<Step<'_>> {
+        let s = &self.slots[slot];
+        let (w, h) = (self.levels[0].width, self.levels[0].height);
+        let by8 = |n: u32| n.div_ceil(8);
+        let mut steps = vec![Step {
+            kind: "level0",
+            pipe: &self.pipes.level0,
+            bg: &s.level0,
+            groups: (by8(w.div_ceil(16)), h.div_ceil(self.strip_rows)),
+        }];
+        for (k, l) in self.levels.iter().enumerate() {
+            if k > 0 {
+                let [v, hz] = &self.scratch.smooth[k - 1];
+                steps.push(Step {
+                    kind: "vsmooth",
+                    pipe: &self.pipes.vsmooth,
+                    bg: v,
+                    groups: (by8(texels(w)), l.height),
+                });
+                steps.push(Step {
+                    kind: "hsmooth",
+                    pipe: &self.pipes.hsmooth,
+                    bg: hz,
+                    groups: (by8(texels(l.width) + 2 * HALO), l.height),
+                });
+            }
+            steps.push(Step {
+                kind: "polyexp",
+                pipe: &self.pipes.polyexp,
+                bg: &s.polyexp[k],
+                groups: (
+                    by8(l.width.div_ceil(16)),
+                    l.height.div_ceil(self.strip_rows),
+                ),
+            });
+        }
+        steps
+    }
+
+    /// The per level bind groups of the ordered slot pair (`from`, `to`).
+    fn pair(&self, from: usize, to: usize) -> Result<&[LevelFlow]> {
+        self.flows
+            .iter()
+            .find(|(k, _)| *k == (from, to))
+            .map(|(_, per_level)| per_level.as_slice())
+            .ok_or_else(|| Error::param("slots", format!("need two distinct slots below {SLOTS}")))
+    }
+
+    /// The dispatches of the flow from slot `from` to slot `to` (from the initial flow written
+    /// into the coarsest level's flow texture with `initial`), coarsest level first.
+    fn flow_steps(&self, from: usize, to: usize, initial: bool) -> Result<Vec<Step<'_>>> {
+        let per_level = self.pair(from, to)?;
+        let by8 = |n: u32| n.div_ceil(8);
+        let shape = self.flow_shape;
+        let mut steps = Vec::new();
+        for ((l, lf), s) in self
+            .levels
+            .iter()
+            .zip(per_level)
+            .zip(&self.level_scratch)
+            .rev()
+        {
+            let n = texels(l.width);
+            let halo = window_halo(self.params.winsize);
+            let start = match (&lf.start_initial, initial) {
+                (Some(bg), true) => bg,
+                _ => &lf.start,
+            };
+            steps.push(Step {
+                kind: "start",
+                pipe: &self.pipes.start,
+                bg: start,
+                groups: (by8(n), l.height),
+            });
+            for i in 0..self.params.iterations {
+                steps.push(Step {
+                    kind: "vwindow",
+                    pipe: &self.pipes.vwin,
+                    bg: &s.vwin,
+                    groups: (by8(n + 2 * halo), l.height.div_ceil(shape.strip_rows)),
+                });
+                let last = i + 1 == self.params.iterations;
+                steps.push(Step {
+                    kind: "hwindow",
+                    pipe: &self.pipes.hwin,
+                    bg: if last { &lf.hlast } else { &lf.hmid },
+                    groups: (by8(n.div_ceil(shape.run)), l.height),
+                });
+            }
+        }
+        Ok(steps)
+    }
+
+    /// The dispatches copying slot `from`'s expansion pyramid into slot `to`, one per level.
+    fn copy_steps(&self, from: usize, to: usize) -> Result<Vec<Step<'_>>> {
+        let per_level = self.pair(from, to)?;
+        let steps = (self.levels.iter().zip(per_level))
+            .map(|(l, lf)| Step {
+                kind: "copy",
+                pipe: &self.pipes.copy,
+                bg: &lf.copy,
+                groups: ((2 * l.width).div_ceil(8), l.height.div_ceil(8)),
+            })
+            .collect();
+        Ok(steps)
+    }
+
+    /// Records `steps` in one compute pass of `enc`, with a `gate` over entries in `steps`'
+    /// order.
+    fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        label: &str,
+        steps: &[Step<'_>],
+        gate: Option<Gate<'_>>,
+    ) {
+        let mut pass = compute_pass(enc, label);
+        for (k, s) in steps.iter().enumerate() {
+            self.ctx
+                .dispatch_gated(&mut pass, (s.pipe, s.bg), s.groups, gate, k);
+        }
+    }
+
+    /// The workgroups of [`FarnebackGpu::encode_flow`]'s dispatches, in the order of its gate
+    /// entries (one per dispatch).
+    pub fn flow_shapes(&self) -> Vec<(u32, u32)> {
+        let steps = self.flow_steps(0, 1, false).unwrap_or_default();
+        steps.iter().map(|s| s.groups).collect()
     }
 
     /// The workgroups of [`FarnebackGpu::encode_copy`]'s dispatches (one per level).
     pub fn copy_shapes(&self) -> Vec<(u32, u32)> {
-        self.copy_groups.clone()
+        let steps = self.copy_steps(0, 1).unwrap_or_default();
+        steps.iter().map(|s| s.groups).collect()
     }
 
-    /// Records the copy of slot `from`'s expansion pyramid into slot `to` (the flow from `to`
-    /// then starts from `from`'s frame), gated by `gate` when given.
+    /// Records the flow from slot `from` to slot `to` into [`FarnebackGpu::flow_buffer`], gated
+    /// by `gate` when given (entries as [`FarnebackGpu::flow_shapes`] lists them).
+    pub fn encode_flow(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        (from, to): (usize, usize),
+        gate: Option<Gate<'_>>,
+    ) -> Result<()> {
+        let steps = self.flow_steps(from, to, false)?;
+        self.encode(enc, "farneback flow", &steps, gate);
+        Ok(())
+    }
+
+    /// Records the copy of slot `from`'s expansion pyramid into slot `to` (a flow from `to` then
+    /// starts from `from`'s frame), gated by `gate` when given (entries as
+    /// [`FarnebackGpu::copy_shapes`] lists them).
     pub fn encode_copy(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -621,82 +1021,44 @@ impl FarnebackGpu {
         to: usize,
         gate: Option<Gate<'_>>,
     ) -> Result<()> {
-        let (_, per_level) = self
-            .copies
-            .iter()
-            .find(|(k, _)| *k == (from, to))
-            .ok_or_else(|| {
-                Error::param("slots", format!("need two distinct slots below {SLOTS}"))
-            })?;
-        let mut pass = compute_pass(enc, "farneback copy");
-        for (k, (bg, groups)) in per_level.iter().zip(&self.copy_groups).enumerate() {
-            self.ctx
-                .dispatch_gated(&mut pass, (&self.pipes.copy, bg), *groups, gate, k);
-        }
+        let steps = self.copy_steps(from, to)?;
+        self.encode(enc, "farneback copy", &steps, gate);
         Ok(())
     }
 
-    fn encode_pyramid(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
-        let full = &self.levels[0];
-        let mut pass = compute_pass(enc, "farneback pyramid");
-        for (l, g) in self.levels.iter().zip(&self.slots[slot].levels) {
-            let f = groups16(full.width, full.height);
-            let lg = groups16(l.width, l.height);
-            let steps: [(&wgpu::ComputePipeline, (u32, u32)); 5] = [
-                (&self.pipes.smooth_rows, f),
-                (&self.pipes.smooth_cols, f),
-                (&self.pipes.resize, lg),
-                (&self.pipes.poly_cols, lg),
-                (&self.pipes.poly_rows, lg),
-            ];
-            for ((pipe, groups), bg) in steps.into_iter().zip(g) {
-                self.ctx.dispatch(&mut pass, pipe, bg, groups);
-            }
-        }
-    }
-
-    /// Records the flow from slot `from` to slot `to` into [`FarnebackGpu::flow_buffer`]
-    /// (continuing the coarsest level's flow when `initial`), gated by `gate` when given (entries
-    /// as [`FarnebackGpu::flow_shapes`] lists them).
-    pub fn encode_flow(
+    /// Development aid: runs the pyramid of slot 0 and the flow from slot 0 to slot 1 (frames
+    /// loaded before) one dispatch at a time, waiting for each, `rounds` times; returns per
+    /// dispatch kind (in first-use order) the dispatches per pair and the ms per pair, each
+    /// dispatch counted at its fastest round (the machine may be shared), as measured by `clock`
+    /// (ms; e.g. wall time, or the process's CPU time on a shared machine).
+    pub fn profile(
         &self,
-        enc: &mut wgpu::CommandEncoder,
-        (from, to): (usize, usize),
-        initial: bool,
-        gate: Option<Gate<'_>>,
-    ) -> Result<()> {
-        let (_, per_level) = self
-            .flows
-            .iter()
-            .find(|(k, _)| *k == (from, to))
-            .ok_or_else(|| {
-                Error::param("slots", format!("need two distinct slots below {SLOTS}"))
-            })?;
-        let top = self.levels.len() - 1;
-        if !initial {
-            enc.clear_buffer(&self.flow[top], 0, None);
-        }
-        let shapes = self.flow_shapes();
-        let mut pass = compute_pass(enc, "farneback flow");
-        let mut run = |pipe: &wgpu::ComputePipeline, bg: &wgpu::BindGroup, shape: usize| {
-            self.ctx
-                .dispatch_gated(&mut pass, (pipe, bg), shapes[shape], gate, shape);
-        };
-        for k in (0..=top).rev() {
-            let lf = &per_level[k];
-            if let Some(up) = &lf.upsample {
-                run(&self.pipes.resize, up, 3 * k);
+        rounds: usize,
+        clock: &dyn Fn() -> f64,
+    ) -> Result<Vec<(&'static str, usize, f64)>> {
+        let steps = [self.pyramid_steps(0), self.flow_steps(0, 1, false)?].concat();
+        let mut best = vec![f64::MAX; steps.len()];
+        for _ in 0..rounds.max(1) {
+            for (s, b) in steps.iter().zip(best.iter_mut()) {
+                let t = clock();
+                let mut enc = self.ctx.encoder("farneback profile");
+                self.encode(&mut enc, "farneback profile", std::slice::from_ref(s), None);
+                self.ctx.queue.submit([enc.finish()]);
+                self.ctx.wait()?;
+                *b = b.min(clock() - t);
             }
-            run(&self.pipes.matrices, &lf.matrices, 3 * k);
-            for i in 0..self.params.iterations {
-                run(&self.pipes.flow_cols, &lf.cols, 3 * k + 1);
-                run(&self.pipes.flow_rows, &lf.rows, 3 * k + 2);
-                if i + 1 < self.params.iterations {
-                    run(&self.pipes.matrices, &lf.matrices, 3 * k);
+        }
+        let mut out: Vec<(&'static str, usize, f64)> = Vec::new();
+        for (s, ms) in steps.iter().zip(best) {
+            match out.iter_mut().find(|(k, _, _)| *k == s.kind) {
+                Some(e) => {
+                    e.1 += 1;
+                    e.2 += ms;
                 }
+                None => out.push((s.kind, 1, ms)),
             }
         }
-        Ok(())
+        Ok(out)
     }
 
     /// Uploads `gray` into `slot` and computes its expansion pyramid on the device.
@@ -710,7 +1072,12 @@ impl FarnebackGpu {
         self.ctx
             .upload_mat(buf, gray, opencv::core::CV_8UC1, w, h, what, &mut self.pad)?;
         let mut enc = self.ctx.encoder("farneback pyramid");
-        self.encode_pyramid(&mut enc, slot);
+        self.encode(
+            &mut enc,
+            "farneback pyramid",
+            &self.pyramid_steps(slot),
+            None,
+        );
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
@@ -731,7 +1098,12 @@ impl FarnebackGpu {
         }
         let mut enc = self.ctx.encoder("farneback pyramid");
         enc.copy_buffer_to_buffer(gray, 0, &self.slots[slot].gray, 0, bytes);
-        self.encode_pyramid(&mut enc, slot);
+        self.encode(
+            &mut enc,
+            "farneback pyramid",
+            &self.pyramid_steps(slot),
+            None,
+        );
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
@@ -750,6 +1122,7 @@ impl FarnebackGpu {
         to: usize,
         initial: Option<&Mat>,
     ) -> Result<()> {
+        let steps = self.flow_steps(from, to, initial.is_some())?;
         let mut enc = self.ctx.encoder("farneback flow");
         if let Some(init) = initial {
             let top = self
@@ -779,17 +1152,24 @@ impl FarnebackGpu {
             small
                 .convert_to(&mut scaled, opencv::core::CV_32FC2, top.scale, 0.0)
                 .cv(|| "scale initial flow".into())?;
-            let bytes = scaled.data_bytes().cv(|| "initial flow bytes".into())?;
-            self.ctx.write(&self.flow[self.levels.len() - 1], 0, bytes);
+            let values = scaled
+                .data_typed::<opencv::core::Vec2f>()
+                .cv(|| "initial flow values".into())?;
+            let Some((top_flow, _)) = &self.level_scratch[self.levels.len() - 1].initial else {
+                return Err(Error::Gpu("no initial flow texture".into()));
+            };
+            let bytes = planar_flow(values, top.width as usize);
+            self.ctx
+                .write_texture(top_flow, &bytes, top_flow.width() * 16);
         }
-        self.encode_flow(&mut enc, (from, to), initial.is_some(), None)?;
+        self.encode(&mut enc, "farneback flow", &steps, None);
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
 
     /// The full-resolution flow buffer (2 x f32 per pixel) of the last pair.
     pub fn flow_buffer(&self) -> &wgpu::Buffer {
-        &self.flow[0]
+        &self.flow_out
     }
 
     /// Reads back the flow of the last pair as CV_32FC2.
@@ -797,7 +1177,7 @@ impl FarnebackGpu {
         let (w, h) = (self.levels[0].width, self.levels[0].height);
         let bytes = self
             .ctx
-            .read_back(&self.flow[0], u64::from(w) * u64::from(h) * 8)?;
+            .read_back(&self.flow_out, u64::from(w) * u64::from(h) * 8)?;
         let floats: &[f32] = bytemuck::cast_slice(&bytes);
         let mut m = Mat::new_rows_cols_with_default(
             h as i32,
@@ -828,39 +1208,18 @@ impl FarnebackGpu {
     }
 }
 
-/// Per ordered slot pair, per level: the bind group copying the expansion; per level: the
-/// copy's workgroups.
-fn copies(
-    ctx: &GpuContext,
-    pipe: &wgpu::ComputePipeline,
-    slots: &[FrameSlot],
-) -> (PerPair<wgpu::BindGroup>, Vec<(u32, u32)>) {
-    let Some(first) = slots.first() else {
-        return (Vec::new(), Vec::new());
-    };
-    let (groups, params): (Vec<_>, Vec<_>) = first
-        .r
-        .iter()
-        .map(|r| {
-            let words = (r.size() / 4) as u32;
-            let total = words.div_ceil(256);
-            let gx = total.clamp(1, 65_535);
-            let params = ctx.uniform("copy params", &[words, gx, 0, 0]);
-            ((gx, total.div_ceil(gx)), params)
-        })
-        .unzip();
-    let mut out = Vec::new();
-    for (from, a) in slots.iter().enumerate() {
-        for (to, b) in slots.iter().enumerate().filter(|&(t, _)| t != from) {
-            let per_level = (a.r.iter().zip(&b.r).zip(&params))
-                .map(|((src, dst), p)| {
-                    ctx.bind("farneback copy", pipe, &[(0, src), (1, dst), (2, p)])
-                })
-                .collect();
-            out.push(((from, to), per_level));
-        }
+/// A flow field (`width` pixels per row) in the layout of the level flow textures: per row and
+/// texel t, the x components of pixels 4 t .. 4 t + 3, then their y components (f32 bytes).
+fn planar_flow(values: &[opencv::core::Vec2f], width: usize) -> Vec<u8> {
+    let n = width.div_ceil(4);
+    let mut out = vec![0f32; values.len().div_ceil(width.max(1)) * n * 8];
+    for (i, v) in values.iter().enumerate() {
+        let (y, x) = (i / width, i % width);
+        let o = (y * n + x / 4) * 8 + x % 4;
+        out[o] = v[0];
+        out[o + 4] = v[1];
     }
-    (out, groups)
+    bytemuck::cast_slice(&out).to_vec()
 }
 
 /// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).

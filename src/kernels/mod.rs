@@ -22,10 +22,7 @@ pub const F64_WGSL: &str = include_str!("../../shaders/f64.wgsl");
 pub const SHADERS: &[(&str, &str)] = &[
     ("tenengrad", tenengrad::WGSL),
     ("laplacian", laplacian::WGSL),
-    ("farneback_smooth", farneback::SMOOTH_WGSL),
-    ("farneback_resize", farneback::RESIZE_WGSL),
-    ("farneback_polyexp", farneback::POLYEXP_WGSL),
-    ("farneback_matrices", farneback::MATRICES_WGSL),
+    ("farneback_pyramid", farneback::PYRAMID_WGSL),
     ("farneback_flow", farneback::FLOW_WGSL),
     ("movement", movement::WGSL),
     ("stationary", stationary::WGSL),

@@ -312,6 +312,8 @@ fn drop_damaged(s: &SelectSettings, mut keys: Vec<usize>, damaged: &[usize]) -> 
 struct Known {
     metadata: Option<Metadata>,
     cache: Cache,
+    /// The history of the project being replaced (its `--auto` thresholds are reused).
+    history: Vec<HistoryEntry>,
     problems: Vec<String>,
     damaged: Vec<usize>,
     decoded: bool,
@@ -329,6 +331,7 @@ impl Known {
             Some(p) => Known {
                 metadata: Some(p.metadata),
                 cache: p.cache,
+                history: p.history,
                 problems: p.decode_problems,
                 damaged: p.damaged_frames,
                 decoded: false,
@@ -336,11 +339,44 @@ impl Known {
             None => Known {
                 metadata: None,
                 cache: Cache::default(),
+                history: Vec::new(),
                 problems: Vec::new(),
                 damaged: Vec::new(),
                 decoded: false,
             },
         }
+    }
+
+    /// The threshold an earlier `select` proposed from its movement sample for `plugin`
+    /// (`stationary` or `spacing` with `auto`), measured the way `movement` says on `backend`. The
+    /// sample is a function of the input (unchanged: its fingerprint matched) and of those two, so
+    /// re-selecting reuses it instead of decoding the sample again; the selection then stays the
+    /// one the cache was made for.
+    fn recorded_auto(
+        &self,
+        plugin: &str,
+        movement: &MovementRequest,
+        backend: Backend,
+    ) -> Option<f64> {
+        self.history
+            .iter()
+            .find_map(|e| match Applied::from_entry(e).ok()? {
+                Applied::Stationary {
+                    auto: true,
+                    backend: Some(b),
+                    movement: Some(m),
+                    threshold_px: Some(t),
+                    ..
+                } if plugin == "stationary" && b == backend && m == *movement => Some(t),
+                Applied::Spacing {
+                    auto: true,
+                    backend: Some(b),
+                    movement: Some(m),
+                    threshold_px,
+                    ..
+                } if plugin == "spacing" && b == backend && m == *movement => Some(threshold_px),
+                _ => None,
+            })
     }
 
     /// The stationary sampler runs during decoding and needs its frame range first: with
@@ -497,22 +533,54 @@ impl AutoThresholds {
             return Ok(t);
         }
         let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
-        let sample = gpu::or_opencv("the movement sample", backend, ctx.as_ref(), |b, c| {
-            analysis::sample_movement(&s.input, open, s.movement, 40, b, c)
-        })?;
-        let meta = known.metadata(s, open)?;
+        let recorded = |plugin: &str, wanted: bool| {
+            wanted
+                .then(|| known.recorded_auto(plugin, &s.movement, backend))
+                .flatten()
+        };
+        let reused = |what: &str, t: f64| {
+            format!(
+                "{what}: {t:.3} px, proposed from a movement sample when {} was written (same input, \
+                 same movement measurement); give a number to change it",
+                s.output.display()
+            )
+        };
+        let (old_stationary, old_spacing) = (
+            recorded("stationary", wants_auto_stationary),
+            recorded("spacing", auto_spacing),
+        );
+        let needs_sample = (wants_auto_stationary && old_stationary.is_none())
+            || (auto_spacing && old_spacing.is_none());
+        let sample = match needs_sample {
+            true => gpu::or_opencv("the movement sample", backend, ctx.as_ref(), |b, c| {
+                analysis::sample_movement(&s.input, open, s.movement, 40, b, c)
+            })?,
+            false => Vec::new(),
+        };
         if wants_auto_stationary {
-            let p = steps::auto::stationary_threshold(&sample);
+            let (threshold, said) = match old_stationary {
+                Some(v) => (v, reused("stationary --auto", v)),
+                None => {
+                    let p = steps::auto::stationary_threshold(&sample);
+                    (p.threshold, format!("stationary --auto: {}", p.explanation))
+                }
+            };
             if let Some(st) = t.stationary.as_mut() {
-                st.threshold = Some(p.threshold);
+                st.threshold = Some(threshold);
             }
-            t.proposals
-                .push(format!("stationary --auto: {}", p.explanation));
+            t.proposals.push(said);
         }
         if auto_spacing {
-            let p = steps::auto::spacing_threshold(&sample, meta.width, meta.frame_count);
-            t.spacing = Some(p.threshold);
-            t.proposals.push(format!("spacing auto: {}", p.explanation));
+            let (threshold, said) = match old_spacing {
+                Some(v) => (v, reused("spacing auto", v)),
+                None => {
+                    let meta = known.metadata(s, open)?;
+                    let p = steps::auto::spacing_threshold(&sample, meta.width, meta.frame_count);
+                    (p.threshold, format!("spacing auto: {}", p.explanation))
+                }
+            };
+            t.spacing = Some(threshold);
+            t.proposals.push(said);
         }
         Ok(t)
     }

@@ -106,11 +106,46 @@ pub fn spacing_for_count(candidates: &[usize], movement: &[f64], count: usize) -
         }
     }
     let (above, below) = (kept(lo)?, kept(hi)?);
-    Ok(if above.abs_diff(count) < below.abs_diff(count) {
+    let t = if above.abs_diff(count) < below.abs_diff(count) {
         lo
     } else {
         hi
-    })
+    };
+    middle_of_same_selection(candidates, movement, t, (total * 1e-9, total * 2.0))
+}
+
+/// The middle of the interval of thresholds that keep the same frames as `t` (within `bounds`).
+/// The keyframes change where a threshold equals an accumulated sum, and bisection for a count
+/// ends on such an edge; recorded there, the threshold would select other frames after any change
+/// of the movement in its last digits (another backend, a saved workflow run elsewhere). The set
+/// is fixed on an interval: each kept frame bounds the threshold from above by the sum that
+/// reached it, each skipped one from below by the sum that did not.
+fn middle_of_same_selection(
+    candidates: &[usize],
+    movement: &[f64],
+    t: f64,
+    bounds: (f64, f64),
+) -> Result<f64> {
+    let want = spacing(candidates, movement, t)?;
+    let same = |x: f64| spacing(candidates, movement, x).map(|k| k == want);
+    // Bisects between `inside` (same frames) and `outside`; returns the last inside point.
+    let edge = |mut inside: f64, mut outside: f64| -> Result<f64> {
+        if same(outside)? {
+            return Ok(outside);
+        }
+        for _ in 0..100 {
+            let mid = 0.5 * (inside + outside);
+            if same(mid)? {
+                inside = mid;
+            } else {
+                outside = mid;
+            }
+        }
+        Ok(inside)
+    };
+    let (low, high) = (edge(t, bounds.0)?, edge(t, bounds.1)?);
+    let mid = 0.5 * (low + high);
+    Ok(if same(mid)? { mid } else { t })
 }
 
 /// The series the report draws under a movement threshold: movement accumulated over
@@ -182,6 +217,15 @@ mod tests {
             );
             if n <= 37 {
                 assert_eq!(got, n);
+            }
+            // Centred: the same frames at 0.1 % either side of the threshold.
+            let keys = super::spacing(&c, &mv, t).unwrap();
+            for x in [t * 0.999, t * 1.001] {
+                assert_eq!(
+                    super::spacing(&c, &mv, x).unwrap(),
+                    keys,
+                    "count {n}: {x} vs {t}"
+                );
             }
         }
         assert!(super::spacing_for_count(&c, &vec![0.0; 300], 5).is_err());

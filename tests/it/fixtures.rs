@@ -1,5 +1,4 @@
-//! Fixtures written by the version before the typed-steps redesign (`tests/fixtures/v1`, made by
-//! its `make.sh`): every case is replayed with this build and must give the same project file
+//! Fixtures of an earlier version (`tests/fixtures/v2`, made by its `make.sh`, which says which): every case is replayed with this build and must give the same project file
 //! (byte for byte, re-selected from the fixture's cache), the same `workflow save`, byte-identical
 //! exported images with the same manifest, and the same keyframes when its workflow is run.
 
@@ -11,7 +10,7 @@ use std::process::{Command, Output};
 const MTIME: u64 = 1_700_000_000;
 
 fn fixtures() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/v1")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/v2")
 }
 
 /// One line of cases.tsv.

@@ -157,6 +157,44 @@ fn stationary_drops_the_hover_not_the_pans() {
         (1..60).chain(151..210).all(|i| keys.contains(&i)),
         "{keys:?}"
     );
+
+    // Re-selecting over that project reuses its proposal (no second sample, the same threshold);
+    // another movement measurement samples again.
+    let threshold = |p: &Path| -> f64 {
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap();
+        v["history"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|e| e["plugin"] == "stationary")
+            .unwrap()["params"]["threshold_px"]
+            .as_f64()
+            .unwrap()
+    };
+    let first = threshold(&p);
+    let again = kf_loud(&select_args(
+        &clip,
+        &p,
+        "opencv",
+        &["--stationary", "--auto"],
+    ));
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(again.status.success(), "{err}");
+    assert!(
+        err.contains("proposed from a movement sample when") && !err.contains("sampled"),
+        "{err}"
+    );
+    assert_eq!(threshold(&p), first);
+    assert_eq!(keyframes(&p), keys);
+    let other = kf_loud(&select_args(
+        &clip,
+        &p,
+        "opencv",
+        &["--stationary", "--auto", "--winsize", "21"],
+    ));
+    let err = String::from_utf8_lossy(&other.stderr);
+    assert!(err.contains("stationary --auto: sampled"), "{err}");
 }
 
 fn cv(v: &[f64]) -> f64 {
