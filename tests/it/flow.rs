@@ -290,6 +290,43 @@ fn synthetic_translation_is_recovered() {
 }
 
 /// `keyframer flow` writes a Middlebury .flo that both backends agree on.
+/// The gated copy of a slot's expansion pyramid: with its gate closed the target slot keeps its
+/// frame, open it receives the source's, so the flow from it is bit-identical to the flow from
+/// the source.
+#[test]
+fn gated_copy_moves_a_pyramid_only_when_open() {
+    use keyframer::gpu::Gate;
+    let prev = gray_of(&testdata("opencv-doc/rubberwhale1.png"));
+    let next = gray_of(&testdata("opencv-doc/rubberwhale2.png"));
+    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None).unwrap());
+    let (w, h) = (prev.cols() as u32, prev.rows() as u32);
+    let mut gpu = FarnebackGpu::new(ctx.clone(), FarnebackParams::default(), w, h).unwrap();
+    gpu.load(0, &prev).unwrap();
+    gpu.load(1, &next).unwrap();
+    gpu.load(2, &next).unwrap();
+    let flow_to_1 = |gpu: &mut FarnebackGpu, from: usize| {
+        gpu.flow_between(from, 1).unwrap();
+        gpu.read_flow().unwrap().data_bytes().unwrap().to_vec()
+    };
+    let from_prev = flow_to_1(&mut gpu, 0);
+    let from_next = flow_to_1(&mut gpu, 2);
+    assert_ne!(from_prev, from_next);
+    for (open, want) in [(false, &from_next), (true, &from_prev)] {
+        let table: Vec<u32> = (gpu.copy_shapes().iter())
+            .flat_map(|&(x, y)| if open { [x, y, 1] } else { [0; 3] })
+            .collect();
+        let args = ctx.indirect_buffer("gates", bytemuck::cast_slice(&table));
+        let mut enc = ctx.encoder("gated copy");
+        let gate = Some(Gate {
+            args: &args,
+            first: 0,
+        });
+        gpu.encode_copy(&mut enc, 0, 2, gate).unwrap();
+        ctx.queue.submit([enc.finish()]);
+        assert!(flow_to_1(&mut gpu, 2) == *want, "gate open: {open}");
+    }
+}
+
 #[test]
 fn flow_command_writes_flo() {
     use crate::common::{kf, kf_ok, s};
