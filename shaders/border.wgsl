@@ -1,4 +1,4 @@
-// border.wgsl (prelude of the Farneback shaders): border rules and the helpers of images stored
+// border.wgsl (prelude of the Farneback and strip shaders): border rules and the helpers of images stored
 // four pixels to a texel (texel t of a row holds pixels 4 t .. 4 t + 3, one per component).
 
 // OpenCV's BORDER_REFLECT_101 for one reflection (|i| and i - n below n).

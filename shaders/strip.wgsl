@@ -1,4 +1,4 @@
-// strip.wgsl (prelude of tenengrad.wgsl and laplacian.wgsl): an 8-bit BGR frame read as a texture
+// strip.wgsl (prelude of tenengrad.wgsl and laplacian.wgsl, after border.wgsl): an 8-bit BGR frame read as a texture
 // in strips of 16 pixels, converted to gray in registers; no shared memory, no barrier.
 // Frame layout: texture_2d<u32> Rgba32Uint, one texture row per frame row; row y's 3 * width bytes
 // (B, G, R per pixel, little-endian words x, y, z, w) fill its texels from texel 0, the rest of
@@ -29,20 +29,6 @@ struct StripParams {
 @group(0) @binding(1) var<storage, read_write> totals: array<atomic<u32>>;
 @group(0) @binding(2) var<uniform> params: StripParams;
 @group(0) @binding(3) var<storage, read_write> gray: array<u32>;
-
-fn reflect101(i: i32, n: i32) -> i32 {
-    if (n == 1) {
-        return 0;
-    }
-    var j = i;
-    if (j < 0) {
-        j = -j;
-    }
-    if (j >= n) {
-        j = 2 * n - 2 - j;
-    }
-    return j;
-}
 
 // One row of a strip in gray: `l` and `r` the left and right neighbours (pixels 16 k - 1 and
 // 16 k + 16), p0..p3 pixels 16 k .. 16 k + 15, four per vector.

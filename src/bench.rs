@@ -116,6 +116,8 @@ pub struct FlowRow {
     pub params: String,
     /// cv::calcOpticalFlowFarneback, ms per frame pair.
     pub opencv_ms: f64,
+    /// Rows per invocation of the pyramid's strip passes.
+    pub strip_rows: u32,
     /// gpu backend streaming a video (one pyramid per new frame, flow, no readback), ms per pair.
     pub gpu_ms: f64,
     /// What the gpu backend asked of the device, per pair.
@@ -126,10 +128,13 @@ pub struct FlowRow {
 pub const FLOW_SIZES: [(u32, u32); 3] = [(320, 180), (640, 360), (1280, 720)];
 
 /// Times Farneback with OpenCV's tutorial parameters and with (levels 5, winsize 13,
-/// iterations 10, poly_n 5, poly_sigma 1.1) at every size over `pairs` frame pairs.
-pub fn flow(ctx: &Arc<GpuContext>, pairs: usize) -> Result<Vec<FlowRow>> {
+/// iterations 10, poly_n 5, poly_sigma 1.1) at every size over `pairs` frame pairs; the gpu once
+/// per strip height in `shapes` (empty: the adapter's choice).
+pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<FlowRow>> {
     use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams};
     let pairs = pairs.max(1);
+    let own = [farneback::strip_rows_for(ctx)];
+    let shapes = if shapes.is_empty() { &own[..] } else { shapes };
     let tutorial = FarnebackParams::default();
     let heavy = FarnebackParams {
         levels: 5,
@@ -153,27 +158,30 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize) -> Result<Vec<FlowRow>> {
                 farneback::opencv(&frames[i % 2], &frames[(i + 1) % 2], &p, None)?;
             }
             let opencv_ms = t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
-            let mut gpu = FarnebackGpu::new(ctx.clone(), p, w, h)?;
-            gpu.load(0, &frames[0])?;
-            gpu.load(1, &frames[1])?;
-            gpu.flow_between(0, 1)?;
-            gpu.read_flow()?; // warm-up
-            let (t, before) = (Instant::now(), ctx.counts());
-            for i in 0..pairs {
-                let (from, to) = (i % 2, (i + 1) % 2);
-                gpu.load(to, &frames[to])?;
-                gpu.flow_between(from, to)?;
+            for &strip_rows in shapes {
+                let mut gpu = FarnebackGpu::with_strip_rows(ctx.clone(), p, w, h, strip_rows)?;
+                gpu.load(0, &frames[0])?;
+                gpu.load(1, &frames[1])?;
+                gpu.flow_between(0, 1)?;
+                gpu.read_flow()?; // warm-up
+                let (t, before) = (Instant::now(), ctx.counts());
+                for i in 0..pairs {
+                    let (from, to) = (i % 2, (i + 1) % 2);
+                    gpu.load(to, &frames[to])?;
+                    gpu.flow_between(from, to)?;
+                }
+                ctx.wait()?;
+                let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
+                rows.push(FlowRow {
+                    width: w,
+                    height: h,
+                    params: label.into(),
+                    opencv_ms,
+                    strip_rows,
+                    gpu_ms,
+                    per_frame: PerFrame::of(ctx.counts() - before, pairs),
+                });
             }
-            ctx.wait()?;
-            let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
-            rows.push(FlowRow {
-                width: w,
-                height: h,
-                params: label.into(),
-                opencv_ms,
-                gpu_ms,
-                per_frame: PerFrame::of(ctx.counts() - before, pairs),
-            });
         }
     }
     Ok(rows)
@@ -185,20 +193,22 @@ pub fn render_flow(adapter: &str, pairs: usize, rows: &[FlowRow]) -> String {
         "farneback, {pairs} pairs per cell, gpu = {adapter} (streaming: one pyramid per frame + flow)\n"
     );
     s += &format!(
-        "{:>10} {:>20} {:>12} {:>12} {:>12}{}\n",
+        "{:>10} {:>20} {:>12} {:>6} {:>12} {:>12}{}\n",
         "size",
         "params",
         "opencv ms",
+        "rows",
         "gpu ms",
         "opencv/gpu",
         PerFrame::HEADER
     );
     for r in rows {
         s += &format!(
-            "{:>10} {:>20} {:>12.1} {:>12.1} {:>12.2}{}\n",
+            "{:>10} {:>20} {:>12.1} {:>6} {:>12.1} {:>12.2}{}\n",
             format!("{}x{}", r.width, r.height),
             r.params,
             r.opencv_ms,
+            r.strip_rows,
             r.gpu_ms,
             r.opencv_ms / r.gpu_ms,
             r.per_frame.columns()

@@ -206,8 +206,8 @@ pub struct BenchArgs {
     /// Frames per size and backend.
     #[arg(long, default_value_t = 24)]
     pub frames: usize,
-    /// sharpness: strip heights (rows per invocation) to compare, e.g. 4,12,36 (default: the
-    /// adapter's own choice).
+    /// sharpness, flow: strip heights (rows per invocation) to compare, e.g. 4,12,36 (default:
+    /// the adapter's own choice).
     #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u32).range(1..))]
     pub strip_rows: Vec<u32>,
     /// GPU adapter (part of its name).

@@ -142,7 +142,7 @@ fn bench(a: &cli::BenchArgs) -> Result<Outcome> {
         cli::BenchWhat::Pipeline => {}
         cli::BenchWhat::Flow => {
             let pairs = a.frames.min(8);
-            let rows = keyframer::bench::flow(&ctx, pairs)?;
+            let rows = keyframer::bench::flow(&ctx, pairs, &a.strip_rows)?;
             print!(
                 "{}",
                 keyframer::bench::render_flow(&ctx.info.name, pairs, &rows)

@@ -5,8 +5,9 @@ use crate::error::{CvContext, Result};
 use opencv::core::{self, Mat, Vector};
 use opencv::imgproc;
 
-/// WGSL source, after its prelude (shaders/strip.wgsl, whose `StripParams` it takes).
+/// WGSL source, after its preludes (shaders/border.wgsl, shaders/strip.wgsl, whose `StripParams` it takes).
 pub const WGSL: &str = concat!(
+    include_str!("../../shaders/border.wgsl"),
     include_str!("../../shaders/strip.wgsl"),
     include_str!("../../shaders/laplacian.wgsl")
 );

@@ -6,8 +6,9 @@ use opencv::core::{self, Mat};
 use opencv::imgproc;
 use opencv::prelude::MatTraitConst;
 
-/// WGSL source, after its prelude (shaders/strip.wgsl, whose `StripParams` it takes).
+/// WGSL source, after its preludes (shaders/border.wgsl, shaders/strip.wgsl, whose `StripParams` it takes).
 pub const WGSL: &str = concat!(
+    include_str!("../../shaders/border.wgsl"),
     include_str!("../../shaders/strip.wgsl"),
     include_str!("../../shaders/tenengrad.wgsl")
 );

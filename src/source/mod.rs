@@ -4,6 +4,7 @@
 pub mod codec_keyframes;
 mod images;
 mod natural;
+pub mod telemetry;
 mod video;
 
 pub use images::{check_image, escaped_name, is_image_name, list_images, ImageSource};

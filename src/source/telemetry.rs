@@ -1,0 +1,703 @@
+//! Drone telemetry from a DJI SRT sidecar: one fix (time, position, camera facts) per subtitle
+//! entry, read leniently (CRLF, a BOM, missing fields, unknown fields); every entry skipped or
+//! suspicious becomes a warning naming the file and line, never a silent guess.
+//!
+//! The families read (each entry's text, after the SRT index and `start --> end` lines):
+//! - bracketed (Mini 2/3/4, Air 2S, Mavic 3 and later): `[latitude: 47.1] [longitude: 8.5]
+//!   [rel_alt: 40.0 abs_alt: 512.3] [iso: 100] [shutter: 1/1000.0] [fnum: 2.8]
+//!   [focal_len: 24.00] [gb_pitch: -90.0]`, also `longtitude` (a firmware spelling), `altitude`,
+//!   `key : value` with a space, several `key: value` pairs in one bracket, an F-number times
+//!   100 (`fnum: 170`) and a focal length times 10 (`focal_len: 240`);
+//! - older (Phantom 3/4, Mavic Pro): `GPS(8.5,47.1,16)` or `GPS (8.5, 47.1, 16)` with longitude
+//!   first, `BAROMETER:40.5` or `H 40.50m` for the height above take-off, `ISO:100`, `Fnum:F2.2`
+//!   or `F/2.8`, `Shutter:60` or `SS 320` (1/60 s, 1/320 s).
+//!
+//! The focal length DJI writes is the 35 mm equivalent. DJI does not publish the format; the
+//! families are as described in OpenDroneMap's `opendm/video/srtparser.py` (Mavic Air 2 and
+//! Mavic Mini samples in its comments) and the DJI_SRT_Parser project (JuanIrache, Mavic Pro and
+//! Phantom files); the tests' entries are written from those descriptions.
+
+use crate::error::{Error, Result};
+use std::path::{Path, PathBuf};
+use time::format_description::well_known::Rfc3339;
+use time::OffsetDateTime;
+
+/// One telemetry entry.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Fix {
+    /// Seconds from the start of the video (the entry's start time).
+    pub t_s: f64,
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    /// Height above the take-off point, metres.
+    pub rel_alt_m: Option<f64>,
+    /// Altitude above sea level (GPS or barometric, as the drone reports it), metres.
+    pub abs_alt_m: Option<f64>,
+    /// 35 mm equivalent focal length, millimetres.
+    pub focal_35mm: Option<f64>,
+    /// Gimbal pitch, degrees (-90: nadir).
+    pub gimbal_pitch_deg: Option<f64>,
+    pub iso: Option<f64>,
+    /// Exposure time, seconds.
+    pub shutter_s: Option<f64>,
+    pub fnum: Option<f64>,
+    /// Where the fix is in its file, for messages: an SRT entry's time line, a GPX track point's
+    /// number (from 1, over all tracks and segments), 0 for an image's EXIF.
+    pub line: usize,
+}
+
+/// The fixes of one telemetry file, in time order, and what was wrong with it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Track {
+    pub path: PathBuf,
+    pub fixes: Vec<Fix>,
+    /// `FILE:line N: what` (GPX: `FILE:point N: what`) for every entry skipped or suspicious.
+    pub warnings: Vec<String>,
+}
+
+/// Consecutive fixes further apart than this (metres per second of their time difference, with
+/// a floor of one second) are reported as a jump: no drone flies 200 m/s.
+const JUMP_M_PER_S: f64 = 200.0;
+
+/// The DJI sidecar of `video`: the same stem with `.SRT` or `.srt`, when it exists.
+pub fn sidecar_of(video: &Path) -> Option<PathBuf> {
+    ["SRT", "srt"]
+        .iter()
+        .map(|e| video.with_extension(e))
+        .find(|p| p.is_file())
+}
+
+/// Reads and parses the DJI SRT file at `path`. Fails when it cannot be read or holds no fix.
+pub fn read_dji_srt(path: &Path) -> Result<Track> {
+    let bytes = std::fs::read(path).map_err(|source| Error::Io {
+        path: path.into(),
+        source,
+    })?;
+    let track = parse_dji_srt(path, &String::from_utf8_lossy(&bytes));
+    if track.fixes.is_empty() {
+        let why = track.warnings.first().map(String::as_str).unwrap_or("");
+        return Err(Error::Input {
+            path: path.into(),
+            msg: format!("no telemetry entry with a position (first problem: {why})"),
+        });
+    }
+    Ok(track)
+}
+
+/// Parses the text of a DJI SRT file (`path` names it in warnings).
+pub fn parse_dji_srt(path: &Path, text: &str) -> Track {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let lines: Vec<&str> = text.lines().map(|l| l.trim_end_matches('\r')).collect();
+    let mut track = Track {
+        path: path.into(),
+        fixes: Vec::new(),
+        warnings: Vec::new(),
+    };
+    let name = path.display().to_string();
+    let mut i = 0;
+    while i < lines.len() {
+        let Some(t_s) = lines[i].split_once("-->").and_then(|(a, _)| srt_time(a)) else {
+            i += 1;
+            continue;
+        };
+        let line = i + 1;
+        let end = (i + 1..lines.len())
+            .find(|&j| lines[j].trim().is_empty() || lines[j].contains("-->"))
+            .unwrap_or(lines.len());
+        let body = lines[i + 1..end].join(" ");
+        match fix_of(&body, t_s, line) {
+            Ok(fix) => track.fixes.push(fix),
+            Err(why) => track
+                .warnings
+                .push(format!("{name}:line {line}: {why} (entry skipped)")),
+        }
+        i = end;
+    }
+    check_order_and_jumps(&mut track, "line");
+    track
+}
+
+/// Sorts the fixes by time (warning when they were not) and warns of every jump between
+/// consecutive fixes (`unit` names what `Fix::line` counts).
+fn check_order_and_jumps(track: &mut Track, unit: &str) {
+    let name = track.path.display().to_string();
+    if !track.fixes.windows(2).all(|w| w[0].t_s <= w[1].t_s) {
+        track
+            .warnings
+            .push(format!("{name}: entries out of time order (sorted)"));
+        track.fixes.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+    }
+    for w in track.fixes.windows(2) {
+        let d = distance_m(&w[0], &w[1]);
+        if d > JUMP_M_PER_S * (w[1].t_s - w[0].t_s).max(1.0) {
+            track.warnings.push(format!(
+                "{name}:{unit} {}: the position jumps {:.0} m from {unit} {} in {:.3} s",
+                w[1].line,
+                d,
+                w[0].line,
+                w[1].t_s - w[0].t_s
+            ));
+        }
+    }
+}
+
+/// Reads the track points of a GPX file (every track and segment) as fixes timed in seconds
+/// from `start` (the video's creation time) plus `offset_s` (`--telemetry-offset`, to correct
+/// the camera's clock): a point at `start + offset_s` is at the video's first frame. Points
+/// without a time are skipped with a warning. Fails when the file cannot be read or parsed, or
+/// holds no timed point.
+pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Track> {
+    let file = std::fs::File::open(path).map_err(|source| Error::Io {
+        path: path.into(),
+        source,
+    })?;
+    let gpx = gpx::read(std::io::BufReader::new(file))
+        .map_err(|e| Error::input(path, format!("not a readable GPX file: {e}")))?;
+    let mut track = Track {
+        path: path.into(),
+        fixes: Vec::new(),
+        warnings: Vec::new(),
+    };
+    let points = gpx
+        .tracks
+        .iter()
+        .flat_map(|t| &t.segments)
+        .flat_map(|s| &s.points);
+    for (k, p) in points.enumerate() {
+        let Some(time) = p.time else {
+            let msg = format!("{}:point {}: no time (skipped)", path.display(), k + 1);
+            track.warnings.push(msg);
+            continue;
+        };
+        let t = OffsetDateTime::from(time) - start;
+        let pos = p.point();
+        track.fixes.push(Fix {
+            t_s: t.as_seconds_f64() - offset_s,
+            lat_deg: pos.y(),
+            lon_deg: pos.x(),
+            rel_alt_m: None,
+            abs_alt_m: p.elevation,
+            focal_35mm: None,
+            gimbal_pitch_deg: None,
+            iso: None,
+            shutter_s: None,
+            fnum: None,
+            line: k + 1,
+        });
+    }
+    if track.fixes.is_empty() {
+        return Err(Error::input(path, "no track point with a time"));
+    }
+    check_order_and_jumps(&mut track, "point");
+    Ok(track)
+}
+
+/// The creation time a video's container records (`ffprobe` format tag `creation_time`), which
+/// GPX tracks are aligned by; `None` when the container has none.
+pub fn creation_time(video: &Path) -> Result<Option<OffsetDateTime>> {
+    let out = std::process::Command::new("ffprobe")
+        .args(["-v", "error", "-show_entries", "format_tags=creation_time"])
+        .args(["-of", "default=noprint_wrappers=1:nokey=1"])
+        .arg(video)
+        .output()
+        .map_err(|e| Error::input(video, format!("cannot run ffprobe: {e}")))?;
+    if !out.status.success() {
+        return Err(Error::input(video, "ffprobe cannot read the container"));
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    Ok(text
+        .lines()
+        .find_map(|l| OffsetDateTime::parse(l.trim(), &Rfc3339).ok()))
+}
+
+/// The EXIF GPS position of one image (and its 35 mm focal length), `None` when it has none;
+/// an unreadable EXIF block is an error naming the image.
+pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
+    use exif::{In, Tag, Value};
+    let file = std::fs::File::open(image).map_err(|source| Error::Io {
+        path: image.into(),
+        source,
+    })?;
+    let exif = match exif::Reader::new().read_from_container(&mut std::io::BufReader::new(file)) {
+        Ok(e) => e,
+        Err(exif::Error::NotFound(_)) => return Ok(None),
+        Err(e) => return Err(Error::input(image, format!("unreadable EXIF: {e}"))),
+    };
+    let field = |t: Tag| exif.get_field(t, In::PRIMARY).map(|f| &f.value);
+    let degrees = |t: Tag, reference: Tag, negative: u8| -> Option<f64> {
+        let Some(Value::Rational(v)) = field(t) else {
+            return None;
+        };
+        let d = v
+            .iter()
+            .zip([1.0, 60.0, 3600.0])
+            .map(|(r, s)| r.to_f64() / s)
+            .sum::<f64>();
+        let flip = matches!(field(reference), Some(Value::Ascii(a))
+            if a.first().and_then(|s| s.first()).is_some_and(|c| c.eq_ignore_ascii_case(&negative)));
+        Some(if flip { -d } else { d })
+    };
+    let (Some(lat), Some(lon)) = (
+        degrees(Tag::GPSLatitude, Tag::GPSLatitudeRef, b'S'),
+        degrees(Tag::GPSLongitude, Tag::GPSLongitudeRef, b'W'),
+    ) else {
+        return Ok(None);
+    };
+    let altitude = match field(Tag::GPSAltitude) {
+        Some(Value::Rational(v)) => v.first().map(|r| {
+            let below =
+                matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
+            if below {
+                -r.to_f64()
+            } else {
+                r.to_f64()
+            }
+        }),
+        _ => None,
+    };
+    let focal = exif
+        .get_field(Tag::FocalLengthIn35mmFilm, In::PRIMARY)
+        .and_then(|f| f.value.get_uint(0))
+        .map(f64::from)
+        .filter(|f| *f > 0.0);
+    Ok(Some(Fix {
+        t_s: 0.0,
+        lat_deg: lat,
+        lon_deg: lon,
+        rel_alt_m: None,
+        abs_alt_m: altitude,
+        focal_35mm: focal,
+        gimbal_pitch_deg: None,
+        iso: None,
+        shutter_s: None,
+        fnum: None,
+        line: 0,
+    }))
+}
+
+/// `HH:MM:SS,mmm` (or with a dot) in seconds.
+fn srt_time(s: &str) -> Option<f64> {
+    let s = s.trim().replace(',', ".");
+    let mut parts = s.split(':');
+    let (h, m, sec) = (parts.next()?, parts.next()?, parts.next()?);
+    if parts.next().is_some() {
+        return None;
+    }
+    let v = h.parse::<f64>().ok()? * 3600.0
+        + m.parse::<f64>().ok()? * 60.0
+        + sec.parse::<f64>().ok()?;
+    v.is_finite().then_some(v)
+}
+
+/// The fix in one entry's text, or why there is none.
+fn fix_of(body: &str, t_s: f64, line: usize) -> std::result::Result<Fix, String> {
+    let fields = fields(body);
+    let get = |keys: &[&str]| {
+        keys.iter().find_map(|k| {
+            fields
+                .iter()
+                .find(|(name, _)| name == k)
+                .map(|(_, v)| v.as_str())
+        })
+    };
+    let num = |keys: &[&str]| get(keys).and_then(number);
+    let (lat, lon, gps_alt) = match (num(&["latitude"]), num(&["longitude", "longtitude"])) {
+        (Some(lat), Some(lon)) => (lat, lon, None),
+        _ => match gps_triple(body) {
+            Some((lon, lat, alt)) => (lat, lon, alt),
+            None => return Err("no position".into()),
+        },
+    };
+    if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
+        return Err(format!(
+            "position {lat}, {lon} is not a latitude and longitude"
+        ));
+    }
+    if lat == 0.0 && lon == 0.0 {
+        return Err("position 0, 0 (no GPS fix yet)".into());
+    }
+    let fnum = num(&["fnum"]).map(|f| if f > 30.0 { f / 100.0 } else { f });
+    let focal = num(&["focal_len"]).map(|f| if f > 200.0 { f / 10.0 } else { f });
+    let shutter = get(&["shutter", "ss"]).and_then(|v| {
+        let v = v.trim();
+        match v.split_once('/') {
+            Some((a, b)) => Some(number(a)? / number(b)?),
+            // The older family writes the denominator alone (`SS 320`, `Shutter:60`).
+            None => number(v).map(|d| 1.0 / d),
+        }
+    });
+    Ok(Fix {
+        t_s,
+        lat_deg: lat,
+        lon_deg: lon,
+        rel_alt_m: num(&["rel_alt", "barometer", "h"]),
+        abs_alt_m: num(&["abs_alt", "altitude"]).or(gps_alt),
+        focal_35mm: focal.filter(|f| *f > 0.0),
+        gimbal_pitch_deg: num(&["gb_pitch", "gimbal_pitch", "pitch"]),
+        iso: num(&["iso"]),
+        shutter_s: shutter.filter(|s| s.is_finite() && *s > 0.0),
+        fnum: fnum.filter(|f| *f > 0.0),
+        line,
+    })
+}
+
+/// `key: value` and `key value` pairs of an entry, keys lower-cased: the bracketed family's
+/// `[a: 1 b: 2]` and the older family's comma-separated `ISO:100` / `SS 320` / `H 40.5m`.
+fn fields(body: &str) -> Vec<(String, String)> {
+    let cleaned: String = body
+        .chars()
+        .map(|c| {
+            if matches!(c, '[' | ']' | ',' | '<' | '>') {
+                ' '
+            } else {
+                c
+            }
+        })
+        .collect();
+    let words: Vec<&str> = cleaned.split_whitespace().collect();
+    let mut out = Vec::new();
+    let mut k = 0;
+    while k < words.len() {
+        let w = words[k];
+        if let Some(f) = w.strip_prefix("F/").filter(|f| number(f).is_some()) {
+            // The older family's `F/2.8`.
+            out.push(("fnum".into(), f.to_string()));
+        } else if let Some((key, value)) = w.split_once(':') {
+            if value.is_empty() {
+                // `key: value` or `key : value`.
+                if let Some(v) = words.get(k + 1) {
+                    out.push((key.to_lowercase(), v.to_string()));
+                    k += 2;
+                    continue;
+                }
+            } else {
+                out.push((key.to_lowercase(), value.to_string()));
+            }
+        } else if words.get(k + 1) == Some(&":") {
+            if let Some(v) = words.get(k + 2) {
+                out.push((w.to_lowercase(), v.to_string()));
+                k += 3;
+                continue;
+            }
+        } else if let Some(v) = words.get(k + 1).filter(|v| number(v).is_some()) {
+            // The older family's `SS 320`, `H 40.50m`, `ISO 100`.
+            out.push((w.to_lowercase(), v.to_string()));
+            k += 2;
+            continue;
+        }
+        k += 1;
+    }
+    out
+}
+
+/// A number with an optional unit or `F` prefix: `40.50m`, `F2.8`, `2.80m/s`.
+fn number(v: &str) -> Option<f64> {
+    let v = v.trim().trim_start_matches(['F', 'f', '/']);
+    let end = v
+        .char_indices()
+        .find(|&(i, c)| !(c.is_ascii_digit() || c == '.' || ((c == '-' || c == '+') && i == 0)))
+        .map_or(v.len(), |(i, _)| i);
+    v[..end].parse::<f64>().ok().filter(|x| x.is_finite())
+}
+
+/// The older family's `GPS(lon,lat,alt)` / `GPS (lon, lat, alt)`: longitude, latitude and the
+/// third value when present.
+fn gps_triple(body: &str) -> Option<(f64, f64, Option<f64>)> {
+    let at = body.find("GPS")?;
+    let rest = body[at + 3..].trim_start().strip_prefix('(')?;
+    let inner = &rest[..rest.find(')')?];
+    let v: Vec<f64> = inner.split(',').filter_map(number).collect();
+    match v.as_slice() {
+        [lon, lat] => Some((*lon, *lat, None)),
+        [lon, lat, alt, ..] => Some((*lon, *lat, Some(*alt))),
+        _ => None,
+    }
+}
+
+/// Great-circle distance between two fixes (horizontal, metres; spherical Earth).
+pub fn distance_m(a: &Fix, b: &Fix) -> f64 {
+    const R: f64 = 6_371_008.8;
+    let (p1, p2) = (a.lat_deg.to_radians(), b.lat_deg.to_radians());
+    let dp = p2 - p1;
+    let dl = (b.lon_deg - a.lon_deg).to_radians();
+    let h = (dp / 2.0).sin().powi(2) + p1.cos() * p2.cos() * (dl / 2.0).sin().powi(2);
+    2.0 * R * h.sqrt().min(1.0).asin()
+}
+
+/// The fix at time `t_s`, linear between the two entries around it (positions, altitudes and
+/// pitch; the camera facts of the earlier one); `None` outside the track's time span.
+pub fn at(fixes: &[Fix], t_s: f64) -> Option<Fix> {
+    let (first, last) = (fixes.first()?, fixes.last()?);
+    if t_s < first.t_s || t_s > last.t_s {
+        return None;
+    }
+    let k = fixes.partition_point(|f| f.t_s <= t_s);
+    let a = &fixes[k.saturating_sub(1)];
+    let Some(b) = fixes.get(k) else {
+        return Some(Fix { t_s, ..a.clone() });
+    };
+    let u = if b.t_s > a.t_s {
+        (t_s - a.t_s) / (b.t_s - a.t_s)
+    } else {
+        0.0
+    };
+    let mix = |x: f64, y: f64| x + (y - x) * u;
+    let mix_opt = |x: Option<f64>, y: Option<f64>| match (x, y) {
+        (Some(x), Some(y)) => Some(mix(x, y)),
+        (x, y) => x.or(y),
+    };
+    Some(Fix {
+        t_s,
+        lat_deg: mix(a.lat_deg, b.lat_deg),
+        lon_deg: mix(a.lon_deg, b.lon_deg),
+        rel_alt_m: mix_opt(a.rel_alt_m, b.rel_alt_m),
+        abs_alt_m: mix_opt(a.abs_alt_m, b.abs_alt_m),
+        gimbal_pitch_deg: mix_opt(a.gimbal_pitch_deg, b.gimbal_pitch_deg),
+        ..a.clone()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Track {
+        parse_dji_srt(Path::new("DJI_0001.SRT"), text)
+    }
+
+    #[test]
+    fn bracketed_family_with_crlf_bom_and_odd_spacing() {
+        let text = "\u{feff}1\r\n00:00:00,000 --> 00:00:00,033\r\n<font size=\"28\">FrameCnt: 1, DiffTime: 33ms\r\n2024-05-01 10:00:00.000\r\n[iso : 110] [shutter : 1/200.0] [fnum : 170] [ev : 0] [focal_len : 24.00] [latitude: 47.376887] [longitude: 8.541694] [rel_alt: 40.500 abs_alt: 512.250] [gb_yaw: 10.0 gb_pitch: -90.0 gb_roll: 0.0] </font>\r\n\r\n2\r\n00:00:00,033 --> 00:00:00,066\r\n<font size=\"28\">FrameCnt: 2, DiffTime: 33ms\r\n[fnum: 2.8] [focal_len: 240] [latitude : 47.376897] [longtitude : 8.541704] [altitude: 515.0]</font>\r\n";
+        let t = parse(text);
+        assert!(t.warnings.is_empty(), "{:?}", t.warnings);
+        assert_eq!(t.fixes.len(), 2);
+        let f = &t.fixes[0];
+        assert_eq!((f.t_s, f.lat_deg, f.lon_deg), (0.0, 47.376887, 8.541694));
+        assert_eq!((f.rel_alt_m, f.abs_alt_m), (Some(40.5), Some(512.25)));
+        assert_eq!(
+            (f.iso, f.fnum, f.focal_35mm),
+            (Some(110.0), Some(1.7), Some(24.0))
+        );
+        assert_eq!(
+            (f.shutter_s, f.gimbal_pitch_deg, f.line),
+            (Some(0.005), Some(-90.0), 2)
+        );
+        let g = &t.fixes[1];
+        assert_eq!(
+            (g.t_s, g.lon_deg, g.abs_alt_m),
+            (0.033, 8.541704, Some(515.0))
+        );
+        assert_eq!(
+            (g.fnum, g.focal_35mm, g.rel_alt_m),
+            (Some(2.8), Some(24.0), None)
+        );
+    }
+
+    #[test]
+    fn older_families() {
+        let text = "1\n00:00:01,000 --> 00:00:02,000\nHOME(8.5400,47.3700) 2017.08.05 14:12:54\nGPS(8.5417,47.3769,16) BAROMETER:40.5\nISO:100 Shutter:60 EV:0 Fnum:F2.2\n\n2\n00:00:02,000 --> 00:00:03,000\nF/2.8, SS 320, ISO 200, EV 0, GPS (8.5418, 47.3770, 19), D 24.41m, H 41.30m, H.S 2.80m/s, V.S 0.00m/s\n";
+        let t = parse(text);
+        assert!(t.warnings.is_empty(), "{:?}", t.warnings);
+        let (a, b) = (&t.fixes[0], &t.fixes[1]);
+        assert_eq!((a.t_s, a.lat_deg, a.lon_deg), (1.0, 47.3769, 8.5417));
+        assert_eq!(
+            (a.rel_alt_m, a.abs_alt_m, a.iso),
+            (Some(40.5), Some(16.0), Some(100.0))
+        );
+        assert_eq!((a.fnum, a.shutter_s), (Some(2.2), Some(1.0 / 60.0)));
+        assert_eq!(
+            (b.lat_deg, b.lon_deg, b.rel_alt_m),
+            (47.3770, 8.5418, Some(41.3))
+        );
+        assert_eq!(
+            (b.fnum, b.shutter_s, b.iso),
+            (Some(2.8), Some(1.0 / 320.0), Some(200.0))
+        );
+    }
+
+    #[test]
+    fn bad_entries_are_warned_with_file_and_line() {
+        let text = "1\n00:00:00,000 --> 00:00:01,000\n[iso: 100] [rel_alt: 3.0 abs_alt: 9.0]\n\n2\n00:00:01,000 --> 00:00:02,000\n[latitude: 0.0] [longitude: 0.0]\n\n3\n00:00:02,000 --> 00:00:03,000\n[latitude: 47.0] [longitude: 8.0]\n\n4\n00:00:03,000 --> 00:00:04,000\n[latitude: 47.1] [longitude: 8.0]\n";
+        let t = parse(text);
+        assert_eq!(t.fixes.len(), 2);
+        assert!(
+            t.warnings[0].starts_with("DJI_0001.SRT:line 2: no position"),
+            "{:?}",
+            t.warnings
+        );
+        assert!(
+            t.warnings[1].starts_with("DJI_0001.SRT:line 6: position 0, 0"),
+            "{:?}",
+            t.warnings
+        );
+        // 0.1 degree of latitude in one second.
+        assert!(
+            t.warnings[2].starts_with("DJI_0001.SRT:line 14: the position jumps 11"),
+            "{:?}",
+            t.warnings
+        );
+        assert_eq!(t.warnings.len(), 3);
+    }
+
+    #[test]
+    fn a_file_without_positions_is_an_error_naming_it() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("x.SRT");
+        std::fs::write(&p, "1\n00:00:00,000 --> 00:00:01,000\nhello\n").unwrap();
+        let e = read_dji_srt(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("x.SRT") && e.contains("no telemetry entry"),
+            "{e}"
+        );
+        let video = d.path().join("x.MP4");
+        assert_eq!(sidecar_of(&video), Some(p));
+        assert_eq!(sidecar_of(&d.path().join("y.MP4")), None);
+    }
+
+    #[test]
+    fn gpx_points_are_timed_from_the_video_start_plus_the_offset() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("track.gpx");
+        std::fs::write(
+            &p,
+            r#"<?xml version="1.0" encoding="UTF-8"?>
+<gpx version="1.1" creator="test" xmlns="http://www.topografix.com/GPX/1/1">
+<trk><trkseg>
+<trkpt lat="47.0" lon="8.0"><ele>500.5</ele><time>2024-05-01T10:00:00Z</time></trkpt>
+<trkpt lat="47.0001" lon="8.0"><time>2024-05-01T10:00:02Z</time></trkpt>
+<trkpt lat="47.0002" lon="8.0"></trkpt>
+</trkseg></trk></gpx>"#,
+        )
+        .unwrap();
+        let start = OffsetDateTime::parse("2024-05-01T09:59:59Z", &Rfc3339).unwrap();
+        let t = read_gpx(&p, start, 0.5).unwrap();
+        assert_eq!(t.fixes.len(), 2);
+        assert_eq!((t.fixes[0].t_s, t.fixes[0].abs_alt_m), (0.5, Some(500.5)));
+        assert_eq!(
+            (t.fixes[1].t_s, t.fixes[1].lat_deg, t.fixes[1].line),
+            (2.5, 47.0001, 2)
+        );
+        assert!(
+            t.warnings[0].ends_with("track.gpx:point 3: no time (skipped)"),
+            "{:?}",
+            t.warnings
+        );
+        std::fs::write(&p, "<gpx").unwrap();
+        let e = read_gpx(&p, start, 0.0).unwrap_err().to_string();
+        assert!(
+            e.contains("track.gpx") && e.contains("not a readable GPX"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn exif_gps_with_south_west_and_below_sea_level() {
+        use exif::{Field, In, Rational, Tag, Value};
+        let field = |tag, value| Field {
+            tag,
+            ifd_num: In::PRIMARY,
+            value,
+        };
+        let dms = |d, m, s| {
+            Value::Rational(vec![
+                Rational::from((d, 1)),
+                Rational::from((m, 1)),
+                Rational::from((s, 100)),
+            ])
+        };
+        let fields = [
+            field(Tag::GPSLatitudeRef, Value::Ascii(vec![b"S".to_vec()])),
+            field(Tag::GPSLatitude, dms(33, 51, 3600)),
+            field(Tag::GPSLongitudeRef, Value::Ascii(vec![b"W".to_vec()])),
+            field(Tag::GPSLongitude, dms(70, 30, 0)),
+            field(Tag::GPSAltitudeRef, Value::Byte(vec![1])),
+            field(
+                Tag::GPSAltitude,
+                Value::Rational(vec![Rational::from((25, 2))]),
+            ),
+            field(Tag::FocalLengthIn35mmFilm, Value::Short(vec![24])),
+        ];
+        let mut w = exif::experimental::Writer::new();
+        for f in &fields {
+            w.push_field(f);
+        }
+        let mut buf = std::io::Cursor::new(Vec::new());
+        w.write(&mut buf, false).unwrap();
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("a.tif");
+        std::fs::write(&p, buf.into_inner()).unwrap();
+        let f = exif_fix(&p).unwrap().unwrap();
+        assert!(
+            (f.lat_deg + (33.0 + 51.0 / 60.0 + 36.0 / 3600.0)).abs() < 1e-12,
+            "{}",
+            f.lat_deg
+        );
+        assert!((f.lon_deg + 70.5).abs() < 1e-12, "{}", f.lon_deg);
+        assert_eq!((f.abs_alt_m, f.focal_35mm), (Some(-12.5), Some(24.0)));
+    }
+
+    #[test]
+    fn creation_time_from_the_container() {
+        let d = tempfile::tempdir().unwrap();
+        // MP4 stores the creation time in whole seconds.
+        let v = d.path().join("v.mp4");
+        let ok = std::process::Command::new("ffmpeg")
+            .args([
+                "-v",
+                "error",
+                "-f",
+                "lavfi",
+                "-i",
+                "testsrc=size=32x32:rate=5",
+                "-t",
+                "1",
+            ])
+            .args(["-metadata", "creation_time=2024-05-01T10:00:07Z"])
+            .arg(&v)
+            .status()
+            .unwrap();
+        assert!(ok.success());
+        let t = creation_time(&v).unwrap().unwrap();
+        assert_eq!(
+            t,
+            OffsetDateTime::parse("2024-05-01T10:00:07Z", &Rfc3339).unwrap()
+        );
+        let bare = d.path().join("bare.mkv");
+        let ok = std::process::Command::new("ffmpeg")
+            .args([
+                "-v",
+                "error",
+                "-f",
+                "lavfi",
+                "-i",
+                "testsrc=size=32x32:rate=5",
+                "-t",
+                "1",
+            ])
+            .args(["-map_metadata", "-1", "-fflags", "+bitexact"])
+            .arg(&bare)
+            .status()
+            .unwrap();
+        assert!(ok.success());
+        assert_eq!(creation_time(&bare).unwrap(), None);
+    }
+
+    #[test]
+    fn interpolation_between_entries() {
+        let t = parse("1\n00:00:00,000 --> 00:00:01,000\n[latitude: 47.0] [longitude: 8.0] [rel_alt: 10.0 abs_alt: 500.0]\n\n2\n00:00:01,000 --> 00:00:02,000\n[latitude: 47.001] [longitude: 8.002] [rel_alt: 20.0 abs_alt: 510.0]\n");
+        let f = at(&t.fixes, 0.25).unwrap();
+        assert!((f.lat_deg - 47.00025).abs() < 1e-12 && (f.lon_deg - 8.0005).abs() < 1e-12);
+        assert_eq!((f.rel_alt_m, f.abs_alt_m), (Some(12.5), Some(502.5)));
+        assert_eq!(at(&t.fixes, 1.0).unwrap().lat_deg, 47.001);
+        assert!(at(&t.fixes, 1.5).is_none() && at(&t.fixes, -0.1).is_none());
+        // 0.001 degree of latitude: 111.2 km per degree.
+        let d = distance_m(
+            &t.fixes[0],
+            &Fix {
+                lon_deg: 8.0,
+                ..t.fixes[1].clone()
+            },
+        );
+        assert!((d - 111.195).abs() < 0.01, "{d}");
+    }
+}
