@@ -1,10 +1,12 @@
 //! `bench pipeline`: makes its own clips (1080p30 H.264 and 4K clips of two lengths, with the
 //! workspace's `keyframer-bench-clip` tool) and, in one run, times decode-only (`ffmpeg -f null`,
-//! OpenCV read loop) against full analysis (`select --blur --spacing`, every frame scored and
-//! flowed) per backend, with ratios and peak memory. Analyses run as child processes so each
-//! one's peak RSS is its own.
+//! OpenCV read loop) against full analysis (`select --blur --spacing 200` unless other flags are
+//! given: every frame scored and flowed) per backend, with ratios, peak memory and, for the gpu
+//! backend, the device work per frame `select` logs (dispatches, bytes uploaded and read back,
+//! blocking waits). Analyses run as child processes so each one's peak RSS is its own.
 
 use crate::error::{Error, Result};
+use crate::gpu::PerFrame;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -22,7 +24,7 @@ pub struct Settings {
     pub k4_minutes: Vec<u32>,
     /// Backends to time (`gpu`, `opencv`).
     pub backends: Vec<String>,
-    /// Extra `select` flags (e.g. `--analysis-width 320 --flow-stride 2`).
+    /// The `select` flags of the analysis (empty: [`DEFAULT_ANALYSIS`]).
     pub select_args: Vec<String>,
     /// Also measure the analysis-width / flow-stride trade-off on a 20 s 1080p clip.
     pub tradeoffs: bool,
@@ -44,6 +46,9 @@ fn run_tool(cmd: &mut Command, what: &str) -> Result<std::process::Output> {
     }
     Ok(out)
 }
+
+/// The analysis timed when no flags are given.
+pub const DEFAULT_ANALYSIS: &[&str] = &["--blur", "--spacing", "200"];
 
 /// The tool that makes the benchmark clips (package `keyframer-scene` of this workspace).
 pub const CLIP_TOOL: &str = "keyframer-bench-clip";
@@ -117,8 +122,14 @@ fn opencv_decode(clip: &Path) -> Result<(f64, usize)> {
     Ok((t.elapsed().as_secs_f64(), n))
 }
 
-/// One child `select` run: wall seconds and peak RSS in MiB.
-fn analysis(clip: &Path, project: &Path, backend: &str, extra: &[String]) -> Result<(f64, f64)> {
+/// One child `select` run with `flags`: wall seconds, peak RSS in MiB and the device work per
+/// frame it logged (gpu backend only).
+fn analysis(
+    clip: &Path,
+    project: &Path,
+    backend: &str,
+    flags: &[String],
+) -> Result<(f64, f64, Option<PerFrame>)> {
     let exe = std::env::current_exe().map_err(|e| Error::param("keyframer", e.to_string()))?;
     let _ = std::fs::remove_file(project);
     let t = Instant::now();
@@ -126,11 +137,12 @@ fn analysis(clip: &Path, project: &Path, backend: &str, extra: &[String]) -> Res
         Command::new(exe)
             .arg("select")
             .arg(clip)
-            .args(["--blur", "--spacing", "200", "--backend", backend])
-            .args(extra)
+            .args(["--backend", backend])
+            .args(flags)
             .args(["--checkpoint-every", "0", "--quiet", "-o"])
             .arg(project)
-            .env("KEYFRAMER_PEAK_RSS", "1"),
+            .env("KEYFRAMER_PEAK_RSS", "1")
+            .env("RUST_LOG", "warn,keyframer::select=info"),
         &format!("keyframer select ({backend})"),
     )?;
     let secs = t.elapsed().as_secs_f64();
@@ -140,7 +152,11 @@ fn analysis(clip: &Path, project: &Path, backend: &str, extra: &[String]) -> Res
         .find_map(|l| l.strip_prefix("peak-rss-kib "))
         .and_then(|v| v.trim().parse::<f64>().ok())
         .map_or(f64::NAN, |k| k / 1024.0);
-    Ok((secs, peak))
+    let work = err
+        .lines()
+        .find_map(|l| l.split_once("gpu backend: "))
+        .and_then(|(_, w)| PerFrame::parse(w));
+    Ok((secs, peak, work))
 }
 
 fn fmt_ratio(a: f64, b: Option<f64>) -> String {
@@ -165,14 +181,18 @@ pub fn run(s: &Settings) -> Result<String> {
         let name = format!("2160p{}-{m}min.mp4", s.k4_fps);
         clips.push((clip(&s.dir, &name, 3840, 2160, s.k4_fps, m * 60)?, false));
     }
+    let flags = match s.select_args.is_empty() {
+        true => DEFAULT_ANALYSIS.iter().map(|f| f.to_string()).collect(),
+        false => s.select_args.clone(),
+    };
     let mut report = format!(
-        "pipeline: full analysis = `select --blur --spacing 200 {}` (sharpness of every frame + \
-         Farneback movement), as a child process; decode-only = ffmpeg -f null and keyframer's \
-         OpenCV read loop (decode + BGR)\n",
-        s.select_args.join(" ")
+        "pipeline: full analysis = `select {}` as a child process; decode-only = ffmpeg -f null \
+         and keyframer's OpenCV read loop (decode + BGR); device work per analysed frame as the \
+         gpu backend counts it (budget: at most 1 KiB read back and 1/16 blocking wait)\n",
+        flags.join(" ")
     );
     report += &format!(
-        "{:<24} {:>6} {:>9} {:>9} {:>14} {:>9} {:>9} {:>9} {:>9}\n",
+        "{:<24} {:>6} {:>9} {:>9} {:>14} {:>9} {:>9} {:>9} {:>9}{}\n",
         "clip",
         "frames",
         "ffmpeg s",
@@ -181,7 +201,8 @@ pub fn run(s: &Settings) -> Result<String> {
         "analyse s",
         "/opencv",
         "/ffmpeg",
-        "peak MiB"
+        "peak MiB",
+        PerFrame::HEADER
     );
     for (path, _) in &clips {
         let name = path.file_name().unwrap_or_default().to_string_lossy();
@@ -192,16 +213,13 @@ pub fn run(s: &Settings) -> Result<String> {
             eprintln!("bench: analysing {name} with {b}");
             let project = s.dir.join(format!("{name}.{b}.json"));
             // `NAME-preview`: the keyframe-only preview (`select --preview`) on backend NAME.
-            let (backend, extra) = match b.strip_suffix("-preview") {
-                Some(base) => (
-                    base,
-                    [&s.select_args[..], &["--preview".to_string()]].concat(),
-                ),
-                None => (b.as_str(), s.select_args.clone()),
+            let (backend, flags) = match b.strip_suffix("-preview") {
+                Some(base) => (base, [&flags[..], &["--preview".to_string()]].concat()),
+                None => (b.as_str(), flags.clone()),
             };
-            let (secs, peak) = analysis(path, &project, backend, &extra)?;
+            let (secs, peak, work) = analysis(path, &project, backend, &flags)?;
             report += &format!(
-                "{:<24} {:>6} {:>9} {:>9.1} {:>14} {:>9.1} {:>9.2} {:>9} {:>9.0}\n",
+                "{:<24} {:>6} {:>9} {:>9.1} {:>14} {:>9.1} {:>9.2} {:>9} {:>9.0}{}\n",
                 name,
                 frames,
                 ff.map_or("-".into(), |f| format!("{f:.1}")),
@@ -210,7 +228,11 @@ pub fn run(s: &Settings) -> Result<String> {
                 secs,
                 secs / cv,
                 fmt_ratio(secs, ff),
-                peak
+                peak,
+                work.map_or(
+                    format!(" {:>7} {:>9} {:>9} {:>8}", "-", "-", "-", "-"),
+                    |w| w.columns()
+                )
             );
         }
     }

@@ -234,7 +234,7 @@ pub struct BenchArgs {
         default_value = "gpu,opencv,opencv-preview"
     )]
     pub backends: Vec<String>,
-    /// pipeline: extra `select` flags for the analysis, e.g. "--analysis-width 320".
+    /// pipeline: the `select` flags of the analysis (empty: --blur --spacing 200), e.g. "--stationary --blur".
     #[arg(long, default_value = "", allow_hyphen_values = true)]
     pub select_args: String,
     /// pipeline: also measure the analysis-width / flow-stride trade-off (20 s 1080p clip).

@@ -7,6 +7,7 @@
 //! `sharpness` and `movement` (engines behind traits), `checkpoint`; this module wires them.
 
 mod checkpoint;
+mod device;
 mod ingest;
 mod movement;
 mod sharpness;
@@ -294,6 +295,9 @@ impl Pump<'_, '_> {
         let complete = self.moving.as_ref().is_none_or(|m| m.at_stride_point());
         if !(self.saver.due() && complete) {
             return Ok(());
+        }
+        if let Some(m) = self.moving.as_deref_mut() {
+            m.settle()?;
         }
         if let Some(w) = self.worker {
             w.flush(&mut self.done.scores, self.done.frames)?;

@@ -1,71 +1,33 @@
 //! Movement: consecutive-pair movement measured every `stride` frames (each frame in between gets
-//! an equal share), optionally derotated, by one engine (gpu or opencv) behind
-//! [`MovementEngine`]; the pass feeds the stationary step the movement from its reference.
-//! Engines hold frames in [`SLOTS`] slots; the pass keeps the anchor and the reference loaded.
+//! an equal share), optionally derotated, and the stationary step fed the movement from its
+//! reference. The opencv engine ([`MovementEngine`]) answers at once and the pass feeds the step
+//! itself; the gpu engine ([`DeviceMovement`]) runs the step on the device too and hands the
+//! records back later, which the pass replays through the same step (and checks against the
+//! device's decisions). Engines hold frames in [`SLOTS`] slots; the pass keeps the anchor and the
+//! reference loaded.
 
 use super::checkpoint::MovementState;
+use super::device::{DeviceMovement, Record, Work, REFERENCE};
 use super::ingest::{prepare, Pixels};
 use super::{analysis_size, MovementRequest, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::gpu::{Backend, GpuContext};
-use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams, SLOTS};
-use crate::kernels::movement::{self, MovementGpu, RotationField, Statistic};
+use crate::kernels::farneback::{self, FarnebackParams, SLOTS};
+use crate::kernels::movement::{self, checked, RotationField, Statistic};
 use crate::kernels::resize_area;
 use crate::source::{self, Metadata, OpenOptions};
 use crate::steps::Stationary;
 use opencv::core::Mat;
+use std::collections::VecDeque;
 use std::path::Path;
 use std::sync::Arc;
 
-/// Flow + statistic between frames held in slots.
+/// Flow + statistic between frames held in slots, answered at once.
 pub(crate) trait MovementEngine {
     /// Puts a frame's analysis pixels in `slot` (below [`SLOTS`]).
     fn load(&mut self, slot: usize, px: Pixels) -> Result<()>;
     /// Movement statistic (analysis pixels) from slot `from` to slot `to`.
     fn movement(&mut self, from: usize, to: usize) -> Result<f64>;
-    /// Whether frames may come as device buffers ([`MovementEngine::use_staged`]).
-    fn on_device(&self) -> bool {
-        false
-    }
-    /// Frames will come as [`Pixels::Staged`] indices into `buffers`.
-    fn use_staged(&mut self, _buffers: Vec<wgpu::Buffer>) {}
-}
-
-/// The WGSL Farneback and movement kernels.
-struct Gpu {
-    flow: Box<FarnebackGpu>,
-    stat: MovementGpu,
-    statistic: Statistic,
-    /// The sharpness engine's resized-gray buffers (empty unless frames stay on the device).
-    staged: Vec<wgpu::Buffer>,
-}
-
-impl MovementEngine for Gpu {
-    fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
-        match px {
-            Pixels::Small(gray) => self.flow.load(slot, &gray),
-            Pixels::Staged(k) => {
-                let buf = self
-                    .staged
-                    .get(k)
-                    .ok_or_else(|| Error::param("movement", "no device gray staged"))?;
-                self.flow.load_buffer(slot, buf)
-            }
-        }
-    }
-
-    fn movement(&mut self, from: usize, to: usize) -> Result<f64> {
-        self.flow.flow_between(from, to)?;
-        self.stat.compute(self.statistic)
-    }
-
-    fn on_device(&self) -> bool {
-        true
-    }
-
-    fn use_staged(&mut self, buffers: Vec<wgpu::Buffer>) {
-        self.staged = buffers;
-    }
 }
 
 /// OpenCV's Farneback and the host twin of the statistic.
@@ -99,14 +61,33 @@ impl MovementEngine for Opencv {
     }
 }
 
+/// The engine measuring for a pass.
+enum Engine {
+    /// Answers at once (opencv, the tests' fakes).
+    Host(Box<dyn MovementEngine>),
+    /// Answers later, through records.
+    Device(Box<DeviceMovement>),
+}
+
+impl Engine {
+    fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
+        match self {
+            Engine::Host(e) => e.load(slot, px),
+            Engine::Device(d) => d.load(slot, px),
+        }
+    }
+}
+
 /// The engine for `backend` at the analysis size `(w, h)`: the gpu one when it can be made (else
 /// a warning and opencv).
 fn engine(
     req: &MovementRequest,
+    stationary: Option<&StationaryRequest>,
     backend: Backend,
     ctx: Option<&Arc<GpuContext>>,
     (w, h): (u32, u32),
-) -> Result<(Box<dyn MovementEngine>, Backend)> {
+    scale: f64,
+) -> Result<(Engine, Backend)> {
     let cpu = Opencv {
         params: req.farneback,
         statistic: req.statistic,
@@ -117,27 +98,34 @@ fn engine(
             .transpose()?,
     };
     if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
-        let made = FarnebackGpu::new(ctx.clone(), req.farneback, w, h).and_then(|flow| {
-            let stat = MovementGpu::new(ctx.clone(), flow.flow_buffer(), w, h, req.derotate)?;
-            Ok(Gpu {
-                flow: Box::new(flow),
-                stat,
-                statistic: req.statistic,
-                staged: Vec::new(),
-            })
-        });
-        match made {
-            Ok(e) => return Ok((Box::new(e), Backend::Gpu)),
+        match DeviceMovement::new(ctx, req, stationary, scale, (w, h)) {
+            Ok(e) => return Ok((Engine::Device(Box::new(e)), Backend::Gpu)),
             Err(e) => log::warn!("{e}; movement uses the opencv backend"),
         }
     }
-    Ok((Box::new(cpu), Backend::Opencv))
+    Ok((Engine::Host(Box::new(cpu)), Backend::Opencv))
+}
+
+/// A frame measured: at a stride point, the consecutive movement from the previous one (`from`,
+/// none for the first frame); for a candidate, the stationary step.
+struct Measured {
+    index: usize,
+    stride_point: bool,
+    from: Option<usize>,
+    candidate: bool,
+}
+
+impl Measured {
+    /// Whether the consecutive movement is the one from the previous frame.
+    fn measured_from_previous(&self) -> bool {
+        self.from.is_some_and(|a| a + 1 == self.index)
+    }
 }
 
 /// Per-frame movement: consecutive movement (every `stride` frames, spread evenly over the
 /// frames in between), and the stationary step fed with the movement from its reference.
 pub(crate) struct MovementPass {
-    engine: Box<dyn MovementEngine>,
+    engine: Engine,
     stride: usize,
     /// Analysis size.
     pub size: (i32, i32),
@@ -147,12 +135,14 @@ pub(crate) struct MovementPass {
     pub values: Vec<f64>,
     /// (slot, frame index) of the last stride point.
     anchor: Option<(usize, usize)>,
-    /// Slot of the stationary step's reference frame.
+    /// Slot of the stationary step's reference frame ([`REFERENCE`] on the device).
     reference: Option<usize>,
     /// The last frame, when it is not a stride point: loaded in a slot, or its pixels kept.
     last: Option<(Option<usize>, usize, Option<Pixels>)>,
     /// The stationary sampler's step, when requested.
     pub stationary: Option<Stationary>,
+    /// Frames submitted to the device engine whose records are still to come, in order.
+    pending: VecDeque<Measured>,
 }
 
 impl MovementPass {
@@ -170,18 +160,30 @@ impl MovementPass {
             return Err(Error::param("flow stride", "must be at least 1"));
         }
         let size = analysis_size(meta.width, meta.height, req.analysis_width);
-        let (engine, used) = engine(&req, backend, ctx, size)?;
-        Ok((MovementPass::new(&req, stationary, engine, meta), used))
+        let scale = f64::from(meta.width) / f64::from(size.0);
+        let (engine, used) = engine(&req, stationary.as_ref(), backend, ctx, size, scale)?;
+        Ok((MovementPass::with(&req, stationary, engine, meta), used))
     }
 
     /// A pass measuring with `engine` (`req` already checked).
+    #[cfg(test)]
     pub(crate) fn new(
         req: &MovementRequest,
         stationary: Option<StationaryRequest>,
         engine: Box<dyn MovementEngine>,
         meta: &Metadata,
     ) -> MovementPass {
+        MovementPass::with(req, stationary, Engine::Host(engine), meta)
+    }
+
+    fn with(
+        req: &MovementRequest,
+        stationary: Option<StationaryRequest>,
+        engine: Engine,
+        meta: &Metadata,
+    ) -> MovementPass {
         let (w, h) = analysis_size(meta.width, meta.height, req.analysis_width);
+        let reference = matches!(engine, Engine::Device(_)).then_some(REFERENCE);
         MovementPass {
             engine,
             stride: req.stride as usize,
@@ -189,10 +191,11 @@ impl MovementPass {
             scale: f64::from(meta.width) / f64::from(w),
             values: Vec::new(),
             anchor: None,
-            reference: None,
+            reference,
             last: None,
             stationary: stationary
                 .map(|s| Stationary::new(s.threshold, s.reset_delta, s.first, s.last)),
+            pending: VecDeque::new(),
         }
     }
 
@@ -200,13 +203,15 @@ impl MovementPass {
     /// height) by resize_area: an engine on the device and an integer downscale (others keep
     /// the CPU prepare).
     pub(crate) fn can_stage(&self, frame: (u32, u32)) -> bool {
-        self.engine.on_device()
+        matches!(self.engine, Engine::Device(_))
             && resize_area::factors(frame, (self.size.0 as u32, self.size.1 as u32)).is_some()
     }
 
     /// Frames will come as [`Pixels::Staged`] indices into `buffers`.
     pub(crate) fn use_staged(&mut self, buffers: Vec<wgpu::Buffer>) {
-        self.engine.use_staged(buffers);
+        if let Engine::Device(d) = &mut self.engine {
+            d.use_staged(buffers);
+        }
     }
 
     /// A slot holding neither the anchor nor the reference.
@@ -215,12 +220,13 @@ impl MovementPass {
         (0..SLOTS).find(|s| !busy.contains(&Some(*s))).unwrap_or(0)
     }
 
-    /// Whether the state is complete through the last frame stepped (a checkpoint may be taken).
+    /// Whether the frames stepped so far end at a stride point (a checkpoint may be taken once
+    /// [`MovementPass::settle`]d).
     pub(crate) fn at_stride_point(&self) -> bool {
         self.last.is_none()
     }
 
-    /// The state a checkpoint keeps (none before the first frame).
+    /// The state a checkpoint keeps (none before the first frame; settle first).
     pub(crate) fn state(&self) -> Option<MovementState> {
         let (_, anchor) = self.anchor?;
         let st = self.stationary.as_ref();
@@ -240,8 +246,12 @@ impl MovementPass {
             s.restore(st.reference, st.accumulated, st.keys.clone());
         }
         self.anchor = None;
-        self.reference = None;
         self.last = None;
+        self.pending.clear();
+        match &self.engine {
+            Engine::Host(_) => self.reference = None,
+            Engine::Device(d) => d.restore(st.reference, st.accumulated),
+        }
     }
 
     /// Loads the pixels of a restored anchor or reference frame.
@@ -252,92 +262,185 @@ impl MovementPass {
             self.anchor = Some((slot, index));
         }
         if st.reference == Some(index) {
-            self.reference = Some(slot);
+            match &mut self.engine {
+                Engine::Host(_) => self.reference = Some(slot),
+                Engine::Device(d) => d.keep(slot)?,
+            }
         }
         Ok(())
     }
 
-    /// Movement since the anchor, spread evenly over the frames after it, up to `slot`/`i`;
-    /// the movement itself when the anchor was the previous frame.
-    fn measure_to(&mut self, slot: usize, i: usize) -> Result<Option<f64>> {
-        let Some((a_slot, a)) = self.anchor else {
-            self.values.push(0.0);
-            self.anchor = Some((slot, i));
-            return Ok(None);
-        };
-        let m = self.engine.movement(a_slot, slot)? * self.scale;
-        let per = m / (i - a) as f64;
-        self.values.extend(std::iter::repeat_n(per, i - a));
-        self.anchor = Some((slot, i));
-        Ok((i - a == 1).then_some(m))
-    }
-
     /// Takes frame `i` (frames come in order).
     pub(crate) fn step(&mut self, i: usize, px: Pixels) -> Result<()> {
-        let active = self.stationary.as_ref().is_some_and(|s| s.wants(i));
+        let candidate = self.stationary.as_ref().is_some_and(|s| s.wants(i));
         let stride_point = self.anchor.is_none() || i % self.stride == 0;
-        if !stride_point && !active {
+        if !stride_point && !candidate {
             self.last = Some((None, i, Some(px)));
             return Ok(());
         }
         let cur = self.free_slot();
         self.engine.load(cur, px)?;
-        self.last = None;
-        let consecutive = if stride_point {
-            self.measure_to(cur, i)?
-        } else {
-            self.last = Some((Some(cur), i, None));
-            None
+        self.last = (!stride_point).then_some((Some(cur), i, None));
+        let from = match stride_point {
+            true => self.anchor.replace((cur, i)),
+            false => None,
         };
-        if active {
-            self.stationary_step(cur, i, consecutive)?;
-        }
-        Ok(())
+        let m = Measured {
+            index: i,
+            stride_point,
+            from: from.map(|a| a.1),
+            candidate,
+        };
+        self.measure(m, cur, from.map(|a| a.0))
     }
 
-    /// Feeds frame `i` (in `cur`) to the stationary step; `consecutive` is the movement from
-    /// frame i-1 when just measured.
-    fn stationary_step(&mut self, cur: usize, i: usize, consecutive: Option<f64>) -> Result<()> {
-        let (engine, scale, slot) = (&mut self.engine, self.scale, self.reference);
-        let Some(st) = self.stationary.as_mut() else {
-            return Ok(());
-        };
-        let anchored = st.step(i, |reference| match consecutive {
-            Some(m) if reference + 1 == i => Ok(m),
-            _ => {
-                let slot = slot.ok_or_else(|| Error::param("stationary", "no reference loaded"))?;
-                Ok(engine.movement(slot, cur)? * scale)
+    /// Measures `m` (loaded in `cur`; the consecutive movement from `from`): at once with a host
+    /// engine, else submitted to the device.
+    fn measure(&mut self, m: Measured, cur: usize, from: Option<usize>) -> Result<()> {
+        let e = match &mut self.engine {
+            Engine::Host(e) => e,
+            Engine::Device(d) => {
+                d.submit(&Work {
+                    index: m.index,
+                    slot: cur,
+                    from,
+                    from_previous: m.measured_from_previous(),
+                    candidate: m.candidate,
+                })?;
+                self.pending.push_back(m);
+                return self.collect(false);
             }
-        })?;
-        if anchored {
+        };
+        let consecutive = from.map(|s| e.movement(s, cur)).transpose()?;
+        push_values(&mut self.values, self.scale, &m, consecutive);
+        let slot = self.reference;
+        let from_reference = || {
+            let slot = slot.ok_or_else(|| Error::param("stationary", "no reference loaded"))?;
+            e.movement(slot, cur)
+        };
+        if step(
+            &mut self.stationary,
+            &m,
+            consecutive,
+            self.scale,
+            from_reference,
+        )? {
             self.reference = Some(cur);
         }
         Ok(())
     }
 
-    /// Measures the frames after the last stride point.
+    /// Applies the device's records that have come back (every one with `all`: waits).
+    fn collect(&mut self, all: bool) -> Result<()> {
+        let Engine::Device(d) = &mut self.engine else {
+            return Ok(());
+        };
+        for r in d.collect(all)? {
+            let m = self
+                .pending
+                .pop_front()
+                .ok_or_else(|| Error::Gpu("a movement record without its frame".into()))?;
+            self.replay(&m, &r)?;
+        }
+        Ok(())
+    }
+
+    /// Applies one record: the consecutive movement, and the stationary step fed what the device
+    /// measured, which must decide as the device did.
+    fn replay(&mut self, m: &Measured, r: &Record) -> Result<()> {
+        let consecutive = m.from.map(|_| checked(r.consecutive)).transpose()?;
+        push_values(&mut self.values, self.scale, m, consecutive);
+        let from_reference = || checked(r.reference);
+        let anchored = step(
+            &mut self.stationary,
+            m,
+            consecutive,
+            self.scale,
+            from_reference,
+        )?;
+        if m.candidate && anchored != (r.decision != 0) {
+            return Err(Error::Gpu(format!(
+                "the device's stationary decision at frame {} differs from the host's",
+                m.index
+            )));
+        }
+        Ok(())
+    }
+
+    /// Applies every submitted measurement (a checkpoint may then be taken).
+    pub(crate) fn settle(&mut self) -> Result<()> {
+        self.collect(true)
+    }
+
+    /// Measures the frames after the last stride point, then settles.
     pub(crate) fn finish(&mut self) -> Result<()> {
         if let Some((slot, i, small)) = self.last.take() {
             let slot = match (slot, small) {
                 (Some(s), _) => s,
-                (None, Some(m)) => {
+                (None, Some(px)) => {
                     let s = self.free_slot();
-                    self.engine.load(s, m)?;
+                    self.engine.load(s, px)?;
                     s
                 }
                 (None, None) => return Err(Error::param("movement", "last frame lost")),
             };
-            self.measure_to(slot, i)?;
+            let from = self.anchor.replace((slot, i));
+            let m = Measured {
+                index: i,
+                stride_point: true,
+                from: from.map(|a| a.1),
+                candidate: false,
+            };
+            self.measure(m, slot, from.map(|a| a.0))?;
         }
-        Ok(())
+        self.settle()
     }
 
     /// Movement between two frames (for the `--auto` sample).
     fn pair(&mut self, a: Mat, b: Mat) -> Result<f64> {
         self.engine.load(0, Pixels::Small(a))?;
         self.engine.load(1, Pixels::Small(b))?;
-        Ok(self.engine.movement(0, 1)? * self.scale)
+        let m = match &mut self.engine {
+            Engine::Host(e) => e.movement(0, 1)?,
+            Engine::Device(d) => d.movement(0, 1)?,
+        };
+        Ok(m * self.scale)
     }
+}
+
+/// Appends the consecutive movement measured at `m` (analysis pixels) to `values` in
+/// full-resolution pixels, spread over the frames since its start.
+fn push_values(values: &mut Vec<f64>, scale: f64, m: &Measured, consecutive: Option<f64>) {
+    if !m.stride_point {
+        return;
+    }
+    match (m.from, consecutive) {
+        (Some(a), Some(c)) => {
+            let per = c * scale / (m.index - a) as f64;
+            values.extend(std::iter::repeat_n(per, m.index - a));
+        }
+        _ => values.push(0.0),
+    }
+}
+
+/// Feeds frame `m` to the stationary step when it is a candidate: the movement from its
+/// reference is the consecutive one when that starts at the reference, else `from_reference`
+/// (analysis pixels, asked only when needed). Returns whether `m` is now the reference.
+fn step(
+    stationary: &mut Option<Stationary>,
+    m: &Measured,
+    consecutive: Option<f64>,
+    scale: f64,
+    from_reference: impl FnOnce() -> Result<f64>,
+) -> Result<bool> {
+    let Some(st) = stationary.as_mut().filter(|_| m.candidate) else {
+        return Ok(false);
+    };
+    let quick = consecutive.filter(|_| m.measured_from_previous());
+    st.step(m.index, |reference| match quick {
+        Some(c) if reference + 1 == m.index => Ok(c * scale),
+        _ => Ok(from_reference()? * scale),
+    })
 }
 
 /// Movement of `pairs` frame pairs (t, t+1) spread evenly over the input, in full-resolution

@@ -13,6 +13,9 @@ use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, LazyLock, Mutex};
 
+pub mod readback;
+pub use readback::Readback;
+
 /// Environment variable naming the adapter to use (case-insensitive substring of its name).
 pub const ADAPTER_ENV: &str = "KEYFRAMER_ADAPTER";
 
@@ -108,6 +111,22 @@ impl PerFrame {
             self.read_back,
             self.waits
         )
+    }
+}
+
+impl PerFrame {
+    /// Reads what [`PerFrame`]'s `Display` wrote (the end of `select`'s log line).
+    pub fn parse(text: &str) -> Option<PerFrame> {
+        let mut v = text
+            .split(", ")
+            .map(|part| part.split_whitespace().next()?.parse::<f64>().ok());
+        let mut next = || v.next().flatten();
+        Some(PerFrame {
+            dispatches: next()?,
+            uploaded: next()? * 1024.0,
+            read_back: next()?,
+            waits: next()?,
+        })
     }
 }
 
@@ -294,9 +313,27 @@ impl GpuContext {
 
     /// Waits until the device has finished the submitted work, then [`GpuContext::check`]s it.
     pub fn wait(&self) -> Result<()> {
+        self.wait_for(None)
+    }
+
+    /// Waits until submission `index` (None: all submitted work) has finished, counted as a
+    /// blocking wait, then [`GpuContext::check`]s the device.
+    pub fn wait_for(&self, index: Option<wgpu::SubmissionIndex>) -> Result<()> {
         self.counters.waits.fetch_add(1, Relaxed);
+        self.poll_device(wgpu::PollType::Wait {
+            submission_index: index,
+            timeout: None,
+        })
+    }
+
+    /// Runs the callbacks of work that has finished, without blocking (not a wait).
+    pub fn poll(&self) -> Result<()> {
+        self.poll_device(wgpu::PollType::Poll)
+    }
+
+    fn poll_device(&self, how: wgpu::PollType) -> Result<()> {
         self.device
-            .poll(wgpu::PollType::wait_indefinitely())
+            .poll(how)
             .map_err(|e| Error::Gpu(format!("device poll failed: {e}")))?;
         self.check()
     }
@@ -341,6 +378,25 @@ impl GpuContext {
             false => groups,
         };
         pass.dispatch_workgroups(groups.0, groups.1, 1);
+    }
+
+    /// As [`GpuContext::dispatch`], or, with a `gate`, over the workgroups in its entry `shape`
+    /// (written on the device; counted as a dispatch even when they are 0).
+    pub fn dispatch_gated(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        (pipe, bg): (&wgpu::ComputePipeline, &wgpu::BindGroup),
+        groups: (u32, u32),
+        gate: Option<Gate<'_>>,
+        shape: usize,
+    ) {
+        let Some(g) = gate else {
+            return self.dispatch(pass, pipe, bg, groups);
+        };
+        self.counters.dispatches.fetch_add(1, Relaxed);
+        pass.set_pipeline(pipe);
+        pass.set_bind_group(0, bg, &[]);
+        pass.dispatch_workgroups_indirect(g.args, 12 * (g.first + shape) as u64);
     }
 
     /// Summary of the adapter and the device limits.
@@ -394,6 +450,13 @@ impl GpuContext {
                 | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         })
+    }
+
+    /// A storage buffer holding `bytes` that dispatches can also take their workgroup counts from
+    /// ([`GpuContext::dispatch_indirect`]).
+    pub fn indirect_buffer(&self, label: &str, bytes: &[u8]) -> wgpu::Buffer {
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT;
+        self.buffer_init(label, usage, bytes)
     }
 
     /// A buffer holding `bytes` (size rounded up to 4, at least 16) with `usage` and COPY_DST.
@@ -519,16 +582,17 @@ impl GpuContext {
 
     /// Maps a MAP_READ buffer whose copies were already submitted, and copies it out.
     pub fn map_and_copy(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>> {
-        let slice = staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
+        let mapped = readback::map(staging, staging.size());
         self.wait()?;
-        rx.recv()
-            .map_err(|_| Error::Gpu("readback callback dropped".into()))?
-            .map_err(|e| Error::Gpu(format!("buffer map failed: {e}")))?;
-        let out = slice
+        readback::mapped(&mapped, true)?;
+        self.copy_mapped(staging, staging.size())
+    }
+
+    /// Copies the first `bytes` of a mapped MAP_READ buffer to the host (counted as read back)
+    /// and unmaps it.
+    pub fn copy_mapped(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u8>> {
+        let out = staging
+            .slice(..bytes)
             .get_mapped_range()
             .map_err(|e| Error::Gpu(format!("mapped range: {e}")))?
             .to_vec();
@@ -563,6 +627,15 @@ pub fn mat_bytes<'a>(
     Ok(std::borrow::Cow::Owned(
         owned.data_bytes().map_err(cv)?.to_vec(),
     ))
+}
+
+/// Dispatch sizes the device writes ([x, y, z] u32 per entry; zeros skip the dispatch): an
+/// encoder's gated dispatches read entry `first + shape`, `shape` the index of their size in the
+/// list the encoder publishes.
+#[derive(Clone, Copy)]
+pub struct Gate<'a> {
+    pub args: &'a wgpu::Buffer,
+    pub first: usize,
 }
 
 /// A compute pass of `enc` labelled `label`.

@@ -1,11 +1,11 @@
 //! `farneback`: dense optical flow as cv::calcOpticalFlowFarneback computes it, in WGSL stages that
-//! keep every intermediate on the device: per-level smoothing of the full-resolution image
-//! (farneback_smooth), INTER_LINEAR resize (farneback_resize), polynomial expansion
-//! (farneback_polyexp), matrix update (farneback_matrices) and windowed flow update
-//! (farneback_flow). The OpenCV twin is `opencv` (the OpenCV call itself).
+//! keep every intermediate on the device: the level images and their polynomial expansions
+//! (farneback_pyramid), the flow iterations (farneback_flow), and the copy of a slot's expansion
+//! pyramid into another (copy); flows and copies can be gated by sizes the device writes. The
+//! OpenCV twin is `opencv` (the OpenCV call itself).
 
 use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, GpuContext};
+use crate::gpu::{compute_pass, Gate, GpuContext};
 pub use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
@@ -22,6 +22,8 @@ pub const FLOW_WGSL: &str = concat!(
     include_str!("../../shaders/border.wgsl"),
     include_str!("../../shaders/farneback_flow.wgsl")
 );
+/// Texture copy (a slot's expansion pyramid into another).
+pub const COPY_WGSL: &str = include_str!("../../shaders/copy.wgsl");
 
 /// OpenCV's flags for the window type.
 fn flags(p: &FarnebackParams) -> i32 {
@@ -351,6 +353,7 @@ struct Pipes {
     /// Vertical and horizontal window (box or Gaussian).
     vwin: Arc<wgpu::ComputePipeline>,
     hwin: Arc<wgpu::ComputePipeline>,
+    copy: Arc<wgpu::ComputePipeline>,
 }
 
 impl Pipes {
@@ -378,6 +381,7 @@ impl Pipes {
             start: p("farneback_flow", FLOW_WGSL, "start")?,
             vwin: p("farneback_flow", FLOW_WGSL, cols)?,
             hwin: p("farneback_flow", FLOW_WGSL, rows)?,
+            copy: p("copy", COPY_WGSL, "main")?,
         })
     }
 }
@@ -659,12 +663,14 @@ impl LevelScratch {
 }
 
 /// Bind groups of one level's flow for one (prev, next) slot order: the start (with the
-/// initial flow at the coarsest level) and the horizontal window writing M or the flow.
+/// initial flow at the coarsest level), the horizontal window writing M or the flow, and the
+/// copy of prev's expansion into next's.
 struct LevelFlow {
     start: wgpu::BindGroup,
     start_initial: Option<wgpu::BindGroup>,
     hmid: wgpu::BindGroup,
     hlast: wgpu::BindGroup,
+    copy: wgpu::BindGroup,
 }
 
 impl LevelFlow {
@@ -699,6 +705,11 @@ impl LevelFlow {
             start_initial: s.start_initial.as_ref().map(|u| start(u, flow_in)),
             hmid: hwin(&s.mid),
             hlast: hwin(&s.last),
+            copy: fb.ctx.bind_resources(
+                "farneback copy",
+                &fb.pipes.copy,
+                &[(0, tv(&prev.r[k])), (1, tv(&next.r[k]))],
+            ),
         }
     }
 }
@@ -890,12 +901,19 @@ impl FarnebackGpu {
         steps
     }
 
+    /// The per level bind groups of the ordered slot pair (`from`, `to`).
+    fn pair(&self, from: usize, to: usize) -> Result<&[LevelFlow]> {
+        self.flows
+            .iter()
+            .find(|(k, _)| *k == (from, to))
+            .map(|(_, per_level)| per_level.as_slice())
+            .ok_or_else(|| Error::param("slots", format!("need two distinct slots below {SLOTS}")))
+    }
+
     /// The dispatches of the flow from slot `from` to slot `to` (from the initial flow written
     /// into the coarsest level's flow texture with `initial`), coarsest level first.
-    fn flow_steps(&self, from: usize, to: usize, initial: bool) -> Vec<Step<'_>> {
-        let Some((_, per_level)) = self.flows.iter().find(|(k, _)| *k == (from, to)) else {
-            return Vec::new();
-        };
+    fn flow_steps(&self, from: usize, to: usize, initial: bool) -> Result<Vec<Step<'_>>> {
+        let per_level = self.pair(from, to)?;
         let by8 = |n: u32| n.div_ceil(8);
         let shape = self.flow_shape;
         let mut steps = Vec::new();
@@ -934,15 +952,78 @@ impl FarnebackGpu {
                 });
             }
         }
-        steps
+        Ok(steps)
     }
 
-    /// Records `steps` in one compute pass of `enc`.
-    fn encode(&self, enc: &mut wgpu::CommandEncoder, label: &str, steps: &[Step<'_>]) {
+    /// The dispatches copying slot `from`'s expansion pyramid into slot `to`, one per level.
+    fn copy_steps(&self, from: usize, to: usize) -> Result<Vec<Step<'_>>> {
+        let per_level = self.pair(from, to)?;
+        let steps = (self.levels.iter().zip(per_level))
+            .map(|(l, lf)| Step {
+                kind: "copy",
+                pipe: &self.pipes.copy,
+                bg: &lf.copy,
+                groups: ((2 * l.width).div_ceil(8), l.height.div_ceil(8)),
+            })
+            .collect();
+        Ok(steps)
+    }
+
+    /// Records `steps` in one compute pass of `enc`, with a `gate` over entries in `steps`'
+    /// order.
+    fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        label: &str,
+        steps: &[Step<'_>],
+        gate: Option<Gate<'_>>,
+    ) {
         let mut pass = compute_pass(enc, label);
-        for s in steps {
-            self.ctx.dispatch(&mut pass, s.pipe, s.bg, s.groups);
+        for (k, s) in steps.iter().enumerate() {
+            self.ctx
+                .dispatch_gated(&mut pass, (s.pipe, s.bg), s.groups, gate, k);
         }
+    }
+
+    /// The workgroups of [`FarnebackGpu::encode_flow`]'s dispatches, in the order of its gate
+    /// entries (one per dispatch).
+    pub fn flow_shapes(&self) -> Vec<(u32, u32)> {
+        let steps = self.flow_steps(0, 1, false).unwrap_or_default();
+        steps.iter().map(|s| s.groups).collect()
+    }
+
+    /// The workgroups of [`FarnebackGpu::encode_copy`]'s dispatches (one per level).
+    pub fn copy_shapes(&self) -> Vec<(u32, u32)> {
+        let steps = self.copy_steps(0, 1).unwrap_or_default();
+        steps.iter().map(|s| s.groups).collect()
+    }
+
+    /// Records the flow from slot `from` to slot `to` into [`FarnebackGpu::flow_buffer`], gated
+    /// by `gate` when given (entries as [`FarnebackGpu::flow_shapes`] lists them).
+    pub fn encode_flow(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        (from, to): (usize, usize),
+        gate: Option<Gate<'_>>,
+    ) -> Result<()> {
+        let steps = self.flow_steps(from, to, false)?;
+        self.encode(enc, "farneback flow", &steps, gate);
+        Ok(())
+    }
+
+    /// Records the copy of slot `from`'s expansion pyramid into slot `to` (a flow from `to` then
+    /// starts from `from`'s frame), gated by `gate` when given (entries as
+    /// [`FarnebackGpu::copy_shapes`] lists them).
+    pub fn encode_copy(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        from: usize,
+        to: usize,
+        gate: Option<Gate<'_>>,
+    ) -> Result<()> {
+        let steps = self.copy_steps(from, to)?;
+        self.encode(enc, "farneback copy", &steps, gate);
+        Ok(())
     }
 
     /// Development aid: runs the pyramid of slot 0 and the flow from slot 0 to slot 1 (frames
@@ -955,13 +1036,13 @@ impl FarnebackGpu {
         rounds: usize,
         clock: &dyn Fn() -> f64,
     ) -> Result<Vec<(&'static str, usize, f64)>> {
-        let steps = [self.pyramid_steps(0), self.flow_steps(0, 1, false)].concat();
+        let steps = [self.pyramid_steps(0), self.flow_steps(0, 1, false)?].concat();
         let mut best = vec![f64::MAX; steps.len()];
         for _ in 0..rounds.max(1) {
             for (s, b) in steps.iter().zip(best.iter_mut()) {
                 let t = clock();
                 let mut enc = self.ctx.encoder("farneback profile");
-                self.encode(&mut enc, "farneback profile", std::slice::from_ref(s));
+                self.encode(&mut enc, "farneback profile", std::slice::from_ref(s), None);
                 self.ctx.queue.submit([enc.finish()]);
                 self.ctx.wait()?;
                 *b = b.min(clock() - t);
@@ -991,7 +1072,12 @@ impl FarnebackGpu {
         self.ctx
             .upload_mat(buf, gray, opencv::core::CV_8UC1, w, h, what, &mut self.pad)?;
         let mut enc = self.ctx.encoder("farneback pyramid");
-        self.encode(&mut enc, "farneback pyramid", &self.pyramid_steps(slot));
+        self.encode(
+            &mut enc,
+            "farneback pyramid",
+            &self.pyramid_steps(slot),
+            None,
+        );
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
@@ -1012,7 +1098,12 @@ impl FarnebackGpu {
         }
         let mut enc = self.ctx.encoder("farneback pyramid");
         enc.copy_buffer_to_buffer(gray, 0, &self.slots[slot].gray, 0, bytes);
-        self.encode(&mut enc, "farneback pyramid", &self.pyramid_steps(slot));
+        self.encode(
+            &mut enc,
+            "farneback pyramid",
+            &self.pyramid_steps(slot),
+            None,
+        );
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }
@@ -1031,12 +1122,7 @@ impl FarnebackGpu {
         to: usize,
         initial: Option<&Mat>,
     ) -> Result<()> {
-        if from >= SLOTS || to >= SLOTS || from == to {
-            return Err(Error::param(
-                "slots",
-                format!("need two distinct slots below {SLOTS}"),
-            ));
-        }
+        let steps = self.flow_steps(from, to, initial.is_some())?;
         let mut enc = self.ctx.encoder("farneback flow");
         if let Some(init) = initial {
             let top = self
@@ -1076,11 +1162,7 @@ impl FarnebackGpu {
             self.ctx
                 .write_texture(top_flow, &bytes, top_flow.width() * 16);
         }
-        self.encode(
-            &mut enc,
-            "farneback flow",
-            &self.flow_steps(from, to, initial.is_some()),
-        );
+        self.encode(&mut enc, "farneback flow", &steps, None);
         self.ctx.queue.submit([enc.finish()]);
         Ok(())
     }

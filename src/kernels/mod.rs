@@ -8,17 +8,25 @@ pub mod laplacian;
 pub mod movement;
 pub mod resize_area;
 pub mod sharpness;
+pub mod stationary;
 pub mod strip;
 pub mod tenengrad;
 pub mod tolerance;
 
-/// Every WGSL stage with its name (the sharpness kernels with their strip.wgsl prelude), for validation and for `keyframer info`.
+/// IEEE f64 arithmetic on u32 pairs, prepended to the shaders that decide in f64 as the host
+/// does (movement, stationary).
+pub const F64_WGSL: &str = include_str!("../../shaders/f64.wgsl");
+
+/// Every WGSL stage with its name (the sharpness kernels with their strip.wgsl prelude), for
+/// validation and for `keyframer info`.
 pub const SHADERS: &[(&str, &str)] = &[
     ("tenengrad", tenengrad::WGSL),
     ("laplacian", laplacian::WGSL),
     ("farneback_pyramid", farneback::PYRAMID_WGSL),
     ("farneback_flow", farneback::FLOW_WGSL),
     ("movement", movement::WGSL),
+    ("stationary", stationary::WGSL),
+    ("copy", farneback::COPY_WGSL),
     ("resize_area", resize_area::WGSL),
 ];
 

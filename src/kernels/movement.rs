@@ -1,18 +1,23 @@
 //! `movement`: a robust statistic of the per-pixel flow magnitude (median or trimmed mean),
-//! computed on the device by exact radix selection (shaders/movement.wgsl); `cpu` is the twin on
-//! the host (sorting the same f32 magnitudes of OpenCV's flow). With `Derotate`, the flow of the
-//! best-fitting small camera rotation (least squares, `RotationField`) is subtracted first, so
-//! the statistic measures the translation-induced (parallax) part of the motion.
+//! computed on the device by exact radix selection (shaders/movement.wgsl) without a host round
+//! trip: the passes leave the statistic, as the f64 the host would compute from the selected
+//! values, in a results record; `cpu` is the twin on the host (sorting the same f32 magnitudes of
+//! OpenCV's flow). With `Derotate`, the flow of the best-fitting small camera rotation (least
+//! squares, `RotationField`) is subtracted first, so the statistic measures the
+//! translation-induced (parallax) part of the motion.
 
 use crate::error::{Error, Result};
-use crate::gpu::{compute_pass, GpuContext};
+use crate::gpu::{compute_pass, Gate, GpuContext};
 pub use crate::params::{Derotate, Statistic};
 use bytemuck::{Pod, Zeroable};
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
 
-/// WGSL source.
-pub const WGSL: &str = include_str!("../../shaders/movement.wgsl");
+/// WGSL source (after the f64 arithmetic it uses).
+pub const WGSL: &str = concat!(
+    include_str!("../../shaders/f64.wgsl"),
+    include_str!("../../shaders/movement.wgsl")
+);
 
 /// A camera rotation between two frames as the 3x3 matrix (rows, f32 as the shader has it) that
 /// maps a normalised ray (x, y, 1) of the first frame to its direction in the second.
@@ -122,27 +127,21 @@ impl RotationField {
     }
 
     /// The first-order rotation vector (radians) of the least-squares fit to sums `b`.
-    pub fn solve(&self, b: [f64; 3]) -> [f64; 3] {
+    fn solve(&self, b: [f64; 3]) -> [f64; 3] {
         let r = &self.inverse;
         std::array::from_fn(|k| r[k][0] * b[0] + r[k][1] * b[1] + r[k][2] * b[2])
     }
 
-    /// The least-squares rotation, given a function returning `sums` for a rotation (the host
-    /// computes them itself, the device with a reduction): a linear fit, then the refinements.
-    pub fn fit(&self, mut sums: impl FnMut(&Rotation) -> Result<[f64; 3]>) -> Result<Rotation> {
-        let mut omega = self.solve(sums(&IDENTITY)?);
+    /// Host fit of the rotation of an interleaved flow: a linear fit, then the refinements.
+    pub fn fit_cpu(&self, flow: &[f32]) -> Result<Rotation> {
+        let mut omega = self.solve(self.sums(flow, &IDENTITY)?);
         for _ in 0..ROTATION_REFINEMENTS {
-            let step = self.solve(sums(&matrix(omega))?);
+            let step = self.solve(self.sums(flow, &matrix(omega))?);
             for (o, d) in omega.iter_mut().zip(step) {
                 *o += d;
             }
         }
         Ok(matrix(omega))
-    }
-
-    /// Host fit of the rotation of an interleaved flow.
-    pub fn fit_cpu(&self, flow: &[f32]) -> Result<Rotation> {
-        self.fit(|r| self.sums(flow, r))
     }
 
     /// |flow - rotation flow of `r`| per pixel, in f32 as the shader computes it.
@@ -264,39 +263,58 @@ pub fn cpu(values: &[f32], stat: Statistic) -> Result<f64> {
     })
 }
 
+/// Words of one frame's results record: the consecutive movement (f64 bits, low word first) at
+/// 0, the movement from the stationary reference at 2, the stationary decision at 4.
+pub const RECORD_WORDS: u32 = 8;
+
+/// Where a frame's passes find their record: shaders' `Frame` (written by the host per frame).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub struct FrameParams {
+    /// Frame index.
+    pub index: u32,
+    /// Record of the frame in the results buffer.
+    pub entry: u32,
+    /// The stationary step's flags (kernels::stationary).
+    pub flags: u32,
+    pub pad: u32,
+}
+
+/// Constants of one statistic over one grid (shader `Consts`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct Params {
+struct Consts {
     n: u32,
     groups_x: u32,
-    shift: u32,
-    mask: u32,
-    prefix_shift: u32,
-    prefix0: u32,
-    prefix1: u32,
-    lo_bits: u32,
-    hi_bits: u32,
-    /// 1: subtract the flow of rotation `rot` (grid `width` wide, focal `f`, centre cx, cy).
     derotate: u32,
     width: u32,
-    pad0: u32,
+    lo: u32,
+    hi: u32,
+    trimmed: u32,
+    partials: u32,
     f: f32,
     cx: f32,
     cy: f32,
-    pad1: f32,
-    /// Rows of the rotation, padded to vec4.
-    rot: [[f32; 4]; 3],
+    pad: f32,
+    inverse: [[f32; 4]; 3],
 }
 
-const BINS: usize = 4096;
+/// (shift, bits, prefix shift) of the three radix rounds over bits 30..0.
+const RADIX: [(u32, u32, u32); 3] = [(19, 12, 31), (7, 12, 19), (0, 7, 7)];
+/// Histogram words: 3 rounds x 2 ranks x 4096 bins, then the counts of `sums`.
+const HIST_WORDS: u64 = 3 * 2 * 4096 + 4;
+/// Bytes of the selection state (shader `Sel`); the rotation rows start at byte 48.
+const SEL_BYTES: u64 = 96;
 
-/// The device passes of `MovementGpu` (entry points of shaders/movement.wgsl).
-#[derive(Clone, Copy)]
-enum Pass {
-    Histogram,
-    Sums,
-    RotationSums,
+type Pass = (Arc<wgpu::ComputePipeline>, wgpu::BindGroup);
+
+fn pair(p: &Pass) -> (&wgpu::ComputePipeline, &wgpu::BindGroup) {
+    (p.0.as_ref(), &p.1)
 }
+
+/// Where `finish` writes a statistic: a results buffer, the frame params naming the record, the
+/// field of the record (0 consecutive, 1 from the reference).
+pub struct Destination(wgpu::BindGroup);
 
 /// Device statistic over one flow buffer (2 x f32 per pixel, `width` x `height` pixels).
 pub struct MovementGpu {
@@ -304,17 +322,19 @@ pub struct MovementGpu {
     n: u32,
     width: u32,
     groups: (u32, u32),
-    hist_pipe: Arc<wgpu::ComputePipeline>,
-    sums_pipe: Arc<wgpu::ComputePipeline>,
-    rot_pipe: Arc<wgpu::ComputePipeline>,
-    params: wgpu::Buffer,
-    hist: wgpu::Buffer,
-    counts: wgpu::Buffer,
-    partials: wgpu::Buffer,
-    hist_bg: wgpu::BindGroup,
-    sums_bg: wgpu::BindGroup,
-    rot_bg: wgpu::BindGroup,
     field: Option<RotationField>,
+    consts: wgpu::Buffer,
+    hist: wgpu::Buffer,
+    partials: wgpu::Buffer,
+    sel: wgpu::Buffer,
+    finish: Arc<wgpu::ComputePipeline>,
+    /// (pipeline, bind group) of init, rotation_sums, solve, sums.
+    init: Pass,
+    rotation_sums: Pass,
+    solve: Pass,
+    sums: Pass,
+    /// Per radix round: histogram and pick.
+    rounds: Vec<[Pass; 2]>,
 }
 
 impl MovementGpu {
@@ -334,202 +354,230 @@ impl MovementGpu {
         let field = derotate
             .map(|d| RotationField::new(width, height, d))
             .transpose()?;
-        let hist_pipe = ctx.pipeline("movement", WGSL, "histogram")?;
-        let sums_pipe = ctx.pipeline("movement", WGSL, "sums")?;
-        let rot_pipe = ctx.pipeline("movement", WGSL, "rotation_sums")?;
         let total = n.div_ceil(256);
         let gx = total.min(65_535);
         let groups = (gx, total.div_ceil(gx));
-        let params = ctx.uniform("movement params", &Params::zeroed());
-        let hist = ctx.storage_buffer("movement histogram", (2 * BINS * 4) as u64);
-        let counts = ctx.storage_buffer("movement counts", 16);
+        let pipe = |entry: &str| ctx.pipeline("movement", WGSL, entry);
+        let consts = ctx.uniform("movement consts", &Consts::zeroed());
+        let hist = ctx.storage_buffer("movement histogram", HIST_WORDS * 4);
         let partials =
             ctx.storage_buffer("movement partials", u64::from(groups.0 * groups.1) * 3 * 4);
-        let hist_bg = ctx.bind(
-            "movement histogram",
-            &hist_pipe,
-            &[(0, flow), (1, &hist), (4, &params)],
-        );
-        let sums_bg = ctx.bind(
-            "movement sums",
-            &sums_pipe,
-            &[(0, flow), (2, &counts), (3, &partials), (4, &params)],
-        );
-        let rot_bg = ctx.bind(
-            "movement rotation sums",
-            &rot_pipe,
-            &[(0, flow), (3, &partials), (4, &params)],
-        );
+        let sel = ctx.storage_buffer("movement selection", SEL_BYTES);
+        let table = [
+            (0, flow),
+            (1, &hist),
+            (3, &partials),
+            (4, &consts),
+            (6, &sel),
+        ];
+        // The pass `entry` with the bindings it uses, and its radix round's uniform (binding 5).
+        let with = |entry: &str, used: &[u32], radix: Option<&wgpu::Buffer>| -> Result<Pass> {
+            let p = pipe(entry)?;
+            let binds: Vec<(u32, &wgpu::Buffer)> = (table.iter().copied())
+                .filter(|(b, _)| used.contains(b))
+                .chain(radix.map(|r| (5, r)))
+                .collect();
+            let bg = ctx.bind(entry, &p, &binds);
+            Ok((p, bg))
+        };
+        let init = with("init", &[4, 6], None)?;
+        let rotation_sums = with("rotation_sums", &[0, 3, 4, 6], None)?;
+        let solve = with("solve", &[3, 4, 6], None)?;
+        let sums = with("sums", &[0, 1, 3, 4, 6], None)?;
+        let rounds = RADIX
+            .iter()
+            .enumerate()
+            .map(|(k, &(shift, bits, prefix_shift))| {
+                let radix = ctx.uniform("movement radix", &[shift, bits, prefix_shift, k as u32]);
+                Ok([
+                    with("histogram", &[0, 1, 4, 6], Some(&radix))?,
+                    with("pick", &[1, 6], Some(&radix))?,
+                ])
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let finish = pipe("finish")?;
         Ok(MovementGpu {
-            ctx,
+            ctx: ctx.clone(),
             n,
             width,
             groups,
-            hist_pipe,
-            sums_pipe,
-            rot_pipe,
-            params,
-            hist,
-            counts,
-            partials,
-            hist_bg,
-            sums_bg,
-            rot_bg,
             field,
+            consts,
+            hist,
+            partials,
+            sel,
+            finish,
+            init,
+            rotation_sums,
+            solve,
+            sums,
+            rounds,
         })
     }
 
-    /// Parameters with the grid, the intrinsics and the rotation filled in (derotate set when a
-    /// rotation is given).
-    fn params(&self, rotation: Option<&Rotation>) -> Params {
+    /// The destination of records `frame` names in `results`, field `field`.
+    pub fn destination(
+        &self,
+        results: &wgpu::Buffer,
+        frame: &wgpu::Buffer,
+        field: u32,
+    ) -> Destination {
+        let target = self
+            .ctx
+            .uniform("movement destination", &[field, RECORD_WORDS, 0, 0]);
+        Destination(self.ctx.bind(
+            "finish",
+            &self.finish,
+            &[
+                (1, &self.hist),
+                (3, &self.partials),
+                (4, &self.consts),
+                (6, &self.sel),
+                (7, results),
+                (8, frame),
+                (9, &target),
+            ],
+        ))
+    }
+
+    /// Sets the statistic the next passes take.
+    pub fn prepare(&self, stat: Statistic) -> Result<()> {
+        stat.validate()?;
+        let (lo, hi) = stat.ranks(self.n);
         let (f, cx, cy) = self
             .field
             .as_ref()
             .map_or((1.0, 0.0, 0.0), |r| r.intrinsics());
-        let r = rotation.unwrap_or(&IDENTITY);
-        Params {
+        let inverse = self.field.as_ref().map_or([[0.0; 4]; 3], |r| {
+            r.inverse
+                .map(|row| [row[0] as f32, row[1] as f32, row[2] as f32, 0.0])
+        });
+        let c = Consts {
             n: self.n,
             groups_x: self.groups.0,
-            shift: 0,
-            mask: 0,
-            prefix_shift: 31,
-            prefix0: u32::MAX,
-            prefix1: u32::MAX,
-            lo_bits: 0,
-            hi_bits: 0,
-            derotate: u32::from(rotation.is_some()),
+            derotate: u32::from(self.field.is_some()),
             width: self.width,
-            pad0: 0,
+            lo,
+            hi,
+            trimmed: u32::from(matches!(stat, Statistic::TrimmedMean { .. })),
+            partials: self.groups.0 * self.groups.1,
             f,
             cx,
             cy,
-            pad1: 0.0,
-            rot: r.map(|row| [row[0], row[1], row[2], 0.0]),
-        }
+            pad: 0.0,
+            inverse,
+        };
+        self.ctx.write(&self.consts, 0, bytemuck::bytes_of(&c));
+        Ok(())
     }
 
-    /// The least-squares rotation of the bound flow (None without derotation).
+    /// The workgroups of the passes, in the order of their gate entries: over the pixels, one.
+    pub fn shapes(&self) -> [(u32, u32); 2] {
+        [self.groups, (1, 1)]
+    }
+
+    /// Records the passes of `stat` (set by [`MovementGpu::prepare`]) over the bound flow into
+    /// `dest`, gated by `gate` when given; without `dest`, only the rotation fit.
+    fn encode_passes(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        stat: Statistic,
+        dest: Option<&Destination>,
+        gate: Option<Gate<'_>>,
+    ) {
+        enc.clear_buffer(&self.hist, 0, None);
+        let mut pass = compute_pass(enc, "movement");
+        let shapes = self.shapes();
+        let mut run = |(p, bg): (&wgpu::ComputePipeline, &wgpu::BindGroup), wide: bool| {
+            let shape = usize::from(!wide);
+            self.ctx
+                .dispatch_gated(&mut pass, (p, bg), shapes[shape], gate, shape);
+        };
+        run(pair(&self.init), false);
+        if self.field.is_some() {
+            for _ in 0..=ROTATION_REFINEMENTS {
+                run(pair(&self.rotation_sums), true);
+                run(pair(&self.solve), false);
+            }
+        }
+        let Some(dest) = dest else {
+            return;
+        };
+        for [histogram, pick] in &self.rounds {
+            run(pair(histogram), true);
+            run(pair(pick), false);
+        }
+        if let Statistic::TrimmedMean { .. } = stat {
+            run(pair(&self.sums), true);
+        }
+        run((&self.finish, &dest.0), false);
+    }
+
+    /// Records the statistic `stat` (set by [`MovementGpu::prepare`]) of the bound flow into
+    /// `dest`, gated by `gate` when given (entries as [`MovementGpu::shapes`] lists them).
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        stat: Statistic,
+        dest: &Destination,
+        gate: Option<Gate<'_>>,
+    ) {
+        self.encode_passes(enc, stat, Some(dest), gate);
+    }
+
+    /// The least-squares rotation of the bound flow (None without derotation); waits for it.
     pub fn rotation(&self) -> Result<Option<Rotation>> {
-        let Some(field) = &self.field else {
+        if self.field.is_none() {
             return Ok(None);
-        };
-        field.fit(|r| self.rotation_sums(r)).map(Some)
-    }
-
-    /// Device `sums` of the residual after rotation `r` (per-workgroup partials added in f64).
-    fn rotation_sums(&self, r: &Rotation) -> Result<[f64; 3]> {
-        self.run(&self.params(Some(r)), Pass::RotationSums);
-        let parts = self.ctx.read_back(
-            &self.partials,
-            u64::from(self.groups.0 * self.groups.1) * 3 * 4,
-        )?;
-        let mut b = [0.0f64; 3];
-        for chunk in bytemuck::cast_slice::<u8, f32>(&parts).chunks_exact(3) {
-            for (bk, &v) in b.iter_mut().zip(chunk) {
-                *bk += f64::from(v);
-            }
         }
-        Ok(b)
-    }
-
-    /// Writes `p` and runs one of the three passes over the flow.
-    fn run(&self, p: &Params, which: Pass) {
-        self.ctx
-            .queue
-            .write_buffer(&self.params, 0, bytemuck::bytes_of(p));
-        let mut enc = self.ctx.encoder("movement");
-        let (pipe, bg) = match which {
-            Pass::Histogram => {
-                enc.clear_buffer(&self.hist, 0, None);
-                (&self.hist_pipe, &self.hist_bg)
-            }
-            Pass::Sums => {
-                enc.clear_buffer(&self.counts, 0, None);
-                (&self.sums_pipe, &self.sums_bg)
-            }
-            Pass::RotationSums => (&self.rot_pipe, &self.rot_bg),
-        };
-        self.ctx.dispatch(
-            &mut compute_pass(&mut enc, "movement"),
-            pipe,
-            bg,
-            self.groups,
-        );
+        self.prepare(Statistic::Median)?;
+        let mut enc = self.ctx.encoder("movement rotation");
+        self.encode_passes(&mut enc, Statistic::Median, None, None);
         self.ctx.queue.submit([enc.finish()]);
-    }
-
-    /// Bit patterns of the values at ranks `lo` and `hi` (0-based, ascending).
-    fn select(&self, lo: u32, hi: u32, rotation: Option<&Rotation>) -> Result<[u32; 2]> {
-        // (shift, mask bits, prefix_shift) of the three radix passes over bits 30..0.
-        let passes = [(19u32, 12u32, 31u32), (7, 12, 19), (0, 7, 7)];
-        let mut prefix = [0u32; 2];
-        let mut rank = [lo, hi];
-        for (shift, bits, prefix_shift) in passes {
-            let p = Params {
-                shift,
-                mask: (1 << bits) - 1,
-                prefix_shift,
-                prefix0: prefix[0],
-                prefix1: prefix[1],
-                ..self.params(rotation)
-            };
-            self.run(&p, Pass::Histogram);
-            let bytes = self.ctx.read_back(&self.hist, (2 * BINS * 4) as u64)?;
-            let h: &[u32] = bytemuck::cast_slice(&bytes);
-            for r in 0..2 {
-                let mut before = 0u32;
-                let mut found = None;
-                for (b, &c) in h[r * BINS..r * BINS + (1 << bits)].iter().enumerate() {
-                    if rank[r] < before + c {
-                        found = Some(b as u32);
-                        break;
-                    }
-                    before += c;
-                }
-                let b = found.ok_or_else(|| {
-                    Error::Gpu("movement histogram lost values (non-finite flow?)".into())
-                })?;
-                rank[r] -= before;
-                prefix[r] = (prefix[r] << bits) | b;
-            }
-        }
-        Ok(prefix)
+        let bytes = self.ctx.read_back(&self.sel, SEL_BYTES)?;
+        let rows: &[f32] = bytemuck::cast_slice(&bytes[48..96]);
+        Ok(Some(std::array::from_fn(|i| {
+            std::array::from_fn(|j| rows[4 * i + j])
+        })))
     }
 
     /// The statistic of the magnitudes in the bound flow buffer (submitted work must be queued),
-    /// after subtracting the fitted rotation flow when derotating.
+    /// after subtracting the fitted rotation flow when derotating; waits for it.
     pub fn compute(&self, stat: Statistic) -> Result<f64> {
-        stat.validate()?;
-        let (lo, hi) = stat.ranks(self.n);
-        let rotation = self.rotation()?;
-        let [lo_bits, hi_bits] = self.select(lo, hi, rotation.as_ref())?;
-        let (vlo, vhi) = (
-            f64::from(f32::from_bits(lo_bits)),
-            f64::from(f32::from_bits(hi_bits)),
-        );
-        if let Statistic::Median = stat {
-            return Ok((vlo + vhi) * 0.5);
-        }
-        if lo_bits == hi_bits {
-            return Ok(vlo);
-        }
-        let p = Params {
-            lo_bits,
-            hi_bits,
-            ..self.params(rotation.as_ref())
-        };
-        self.run(&p, Pass::Sums);
-        let c = self.ctx.read_back(&self.counts, 16)?;
-        let c: &[u32] = bytemuck::cast_slice(&c);
-        let parts = self
+        self.prepare(stat)?;
+        let results = self
             .ctx
-            .read_back(&self.partials, u64::from(self.groups.0 * self.groups.1) * 4)?;
-        let between: f64 = bytemuck::cast_slice::<u8, f32>(&parts)
-            .iter()
-            .map(|&v| f64::from(v))
-            .sum();
-        let take_lo = f64::from(c[1] - lo);
-        let take_hi = f64::from(hi + 1 - c[2]);
-        Ok((take_lo * vlo + between + take_hi * vhi) / f64::from(hi - lo + 1))
+            .storage_buffer("movement result", u64::from(RECORD_WORDS) * 4);
+        let frame = self.ctx.buffer_init(
+            "movement frame",
+            wgpu::BufferUsages::STORAGE,
+            bytemuck::bytes_of(&FrameParams::default()),
+        );
+        let mut enc = self.ctx.encoder("movement");
+        self.encode(&mut enc, stat, &self.destination(&results, &frame, 0), None);
+        self.ctx.queue.submit([enc.finish()]);
+        let bytes = self.ctx.read_back(&results, 8)?;
+        statistic_value(&bytes)
     }
+}
+
+/// The statistic in the first 8 bytes of a record field.
+pub fn statistic_value(bytes: &[u8]) -> Result<f64> {
+    let v = bytes
+        .get(..8)
+        .and_then(|b| <[u8; 8]>::try_from(b).ok())
+        .map(f64::from_le_bytes)
+        .ok_or_else(|| Error::Gpu("movement record too short".into()))?;
+    checked(v)
+}
+
+/// A statistic from the device: an error when the device marked it (NaN: the flow was not
+/// finite).
+pub fn checked(v: f64) -> Result<f64> {
+    if v.is_nan() {
+        return Err(Error::Gpu(
+            "movement histogram lost values (non-finite flow?)".into(),
+        ));
+    }
+    Ok(v)
 }

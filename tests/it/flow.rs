@@ -290,6 +290,43 @@ fn synthetic_translation_is_recovered() {
 }
 
 /// `keyframer flow` writes a Middlebury .flo that both backends agree on.
+/// The gated copy of a slot's expansion pyramid: with its gate closed the target slot keeps its
+/// frame, open it receives the source's, so the flow from it is bit-identical to the flow from
+/// the source.
+#[test]
+fn gated_copy_moves_a_pyramid_only_when_open() {
+    use keyframer::gpu::Gate;
+    let prev = gray_of(&testdata("opencv-doc/rubberwhale1.png"));
+    let next = gray_of(&testdata("opencv-doc/rubberwhale2.png"));
+    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None).unwrap());
+    let (w, h) = (prev.cols() as u32, prev.rows() as u32);
+    let mut gpu = FarnebackGpu::new(ctx.clone(), FarnebackParams::default(), w, h).unwrap();
+    gpu.load(0, &prev).unwrap();
+    gpu.load(1, &next).unwrap();
+    gpu.load(2, &next).unwrap();
+    let flow_to_1 = |gpu: &mut FarnebackGpu, from: usize| {
+        gpu.flow_between(from, 1).unwrap();
+        gpu.read_flow().unwrap().data_bytes().unwrap().to_vec()
+    };
+    let from_prev = flow_to_1(&mut gpu, 0);
+    let from_next = flow_to_1(&mut gpu, 2);
+    assert_ne!(from_prev, from_next);
+    for (open, want) in [(false, &from_next), (true, &from_prev)] {
+        let table: Vec<u32> = (gpu.copy_shapes().iter())
+            .flat_map(|&(x, y)| if open { [x, y, 1] } else { [0; 3] })
+            .collect();
+        let args = ctx.indirect_buffer("gates", bytemuck::cast_slice(&table));
+        let mut enc = ctx.encoder("gated copy");
+        let gate = Some(Gate {
+            args: &args,
+            first: 0,
+        });
+        gpu.encode_copy(&mut enc, 0, 2, gate).unwrap();
+        ctx.queue.submit([enc.finish()]);
+        assert!(flow_to_1(&mut gpu, 2) == *want, "gate open: {open}");
+    }
+}
+
 #[test]
 fn flow_command_writes_flo() {
     use crate::common::{kf, kf_ok, s};
@@ -350,5 +387,112 @@ fn initial_flow_option_matches_opencv() {
             epe(&c, &without).0 > 10.0 * mean.max(1e-6),
             "the initial flow must change the result"
         );
+    }
+}
+
+/// The device's f64 arithmetic (shaders/f64.wgsl, which the movement statistic and the stationary
+/// decision use to equal the host bit for bit) gives exactly the host's f64 results: sums,
+/// products, quotients and comparisons of non-negative values over many magnitudes, rounding
+/// ties included, and the exact conversions from f32 (subnormal too) and u32.
+#[test]
+fn f64_arithmetic_on_device_equals_the_hosts() {
+    use keyframer::gpu::{compute_pass, GpuContext};
+    const DRIVER: &str = "
+@group(0) @binding(0) var<storage, read> input: array<u32>;
+@group(0) @binding(1) var<storage, read_write> output: array<u32>;
+fn put(at: u32, v: vec2<u32>) { output[at] = v.x; output[at + 1u] = v.y; }
+@compute @workgroup_size(64, 1, 1)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    let k = id.x;
+    if (6u * k >= arrayLength(&input)) { return; }
+    let a = vec2<u32>(input[6u * k], input[6u * k + 1u]);
+    let b = vec2<u32>(input[6u * k + 2u], input[6u * k + 3u]);
+    put(11u * k, f64_add(a, b));
+    put(11u * k + 2u, f64_mul(a, b));
+    put(11u * k + 4u, f64_div(a, b));
+    put(11u * k + 6u, f64_from_f32(input[6u * k + 4u]));
+    put(11u * k + 8u, f64_from_u32(input[6u * k + 5u]));
+    output[11u * k + 10u] = select(0u, 1u, f64_ge(a, b));
+}
+";
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    // Positive normal values from 2^-200 to 2^200, half of them f32 values (the statistic's)
+    // from 2^-100 to 2^100.
+    let value = |r: u64, bits: u64| match r % 2 {
+        0 => f64::from(f64::from_bits(((923 + r % 200) << 52) | (bits >> 12)) as f32),
+        _ => f64::from_bits(((823 + r % 400) << 52) | (bits >> 12)),
+    };
+    let mut cases: Vec<(f64, f64, u32, u32)> = vec![
+        (1.0, 2f64.powi(-53), 1, 0),
+        (1.0 + 2f64.powi(-52), 2f64.powi(-53), 0x0000_0001, u32::MAX),
+        (3.0, 0.5, 0x007f_ffff, 7),
+        (0.0, 2.5, 0x3f80_0000, 1 << 31),
+        (1.5, 1.5, 0x7f7f_ffff, 12345),
+        (2f64.powi(60), 1.0, 0x0040_0000, 3),
+    ];
+    for _ in 0..20_000 {
+        let r = next();
+        let a = value(r, next());
+        // Often close to `a`, so sums round, carry and tie.
+        let b = match r % 4 {
+            0 => a * (1.0 + (next() % 1000) as f64 * f64::EPSILON),
+            1 => a * 2f64.powi(-((next() % 70) as i32)),
+            _ => value(next(), next()),
+        };
+        let f = (next() as u32) & 0x7fff_ffff;
+        let f = if f >> 23 == 0xff { f & 0x3fff_ffff } else { f };
+        cases.push((a, b, f, next() as u32));
+    }
+    let words = |v: f64| [(v.to_bits() >> 32) as u32, v.to_bits() as u32];
+    let input: Vec<u32> = cases
+        .iter()
+        .flat_map(|&(a, b, f, n)| {
+            let (a, b) = (words(a), words(b));
+            [a[0], a[1], b[0], b[1], f, n]
+        })
+        .collect();
+    let ctx = GpuContext::new(None).unwrap();
+    let src = format!("{}{DRIVER}", keyframer::kernels::F64_WGSL);
+    let pipe = ctx.pipeline("f64 check", &src, "main").unwrap();
+    let storage = wgpu::BufferUsages::STORAGE;
+    let inb = ctx.buffer_init("f64 input", storage, bytemuck::cast_slice(&input));
+    let out = ctx.storage_buffer("f64 output", cases.len() as u64 * 44);
+    let bg = ctx.bind("f64 check", &pipe, &[(0, &inb), (1, &out)]);
+    let mut enc = ctx.encoder("f64 check");
+    ctx.dispatch(
+        &mut compute_pass(&mut enc, "f64 check"),
+        &pipe,
+        &bg,
+        ((cases.len() as u32).div_ceil(64), 1),
+    );
+    ctx.queue.submit([enc.finish()]);
+    let bytes = ctx.read_back(&out, cases.len() as u64 * 44).unwrap();
+    let got: &[u32] = bytemuck::cast_slice(&bytes);
+    let f64_at =
+        |w: &[u32], i: usize| f64::from_bits((u64::from(w[i]) << 32) | u64::from(w[i + 1]));
+    for (k, &(a, b, f, n)) in cases.iter().enumerate() {
+        let g = &got[11 * k..11 * k + 11];
+        let want = [
+            a + b,
+            a * b,
+            a / b,
+            f64::from(f32::from_bits(f)),
+            f64::from(n),
+        ];
+        for (j, w) in want.iter().enumerate() {
+            let d = f64_at(g, 2 * j);
+            assert_eq!(
+                d.to_bits(),
+                w.to_bits(),
+                "case {k} op {j}: a {a:e} b {b:e} f {f:#x} n {n}: device {d:e} host {w:e}"
+            );
+        }
+        assert_eq!(g[10] == 1, a >= b, "case {k}: {a:e} >= {b:e}");
     }
 }

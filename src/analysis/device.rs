@@ -1,0 +1,253 @@
+//! The gpu movement engine: each frame's flow, movement statistic and stationary decision are
+//! queued on the device with no host round trip in between; their records are read back
+//! [`BATCH`] frames at a time through pooled staging buffers, mapped without waiting. The host
+//! blocks only when [`DEPTH`] batches are still in flight, or when it asks for every result (a
+//! checkpoint, the end of the input).
+
+use super::ingest::Pixels;
+use crate::error::{Error, Result};
+use crate::gpu::readback::Until;
+use crate::gpu::{Gate, GpuContext, Readback};
+use crate::kernels::farneback::{FarnebackGpu, SLOTS};
+use crate::kernels::movement::{
+    checked, Destination, FrameParams, MovementGpu, Statistic, RECORD_WORDS,
+};
+use crate::kernels::stationary::{StationaryGpu, CANDIDATE, FROM_PREVIOUS};
+use crate::params::{MovementRequest, StationaryRequest};
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+/// Frames whose records are read back together.
+const BATCH: usize = 16;
+/// Batches in flight before the host waits for the oldest.
+const DEPTH: usize = 2;
+/// The slot holding the stationary step's reference frame (the device copies frames into it).
+pub(crate) const REFERENCE: usize = SLOTS - 1;
+const RECORD_BYTES: usize = RECORD_WORDS as usize * 4;
+
+/// What to measure at one frame.
+pub(crate) struct Work {
+    pub index: usize,
+    /// The slot the frame is loaded in.
+    pub slot: usize,
+    /// The slot of the frame to measure the consecutive movement from.
+    pub from: Option<usize>,
+    /// Whether `from` holds the previous frame.
+    pub from_previous: bool,
+    /// Whether the stationary step takes the frame.
+    pub candidate: bool,
+}
+
+/// One frame's results: the movements (analysis pixels, NaN when not finite; each meaningful
+/// only when the work asked for it) and the stationary step's decision (0: none).
+pub(crate) struct Record {
+    pub consecutive: f64,
+    pub reference: f64,
+    pub decision: u32,
+}
+
+impl Record {
+    fn parse(b: &[u8]) -> Record {
+        let f = |k: usize| {
+            let mut w = [0u8; 8];
+            w.copy_from_slice(&b[k..k + 8]);
+            f64::from_le_bytes(w)
+        };
+        Record {
+            consecutive: f(0),
+            reference: f(8),
+            decision: u32::from_le_bytes([b[16], b[17], b[18], b[19]]),
+        }
+    }
+}
+
+/// The WGSL Farneback, movement and stationary kernels over one results ring.
+pub(crate) struct DeviceMovement {
+    ctx: Arc<GpuContext>,
+    flow: FarnebackGpu,
+    stat: MovementGpu,
+    statistic: Statistic,
+    /// The sharpness engine's resized-gray buffers (empty unless frames stay on the device).
+    staged: Vec<wgpu::Buffer>,
+    stationary: Option<StationaryGpu>,
+    /// Records of the batch being filled, one per frame submitted.
+    results: wgpu::Buffer,
+    frame: wgpu::Buffer,
+    /// Where the consecutive movement and the movement from the reference go.
+    dest: [Destination; 2],
+    readback: Readback,
+    /// The first gate entries of the statistic from the reference and of the copy keeping it.
+    gates: [usize; 2],
+    /// Records in `results` so far.
+    filled: usize,
+    landed: VecDeque<Record>,
+}
+
+impl DeviceMovement {
+    /// The engine at the analysis size `(w, h)`; with `stationary`, its step on movements times
+    /// `scale` runs on the device too.
+    pub(crate) fn new(
+        ctx: &Arc<GpuContext>,
+        req: &MovementRequest,
+        stationary: Option<&StationaryRequest>,
+        scale: f64,
+        (w, h): (u32, u32),
+    ) -> Result<DeviceMovement> {
+        let flow = FarnebackGpu::new(ctx.clone(), req.farneback, w, h)?;
+        let stat = MovementGpu::new(ctx.clone(), flow.flow_buffer(), w, h, req.derotate)?;
+        stat.prepare(req.statistic)?;
+        let results = ctx.storage_buffer("movement records", (BATCH * RECORD_BYTES) as u64);
+        let frame = ctx.storage_buffer("movement frame", 16);
+        let dest = [0, 1].map(|field| stat.destination(&results, &frame, field));
+        let mut shapes = flow.flow_shapes();
+        let gates = [shapes.len(), shapes.len() + stat.shapes().len()];
+        shapes.extend(stat.shapes());
+        shapes.extend(flow.copy_shapes());
+        let stationary = stationary
+            .map(|st| {
+                StationaryGpu::new(
+                    ctx.clone(),
+                    st,
+                    scale,
+                    (&frame, &results),
+                    &shapes,
+                    gates[1],
+                )
+            })
+            .transpose()?;
+        Ok(DeviceMovement {
+            ctx: ctx.clone(),
+            flow,
+            stat,
+            statistic: req.statistic,
+            staged: Vec::new(),
+            stationary,
+            results,
+            frame,
+            dest,
+            readback: Readback::new((BATCH * RECORD_BYTES) as u64, DEPTH),
+            gates,
+            filled: 0,
+            landed: VecDeque::new(),
+        })
+    }
+
+    /// Frames will come as [`Pixels::Staged`] indices into `buffers`.
+    pub(crate) fn use_staged(&mut self, buffers: Vec<wgpu::Buffer>) {
+        self.staged = buffers;
+    }
+
+    /// Puts a frame's analysis pixels in `slot`.
+    pub(crate) fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
+        match px {
+            Pixels::Small(gray) => self.flow.load(slot, &gray),
+            Pixels::Staged(k) => {
+                let buf = self
+                    .staged
+                    .get(k)
+                    .ok_or_else(|| Error::param("movement", "no device gray staged"))?;
+                self.flow.load_buffer(slot, buf)
+            }
+        }
+    }
+
+    /// The frame in `slot` becomes the stationary step's reference.
+    pub(crate) fn keep(&mut self, slot: usize) -> Result<()> {
+        let mut enc = self.ctx.encoder("movement reference");
+        self.flow.encode_copy(&mut enc, slot, REFERENCE, None)?;
+        self.ctx.queue.submit([enc.finish()]);
+        Ok(())
+    }
+
+    /// Sets the stationary step's state on the device.
+    pub(crate) fn restore(&self, reference: Option<usize>, accumulated: f64) {
+        if let Some(st) = &self.stationary {
+            st.restore(reference, accumulated);
+        }
+    }
+
+    /// Queues the measurements of one frame; its record comes back through
+    /// [`DeviceMovement::collect`], after those of the frames submitted before it.
+    pub(crate) fn submit(&mut self, w: &Work) -> Result<()> {
+        let flag = |on: bool, f: u32| if on { f } else { 0 };
+        let params = FrameParams {
+            index: w.index as u32,
+            entry: self.filled as u32,
+            flags: flag(w.candidate, CANDIDATE) | flag(w.from_previous, FROM_PREVIOUS),
+            pad: 0,
+        };
+        self.ctx.write(&self.frame, 0, bytemuck::bytes_of(&params));
+        let mut enc = self.ctx.encoder("movement");
+        if let Some(from) = w.from {
+            self.flow.encode_flow(&mut enc, (from, w.slot), None)?;
+            self.stat
+                .encode(&mut enc, self.statistic, &self.dest[0], None);
+        }
+        if let (true, Some(st)) = (w.candidate, &self.stationary) {
+            let gate = |first| {
+                Some(Gate {
+                    args: st.args(),
+                    first,
+                })
+            };
+            let [statistic, keep] = self.gates;
+            st.encode_plan(&mut enc);
+            let pair = (REFERENCE, w.slot);
+            self.flow.encode_flow(&mut enc, pair, gate(0))?;
+            self.stat
+                .encode(&mut enc, self.statistic, &self.dest[1], gate(statistic));
+            st.encode_decide(&mut enc);
+            self.flow
+                .encode_copy(&mut enc, w.slot, REFERENCE, gate(keep))?;
+        }
+        self.filled += 1;
+        self.close(enc, self.filled == BATCH)
+    }
+
+    /// Submits `enc`, with the readback of the records so far when `end`.
+    fn close(&mut self, mut enc: wgpu::CommandEncoder, end: bool) -> Result<()> {
+        if end {
+            if self.readback.is_full() {
+                self.land(Until::Oldest)?;
+            }
+            let bytes = (self.filled * RECORD_BYTES) as u64;
+            self.readback
+                .copy(&self.ctx, &mut enc, &self.results, bytes)?;
+            self.filled = 0;
+        }
+        let index = self.ctx.queue.submit([enc.finish()]);
+        self.readback.submitted(index);
+        Ok(())
+    }
+
+    fn land(&mut self, until: Until) -> Result<()> {
+        for bytes in self.readback.take(&self.ctx, until)? {
+            let records = bytes.chunks_exact(RECORD_BYTES).map(Record::parse);
+            self.landed.extend(records);
+        }
+        Ok(())
+    }
+
+    /// The records that have come back, in submission order; with `all`, every one (waits).
+    pub(crate) fn collect(&mut self, all: bool) -> Result<Vec<Record>> {
+        if all && self.filled > 0 {
+            let enc = self.ctx.encoder("movement records");
+            self.close(enc, true)?;
+        }
+        self.land(if all { Until::All } else { Until::Landed })?;
+        Ok(self.landed.drain(..).collect())
+    }
+
+    /// The movement from slot `from` to slot `to` now (waits; nothing else may be pending).
+    pub(crate) fn movement(&mut self, from: usize, to: usize) -> Result<f64> {
+        self.submit(&Work {
+            index: 0,
+            slot: to,
+            from: Some(from),
+            from_previous: false,
+            candidate: false,
+        })?;
+        let last = self.collect(true)?.pop();
+        checked(last.map_or(f64::NAN, |r| r.consecutive))
+    }
+}
