@@ -39,3 +39,22 @@ fn replicate4(v: vec4<f32>, t: i32, w: i32) -> vec4<f32> {
     let c = select(u32(w - 1) & 3u, 0u, t < 0);
     return select(v, vec4<f32>(pick(v, c)), p >= vec4<i32>(w) | vec4<bool>(t < 0));
 }
+
+// cv::resize INTER_LINEAR: source index `s` and weight `f` of the next one for destination index
+// `d` (source pixels per destination pixel `scale`, `n` source pixels; clamped at both ends).
+struct Coord {
+    s: i32,
+    f: f32,
+}
+
+fn src_coord(d: i32, scale: f32, n: i32) -> Coord {
+    let fd = (f32(d) + 0.5) * scale - 0.5;
+    var c = Coord(i32(floor(fd)), fd - floor(fd));
+    if (c.s < 0) {
+        c = Coord(0, 0.0);
+    }
+    if (c.s >= n - 1) {
+        c = Coord(n - 1, 0.0);
+    }
+    return c;
+}

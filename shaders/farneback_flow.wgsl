@@ -183,24 +183,6 @@ fn pick8(a: vec4<f32>, b: vec4<f32>, i: i32) -> f32 {
     return select(pick(a, u32(i) & 3u), pick(b, u32(i) & 3u), i >= 4);
 }
 
-struct Coord {
-    s: i32,
-    f: f32,
-}
-
-// cv::resize INTER_LINEAR: source index and weight of the next one for destination index d.
-fn src_coord(d: i32, scale: f32, n: i32) -> Coord {
-    let fd = (f32(d) + 0.5) * scale - 0.5;
-    var c = Coord(i32(floor(fd)), fd - floor(fd));
-    if (c.s < 0) {
-        c = Coord(0, 0.0);
-    }
-    if (c.s >= n - 1) {
-        c = Coord(n - 1, 0.0);
-    }
-    return c;
-}
-
 // Component `k` (0: x, 1: y) of the resized flow at the four pixels of texel t in row y.
 fn resized(t: i32, y: i32, k: i32) -> vec4<f32> {
     let sw = i32(params.src_w);

@@ -197,24 +197,6 @@ fn level0(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 // ---- vsmooth, hsmooth ----
 
-// cv::resize INTER_LINEAR: source index and weight of the next one for destination index d.
-struct Coord {
-    s: i32,
-    f: f32,
-}
-
-fn src_coord(d: i32, scale: f32, n: i32) -> Coord {
-    let fd = (f32(d) + 0.5) * scale - 0.5;
-    var c = Coord(i32(floor(fd)), fd - floor(fd));
-    if (c.s < 0) {
-        c = Coord(0, 0.0);
-    }
-    if (c.s >= n - 1) {
-        c = Coord(n - 1, 0.0);
-    }
-    return c;
-}
-
 fn tap(i: i32) -> f32 {
     return taps.w[abs(i)].x;
 }
