@@ -31,16 +31,10 @@ pub fn plain_name(name: &str, what: &str, file: &Path) -> Result<()> {
         || name.contains('\\')
         || name.contains('\0');
     if bad {
-        return Err(Error::File {
-            path: file.to_path_buf(),
-            line: None,
-            what: "name",
-            field: what.to_string(),
-            msg: format!(
+        return Err(Error::file(file, None, "name", what, format!(
                 "`{}` is not a plain file name (no folders, no `..`); keyframer writes only inside its output",
                 name.escape_debug()
-            ),
-        });
+            )));
     }
     Ok(())
 }
@@ -376,16 +370,10 @@ pub fn inside(rel: &str, what: &str, file: &Path) -> Result<PathBuf> {
         && !rel.contains('\\')
         && !rel.contains('\0');
     if !plain {
-        return Err(Error::File {
-            path: file.to_path_buf(),
-            line: None,
-            what: "record",
-            field: what.to_string(),
-            msg: format!(
+        return Err(Error::file(file, None, "record", what, format!(
                 "`{}` is not a path inside the folder; keyframer reads and removes only inside its output",
                 rel.escape_debug()
-            ),
-        });
+            )));
     }
     Ok(p.to_path_buf())
 }
