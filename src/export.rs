@@ -13,7 +13,7 @@ pub use crate::manifest::{
 use crate::project::Project;
 use crate::segment::{MaskSettings, Segmenter};
 use crate::source::{self, OpenOptions, SourceKind};
-use opencv::core::{Mat, Rect, Size};
+use opencv::core::{Mat, Rect};
 use opencv::prelude::*;
 use opencv::{imgcodecs, imgproc};
 
@@ -73,23 +73,9 @@ pub fn transform(image: &Mat, settings: &ExportSettings, out: (u32, u32)) -> Res
     if (cropped.cols() as u32, cropped.rows() as u32) == out {
         return Ok(cropped);
     }
-    let mut resized = Mat::default();
-    imgproc::resize(
-        &cropped,
-        &mut resized,
-        Size::new(out.0 as i32, out.1 as i32),
-        0.0,
-        0.0,
-        imgproc::INTER_AREA,
-    )
-    .cv(|| format!("resize to {}x{}", out.0, out.1))?;
-    Ok(resized)
-}
-
-/// Outcome of an export.
-pub struct ExportReport {
-    /// The manifest as written.
-    pub manifest: Manifest,
+    let size = (out.0 as i32, out.1 as i32);
+    crate::encode::resize(&cropped, size, imgproc::INTER_AREA)
+        .cv(|| format!("resize to {}x{}", out.0, out.1))
 }
 
 /// Largest exported image side: JPEG stores at most 65535 and libjpeg accepts 65500.
@@ -145,7 +131,7 @@ pub fn export(
     settings: &ExportSettings,
     force: bool,
     quiet: bool,
-) -> Result<ExportReport> {
+) -> Result<Manifest> {
     let project = Project::load(project_path)?;
     let input = project.input_path(project_path);
     check_fingerprint(&project, &input)?;
@@ -202,7 +188,7 @@ pub fn export(
         mask_ms_per_image: masker.as_ref().and_then(|m| m.seg.ms_per_image()),
     };
     write_manifest(out, &manifest)?;
-    Ok(ExportReport { manifest })
+    Ok(manifest)
 }
 
 /// The file name of every keyframe's image, checked: plain names, no two alike.
@@ -307,13 +293,13 @@ fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
     if journal.exists() {
         let text = crate::output::read_text(&journal).map_err(refuse)?;
         let listed: Vec<String> = serde_json::from_str(&text).map_err(|e| {
-            refuse(Error::File {
-                path: journal.clone(),
-                line: Some(e.line()),
-                what: "export journal",
-                field: String::new(),
-                msg: e.to_string(),
-            })
+            refuse(Error::file(
+                &journal,
+                Some(e.line()),
+                "export journal",
+                "",
+                e.to_string(),
+            ))
         })?;
         for (i, f) in listed.iter().enumerate() {
             let rel = crate::output::inside(f, &format!("[{i}]"), &journal).map_err(refuse)?;
@@ -322,13 +308,13 @@ fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
                     .iter()
                     .any(|d| rel.starts_with(d));
             if !top {
-                return Err(refuse(Error::File {
-                    path: journal.clone(),
-                    line: None,
-                    what: "export journal",
-                    field: format!("[{i}]"),
-                    msg: "not a file of images/, masks/ or overlays/".into(),
-                }));
+                return Err(refuse(Error::file(
+                    &journal,
+                    None,
+                    "export journal",
+                    format!("[{i}]"),
+                    "not a file of images/, masks/ or overlays/",
+                )));
             }
             files.push(rel);
         }
