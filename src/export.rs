@@ -236,12 +236,12 @@ fn output_names(
         };
         crate::output::plain_name(&name, &format!("image of frame {i}"), &project_input(src))?;
         if let Some(other) = seen.insert(name.clone(), i) {
-            return Err(Error::Output {
-                path: PathBuf::from(&name),
-                msg: format!(
+            return Err(Error::output(
+                &name,
+                format!(
                     "frames {other} and {i} would both be exported under this name; give --format so that every name differs, or rename one of the files"
                 ),
-            });
+            ));
         }
         names.push(name);
     }
@@ -277,12 +277,12 @@ fn byte_copy(src: &dyn source::FrameSource, settings: &ExportSettings, is_video:
 /// (keyframer could not tell what it wrote there).
 fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
     let refuse = |e: Error| {
-        Error::Output {
-        path: out.to_path_buf(),
-        msg: format!(
-            "{e}; keyframer cannot tell what it wrote in this folder, so it replaces nothing: choose a new --out"
-        ),
-    }
+        Error::output(
+            out,
+            format!(
+                "{e}; keyframer cannot tell what it wrote in this folder, so it replaces nothing: choose a new --out"
+            ),
+        )
     };
     let mut files = Vec::new();
     let path = out.join(MANIFEST);
@@ -345,10 +345,10 @@ fn check_targets(
         let p = out.join(&rel);
         crate::output::check_replaceable(&p)?;
         if p.exists() && !ours.contains(&rel) {
-            return Err(Error::Output {
-                path: p,
-                msg: "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out".into(),
-            });
+            return Err(Error::output(
+                p,
+                "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out",
+            ));
         }
     }
     for d in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
@@ -357,10 +357,10 @@ fn check_targets(
         let p = out.join(d);
         if let Ok(m) = std::fs::symlink_metadata(&p) {
             if !m.file_type().is_dir() {
-                return Err(Error::Output {
-                    path: p,
-                    msg: "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away".into(),
-                });
+                return Err(Error::output(
+                    p,
+                    "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away",
+                ));
             }
         }
     }

@@ -91,13 +91,13 @@ pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
         } else {
             continue;
         };
-        return Err(Error::Output {
-            path: out.to_path_buf(),
-            msg: format!(
+        return Err(Error::output(
+            out,
+            format!(
                 "the output {how} {}; keyframer never writes into its inputs: choose another output",
                 input.display()
             ),
-        });
+        ));
     }
     Ok(())
 }
@@ -125,16 +125,16 @@ pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
     match kind_of(path) {
         None => {}
         Some("file") if !force => {
-            return Err(refused(path, "exists; pass --force to overwrite it".into()));
+            return Err(Error::output(path, "exists; pass --force to overwrite it"));
         }
         Some("file") => {}
         Some(kind) => {
-            return Err(Error::Output {
-                path: path.to_path_buf(),
-                msg: format!(
+            return Err(Error::output(
+                path,
+                format!(
                     "is a {kind}, not a regular file; keyframer replaces only regular files: choose another output"
                 ),
-            })
+            ))
         }
     }
     if let (Some(dir), Some(name)) = (path.parent(), path.file_name()) {
@@ -153,10 +153,10 @@ pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
 pub fn check_replaceable(path: &Path) -> Result<()> {
     match kind_of(path) {
         None | Some("file") => Ok(()),
-        Some(kind) => Err(Error::Output {
-            path: path.to_path_buf(),
-            msg: format!("is a {kind}; keyframer replaces only regular files it wrote"),
-        }),
+        Some(kind) => Err(Error::output(
+            path,
+            format!("is a {kind}; keyframer replaces only regular files it wrote"),
+        )),
     }
 }
 
@@ -291,15 +291,12 @@ pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &[&Path]) 
     clear_stale_temps_of(dir, None);
     if let Err(e) = probe_write(dir) {
         out.abandon();
-        return Err(refused(dir, format!("output folder is not writable: {e}")));
+        return Err(Error::output(
+            dir,
+            format!("output folder is not writable: {e}"),
+        ));
     }
     Ok(out)
-}
-
-/// An [`Error::Output`] about `path`.
-fn refused(path: &Path, msg: String) -> Error {
-    let path = path.to_path_buf();
-    Error::Output { path, msg }
 }
 
 /// Creates `dir` when missing; returns the folders made (outermost first) for [`OutDir::abandon`].
@@ -309,7 +306,7 @@ fn create_dir(dir: &Path) -> Result<Vec<PathBuf>> {
         Some("symbolic link") if dir.is_dir() => Ok(Vec::new()),
         Some(kind) => {
             let msg = format!("exists and is a {kind}, not a folder; choose another output folder");
-            Err(refused(dir, msg))
+            Err(Error::output(dir, msg))
         }
         None => {
             let mut missing: Vec<PathBuf> = dir
@@ -338,13 +335,13 @@ fn check_ours(dir: &Path, force: bool, records: &[&str]) -> Result<()> {
         });
     if non_empty && !records.iter().any(|r| dir.join(r).is_file()) {
         let msg = format!("is not empty and holds no {record}, so keyframer did not make it; keyframer replaces only its own results: choose a new or empty folder");
-        return Err(refused(dir, msg));
+        return Err(Error::output(dir, msg));
     }
     if non_empty && !force {
         let msg = format!(
             "holds earlier results ({record}); pass --force to replace what keyframer wrote there"
         );
-        return Err(refused(dir, msg));
+        return Err(Error::output(dir, msg));
     }
     Ok(())
 }

@@ -571,11 +571,13 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
     if dir.is_new() || !ws.join(RECORD).is_file() {
         return Ok(dir);
     }
-    let record = read_record(ws).map_err(|e| Error::Output {
-        path: ws.to_path_buf(),
-        msg: format!(
-            "{e}; keyframer cannot tell what it wrote in this workspace, so it replaces nothing: choose a new -o"
-        ),
+    let record = read_record(ws).map_err(|e| {
+        Error::output(
+            ws,
+            format!(
+                "{e}; keyframer cannot tell what it wrote in this workspace, so it replaces nothing: choose a new -o"
+            ),
+        )
     })?;
     let rec_path = ws.join(RECORD);
     let mut listed = Vec::new();
@@ -598,9 +600,9 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
         .filter(|f| !listed.contains(Path::new(f.as_str())) && !since_start(f))
         .collect();
     if let Some(first) = foreign.first() {
-        return Err(Error::Output {
-            path: ws.join(first),
-            msg: format!(
+        return Err(Error::output(
+            ws.join(first),
+            format!(
                 "was not written by keyframer ({RECORD} does not list it{}); keyframer never replaces files it did not write: move it away",
                 if foreign.len() > 1 {
                     format!(", nor {} other files", foreign.len() - 1)
@@ -608,7 +610,7 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
                     String::new()
                 }
             ),
-        });
+        ));
     }
     for f in &present {
         crate::output::check_replaceable(&ws.join(f))?;

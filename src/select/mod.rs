@@ -141,10 +141,10 @@ pub(crate) fn check_outputs(s: &SelectSettings) -> Result<()> {
     crate::output::check_file(&checkpoint, true, &[&s.input])?;
     // The checkpoint is replaced and removed without --force only when it is keyframer's own.
     if checkpoint.exists() && !s.force && !crate::analysis::is_checkpoint(&checkpoint) {
-        return Err(Error::Output {
-            path: checkpoint,
-            msg: "exists and is not a keyframer checkpoint; pass --force to replace it".into(),
-        });
+        return Err(Error::output(
+            checkpoint,
+            "exists and is not a keyframer checkpoint; pass --force to replace it",
+        ));
     }
     Ok(())
 }
