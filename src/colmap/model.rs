@@ -333,7 +333,7 @@ impl<'a> Fields<'a> {
         self.it.by_ref().collect()
     }
     fn err(&self, field: &str, msg: &str) -> Error {
-        Error::file(&self.path, Some(self.line), "COLMAP model", field, msg)
+        Error::file(self.path, Some(self.line), "COLMAP model", field, msg)
     }
 }
 
