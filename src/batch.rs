@@ -355,13 +355,12 @@ fn select_and_export(
         .iter()
         .map(|p| p.to_string())
         .collect();
-    for (name, es) in w.exports() {
+    for (name, es) in &w.exports {
         let out = folder.join(name);
-        let r = export::export(&project, &out, es, true, true)?;
-        report.exported.push(r.manifest.frames.len());
+        let m = export::export(&project, &out, es, true, true)?;
+        report.exported.push(m.frames.len());
         partial.extend(
-            r.manifest
-                .missing
+            m.missing
                 .iter()
                 .map(|m| format!("{name}: frame {} not exported: {}", m.index, m.reason)),
         );

@@ -153,7 +153,7 @@ pub struct FarnebackArgs {
 
 impl FarnebackArgs {
     /// The parameters as given (unchecked).
-    pub fn to_params(&self) -> FarnebackParams {
+    pub fn params(&self) -> FarnebackParams {
         FarnebackParams {
             pyr_scale: self.pyr_scale,
             levels: self.levels,
@@ -163,13 +163,6 @@ impl FarnebackArgs {
             poly_sigma: self.poly_sigma,
             gaussian: self.gaussian,
         }
-    }
-
-    /// Validated parameters.
-    pub fn params(&self) -> Result<FarnebackParams> {
-        let p = self.to_params();
-        p.validate()?;
-        Ok(p)
     }
 }
 
@@ -421,7 +414,7 @@ impl MovementArgs {
             hfov_deg: self.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
         });
         let request = MovementRequest {
-            farneback: self.farneback.to_params(),
+            farneback: self.farneback.params(),
             statistic,
             analysis_width: self.analysis_width,
             stride: self.flow_stride,

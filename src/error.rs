@@ -104,6 +104,23 @@ impl Error {
         }
     }
 
+    /// Shorthand for [`Error::File`].
+    pub fn file(
+        path: impl Into<PathBuf>,
+        line: Option<usize>,
+        what: &'static str,
+        field: impl Into<String>,
+        msg: impl Into<String>,
+    ) -> Self {
+        Error::File {
+            path: path.into(),
+            line,
+            what,
+            field: field.into(),
+            msg: msg.into(),
+        }
+    }
+
     /// Shorthand for [`Error::Param`].
     pub fn param(name: impl Into<String>, msg: impl Into<String>) -> Self {
         Error::Param {

@@ -12,16 +12,11 @@ use crate::export::Manifest;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-/// What `eval` reads.
+/// What `eval` reads: each field is the flag of the same name (`keyframer eval --help`).
 #[derive(Debug, Clone)]
 pub struct EvalSettings {
-    /// A COLMAP model folder (.bin or .txt), a `sparse/` folder of models 0/ 1/ …, or a workspace
-    /// made by `keyframer colmap`.
     pub model: PathBuf,
-    /// The export folder (its manifest orders images by frame and gives their timestamps);
-    /// default: the workspace's export.
     pub export: Option<PathBuf>,
-    /// Ground-truth camera-to-world poses in TUM format (`t tx ty tz qx qy qz qw`).
     pub gt: Option<PathBuf>,
 }
 
@@ -123,13 +118,13 @@ pub fn read_tum(path: &Path) -> Result<Vec<GtPose>> {
 }
 
 fn tum_err(path: &Path, line: usize, msg: &str) -> Error {
-    Error::File {
-        path: path.to_path_buf(),
-        line: Some(line),
-        what: "TUM trajectory",
-        field: "timestamp tx ty tz qx qy qz qw".into(),
-        msg: msg.into(),
-    }
+    Error::file(
+        path,
+        Some(line),
+        "TUM trajectory",
+        "timestamp tx ty tz qx qy qz qw",
+        msg,
+    )
 }
 
 /// Ground-truth part of the report.

@@ -13,7 +13,7 @@ pub use crate::manifest::{
 use crate::project::Project;
 use crate::segment::{MaskSettings, Segmenter};
 use crate::source::{self, OpenOptions, SourceKind};
-use opencv::core::{Mat, Rect, Size};
+use opencv::core::{Mat, Rect};
 use opencv::prelude::*;
 use opencv::{imgcodecs, imgproc};
 
@@ -73,23 +73,9 @@ pub fn transform(image: &Mat, settings: &ExportSettings, out: (u32, u32)) -> Res
     if (cropped.cols() as u32, cropped.rows() as u32) == out {
         return Ok(cropped);
     }
-    let mut resized = Mat::default();
-    imgproc::resize(
-        &cropped,
-        &mut resized,
-        Size::new(out.0 as i32, out.1 as i32),
-        0.0,
-        0.0,
-        imgproc::INTER_AREA,
-    )
-    .cv(|| format!("resize to {}x{}", out.0, out.1))?;
-    Ok(resized)
-}
-
-/// Outcome of an export.
-pub struct ExportReport {
-    /// The manifest as written.
-    pub manifest: Manifest,
+    let size = (out.0 as i32, out.1 as i32);
+    crate::encode::resize(&cropped, size, imgproc::INTER_AREA)
+        .cv(|| format!("resize to {}x{}", out.0, out.1))
 }
 
 /// Largest exported image side: JPEG stores at most 65535 and libjpeg accepts 65500.
@@ -145,7 +131,7 @@ pub fn export(
     settings: &ExportSettings,
     force: bool,
     quiet: bool,
-) -> Result<ExportReport> {
+) -> Result<Manifest> {
     let project = Project::load(project_path)?;
     let input = project.input_path(project_path);
     check_fingerprint(&project, &input)?;
@@ -202,7 +188,7 @@ pub fn export(
         mask_ms_per_image: masker.as_ref().and_then(|m| m.seg.ms_per_image()),
     };
     write_manifest(out, &manifest)?;
-    Ok(ExportReport { manifest })
+    Ok(manifest)
 }
 
 /// The file name of every keyframe's image, checked: plain names, no two alike.
@@ -250,12 +236,12 @@ fn output_names(
         };
         crate::output::plain_name(&name, &format!("image of frame {i}"), &project_input(src))?;
         if let Some(other) = seen.insert(name.clone(), i) {
-            return Err(Error::Output {
-                path: PathBuf::from(&name),
-                msg: format!(
+            return Err(Error::output(
+                &name,
+                format!(
                     "frames {other} and {i} would both be exported under this name; give --format so that every name differs, or rename one of the files"
                 ),
-            });
+            ));
         }
         names.push(name);
     }
@@ -291,12 +277,12 @@ fn byte_copy(src: &dyn source::FrameSource, settings: &ExportSettings, is_video:
 /// (keyframer could not tell what it wrote there).
 fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
     let refuse = |e: Error| {
-        Error::Output {
-        path: out.to_path_buf(),
-        msg: format!(
-            "{e}; keyframer cannot tell what it wrote in this folder, so it replaces nothing: choose a new --out"
-        ),
-    }
+        Error::output(
+            out,
+            format!(
+                "{e}; keyframer cannot tell what it wrote in this folder, so it replaces nothing: choose a new --out"
+            ),
+        )
     };
     let mut files = Vec::new();
     let path = out.join(MANIFEST);
@@ -307,13 +293,13 @@ fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
     if journal.exists() {
         let text = crate::output::read_text(&journal).map_err(refuse)?;
         let listed: Vec<String> = serde_json::from_str(&text).map_err(|e| {
-            refuse(Error::File {
-                path: journal.clone(),
-                line: Some(e.line()),
-                what: "export journal",
-                field: String::new(),
-                msg: e.to_string(),
-            })
+            refuse(Error::file(
+                &journal,
+                Some(e.line()),
+                "export journal",
+                "",
+                e.to_string(),
+            ))
         })?;
         for (i, f) in listed.iter().enumerate() {
             let rel = crate::output::inside(f, &format!("[{i}]"), &journal).map_err(refuse)?;
@@ -322,13 +308,13 @@ fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
                     .iter()
                     .any(|d| rel.starts_with(d));
             if !top {
-                return Err(refuse(Error::File {
-                    path: journal.clone(),
-                    line: None,
-                    what: "export journal",
-                    field: format!("[{i}]"),
-                    msg: "not a file of images/, masks/ or overlays/".into(),
-                }));
+                return Err(refuse(Error::file(
+                    &journal,
+                    None,
+                    "export journal",
+                    format!("[{i}]"),
+                    "not a file of images/, masks/ or overlays/",
+                )));
             }
             files.push(rel);
         }
@@ -359,10 +345,10 @@ fn check_targets(
         let p = out.join(&rel);
         crate::output::check_replaceable(&p)?;
         if p.exists() && !ours.contains(&rel) {
-            return Err(Error::Output {
-                path: p,
-                msg: "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out".into(),
-            });
+            return Err(Error::output(
+                p,
+                "exists but keyframer's manifest does not list it; keyframer never replaces files it did not write: move it away or choose another --out",
+            ));
         }
     }
     for d in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
@@ -371,10 +357,10 @@ fn check_targets(
         let p = out.join(d);
         if let Ok(m) = std::fs::symlink_metadata(&p) {
             if !m.file_type().is_dir() {
-                return Err(Error::Output {
-                    path: p,
-                    msg: "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away".into(),
-                });
+                return Err(Error::output(
+                    p,
+                    "exists and is not a folder (keyframer does not write through symbolic links inside its output): move it away",
+                ));
             }
         }
     }

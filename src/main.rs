@@ -15,6 +15,17 @@ enum Outcome {
     Partial,
 }
 
+impl Outcome {
+    /// Ok when nothing went wrong, else Partial.
+    fn unless(partial: bool) -> Outcome {
+        if partial {
+            Outcome::Partial
+        } else {
+            Outcome::Ok
+        }
+    }
+}
+
 fn main() -> ExitCode {
     keep_frame_buffers();
     keyframer::native::quiet_logs();
@@ -177,14 +188,10 @@ fn select(a: &cli::SelectArgs, quiet: bool) -> Result<Outcome> {
             " (cached frame data, nothing decoded)"
         }
     );
-    Ok(if p.decode_problems.is_empty() {
-        Outcome::Ok
-    } else {
-        for e in &p.decode_problems {
-            eprintln!("warning: {}: {e}", settings.input.display());
-        }
-        Outcome::Partial
-    })
+    for e in &p.decode_problems {
+        eprintln!("warning: {}: {e}", settings.input.display());
+    }
+    Ok(Outcome::unless(!p.decode_problems.is_empty()))
 }
 
 fn report(a: &cli::ReportArgs) -> Result<Outcome> {
@@ -224,16 +231,9 @@ fn run_workflow(a: &cli::RunArgs, quiet: bool) -> Result<Outcome> {
         println!("{}", serde_json::to_string_pretty(&reports)?);
     }
     use keyframer::batch::Status;
-    Ok(
-        if reports
-            .iter()
-            .all(|r| matches!(r.status, Status::Done | Status::Skipped))
-        {
-            Outcome::Ok
-        } else {
-            Outcome::Partial
-        },
-    )
+    Ok(Outcome::unless(reports.iter().any(|r| {
+        !matches!(r.status, Status::Done | Status::Skipped)
+    })))
 }
 
 fn workflow_save(a: &cli::WorkflowSaveArgs) -> Result<Outcome> {
@@ -248,15 +248,14 @@ fn workflow_check(a: &cli::WorkflowCheckArgs) -> Result<Outcome> {
         "{}: ok ({} sampler steps, {} exports)",
         a.workflow.display(),
         wf.file.sample.len(),
-        wf.exports().len()
+        wf.exports.len()
     );
     Ok(Outcome::Ok)
 }
 
 fn export(a: &cli::ExportArgs, quiet: bool) -> Result<Outcome> {
     let settings = a.settings()?;
-    let r = keyframer::export::export(&a.project, &a.out, &settings, a.force, quiet)?;
-    let m = &r.manifest;
+    let m = keyframer::export::export(&a.project, &a.out, &settings, a.force, quiet)?;
     eprintln!(
         "exported {} images ({}x{}) -> {}",
         m.frames.len(),
@@ -272,14 +271,10 @@ fn export(a: &cli::ExportArgs, quiet: bool) -> Result<Outcome> {
             s.backend
         );
     }
-    if m.missing.is_empty() {
-        Ok(Outcome::Ok)
-    } else {
-        for f in &m.missing {
-            eprintln!("warning: frame {} not exported: {}", f.index, f.reason);
-        }
-        Ok(Outcome::Partial)
+    for f in &m.missing {
+        eprintln!("warning: frame {} not exported: {}", f.index, f.reason);
     }
+    Ok(Outcome::unless(!m.missing.is_empty()))
 }
 
 fn colmap(a: &cli::ColmapArgs, quiet: bool) -> Result<Outcome> {
@@ -366,11 +361,7 @@ fn probe(a: &cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
             println!("problem:     {p}");
         }
     }
-    Ok(if problems.is_empty() {
-        Outcome::Ok
-    } else {
-        Outcome::Partial
-    })
+    Ok(Outcome::unless(!problems.is_empty()))
 }
 
 fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
@@ -409,15 +400,12 @@ fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
             }
         }
     }
-    Ok(if r.problems.is_empty() {
-        Outcome::Ok
-    } else {
-        Outcome::Partial
-    })
+    Ok(Outcome::unless(!r.problems.is_empty()))
 }
 
 fn flow(a: &cli::FlowArgs) -> Result<Outcome> {
-    let params = a.farneback.params()?;
+    let params = a.farneback.params();
+    params.validate()?;
     let mut inputs: Vec<&std::path::Path> = vec![&a.a, &a.b];
     inputs.extend(a.initial.as_deref());
     keyframer::output::check_file(&a.output, a.force, &inputs)?;

@@ -233,13 +233,7 @@ impl Manifest {
     /// Reads and checks a manifest: the current layout, every name a plain file name.
     pub fn load(path: &Path) -> Result<Manifest> {
         let text = crate::output::read_text(path)?;
-        let bad = |field: String, msg: &str| Error::File {
-            path: path.to_path_buf(),
-            line: None,
-            what: "export manifest",
-            field,
-            msg: msg.into(),
-        };
+        let bad = |field: String, msg: &str| Error::file(path, None, "export manifest", field, msg);
         let de = &mut serde_json::Deserializer::from_str(&text);
         let m: Manifest = serde_path_to_error::deserialize(de).map_err(|e| {
             let field = e.path().to_string();

@@ -31,16 +31,10 @@ pub fn plain_name(name: &str, what: &str, file: &Path) -> Result<()> {
         || name.contains('\\')
         || name.contains('\0');
     if bad {
-        return Err(Error::File {
-            path: file.to_path_buf(),
-            line: None,
-            what: "name",
-            field: what.to_string(),
-            msg: format!(
+        return Err(Error::file(file, None, "name", what, format!(
                 "`{}` is not a plain file name (no folders, no `..`); keyframer writes only inside its output",
                 name.escape_debug()
-            ),
-        });
+            )));
     }
     Ok(())
 }
@@ -97,13 +91,13 @@ pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
         } else {
             continue;
         };
-        return Err(Error::Output {
-            path: out.to_path_buf(),
-            msg: format!(
+        return Err(Error::output(
+            out,
+            format!(
                 "the output {how} {}; keyframer never writes into its inputs: choose another output",
                 input.display()
             ),
-        });
+        ));
     }
     Ok(())
 }
@@ -131,16 +125,16 @@ pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
     match kind_of(path) {
         None => {}
         Some("file") if !force => {
-            return Err(refused(path, "exists; pass --force to overwrite it".into()));
+            return Err(Error::output(path, "exists; pass --force to overwrite it"));
         }
         Some("file") => {}
         Some(kind) => {
-            return Err(Error::Output {
-                path: path.to_path_buf(),
-                msg: format!(
+            return Err(Error::output(
+                path,
+                format!(
                     "is a {kind}, not a regular file; keyframer replaces only regular files: choose another output"
                 ),
-            })
+            ))
         }
     }
     if let (Some(dir), Some(name)) = (path.parent(), path.file_name()) {
@@ -159,10 +153,10 @@ pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
 pub fn check_replaceable(path: &Path) -> Result<()> {
     match kind_of(path) {
         None | Some("file") => Ok(()),
-        Some(kind) => Err(Error::Output {
-            path: path.to_path_buf(),
-            msg: format!("is a {kind}; keyframer replaces only regular files it wrote"),
-        }),
+        Some(kind) => Err(Error::output(
+            path,
+            format!("is a {kind}; keyframer replaces only regular files it wrote"),
+        )),
     }
 }
 
@@ -297,15 +291,12 @@ pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &[&Path]) 
     clear_stale_temps_of(dir, None);
     if let Err(e) = probe_write(dir) {
         out.abandon();
-        return Err(refused(dir, format!("output folder is not writable: {e}")));
+        return Err(Error::output(
+            dir,
+            format!("output folder is not writable: {e}"),
+        ));
     }
     Ok(out)
-}
-
-/// An [`Error::Output`] about `path`.
-fn refused(path: &Path, msg: String) -> Error {
-    let path = path.to_path_buf();
-    Error::Output { path, msg }
 }
 
 /// Creates `dir` when missing; returns the folders made (outermost first) for [`OutDir::abandon`].
@@ -315,7 +306,7 @@ fn create_dir(dir: &Path) -> Result<Vec<PathBuf>> {
         Some("symbolic link") if dir.is_dir() => Ok(Vec::new()),
         Some(kind) => {
             let msg = format!("exists and is a {kind}, not a folder; choose another output folder");
-            Err(refused(dir, msg))
+            Err(Error::output(dir, msg))
         }
         None => {
             let mut missing: Vec<PathBuf> = dir
@@ -344,13 +335,13 @@ fn check_ours(dir: &Path, force: bool, records: &[&str]) -> Result<()> {
         });
     if non_empty && !records.iter().any(|r| dir.join(r).is_file()) {
         let msg = format!("is not empty and holds no {record}, so keyframer did not make it; keyframer replaces only its own results: choose a new or empty folder");
-        return Err(refused(dir, msg));
+        return Err(Error::output(dir, msg));
     }
     if non_empty && !force {
         let msg = format!(
             "holds earlier results ({record}); pass --force to replace what keyframer wrote there"
         );
-        return Err(refused(dir, msg));
+        return Err(Error::output(dir, msg));
     }
     Ok(())
 }
@@ -376,16 +367,10 @@ pub fn inside(rel: &str, what: &str, file: &Path) -> Result<PathBuf> {
         && !rel.contains('\\')
         && !rel.contains('\0');
     if !plain {
-        return Err(Error::File {
-            path: file.to_path_buf(),
-            line: None,
-            what: "record",
-            field: what.to_string(),
-            msg: format!(
+        return Err(Error::file(file, None, "record", what, format!(
                 "`{}` is not a path inside the folder; keyframer reads and removes only inside its output",
                 rel.escape_debug()
-            ),
-        });
+            )));
     }
     Ok(p.to_path_buf())
 }

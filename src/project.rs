@@ -153,13 +153,7 @@ impl Project {
     /// Reads and validates a project file.
     pub fn load(path: &Path) -> Result<Project> {
         let text = crate::output::read_text(path)?;
-        let bad = |field: String, msg: String| Error::File {
-            path: path.to_path_buf(),
-            line: None,
-            what: "project file",
-            field,
-            msg,
-        };
+        let bad = |field: String, msg: String| Error::file(path, None, "project file", field, msg);
         let de = &mut serde_json::Deserializer::from_str(&text);
         let project: Project = serde_path_to_error::deserialize(de).map_err(|e| {
             let field = e.path().to_string();
@@ -218,14 +212,7 @@ impl Project {
                 format!("frame {k} is beyond the input's {n} frames"),
             ));
         }
-        if self.damaged_frames.windows(2).any(|w| w[0] >= w[1])
-            || self.damaged_frames.iter().any(|&k| k >= n)
-        {
-            return Err((
-                "damaged_frames".into(),
-                "must be sorted, distinct frame indices of the input".into(),
-            ));
-        }
+        check_frames(&self.damaged_frames, n).map_err(|msg| ("damaged_frames".into(), msg))?;
         for (name, b) in [
             ("start", self.boundaries.start),
             ("end", self.boundaries.end),
@@ -368,12 +355,7 @@ impl Project {
                     ),
                 ));
             }
-            if r.keyframes.windows(2).any(|w| w[0] >= w[1]) || r.keyframes.iter().any(|&k| k >= n) {
-                return Err((
-                    at("keyframes"),
-                    "must be sorted, distinct frame indices of the input".into(),
-                ));
-            }
+            check_frames(&r.keyframes, n).map_err(|msg| (at("keyframes"), msg))?;
         }
         Ok(())
     }
@@ -424,13 +406,8 @@ impl Project {
     /// Writes the project file atomically, refusing to replace an existing one unless `force`.
     pub fn save(&self, path: &Path, force: bool) -> Result<()> {
         fsutil::check_overwrite(path, force)?;
-        let mut text = serde_json::to_string_pretty(self).map_err(|e| Error::File {
-            path: path.to_path_buf(),
-            line: None,
-            what: "project file",
-            field: String::new(),
-            msg: e.to_string(),
-        })?;
+        let mut text = serde_json::to_string_pretty(self)
+            .map_err(|e| Error::file(path, None, "project file", "", e.to_string()))?;
         text.push('\n');
         fsutil::write_atomic(path, text.as_bytes())
     }
@@ -439,31 +416,25 @@ impl Project {
 /// A movement request's fields in the ranges the flags accept; the error's key is relative to
 /// the request (`farneback.pyr_scale`).
 fn validate_request(r: &MovementRequest) -> std::result::Result<(), (String, String)> {
-    let key = |e: Error| match e {
+    crate::steps::check_movement(r).map_err(|e| match e {
         Error::Param { name, msg } => {
-            let flag = name.trim_start_matches("--").replace('-', "_");
-            let k = match flag.as_str() {
+            let k = match name.as_str() {
                 "trim" => "statistic.trimmed_mean.trim".to_string(),
                 "hfov" => "derotate.hfov_deg".to_string(),
+                "flow_stride" => "stride".to_string(),
+                "analysis_width" => name,
                 other => format!("farneback.{other}"),
             };
             (k, msg)
         }
         other => (String::new(), other.to_string()),
-    };
-    r.farneback.validate().map_err(key)?;
-    r.statistic.validate().map_err(key)?;
-    if let Some(d) = &r.derotate {
-        d.validate().map_err(key)?;
-    }
-    if r.analysis_width < 16 {
-        return Err((
-            "analysis_width".into(),
-            format!("must be at least 16 pixels, got {}", r.analysis_width),
-        ));
-    }
-    if r.stride == 0 {
-        return Err(("stride".into(), "must be at least 1".into()));
+    })
+}
+
+/// Frame indices that are sorted, distinct and within an input of `n` frames.
+fn check_frames(frames: &[usize], n: usize) -> std::result::Result<(), String> {
+    if frames.windows(2).any(|w| w[0] >= w[1]) || frames.iter().any(|&k| k >= n) {
+        return Err("must be sorted, distinct frame indices of the input".into());
     }
     Ok(())
 }

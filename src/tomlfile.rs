@@ -47,13 +47,7 @@ pub fn parse<T: DeserializeOwned>(
             .span()
             .map(|s| line_of(&text, s.start))
             .or_else(|| doc.as_ref().and_then(|d| key_line(d, &text, &field)));
-        Error::File {
-            path: path.to_path_buf(),
-            line,
-            what,
-            field,
-            msg: message,
-        }
+        Error::file(path, line, what, field, message)
     })?;
     Ok(TomlFile {
         value,
@@ -77,13 +71,7 @@ impl<T> TomlFile<T> {
     /// An error about the key at `field` (dotted, with `[i]` for array elements, e.g.
     /// `sample[2].fps`), pointing at its line when the key is present in the file.
     pub fn error(&self, field: &str, msg: impl Into<String>) -> Error {
-        Error::File {
-            path: self.path.clone(),
-            line: self.line_of_key(field),
-            what: self.what,
-            field: field.to_string(),
-            msg: msg.into(),
-        }
+        Error::file(&self.path, self.line_of_key(field), self.what, field, msg)
     }
 
     /// Line (1-based) of the key at `field`, or of its nearest present parent.

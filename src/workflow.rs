@@ -14,42 +14,32 @@ use std::path::{Path, PathBuf};
 /// The workflow format version this build reads and writes.
 pub const VERSION: u32 = 1;
 
-/// `[analysis]`: how frames are analysed (shared by every sampler).
+/// `[analysis]`: how frames are analysed (shared by every sampler). Here and in the other
+/// sections an absent key is `None`, which the TOML serializer leaves out (TOML has no null).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AnalysisSection {
     /// `auto` (default), `gpu` or `opencv`.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub backend: Option<String>,
     /// GPU adapter, part of its name.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub adapter: Option<String>,
     /// Width frames are scaled to for movement analysis.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub analysis_width: Option<u32>,
     /// Flow measured between frames this many apart (`--flow-stride`).
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub flow_stride: Option<u32>,
     /// `median` or `trimmed-mean`.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub movement: Option<String>,
     /// Fraction trimmed from each end for `trimmed-mean`.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub trim: Option<f64>,
     /// Frame rate assumed for image folders.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub images_fps: Option<f64>,
     /// Analyse only the codec keyframes (`select --preview`).
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub preview: Option<bool>,
     /// Subtract the camera rotation from the flow (`--derotate`).
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub derotate: Option<bool>,
     /// Horizontal field of view in degrees for `derotate` (`--hfov`).
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub hfov: Option<f64>,
     /// Farnebäck parameters.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub farneback: Option<FarnebackSection>,
 }
 
@@ -57,19 +47,12 @@ pub struct AnalysisSection {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FarnebackSection {
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub pyr_scale: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub levels: Option<u32>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub winsize: Option<u32>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub iterations: Option<u32>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub poly_n: Option<u32>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub poly_sigma: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub gaussian: Option<bool>,
 }
 
@@ -81,12 +64,9 @@ pub struct Masks {
     pub model: PathBuf,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub classes: Vec<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub dilate: Option<u32>,
     /// `opencv` or `ort`.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub backend: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub overlay: Option<bool>,
 }
 
@@ -97,19 +77,13 @@ pub struct Export {
     /// Output sub-folder name (letters, digits, `-`, `_`, `.`).
     pub name: String,
     /// `jpg` or `png`.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub format: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub quality: Option<u8>,
     /// `"1280x720"`.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub resize: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub scale: Option<f64>,
     /// `"x,y,w,h"` in source pixels.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub crop: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub masks: Option<Masks>,
 }
 
@@ -131,7 +105,6 @@ pub struct WorkflowFile {
 #[serde(deny_unknown_fields)]
 struct RawFile {
     version: u32,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     analysis: Option<AnalysisSection>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     sample: Vec<toml::Table>,
@@ -190,11 +163,11 @@ pub struct Workflow {
     /// FNV-1a hash of the file's text: a changed workflow redoes finished inputs.
     pub hash: u64,
     /// How movement is measured (from `[analysis]`, defaults filled in).
-    movement: MovementRequest,
+    pub movement: MovementRequest,
     /// `[analysis]` backend.
-    backend: BackendChoice,
+    pub backend: BackendChoice,
     /// Each `[[export]]`: its folder name and checked settings.
-    exports: Vec<(String, ExportSettings)>,
+    pub exports: Vec<(String, ExportSettings)>,
 }
 
 impl Workflow {
@@ -265,21 +238,6 @@ impl Workflow {
             backend,
             exports,
         })
-    }
-
-    /// How movement is measured (from `[analysis]`, defaults filled in).
-    pub fn movement(&self) -> MovementRequest {
-        self.movement
-    }
-
-    /// The `[analysis]` backend.
-    pub fn backend(&self) -> BackendChoice {
-        self.backend
-    }
-
-    /// The exports in order: folder name and checked settings.
-    pub fn exports(&self) -> &[(String, ExportSettings)] {
-        &self.exports
     }
 }
 
@@ -527,13 +485,7 @@ fn record_movement(analysis: &mut AnalysisSection, req: &MovementRequest) {
 /// whose folders are given (read from their manifests).
 pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
     let p = Project::load(project)?;
-    let bad = |msg: String| Error::File {
-        path: project.to_path_buf(),
-        line: None,
-        what: "project file",
-        field: "history".into(),
-        msg,
-    };
+    let bad = |msg: String| Error::file(project, None, "project file", "history", msg);
     let mut analysis = AnalysisSection::default();
     let mut sample = Vec::new();
     for (k, entry) in p.history.iter().enumerate() {
@@ -570,16 +522,10 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
         sample: sample
             .iter()
             .map(|(k, s)| {
-                sample_to_table(s).map_err(|e| Error::File {
-                    path: project.to_path_buf(),
-                    line: None,
-                    what: "project file",
-                    field: format!("history[{k}].params"),
-                    msg: format!(
+                sample_to_table(s).map_err(|e| Error::file(project, None, "project file", format!("history[{k}].params"), format!(
                         "cannot be written as a workflow step ({}; TOML integers go up to 2^63 - 1)",
                         param_msg(e)
-                    ),
-                })
+                    )))
             })
             .collect::<Result<Vec<_>>>()?,
         export,

@@ -34,33 +34,20 @@ const OURS: [&str; 10] = [
     RECORD,
 ];
 
-/// What `colmap` does: the export to reconstruct and COLMAP's options (the binary's flags map
-/// onto these fields one to one).
+/// What `colmap` does: the export to reconstruct and COLMAP's options; each field is the flag
+/// of the same name, whose help (`keyframer colmap --help`) says what it does.
 #[derive(Debug, Clone)]
 pub struct ColmapSettings {
-    /// Export folder made by `keyframer export` (holds manifest.json).
     pub export: PathBuf,
-    /// Workspace folder (default: EXPORT/colmap).
     pub output: Option<PathBuf>,
-    /// Run feature extraction, matching and the mapper (sparse model under sparse/N).
     pub sparse: bool,
-    /// Then densify (image_undistorter, patch_match_stereo, stereo_fusion); needs a CUDA COLMAP.
     pub dense: bool,
-    /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
     pub matcher: Matcher,
-    /// Sequential matching: match each image with this many following images.
     pub overlap: u32,
-    /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
     pub camera_model: String,
-    /// Known intrinsics for the camera model, comma-separated in COLMAP's order (PINHOLE:
-    /// `fx,fy,cx,cy`), e.g. from a synthetic scene's scene.json; the mapper then keeps them fixed.
     pub camera_params: Option<String>,
-    /// Maximum SIFT features per image (COLMAP's default 8192 when not given).
     pub max_features: Option<u32>,
-    /// Extra mapper option `KEY=VALUE`, passed as `--Mapper.KEY VALUE` (repeatable), e.g.
-    /// `init_min_tri_angle=4` for short baselines.
     pub mapper_option: Vec<String>,
-    /// Replace the keyframer-made content of an existing workspace.
     pub force: bool,
 }
 
@@ -223,13 +210,8 @@ fn finished_default() -> bool {
 pub fn read_record(workspace: &Path) -> Result<Record> {
     let p = workspace.join(RECORD);
     let text = crate::output::read_text(&p)?;
-    serde_json::from_str(&text).map_err(|e| Error::File {
-        path: p.clone(),
-        line: Some(e.line()),
-        what: "colmap record",
-        field: String::new(),
-        msg: e.to_string(),
-    })
+    serde_json::from_str(&text)
+        .map_err(|e| Error::file(&p, Some(e.line()), "colmap record", "", e.to_string()))
 }
 
 /// Reads an export folder's manifest, with a clear error when it is not an export; every name
@@ -589,11 +571,13 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
     if dir.is_new() || !ws.join(RECORD).is_file() {
         return Ok(dir);
     }
-    let record = read_record(ws).map_err(|e| Error::Output {
-        path: ws.to_path_buf(),
-        msg: format!(
-            "{e}; keyframer cannot tell what it wrote in this workspace, so it replaces nothing: choose a new -o"
-        ),
+    let record = read_record(ws).map_err(|e| {
+        Error::output(
+            ws,
+            format!(
+                "{e}; keyframer cannot tell what it wrote in this workspace, so it replaces nothing: choose a new -o"
+            ),
+        )
     })?;
     let rec_path = ws.join(RECORD);
     let mut listed = Vec::new();
@@ -616,9 +600,9 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
         .filter(|f| !listed.contains(Path::new(f.as_str())) && !since_start(f))
         .collect();
     if let Some(first) = foreign.first() {
-        return Err(Error::Output {
-            path: ws.join(first),
-            msg: format!(
+        return Err(Error::output(
+            ws.join(first),
+            format!(
                 "was not written by keyframer ({RECORD} does not list it{}); keyframer never replaces files it did not write: move it away",
                 if foreign.len() > 1 {
                     format!(", nor {} other files", foreign.len() - 1)
@@ -626,7 +610,7 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
                     String::new()
                 }
             ),
-        });
+        ));
     }
     for f in &present {
         crate::output::check_replaceable(&ws.join(f))?;

@@ -132,13 +132,7 @@ pub fn read(dir: &Path) -> Result<(Model, Format)> {
 }
 
 fn bad(path: &Path, field: impl Into<String>, msg: impl Into<String>) -> Error {
-    Error::File {
-        path: path.to_path_buf(),
-        line: None,
-        what: "COLMAP model",
-        field: field.into(),
-        msg: msg.into(),
-    }
+    Error::file(path, None, "COLMAP model", field, msg)
 }
 
 /// Little-endian cursor over a whole file, with errors naming the file and the record.
@@ -339,13 +333,7 @@ impl<'a> Fields<'a> {
         self.it.by_ref().collect()
     }
     fn err(&self, field: &str, msg: &str) -> Error {
-        Error::File {
-            path: self.path.clone(),
-            line: Some(self.line),
-            what: "COLMAP model",
-            field: field.into(),
-            msg: msg.into(),
-        }
+        Error::file(self.path, Some(self.line), "COLMAP model", field, msg)
     }
 }
 

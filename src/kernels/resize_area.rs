@@ -32,10 +32,8 @@ pub struct ResizeAreaParams {
 
 /// OpenCV twin: `gray` resized to `size` with cv::resize(INTER_AREA).
 pub fn opencv(gray: &Mat, size: Size) -> Result<Mat> {
-    let mut out = Mat::default();
-    opencv::imgproc::resize(gray, &mut out, size, 0.0, 0.0, opencv::imgproc::INTER_AREA)
-        .cv(|| "resize INTER_AREA".into())?;
-    Ok(out)
+    crate::encode::resize(gray, (size.width, size.height), opencv::imgproc::INTER_AREA)
+        .cv(|| "resize INTER_AREA".into())
 }
 
 /// The integer factors (kx, ky) when cv::resize(INTER_AREA) from `src` to `dst` takes its

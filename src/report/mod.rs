@@ -42,8 +42,6 @@ pub struct ReportSummary {
     pub keyframes: usize,
     /// Thumbnails embedded.
     pub thumbs: usize,
-    /// What the page says is missing (scores not cached, thumbnails not available, ...).
-    pub missing: Vec<String>,
 }
 
 /// `<stem>.timeline.png` beside the HTML page (`flight.html` → `flight.timeline.png`).
@@ -123,7 +121,6 @@ pub fn write_report(
         timeline: png_path,
         keyframes: project.keyframes.len(),
         thumbs: thumbs.len(),
-        missing,
     })
 }
 

@@ -4,7 +4,7 @@
 use crate::error::{CvContext, Error, Result};
 use crate::export::{self, Format};
 use crate::source;
-use opencv::core::{Mat, Size};
+use opencv::core::Mat;
 use opencv::imgproc;
 use opencv::prelude::*;
 use std::path::Path;
@@ -50,16 +50,8 @@ fn shrink(image: &Mat, what: &dyn Fn() -> String) -> Result<Vec<u8>> {
     }
     let tw = THUMB_WIDTH.min(w);
     let th = ((f64::from(h) * f64::from(tw) / f64::from(w)).round() as i32).max(1);
-    let mut small = Mat::default();
-    imgproc::resize(
-        image,
-        &mut small,
-        Size::new(tw, th),
-        0.0,
-        0.0,
-        imgproc::INTER_AREA,
-    )
-    .cv(|| format!("resizing {} for a thumbnail", what()))?;
+    let small = crate::encode::resize(image, (tw, th), imgproc::INTER_AREA)
+        .cv(|| format!("resizing {} for a thumbnail", what()))?;
     export::encode(&small, Format::Jpg, 80)
 }
 

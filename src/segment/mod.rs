@@ -206,16 +206,9 @@ fn resize_nearest(m: &Mat, size: (u32, u32)) -> Result<Mat> {
     if (m.cols() as u32, m.rows() as u32) == size {
         return m.try_clone().cv(|| "copy".into());
     }
-    let mut out = Mat::default();
-    imgproc::resize(
-        m,
-        &mut out,
-        Size::new(size.0 as i32, size.1 as i32),
-        0.0,
-        0.0,
-        imgproc::INTER_NEAREST_EXACT,
-    )
-    .cv(|| format!("nearest resize to {}x{}", size.0, size.1))?;
+    let to = (size.0 as i32, size.1 as i32);
+    let out = crate::encode::resize(m, to, imgproc::INTER_NEAREST_EXACT)
+        .cv(|| format!("nearest resize to {}x{}", size.0, size.1))?;
     debug_assert!(out.depth() == CV_8U || out.depth() == CV_16U);
     Ok(out)
 }

@@ -3,7 +3,7 @@
 
 use super::desc::{ChannelOrder, Layout, ModelDesc, OutputKind};
 use crate::error::{CvContext, Error, Result};
-use opencv::core::{Mat, Size};
+use opencv::core::Mat;
 use opencv::imgproc;
 use opencv::prelude::*;
 
@@ -30,17 +30,8 @@ pub fn push_image(desc: &ModelDesc, image: &Mat, out: &mut Vec<f32>) -> Result<(
     let img = if image.cols() == w && image.rows() == h {
         image
     } else {
-        let mut r = Mat::default();
-        imgproc::resize(
-            image,
-            &mut r,
-            Size::new(w, h),
-            0.0,
-            0.0,
-            imgproc::INTER_LINEAR,
-        )
-        .cv(|| format!("resize to the model's {w}x{h}"))?;
-        resized = r;
+        resized = crate::encode::resize(image, (w, h), imgproc::INTER_LINEAR)
+            .cv(|| format!("resize to the model's {w}x{h}"))?;
         &resized
     };
     let cont;

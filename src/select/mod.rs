@@ -73,8 +73,8 @@ impl SelectSettings {
             input: input.to_path_buf(),
             output: project.to_path_buf(),
             steps: w.file.sample.clone(),
-            movement: w.movement(),
-            backend: w.backend(),
+            movement: w.movement,
+            backend: w.backend,
             adapter: an.adapter,
             images_fps: an.images_fps,
             force: true,
@@ -125,26 +125,12 @@ pub struct SelectReport {
 
 /// The input's kind and fingerprint, from the file system only.
 pub fn identify(input: &Path) -> Result<(SourceKind, Fingerprint)> {
-    let meta = std::fs::metadata(input).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => Error::input(input, "no such file or folder"),
-        _ => Error::io(input, e),
-    })?;
-    if meta.is_dir() {
-        let files = source::list_images(input)?;
-        if files.is_empty() {
-            return Err(Error::input(
-                input,
-                "the folder holds no images (png, jpg, jpeg, tif, tiff, bmp)",
-            ));
-        }
-        return Ok((SourceKind::Images, fsutil::fingerprint_files(&files)?));
-    }
-    let kind = if crate::source::is_image_name(input) {
-        SourceKind::Image
-    } else {
-        SourceKind::Video
+    let kind = source::kind_of(input)?;
+    let fingerprint = match kind {
+        SourceKind::Images => fsutil::fingerprint_files(&source::folder_images(input)?)?,
+        _ => fsutil::fingerprint_file(input)?,
     };
-    Ok((kind, fsutil::fingerprint_file(input)?))
+    Ok((kind, fingerprint))
 }
 
 /// The output rule for `select`: the project file and its checkpoint are regular files (or
@@ -155,10 +141,10 @@ pub(crate) fn check_outputs(s: &SelectSettings) -> Result<()> {
     crate::output::check_file(&checkpoint, true, &[&s.input])?;
     // The checkpoint is replaced and removed without --force only when it is keyframer's own.
     if checkpoint.exists() && !s.force && !crate::analysis::is_checkpoint(&checkpoint) {
-        return Err(Error::Output {
-            path: checkpoint,
-            msg: "exists and is not a keyframer checkpoint; pass --force to replace it".into(),
-        });
+        return Err(Error::output(
+            checkpoint,
+            "exists and is not a keyframer checkpoint; pass --force to replace it",
+        ));
     }
     Ok(())
 }
@@ -309,6 +295,7 @@ fn drop_damaged(s: &SelectSettings, mut keys: Vec<usize>, damaged: &[usize]) -> 
 /// What is known of the input before this run decodes anything: the earlier project's metadata,
 /// cache and problems when it is for the same unchanged input (a full analysis only), and
 /// whether this run has decoded the input yet.
+#[derive(Default)]
 struct Known {
     metadata: Option<Metadata>,
     cache: Cache,
@@ -336,14 +323,7 @@ impl Known {
                 damaged: p.damaged_frames,
                 decoded: false,
             },
-            None => Known {
-                metadata: None,
-                cache: Cache::default(),
-                history: Vec::new(),
-                problems: Vec::new(),
-                damaged: Vec::new(),
-                decoded: false,
-            },
+            None => Known::default(),
         }
     }
 

@@ -37,10 +37,10 @@ pub fn escaped_name(name: &OsStr) -> String {
     out
 }
 
-/// The supported image files directly inside `dir`, naturally sorted. Refuses an image whose
-/// name is not UTF-8: names are written into manifests and output folders as text, and two such
-/// names could become one.
-pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>> {
+/// The supported image files directly inside `dir`, naturally sorted. Refuses a folder without
+/// any, and an image whose name is not UTF-8: names are written into manifests and output
+/// folders as text, and two such names could become one.
+pub fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
         let entry = entry.map_err(|e| Error::io(dir, e))?;
@@ -71,6 +71,12 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>> {
             &b.file_name().unwrap_or_default().to_string_lossy(),
         )
     });
+    if files.is_empty() {
+        return Err(Error::input(
+            dir,
+            "the folder holds no images (png, jpg, jpeg, tif, tiff, bmp)",
+        ));
+    }
     Ok(files)
 }
 
@@ -89,14 +95,7 @@ pub struct ImageSource {
 impl ImageSource {
     /// Opens a folder; refuses an empty folder and images of different sizes.
     pub fn open_folder(dir: &Path, fps: Option<f64>) -> Result<Self> {
-        let files = list_images(dir)?;
-        if files.is_empty() {
-            return Err(Error::input(
-                dir,
-                "the folder holds no images (png, jpg, jpeg, tif, tiff, bmp)",
-            ));
-        }
-        Self::from_files(dir, files, SourceKind::Images, fps)
+        Self::from_files(dir, folder_images(dir)?, SourceKind::Images, fps)
     }
 
     /// Opens one image file as a one-frame sequence.

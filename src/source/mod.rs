@@ -7,7 +7,7 @@ mod natural;
 pub mod telemetry;
 mod video;
 
-pub use images::{check_image, escaped_name, is_image_name, list_images, ImageSource};
+pub use images::{check_image, escaped_name, folder_images, is_image_name, ImageSource};
 pub use natural::natural_cmp;
 pub use video::VideoSource;
 
@@ -102,31 +102,40 @@ pub struct OpenOptions {
     pub codec_keyframes: Option<std::sync::Arc<codec_keyframes::CodecKeyframeIndex>>,
 }
 
-/// Opens a video file, an image file or a folder of images.
-pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
+/// What `path` is, from the file system only: a folder of images, an image file (by its
+/// extension) or a video.
+pub fn kind_of(path: &Path) -> Result<SourceKind> {
     let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => Error::input(path, "no such file or folder"),
         _ => Error::io(path, e),
     })?;
-    if opts.codec_keyframes.is_some() && (meta.is_dir() || is_image_name(path)) {
+    Ok(if meta.is_dir() {
+        SourceKind::Images
+    } else if is_image_name(path) {
+        SourceKind::Image
+    } else {
+        SourceKind::Video
+    })
+}
+
+/// Opens a video file, an image file or a folder of images.
+pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
+    let kind = kind_of(path)?;
+    if opts.codec_keyframes.is_some() && kind != SourceKind::Video {
         return Err(Error::input(
             path,
             "the keyframe-only preview needs a video (images have no codec keyframes)",
         ));
     }
-    if meta.is_dir() {
-        return Ok(Box::new(ImageSource::open_folder(path, opts.images_fps)?));
-    }
-    if is_image_name(path) {
-        return Ok(Box::new(ImageSource::open_single(path, opts.images_fps)?));
-    }
-    if let Some(index) = &opts.codec_keyframes {
-        return Ok(Box::new(codec_keyframes::CodecKeyframeSource::open(
+    Ok(match (kind, &opts.codec_keyframes) {
+        (SourceKind::Images, _) => Box::new(ImageSource::open_folder(path, opts.images_fps)?),
+        (SourceKind::Image, _) => Box::new(ImageSource::open_single(path, opts.images_fps)?),
+        (SourceKind::Video, Some(index)) => Box::new(codec_keyframes::CodecKeyframeSource::open(
             path,
             index.clone(),
-        )?));
-    }
-    Ok(Box::new(VideoSource::open(path)?))
+        )?),
+        (SourceKind::Video, None) => Box::new(VideoSource::open(path)?),
+    })
 }
 
 /// Reads the frames at the sorted, distinct `indices`, calling `f` for each, in one sequential

@@ -55,7 +55,10 @@ pub fn check_movement(r: &MovementRequest) -> crate::error::Result<()> {
         return Err(Error::param("flow_stride", "must be at least 1"));
     }
     if r.analysis_width < 16 {
-        return Err(Error::param("analysis_width", "must be at least 16 pixels"));
+        return Err(Error::param(
+            "analysis_width",
+            format!("must be at least 16 pixels, got {}", r.analysis_width),
+        ));
     }
     if let Some(d) = &r.derotate {
         d.validate()?;
@@ -133,22 +136,19 @@ fn flag_error(e: StepError) -> Error {
 
 /// One sampler and its parameters as given. In a workflow's `[[sample]]` table the `plugin` key
 /// names the variant; in serde the variant is the outer key, so errors keep the parameter's path.
+/// Steps are only written as TOML, whose serializer leaves `None` parameters out.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields)]
 pub enum Step {
     /// Part of the input to consider, both ends inclusive.
     Boundaries {
-        #[serde(default, skip_serializing_if = "Option::is_none")]
         start: Option<BoundArg>,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
         end: Option<BoundArg>,
     },
     /// Drop frames where the camera stands still (reference mode).
     Stationary {
         /// Pixels of movement since the last keyframe, or `auto`; default 1 % of the width.
-        #[serde(default, skip_serializing_if = "Option::is_none")]
         threshold: Option<Threshold>,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
         reset_delta: Option<usize>,
     },
     /// A keyframe every `threshold` pixels of accumulated movement.
@@ -160,13 +160,9 @@ pub enum Step {
     Fps { fps: f64 },
     /// Drop (`filter`) or `replace` blurry keyframes.
     Blur {
-        #[serde(default, skip_serializing_if = "Option::is_none")]
         metric: Option<Metric>,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
         window: Option<usize>,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
         ratio: Option<f64>,
-        #[serde(default, skip_serializing_if = "Option::is_none")]
         mode: Option<BlurMode>,
     },
     /// Add or remove frames by index.
@@ -369,24 +365,17 @@ pub enum Applied {
     Stationary {
         #[serde(default)]
         auto: bool,
-        #[serde(default)]
         backend: Option<Backend>,
-        #[serde(default)]
         movement: Option<MovementRequest>,
-        #[serde(default)]
         reset_delta: Option<usize>,
-        #[serde(default)]
         threshold_px: Option<f64>,
     },
     /// The spacing sampler with its resolved threshold.
     Spacing {
         #[serde(default)]
         auto: bool,
-        #[serde(default)]
         backend: Option<Backend>,
-        #[serde(default)]
         count: Option<usize>,
-        #[serde(default)]
         movement: Option<MovementRequest>,
         threshold_px: f64,
     },
@@ -396,7 +385,6 @@ pub enum Applied {
     Fps { fps: f64 },
     /// The blur sampler.
     Blur {
-        #[serde(default)]
         backend: Option<Backend>,
         metric: Option<Metric>,
         mode: Option<BlurMode>,
