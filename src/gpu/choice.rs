@@ -39,10 +39,10 @@ impl AdapterClass {
     }
 
     /// The backend `auto` uses on this class of adapter. Software adapters get opencv: on Mesa
-    /// lavapipe (2 cores) the strip sharpness kernels come close to OpenCV
-    /// (`keyframer bench sharpness --frames 16`: opencv/gpu 0.5 for 1080p Tenengrad, 0.85–1.0
-    /// for the Laplacians) but Farnebäck does not (`keyframer bench flow --frames 4`: 0.09–0.11,
-    /// about 10x slower), because the shaders run on the same CPU cores as OpenCV's SIMD code.
+    /// lavapipe (2 cores, 2026-11-25) `keyframer bench sharpness --frames 16` measures opencv/gpu
+    /// 0.54 for 1080p Tenengrad and 0.92–1.26 for the Laplacians, `keyframer bench flow --frames
+    /// 6` 0.38–0.85, and `keyframer bench pipeline` the gpu analysis at 3.2x the opencv backend's
+    /// time: the shaders run on the same CPU cores as OpenCV's SIMD code and the decoder.
     /// Flip a class to gpu here once `bench` measures the kernels at least as fast there.
     pub fn auto_backend(self) -> Backend {
         match self {

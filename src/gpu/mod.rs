@@ -105,7 +105,7 @@ impl PerFrame {
 
     pub fn columns(&self) -> String {
         format!(
-            " {:>7.1} {:>9.1} {:>9.0} {:>8.2}",
+            " {:>7.1} {:>9.1} {:>9.0} {:>8.3}",
             self.dispatches,
             self.uploaded / 1024.0,
             self.read_back,
@@ -134,7 +134,7 @@ impl std::fmt::Display for PerFrame {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{:.1} dispatches, {:.1} KiB uploaded, {:.0} B read back, {:.2} blocking waits per frame",
+            "{:.1} dispatches, {:.1} KiB uploaded, {:.0} B read back, {:.3} blocking waits per frame",
             self.dispatches,
             self.uploaded / 1024.0,
             self.read_back,
