@@ -649,46 +649,38 @@ mod tests {
     #[test]
     fn creation_time_from_the_container() {
         let d = tempfile::tempdir().unwrap();
+        let make = |name: &str, extra: [&str; 4]| {
+            let path = d.path().join(name);
+            let ok = std::process::Command::new("ffmpeg")
+                .args([
+                    "-v",
+                    "error",
+                    "-f",
+                    "lavfi",
+                    "-i",
+                    "testsrc=size=32x32:rate=5",
+                ])
+                .args(["-t", "1"])
+                .args(extra)
+                .arg(&path)
+                .status()
+                .unwrap();
+            assert!(ok.success());
+            path
+        };
         // MP4 stores the creation time in whole seconds.
-        let v = d.path().join("v.mp4");
-        let ok = std::process::Command::new("ffmpeg")
-            .args([
-                "-v",
-                "error",
+        let v = make(
+            "v.mp4",
+            [
+                "-metadata",
+                "creation_time=2024-05-01T10:00:07Z",
                 "-f",
-                "lavfi",
-                "-i",
-                "testsrc=size=32x32:rate=5",
-                "-t",
-                "1",
-            ])
-            .args(["-metadata", "creation_time=2024-05-01T10:00:07Z"])
-            .arg(&v)
-            .status()
-            .unwrap();
-        assert!(ok.success());
-        let t = creation_time(&v).unwrap().unwrap();
-        assert_eq!(
-            t,
-            OffsetDateTime::parse("2024-05-01T10:00:07Z", &Rfc3339).unwrap()
+                "mp4",
+            ],
         );
-        let bare = d.path().join("bare.mkv");
-        let ok = std::process::Command::new("ffmpeg")
-            .args([
-                "-v",
-                "error",
-                "-f",
-                "lavfi",
-                "-i",
-                "testsrc=size=32x32:rate=5",
-                "-t",
-                "1",
-            ])
-            .args(["-map_metadata", "-1", "-fflags", "+bitexact"])
-            .arg(&bare)
-            .status()
-            .unwrap();
-        assert!(ok.success());
+        let want = OffsetDateTime::parse("2024-05-01T10:00:07Z", &Rfc3339).unwrap();
+        assert_eq!(creation_time(&v).unwrap(), Some(want));
+        let bare = make("bare.mkv", ["-map_metadata", "-1", "-fflags", "+bitexact"]);
         assert_eq!(creation_time(&bare).unwrap(), None);
     }
 
