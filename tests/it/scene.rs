@@ -93,6 +93,38 @@ fn pixel(m: &Mat, x: i32, y: i32) -> [f64; 3] {
     [p[0] as f64, p[1] as f64, p[2] as f64]
 }
 
+/// A video.SRT in a scene folder whose scene.json (made before the sidecar existed) does not
+/// record one is not keyframer-scene's: `--force` refuses it and leaves the folder as it was.
+#[test]
+fn scene_force_leaves_a_sidecar_it_did_not_write() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path().join("old");
+    std::fs::create_dir(&dir).unwrap();
+    std::fs::write(
+        dir.join("scene.json"),
+        r#"{"generator": "keyframer-scene"}"#,
+    )
+    .unwrap();
+    std::fs::write(dir.join("video.SRT"), "someone else's").unwrap();
+    let out = scene(&[s(&dir), "--force", "--seconds", "1", "--size", "160x90"]);
+    let (code, err) = code_and_stderr(&out);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("video.SRT") && err.contains("did not write it"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("video.SRT")).unwrap(),
+        "someone else's"
+    );
+    let mut left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["scene.json", "video.SRT"]);
+}
+
 /// video.SRT holds every frame's true position: keyframer's parser reads it back, and the
 /// distances and heights it gives are those of poses.tum.
 #[test]

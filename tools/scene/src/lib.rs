@@ -323,6 +323,7 @@ pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
         for name in FILES {
             keyframer::output::check_replaceable(&s.out.join(name))?;
         }
+        check_sidecar_is_ours(&s.out)?;
         render_scene(s, seconds)
     })();
     if r.is_err() && dir.is_new() {
@@ -333,6 +334,26 @@ pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
         dir.abandon();
     }
     r
+}
+
+/// A scene folder made before video.SRT existed records no `telemetry` in its scene.json: a
+/// video.SRT there is someone else's, and is refused rather than replaced.
+fn check_sidecar_is_ours(out: &std::path::Path) -> Result<()> {
+    let srt = out.join("video.SRT");
+    let Ok(text) = std::fs::read_to_string(out.join("scene.json")) else {
+        return Ok(());
+    };
+    let recorded = serde_json::from_str::<serde_json::Value>(&text)
+        .map(|v| v.get("telemetry").is_some())
+        .unwrap_or(false);
+    if srt.exists() && !recorded {
+        return Err(Error::output(
+            &srt,
+            "its scene.json records no telemetry, so keyframer-scene did not write it; move it \
+             away to replace this scene",
+        ));
+    }
+    Ok(())
 }
 
 /// Renders the sequence into the prepared folder `s.out`.
