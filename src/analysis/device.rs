@@ -19,8 +19,8 @@ use std::sync::Arc;
 
 /// Frames whose records are read back together.
 const BATCH: usize = 16;
-/// Batches in flight before the host waits for the oldest.
-const DEPTH: usize = 2;
+/// Batches in flight before the host waits (for the older half of them).
+const DEPTH: usize = 4;
 /// The slot holding the stationary step's reference frame (the device copies frames into it).
 pub(crate) const REFERENCE: usize = SLOTS - 1;
 const RECORD_BYTES: usize = RECORD_WORDS as usize * 4;
@@ -208,7 +208,7 @@ impl DeviceMovement {
     fn close(&mut self, mut enc: wgpu::CommandEncoder, end: bool) -> Result<()> {
         if end {
             if self.readback.is_full() {
-                self.land(Until::Oldest)?;
+                self.land(Until::Half)?;
             }
             let bytes = (self.filled * RECORD_BYTES) as u64;
             self.readback

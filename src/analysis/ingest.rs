@@ -108,12 +108,11 @@ fn decode(
     }
 }
 
-/// A frame ready for the analysis, in frame order: its analysis pixels (when movement is
-/// measured) and its scores when the staging engine computed them.
+/// A frame ready for the analysis, in frame order, with its analysis pixels (when movement is
+/// measured); the staging engine's scores of it come through [`HandOff::scores`].
 pub(crate) struct Ready {
     pub frame: Frame,
     pub pixels: Option<Pixels>,
-    pub scores: Option<Vec<f64>>,
 }
 
 /// How decoded frames reach the analysis.
@@ -135,7 +134,6 @@ impl HandOff {
             HandOff::Cpu => Ok(vec![Ready {
                 frame,
                 pixels: gray.map(Pixels::Small),
-                scores: None,
             }]),
             HandOff::Staged { engine, pending } => {
                 pending.push(frame);
@@ -158,6 +156,15 @@ impl HandOff {
         }
     }
 
+    /// The staging engine's scores that came back (with `all`, of every frame handed on), in
+    /// frame order, one vector per frame with one score per metric.
+    pub(crate) fn scores(&mut self, all: bool) -> Result<Vec<Vec<f64>>> {
+        match self {
+            HandOff::Cpu => Ok(Vec::new()),
+            HandOff::Staged { engine, .. } => engine.take(all),
+        }
+    }
+
     /// The frames still pending at the end of the input.
     pub(crate) fn end(&mut self) -> Result<Vec<Ready>> {
         match self {
@@ -169,18 +176,16 @@ impl HandOff {
     }
 }
 
-/// Scores the `pending` frames with the staging engine and hands them on with their pixels and
-/// scores, in order.
+/// Starts scoring the `pending` frames with the staging engine and hands them on with their
+/// pixels, in order.
 fn staged_batch(engine: &mut dyn SharpnessEngine, pending: &mut Vec<Frame>) -> Result<Vec<Ready>> {
-    let scores = engine.score(pending)?;
+    engine.submit(pending)?;
     Ok(pending
         .drain(..)
-        .zip(scores)
         .enumerate()
-        .map(|(k, (frame, s))| Ready {
+        .map(|(k, frame)| Ready {
             frame,
             pixels: Some(Pixels::Staged(k)),
-            scores: Some(s),
         })
         .collect())
 }

@@ -275,7 +275,7 @@ impl Pump<'_, '_> {
         for r in self.hand_off.end()? {
             self.take(r)?;
         }
-        Ok(())
+        self.scores(true)
     }
 
     fn take(&mut self, r: Ready) -> Result<()> {
@@ -284,9 +284,7 @@ impl Pump<'_, '_> {
         if let (Some(m), Some(px)) = (self.moving.as_deref_mut(), r.pixels) {
             m.step(i, px)?;
         }
-        if let Some(s) = r.scores {
-            sharpness::push_scores(&mut self.done.scores, s);
-        }
+        self.scores(false)?;
         if let Some(w) = self.worker {
             w.send(r.frame, &mut self.done.scores)?;
         }
@@ -302,8 +300,17 @@ impl Pump<'_, '_> {
         if let Some(w) = self.worker {
             w.flush(&mut self.done.scores, self.done.frames)?;
         }
+        self.scores(true)?;
         let movement = self.moving.as_ref().and_then(|m| m.state());
         self.saver.save(self.req, self.backend, self.done, movement)
+    }
+
+    /// Takes the staged scores that came back (with `all`, of every frame taken so far).
+    fn scores(&mut self, all: bool) -> Result<()> {
+        for s in self.hand_off.scores(all)? {
+            sharpness::push_scores(&mut self.done.scores, s);
+        }
+        Ok(())
     }
 }
 

@@ -6,6 +6,7 @@ use crate::gpu::{Backend, GpuContext};
 use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
 use crate::source::{Frame, Metadata};
 use opencv::core::Mat;
+use std::collections::VecDeque;
 use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
 use std::sync::Arc;
 use std::thread::{Scope, ScopedJoinHandle};
@@ -17,8 +18,11 @@ const CPU_BATCH: usize = 4;
 pub(crate) trait SharpnessEngine: Send {
     /// Frames scored together.
     fn batch(&self) -> usize;
-    /// The scores of `frames`: one vector per frame with one score per metric.
-    fn score(&mut self, frames: &[Frame]) -> Result<Vec<Vec<f64>>>;
+    /// Starts scoring `frames`, after the frames submitted before.
+    fn submit(&mut self, frames: &[Frame]) -> Result<()>;
+    /// The scores of submitted frames that are done, in frame order, one vector per frame with
+    /// one score per metric; with `all`, of every submitted frame (waits for them).
+    fn take(&mut self, all: bool) -> Result<Vec<Vec<f64>>>;
     /// Also resizes every frame's device gray to `size` (resize_area) into small device buffers,
     /// one per batch position; `None` when the engine keeps no frames on a device.
     fn attach_resize(&mut self, _size: (u32, u32)) -> Result<Option<Vec<wgpu::Buffer>>> {
@@ -44,28 +48,40 @@ pub(crate) fn engine(
             .map(|&m| SharpnessGpu::new(ctx.clone(), m, meta.width, meta.height))
             .collect::<Result<Vec<_>>>();
         match runners {
-            Ok(r) => return (Box::new(Gpu(r)), Backend::Gpu),
+            Ok(r) => {
+                let ahead = vec![VecDeque::new(); r.len()];
+                return (Box::new(Gpu(r, ahead)), Backend::Gpu);
+            }
             Err(e) => log::warn!("{e}; using the opencv backend"),
         }
     }
-    (Box::new(Opencv(metrics.to_vec())), Backend::Opencv)
+    (
+        Box::new(Opencv(metrics.to_vec(), Vec::new())),
+        Backend::Opencv,
+    )
 }
 
-/// The WGSL kernels, one runner per metric.
-struct Gpu(Vec<SharpnessGpu>);
+/// The WGSL kernels, one runner per metric, and the scores of runners ahead of the others.
+struct Gpu(Vec<SharpnessGpu>, Vec<VecDeque<f64>>);
 
 impl SharpnessEngine for Gpu {
     fn batch(&self) -> usize {
         self.0.iter().map(|g| g.batch_size()).min().unwrap_or(1)
     }
 
-    fn score(&mut self, frames: &[Frame]) -> Result<Vec<Vec<f64>>> {
-        let mut out = vec![Vec::new(); frames.len()];
+    fn submit(&mut self, frames: &[Frame]) -> Result<()> {
         let mats: Vec<&Mat> = frames.iter().map(|f| &f.image).collect();
-        for r in self.0.iter_mut() {
-            push_scores(&mut out, r.scores(&mats)?);
+        self.0.iter_mut().try_for_each(|r| r.submit(&mats))
+    }
+
+    fn take(&mut self, all: bool) -> Result<Vec<Vec<f64>>> {
+        for (r, ahead) in self.0.iter_mut().zip(self.1.iter_mut()) {
+            ahead.extend(r.take(all)?);
         }
-        Ok(out)
+        let ready = self.1.iter().map(VecDeque::len).min().unwrap_or(0);
+        Ok((0..ready)
+            .map(|_| self.1.iter_mut().filter_map(VecDeque::pop_front).collect())
+            .collect())
     }
 
     fn attach_resize(&mut self, size: (u32, u32)) -> Result<Option<Vec<wgpu::Buffer>>> {
@@ -83,28 +99,27 @@ impl SharpnessEngine for Gpu {
     }
 }
 
-/// OpenCV's twins of the kernels, frame by frame.
-struct Opencv(Vec<Metric>);
+/// OpenCV's twins of the kernels, frame by frame, and the scores not taken yet.
+struct Opencv(Vec<Metric>, Vec<Vec<f64>>);
 
 impl SharpnessEngine for Opencv {
     fn batch(&self) -> usize {
         CPU_BATCH
     }
 
-    fn score(&mut self, frames: &[Frame]) -> Result<Vec<Vec<f64>>> {
-        frames
-            .iter()
-            .map(|f| {
-                self.0
-                    .iter()
-                    .map(|&m| {
-                        score_opencv(&f.image, m).map_err(|e| {
-                            Error::frame(std::path::PathBuf::new(), f.index, e.to_string())
-                        })
-                    })
-                    .collect()
-            })
-            .collect()
+    fn submit(&mut self, frames: &[Frame]) -> Result<()> {
+        for f in frames {
+            let scores = self.0.iter().map(|&m| {
+                score_opencv(&f.image, m)
+                    .map_err(|e| Error::frame(std::path::PathBuf::new(), f.index, e.to_string()))
+            });
+            self.1.push(scores.collect::<Result<_>>()?);
+        }
+        Ok(())
+    }
+
+    fn take(&mut self, _all: bool) -> Result<Vec<Vec<f64>>> {
+        Ok(std::mem::take(&mut self.1))
     }
 }
 
@@ -196,7 +211,7 @@ fn stopped() -> Error {
 }
 
 /// The worker's loop: scores frames in batches, in index order, and sends
-/// `(frame index, scores per metric)` back.
+/// `(frame index, scores per metric)` back as they come; a flush or the end waits for all.
 fn work(
     mut engine: Box<dyn SharpnessEngine>,
     rx: Receiver<ToWorker>,
@@ -204,21 +219,28 @@ fn work(
 ) -> Result<()> {
     let batch = engine.batch();
     let mut pending: Vec<Frame> = Vec::with_capacity(batch);
+    let mut queued: VecDeque<usize> = VecDeque::new();
     loop {
-        let (full, end) = match rx.recv() {
+        let (full, all, end) = match rx.recv() {
             Ok(ToWorker::Frame(f)) => {
                 pending.push(f);
-                (pending.len() >= batch, false)
+                (pending.len() >= batch, false, false)
             }
-            Ok(ToWorker::Flush) => (true, false),
-            Err(_) => (true, true),
+            Ok(ToWorker::Flush) => (true, true, false),
+            Err(_) => (true, true, true),
         };
         if full && !pending.is_empty() {
-            let scores = engine.score(&pending)?;
-            for (f, s) in pending.drain(..).zip(scores) {
-                if tx.send((f.index, s)).is_err() {
-                    return Ok(());
-                }
+            engine.submit(&pending)?;
+            queued.extend(pending.drain(..).map(|f| f.index));
+        }
+        for s in engine.take(all)? {
+            let Some(index) = queued.pop_front() else {
+                return Err(Error::Gpu(
+                    "the sharpness engine returned extra scores".into(),
+                ));
+            };
+            if tx.send((index, s)).is_err() {
+                return Ok(());
             }
         }
         if end {

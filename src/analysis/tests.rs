@@ -144,10 +144,16 @@ impl MovementEngine for FakeMovement {
     }
 }
 
+/// Scores like a device with readback in flight: `take` without `all` keeps the scores of the
+/// last batch submitted back.
 struct FakeSharpness {
     metrics: usize,
     /// Frames scored, in order.
     scored: Arc<Mutex<Vec<usize>>>,
+    /// Scores submitted and not taken, oldest first.
+    held: Vec<Vec<f64>>,
+    /// Frames in the last batch submitted.
+    last: usize,
 }
 
 impl SharpnessEngine for FakeSharpness {
@@ -155,14 +161,25 @@ impl SharpnessEngine for FakeSharpness {
         3
     }
 
-    fn score(&mut self, frames: &[Frame]) -> Result<Vec<Vec<f64>>> {
+    fn submit(&mut self, frames: &[Frame]) -> Result<()> {
         let mut scored = self.scored.lock().unwrap();
         scored.extend(frames.iter().map(|f| f.index));
         let v = |f: &Frame| f.image.at_2d::<Vec3b>(0, 0).unwrap()[0];
-        Ok(frames
-            .iter()
-            .map(|f| fake_scores(v(f), self.metrics))
-            .collect())
+        let metrics = self.metrics;
+        self.held
+            .extend(frames.iter().map(|f| fake_scores(v(f), metrics)));
+        self.last = frames.len();
+        Ok(())
+    }
+
+    fn take(&mut self, all: bool) -> Result<Vec<Vec<f64>>> {
+        let keep = if all {
+            0
+        } else {
+            self.last.min(self.held.len())
+        };
+        let rest = self.held.split_off(self.held.len() - keep);
+        Ok(std::mem::replace(&mut self.held, rest))
     }
 }
 
@@ -196,6 +213,8 @@ fn fake_run(
         sharpness: Some(Box::new(FakeSharpness {
             metrics: req.sharpness.len(),
             scored: scored.clone(),
+            held: Vec::new(),
+            last: 0,
         })),
         backend: Backend::Opencv,
     };

@@ -42,8 +42,9 @@ pub(crate) fn mapped(m: &Mapping, block: bool) -> Result<bool> {
 pub enum Until {
     /// Not at all: what has landed.
     Landed,
-    /// Until the oldest copy in flight has landed.
-    Oldest,
+    /// Until half the pool (rounded up) has landed in this call: a full pool frees half its
+    /// buffers with one wait while the device keeps the rest of its work.
+    Half,
     /// Until every copy in flight has landed.
     All,
 }
@@ -133,7 +134,9 @@ impl Readback {
         let mut out = self.landed(ctx)?;
         let wait = match until {
             Until::Landed => None,
-            Until::Oldest => self.flights.front().filter(|_| out.is_empty()),
+            Until::Half => (self.depth.div_ceil(2))
+                .checked_sub(out.len() + 1)
+                .and_then(|k| self.flights.get(k)),
             Until::All => self.flights.back(),
         };
         if let Some(f) = wait {

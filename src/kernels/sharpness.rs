@@ -1,6 +1,8 @@
 //! Sharpness scores per frame (Tenengrad or Laplacian variance) with two backends: the gpu runner
 //! uploads a batch of frames as BGR textures and scores each in one strip pass that converts to
-//! gray in registers ([`strip`]); it reads back only the exact 64-bit totals. The opencv backend
+//! gray in registers ([`strip`]); it reads back only the exact 64-bit totals, through a pool of
+//! asynchronously mapped staging buffers (a batch's scores are taken once they land, with no
+//! wait per batch in steady state). The opencv backend
 //! runs the OpenCV twins. With a resize attached, the same pass also writes the frame's gray, and
 //! the submission downsizes it (resize_area) into a small buffer per batch slot, which the
 //! movement pass loads into Farneback without a CPU round trip.
@@ -9,9 +11,11 @@ use super::resize_area::ResizeAreaGpu;
 use super::strip::{self, StripParams};
 use super::{gray, gray_stride, laplacian, tenengrad};
 use crate::error::{Error, Result};
+use crate::gpu::readback::{Readback, Until};
 use crate::gpu::{compute_pass, GpuContext};
 pub use crate::params::Metric;
 use opencv::core::Mat;
+use std::collections::VecDeque;
 use std::sync::Arc;
 
 /// Number of 64-bit totals the metric's shader accumulates.
@@ -51,6 +55,10 @@ const BATCH_BUDGET_BYTES: u64 = 192 << 20;
 const MAX_BATCH: usize = 16;
 /// Bytes per slot in the totals buffer (storage offset alignment).
 const TOTALS_SLOT: u64 = 256;
+/// Batches whose totals may be in flight at once (staging buffers of the readback pool); a
+/// full pool waits for two, so a batch of 16 frames costs at most half a wait. Each batch in
+/// flight holds its frames' upload (at most `BATCH_BUDGET_BYTES`).
+const DEPTH: usize = 3;
 
 /// GPU sharpness for frames of one size: several frames per submission, only scores read back.
 /// One pass per frame reads its BGR texture once ([`strip`]); the gray image is written only
@@ -64,7 +72,11 @@ pub struct SharpnessGpu {
     gray: wgpu::Buffer,
     params: wgpu::Buffer,
     totals: wgpu::Buffer,
-    readback: wgpu::Buffer,
+    readback: Readback,
+    /// Frames of each batch in flight, oldest first.
+    in_flight: VecDeque<usize>,
+    /// Scores that came back and were not taken yet, in frame order.
+    landed: VecDeque<f64>,
     slots: Vec<Slot>,
     metric_pipe: Arc<wgpu::ComputePipeline>,
     pad: Vec<u8>,
@@ -121,12 +133,7 @@ impl SharpnessGpu {
         );
         let gray = ctx.storage_buffer("gray", u64::from(stride) * u64::from(height) * 4);
         let totals = ctx.storage_buffer("totals", TOTALS_SLOT * batch as u64);
-        let readback = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("totals readback"),
-            size: TOTALS_SLOT * batch as u64,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let readback = Readback::new(TOTALS_SLOT * batch as u64, DEPTH);
         let slots = (0..batch)
             .map(|i| {
                 let frame = strip::frame_texture(&ctx, width, height)?;
@@ -159,6 +166,8 @@ impl SharpnessGpu {
             params,
             totals,
             readback,
+            in_flight: VecDeque::new(),
+            landed: VecDeque::new(),
             slots,
             metric_pipe,
             pad: Vec::new(),
@@ -231,10 +240,26 @@ impl SharpnessGpu {
         }
     }
 
-    /// Scores of `frames` (8-bit BGR, this runner's size), in order.
+    /// Scores of `frames` (8-bit BGR, this runner's size), in order (waits for them; not
+    /// while submitted scores are still to be taken).
     pub fn scores(&mut self, frames: &[&Mat]) -> Result<Vec<f64>> {
-        let mut out = Vec::with_capacity(frames.len());
+        if !(self.in_flight.is_empty() && self.landed.is_empty()) {
+            return Err(Error::Gpu(
+                "sharpness scores asked while submitted scores are not taken".into(),
+            ));
+        }
+        self.submit(frames)?;
+        self.take(true)
+    }
+
+    /// Starts scoring `frames` (8-bit BGR, this runner's size) after the frames submitted
+    /// before; their scores come back through [`SharpnessGpu::take`]. Blocks only when every
+    /// staging buffer is in flight, and then until half of them have landed.
+    pub fn submit(&mut self, frames: &[&Mat]) -> Result<()> {
         for chunk in frames.chunks(self.slots.len()) {
+            if self.readback.is_full() {
+                self.land(Until::Half)?;
+            }
             for (i, f) in chunk.iter().enumerate() {
                 self.upload(i, f)?;
             }
@@ -243,21 +268,38 @@ impl SharpnessGpu {
                 self.encode(&mut enc, i);
             }
             let used = TOTALS_SLOT * chunk.len() as u64;
-            enc.copy_buffer_to_buffer(&self.totals, 0, &self.readback, 0, used);
-            self.ctx.queue.submit([enc.finish()]);
-            let bytes = self.ctx.map_and_copy(&self.readback)?;
-            let n = u64::from(self.width) * u64::from(self.height);
-            for i in 0..chunk.len() {
+            self.readback
+                .copy(&self.ctx, &mut enc, &self.totals, used)?;
+            let index = self.ctx.queue.submit([enc.finish()]);
+            self.readback.submitted(index);
+            self.in_flight.push_back(chunk.len());
+        }
+        Ok(())
+    }
+
+    /// The scores of submitted frames that have come back, in frame order; with `all`, of
+    /// every submitted frame (waits).
+    pub fn take(&mut self, all: bool) -> Result<Vec<f64>> {
+        self.land(if all { Until::All } else { Until::Landed })?;
+        Ok(self.landed.drain(..).collect())
+    }
+
+    /// Turns the totals of the batches that landed (as far as `until` waits) into scores.
+    fn land(&mut self, until: Until) -> Result<()> {
+        let n = u64::from(self.width) * u64::from(self.height);
+        for bytes in self.readback.take(&self.ctx, until)? {
+            let frames = self.in_flight.pop_front().unwrap_or(0);
+            for i in 0..frames {
                 let off = i * TOTALS_SLOT as usize;
                 let words: &[u32] = bytemuck::cast_slice(&bytes[off..off + 16]);
                 let t = totals_from_words(words);
-                out.push(match self.metric {
+                self.landed.push_back(match self.metric {
                     Metric::Tenengrad => tenengrad::from_totals(t[0], n),
                     Metric::Laplacian { ksize } => laplacian::from_totals(t[0], t[1], n, ksize),
                 });
             }
         }
-        Ok(out)
+        Ok(())
     }
 
     /// The gray image the gpu computes for `frame` (for checking against cv::cvtColor).

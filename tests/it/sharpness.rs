@@ -318,3 +318,40 @@ fn the_gpu_context_counts_what_the_host_asks_of_the_device() {
     let per = keyframer::gpu::PerFrame::of(c, 3);
     assert_eq!(per.waits, c.waits as f64 / 3.0);
 }
+
+/// Pipelined scoring: batches submitted ahead of their readback come back in frame order with
+/// the scores of one-by-one scoring, and a full staging pool costs one wait per two batches.
+#[test]
+fn pipelined_batches_come_back_in_order_with_few_waits() {
+    let ctx = ctx();
+    let frames: Vec<Mat> = (0..7).map(|s| synthetic(97, 61, s)).collect();
+    for metric in METRICS {
+        let mut one = SharpnessGpu::new(ctx.clone(), metric, 97, 61).unwrap();
+        let alone: Vec<f64> = frames
+            .iter()
+            .map(|f| one.scores(&[f]).unwrap()[0])
+            .collect();
+        let mut gpu = SharpnessGpu::new(ctx.clone(), metric, 97, 61).unwrap();
+        let batch = gpu.batch_size();
+        let batches = 12;
+        let order: Vec<usize> = (0..batch * batches)
+            .map(|i| (i * 3) % frames.len())
+            .collect();
+        let before = ctx.counts();
+        let mut got = Vec::new();
+        for chunk in order.chunks(batch) {
+            let list: Vec<&Mat> = chunk.iter().map(|&i| &frames[i]).collect();
+            gpu.submit(&list).unwrap();
+            got.extend(gpu.take(false).unwrap());
+        }
+        got.extend(gpu.take(true).unwrap());
+        let waits = (ctx.counts() - before).waits;
+        let want: Vec<f64> = order.iter().map(|&i| alone[i]).collect();
+        assert_eq!(got, want, "{metric}");
+        assert!(
+            waits as usize <= batches / 2 + 1,
+            "{metric}: {waits} waits for {batches} batches"
+        );
+        assert!(gpu.scores(&[&frames[0]]).is_ok());
+    }
+}
