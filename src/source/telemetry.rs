@@ -22,6 +22,50 @@ use std::path::{Path, PathBuf};
 use time::format_description::well_known::Rfc3339;
 use time::OffsetDateTime;
 
+/// What kind of telemetry a project's positions came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TelemetryKind {
+    /// A DJI SRT subtitle sidecar.
+    DjiSrt,
+    /// A GPX track, timed from the video's creation time.
+    Gpx,
+    /// The EXIF GPS tags of each image of an image folder (or of a single image).
+    Exif,
+}
+
+/// One frame's camera position and attitude, as a project stores it (a [`Fix`] interpolated at
+/// the frame's timestamp, without the exposure facts).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Position {
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    /// Height above the take-off point, metres.
+    pub rel_alt_m: Option<f64>,
+    /// Altitude above sea level, metres.
+    pub abs_alt_m: Option<f64>,
+    /// Gimbal pitch, degrees (-90: nadir).
+    pub gimbal_pitch_deg: Option<f64>,
+    /// Gimbal yaw, degrees clockwise from north.
+    pub gimbal_yaw_deg: Option<f64>,
+    /// 35 mm equivalent focal length, millimetres.
+    pub focal_35mm: Option<f64>,
+}
+
+impl From<&Fix> for Position {
+    fn from(f: &Fix) -> Position {
+        Position {
+            lat_deg: f.lat_deg,
+            lon_deg: f.lon_deg,
+            rel_alt_m: f.rel_alt_m,
+            abs_alt_m: f.abs_alt_m,
+            gimbal_pitch_deg: f.gimbal_pitch_deg,
+            gimbal_yaw_deg: f.gimbal_yaw_deg,
+            focal_35mm: f.focal_35mm,
+        }
+    }
+}
+
 /// One telemetry entry.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Fix {
@@ -37,6 +81,8 @@ pub struct Fix {
     pub focal_35mm: Option<f64>,
     /// Gimbal pitch, degrees (-90: nadir).
     pub gimbal_pitch_deg: Option<f64>,
+    /// Gimbal yaw, degrees clockwise from north (DJI's `gb_yaw`).
+    pub gimbal_yaw_deg: Option<f64>,
     pub iso: Option<f64>,
     /// Exposure time, seconds.
     pub shutter_s: Option<f64>,
@@ -179,6 +225,7 @@ pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Tra
             abs_alt_m: p.elevation,
             focal_35mm: None,
             gimbal_pitch_deg: None,
+            gimbal_yaw_deg: None,
             iso: None,
             shutter_s: None,
             fnum: None,
@@ -268,6 +315,7 @@ pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
         abs_alt_m: altitude,
         focal_35mm: focal,
         gimbal_pitch_deg: None,
+        gimbal_yaw_deg: None,
         iso: None,
         shutter_s: None,
         fnum: None,
@@ -334,6 +382,7 @@ fn fix_of(body: &str, t_s: f64, line: usize) -> std::result::Result<Fix, String>
         abs_alt_m: num(&["abs_alt", "altitude"]).or(gps_alt),
         focal_35mm: focal.filter(|f| *f > 0.0),
         gimbal_pitch_deg: num(&["gb_pitch", "gimbal_pitch", "pitch"]),
+        gimbal_yaw_deg: num(&["gb_yaw", "gimbal_yaw", "yaw"]),
         iso: num(&["iso"]),
         shutter_s: shutter.filter(|s| s.is_finite() && *s > 0.0),
         fnum: fnum.filter(|f| *f > 0.0),
@@ -427,11 +476,18 @@ pub fn wgs84_radii(lat_deg: f64) -> (f64, f64) {
 /// radii at their mean latitude, within millimetres over the hundreds of metres between
 /// consecutive fixes or keyframes (beyond a few kilometres it only serves to see a jump).
 pub fn distance_m(a: &Fix, b: &Fix) -> f64 {
-    let lat = 0.5 * (a.lat_deg + b.lat_deg);
-    let (meridian, prime) = wgs84_radii(lat);
-    let north = (b.lat_deg - a.lat_deg).to_radians() * meridian;
-    let east = (b.lon_deg - a.lon_deg).to_radians() * prime * lat.to_radians().cos();
+    let (east, north) = east_north_m((a.lat_deg, a.lon_deg), (b.lat_deg, b.lon_deg));
     north.hypot(east)
+}
+
+/// East and north metres from `a` to `b` (latitude, longitude in degrees), on the tangent plane
+/// with the ellipsoid's radii at their mean latitude (see [`distance_m`]).
+pub fn east_north_m(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
+    let lat = 0.5 * (a.0 + b.0);
+    let (meridian, prime) = wgs84_radii(lat);
+    let north = (b.0 - a.0).to_radians() * meridian;
+    let east = (b.1 - a.1).to_radians() * prime * lat.to_radians().cos();
+    (east, north)
 }
 
 /// The fix at time `t_s`, linear between the two entries around it (positions, altitudes and
@@ -463,6 +519,11 @@ pub fn at(fixes: &[Fix], t_s: f64) -> Option<Fix> {
         rel_alt_m: mix_opt(a.rel_alt_m, b.rel_alt_m),
         abs_alt_m: mix_opt(a.abs_alt_m, b.abs_alt_m),
         gimbal_pitch_deg: mix_opt(a.gimbal_pitch_deg, b.gimbal_pitch_deg),
+        gimbal_yaw_deg: match (a.gimbal_yaw_deg, b.gimbal_yaw_deg) {
+            // The short way round: 350° to 10° passes north.
+            (Some(x), Some(y)) => Some(mix(x, x + (y - x + 540.0).rem_euclid(360.0) - 180.0)),
+            (x, y) => x.or(y),
+        },
         ..a.clone()
     })
 }
