@@ -120,6 +120,14 @@ pub(crate) fn positions(
     for w in &warnings {
         log::warn!("{w}");
     }
+    if positions.len() != frames {
+        log::warn!(
+            "{}: {} positions for the input's {frames} frames (no positions)",
+            file.display(),
+            positions.len()
+        );
+        return Ok(None);
+    }
     if positions.iter().all(Option::is_none) {
         if tkind != TelemetryKind::Exif {
             log::warn!("{}: no frame has a position", file.display());
@@ -245,4 +253,27 @@ fn exif_positions(input: &Path, kind: SourceKind) -> Result<(Vec<Option<Position
         ));
     }
     Ok((positions, warnings))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn telemetry_files_are_told_apart_by_extension_then_content() {
+        let d = tempfile::tempdir().unwrap();
+        let write = |name: &str, text: &str| {
+            let p = d.path().join(name);
+            std::fs::write(&p, text).unwrap();
+            p
+        };
+        let gpx = write("a.GPX", "1\n");
+        let srt = write("b.Srt", "<?xml");
+        let xml = write("c.txt", "\u{feff}  <?xml version=\"1.0\"?><gpx>");
+        let other = write("d.log", "1\n00:00:00,000 --> 00:00:01,000\n");
+        assert_eq!(kind_of_file(&gpx).unwrap(), TelemetryKind::Gpx);
+        assert_eq!(kind_of_file(&srt).unwrap(), TelemetryKind::DjiSrt);
+        assert_eq!(kind_of_file(&xml).unwrap(), TelemetryKind::Gpx);
+        assert_eq!(kind_of_file(&other).unwrap(), TelemetryKind::DjiSrt);
+    }
 }

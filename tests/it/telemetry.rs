@@ -451,6 +451,11 @@ fn gpx_track_gives_every_frame_its_position() {
     ]);
     let (_, err) = code_and_stderr(&again);
     assert!(err.contains("reusing the positions"), "{err}");
+    // `workflow save` records the offset (the track itself belongs to this input).
+    let w = tmp.path().join("w.toml");
+    kf_ok(&["workflow", "save", s(&p), "-o", s(&w)]);
+    let text = std::fs::read_to_string(&w).unwrap();
+    assert!(text.contains("telemetry_offset = 0.5"), "{text}");
 }
 
 /// An image folder whose JPEGs carry EXIF GPS tags (written by keyframer's geotag): each frame
