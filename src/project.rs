@@ -95,6 +95,10 @@ pub struct TelemetryCache {
     /// One entry per frame: its position interpolated at the frame's timestamp, `null` for a
     /// frame outside the telemetry's time span (or an image without GPS tags).
     pub positions: Vec<Option<Position>>,
+    /// The camera of `telemetry::CAMERAS` the video's container tags or the first image's EXIF
+    /// model name, when one does.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<String>,
 }
 
 /// Where a project's positions came from.

@@ -670,6 +670,7 @@ fn apply(
         stationary_auto: auto.wants_auto_stationary,
         spacing_px: auto.spacing,
         positions: cache.telemetry.as_ref().map(|t| t.positions.as_slice()),
+        camera: cache.telemetry.as_ref().and_then(|t| t.camera.as_deref()),
         frame_size: (w, h),
     };
     for step in &s.steps {

@@ -134,10 +134,17 @@ pub(crate) fn positions(
         }
         return Ok(None);
     }
+    let camera = match kind {
+        SourceKind::Video => telemetry::camera_of(&s.input, false),
+        SourceKind::Image => telemetry::camera_of(&s.input, true),
+        SourceKind::Images => (source::folder_images(&s.input)?.first())
+            .and_then(|first| telemetry::camera_of(first, true)),
+    };
     Ok(Some(TelemetryCache {
         source,
         warnings,
         positions,
+        camera: camera.map(|c| c.name.to_string()),
     }))
 }
 

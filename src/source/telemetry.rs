@@ -323,6 +323,110 @@ pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
     }))
 }
 
+/// A camera of the table [`CAMERAS`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Its name.
+    pub name: &'static str,
+    /// How its files name it: the EXIF `Model` code of its photos and the product name (matched
+    /// without case, spaces or dashes).
+    pub names: &'static [&'static str],
+    /// 35 mm equivalent focal length of its main camera, millimetres.
+    pub focal_35mm: f64,
+}
+
+/// Common DJI cameras and their 35 mm equivalent focal lengths, as DJI's specification pages
+/// state them (with the diagonal fields of view they give: Mini 2 83°, Mini 3 Pro and Mini 4 Pro
+/// 82.1°, Air 2 84°, Air 2S 88°, Mavic 3 84°, Mavic Pro 78.8°, Phantom 4 Pro 84°, Phantom 4 94°).
+pub const CAMERAS: &[Camera] = &[
+    Camera {
+        name: "DJI Mini 2",
+        names: &["FC7303", "Mini 2"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Mini 3 Pro",
+        names: &["FC3582", "Mini 3 Pro"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Mini 4 Pro",
+        names: &["FC8482", "Mini 4 Pro"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Mavic Air 2",
+        names: &["FC3170", "Mavic Air 2", "Air 2"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Air 2S",
+        names: &["FC3411", "Air 2S"],
+        focal_35mm: 22.0,
+    },
+    Camera {
+        name: "DJI Mavic 3",
+        names: &["L2D-20c", "Mavic 3"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Mavic Pro",
+        names: &["FC220", "Mavic Pro"],
+        focal_35mm: 26.0,
+    },
+    Camera {
+        name: "DJI Phantom 4 Pro",
+        names: &["FC6310", "Phantom 4 Pro"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Phantom 4",
+        names: &["FC330", "Phantom 4"],
+        focal_35mm: 20.0,
+    },
+];
+
+/// The camera of [`CAMERAS`] that `text` (an EXIF model, a container tag) names: the one whose
+/// longest name it contains, compared without case, spaces or dashes.
+pub fn known_camera(text: &str) -> Option<&'static Camera> {
+    let squash = |s: &str| -> String {
+        s.chars()
+            .filter(|c| c.is_ascii_alphanumeric())
+            .map(|c| c.to_ascii_lowercase())
+            .collect()
+    };
+    let text = squash(text);
+    CAMERAS
+        .iter()
+        .flat_map(|c| c.names.iter().map(move |n| (c, squash(n))))
+        .filter(|(_, n)| text.contains(n.as_str()))
+        .max_by_key(|(_, n)| n.len())
+        .map(|(c, _)| c)
+}
+
+/// The camera a video's container tags or an image's EXIF `Model` name, when it is one of
+/// [`CAMERAS`].
+pub fn camera_of(input: &Path, image: bool) -> Option<&'static Camera> {
+    if image {
+        let file = std::fs::File::open(input).ok()?;
+        let exif = exif::Reader::new()
+            .read_from_container(&mut std::io::BufReader::new(file))
+            .ok()?;
+        let model = exif.get_field(exif::Tag::Model, exif::In::PRIMARY)?;
+        return known_camera(&model.display_value().to_string());
+    }
+    let out = std::process::Command::new("ffprobe")
+        .args(["-v", "error", "-show_entries", "format_tags"])
+        .args(["-of", "default=noprint_wrappers=1"])
+        .arg(input)
+        .output()
+        .ok()?;
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.split_once('=').map(|(_, v)| v))
+        .find_map(known_camera)
+}
+
 /// `HH:MM:SS,mmm` (or with a dot) in seconds.
 fn srt_time(s: &str) -> Option<f64> {
     let s = s.trim().replace(',', ".");
@@ -743,6 +847,23 @@ mod tests {
         assert_eq!(creation_time(&v).unwrap(), Some(want));
         let bare = make("bare.mkv", ["-map_metadata", "-1", "-fflags", "+bitexact"]);
         assert_eq!(creation_time(&bare).unwrap(), None);
+    }
+
+    #[test]
+    fn cameras_are_found_by_model_code_or_name() {
+        assert_eq!(known_camera("FC3582").unwrap().name, "DJI Mini 3 Pro");
+        assert_eq!(
+            known_camera("dji mini-4 pro").unwrap().name,
+            "DJI Mini 4 Pro"
+        );
+        // The longest name wins: "Phantom 4 Pro" over "Phantom 4", "Air 2S" over "Air 2".
+        assert_eq!(
+            known_camera("DJI Phantom 4 Pro V2").unwrap().focal_35mm,
+            24.0
+        );
+        assert_eq!(known_camera("Phantom 4").unwrap().focal_35mm, 20.0);
+        assert_eq!(known_camera("DJIAir2S").unwrap().focal_35mm, 22.0);
+        assert!(known_camera("Lavf60.16.100").is_none());
     }
 
     #[test]

@@ -9,9 +9,10 @@
 //! stated), with no roll. A nadir camera's footprint is a rectangle, a pitched one's a
 //! trapezoid; rays that meet the ground further than ten times the height (or not at all) are
 //! cut there. The horizontal field of view is `--hfov`, else each frame's 35 mm equivalent focal
-//! length f from the telemetry taken as the width of a 36 mm frame (hfov = 2 atan(18 / f); a
-//! DJI video's crop of its 4:3 sensor is close to this), the vertical one follows from the
-//! frame's aspect ratio.
+//! length f from the telemetry (else from the table of common DJI cameras,
+//! `telemetry::CAMERAS`, when the video's container or the images' EXIF name one) taken as the
+//! width of a 36 mm frame (hfov = 2 atan(18 / f); a DJI video's crop of its 4:3 sensor is close
+//! to this), the vertical one follows from the frame's aspect ratio.
 //!
 //! Overlap = area(last keyframe's footprint ∩ candidate's footprint) / area(last keyframe's
 //! footprint), the intersection of two convex quadrilaterals by Sutherland–Hodgman clipping. The
@@ -20,7 +21,7 @@
 
 use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
-use crate::source::telemetry::{east_north_m, Position};
+use crate::source::telemetry::{east_north_m, known_camera, Camera, Position};
 
 /// The step's id.
 const ID: &str = "footprint-overlap";
@@ -59,7 +60,8 @@ pub fn apply(
     hfov: Option<f64>,
 ) -> Result<Applied> {
     let positions = super::positions(at, ID, keys)?;
-    let prints = footprints(keys, positions, hfov, at.frame_size)?;
+    let table = at.camera.and_then(known_camera);
+    let prints = footprints(keys, positions, hfov, table, at.frame_size)?;
     let mut out = Vec::new();
     let mut last: Option<&Vec<Pt>> = None;
     for (&k, print) in keys.iter().zip(&prints) {
@@ -79,6 +81,7 @@ fn footprints(
     keys: &[usize],
     positions: &[Option<Position>],
     hfov: Option<f64>,
+    camera: Option<&Camera>,
     (width, height): (u32, u32),
 ) -> Result<Vec<Option<Vec<Pt>>>> {
     let placed: Vec<(usize, &Position)> = keys
@@ -100,6 +103,15 @@ fn footprints(
     if placed.iter().any(|(_, p)| p.gimbal_pitch_deg.is_none()) {
         log::warn!("{ID}: no gimbal pitch in the telemetry: the camera is taken to look straight down (nadir)");
     }
+    if let Some(c) = camera.filter(|_| hfov.is_none()) {
+        if placed.iter().any(|(_, p)| p.focal_35mm.is_none()) {
+            log::info!(
+                "{ID}: frames without a focal length take the {}'s ({} mm equivalent)",
+                c.name,
+                c.focal_35mm
+            );
+        }
+    }
     if placed.iter().any(|(_, p)| p.gimbal_yaw_deg.is_none()) {
         log::warn!("{ID}: no gimbal yaw in the telemetry: the camera is taken to face the direction of travel");
     }
@@ -108,12 +120,13 @@ fn footprints(
         |p: &Position| east_north_m((origin.lat_deg, origin.lon_deg), (p.lat_deg, p.lon_deg));
     let mut by_frame = std::collections::HashMap::new();
     for (j, &(k, p)) in placed.iter().enumerate() {
-        let tan_h = match (hfov, p.focal_35mm) {
+        let tan_h = match (hfov, p.focal_35mm.or(camera.map(|c| c.focal_35mm))) {
             (Some(h), _) => (0.5 * h.to_radians()).tan(),
             (None, Some(f)) => 18.0 / f,
             (None, None) => {
                 return Err(plugin_error(&format!(
-                    "frame {k}: no field of view: the telemetry has no focal length; give --hfov"
+                    "frame {k}: no field of view: the telemetry has no focal length and the \
+                     camera is not one of the known DJI models; give --hfov"
                 )))
             }
         };

@@ -93,6 +93,8 @@ pub struct Inputs<'a> {
     pub spacing_px: Option<f64>,
     /// Each frame's camera position from telemetry, when the input has any.
     pub positions: Option<&'a [Option<Position>]>,
+    /// The camera the input names (one of `telemetry::CAMERAS`), when known.
+    pub camera: Option<&'a str>,
     /// Width and height of the frames.
     pub frame_size: (u32, u32),
 }

@@ -335,6 +335,24 @@ fn geo_steps_refuse_without_telemetry_and_bad_telemetry_is_warned() {
     ] {
         assert!(err.contains(&want), "{want} missing in:\n{err}");
     }
+    // A file with no entry at all: an error naming it.
+    let junk = tmp.path().join("junk.srt");
+    std::fs::write(&junk, "not a subtitle file\n").unwrap();
+    let out = kf(&[
+        "select",
+        s(&clip),
+        "--telemetry",
+        s(&junk),
+        "-o",
+        s(&p),
+        "--force",
+    ]);
+    let (code, err) = code_and_stderr(&out);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains(&format!("{}: no telemetry entry", junk.display())),
+        "{err}"
+    );
     // A clock offset beyond the telemetry: no frame has a position, and the steps refuse.
     let out = kf_loud(&[
         "select",
@@ -513,4 +531,74 @@ fn exif_tagged_folder_gives_every_image_its_position() {
         }
     }
     assert_eq!(json(&p)["cache"]["telemetry"]["source"]["kind"], "exif");
+}
+
+/// Without a focal length in the telemetry, footprint-overlap takes the field of view from
+/// `--hfov`, else from the camera table when the video's container names a known DJI camera,
+/// else refuses, saying so.
+#[test]
+fn footprint_field_of_view_from_hfov_or_the_camera_table() {
+    let dir = nadir();
+    let tmp = tempfile::tempdir().unwrap();
+    let srt = std::fs::read_to_string(dir.join("video.SRT")).unwrap();
+    assert!(srt.contains("[focal_len: "));
+    let without_focal: String = srt
+        .lines()
+        .map(|l| match (l.find("[focal_len: "), l.find("] [latitude")) {
+            (Some(a), Some(b)) => format!("{}{}\n", &l[..a], &l[b + 2..]),
+            _ => format!("{l}\n"),
+        })
+        .collect();
+    assert!(!without_focal.contains("focal_len"));
+    let named = tmp.path().join("named.mp4");
+    let video = dir.join("video.mp4");
+    ffmpeg(&[
+        "-i",
+        s(&video),
+        "-c",
+        "copy",
+        "-metadata",
+        "comment=DJI Mini 3 Pro",
+        s(&named),
+    ]);
+    let bare = tmp.path().join("bare.mp4");
+    ffmpeg(&["-i", s(&video), "-c", "copy", s(&bare)]);
+    for clip in [&named, &bare] {
+        std::fs::write(clip.with_extension("SRT"), &without_focal).unwrap();
+    }
+    let p = tmp.path().join("p.json");
+    let run = |clip: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "select",
+            s(clip),
+            "--footprint-overlap",
+            "80",
+            "-o",
+            s(&p),
+            "--force",
+        ];
+        args.extend_from_slice(extra);
+        code_and_stderr(&kf(&args))
+    };
+    let (code, err) = run(&bare, &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("plugin `footprint-overlap`") && err.contains("give --hfov"),
+        "{err}"
+    );
+    let (code, err) = run(&bare, &["--hfov", "71.08"]);
+    assert_eq!(code, 0, "{err}");
+    let with_hfov = keyframes(&p);
+    let (code, err) = run(&named, &[]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        json(&p)["cache"]["telemetry"]["camera"].as_str(),
+        Some("DJI Mini 3 Pro")
+    );
+    // The table's 24 mm is a wider view than the scene's 25.2 mm: fewer keyframes.
+    let with_table = keyframes(&p);
+    assert!(
+        with_table.len() <= with_hfov.len() && with_table.len() >= 2,
+        "{with_table:?} vs {with_hfov:?}"
+    );
 }
