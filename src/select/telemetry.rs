@@ -43,11 +43,17 @@ fn kind_of_file(file: &Path) -> Result<TelemetryKind> {
         Some("srt") => return Ok(TelemetryKind::DjiSrt),
         _ => {}
     }
-    let bytes = std::fs::read(file).map_err(|source| Error::Io {
+    let io = |source| Error::Io {
         path: file.into(),
         source,
-    })?;
-    let head = String::from_utf8_lossy(&bytes[..bytes.len().min(512)]).to_string();
+    };
+    let mut bytes = Vec::with_capacity(512);
+    std::io::Read::read_to_end(
+        &mut std::io::Read::take(std::fs::File::open(file).map_err(io)?, 512),
+        &mut bytes,
+    )
+    .map_err(io)?;
+    let head = String::from_utf8_lossy(&bytes).to_string();
     let head = head.trim_start_matches('\u{feff}').trim_start();
     Ok(if head.starts_with("<?xml") || head.starts_with("<gpx") {
         TelemetryKind::Gpx

@@ -118,7 +118,13 @@ fn positions<'a>(
         .filter(|&&k| positions.get(k).is_none_or(Option::is_none))
         .count();
     if without == keys.len() && !keys.is_empty() {
-        return Err(refuse());
+        return Err(Error::Plugin {
+            plugin,
+            msg: format!(
+                "none of the {without} candidates has a position (they lie outside the \
+                 telemetry's time span; check --telemetry-offset)"
+            ),
+        });
     }
     if without > 0 {
         log::warn!(

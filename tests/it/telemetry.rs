@@ -335,6 +335,26 @@ fn geo_steps_refuse_without_telemetry_and_bad_telemetry_is_warned() {
     ] {
         assert!(err.contains(&want), "{want} missing in:\n{err}");
     }
+    // Candidates after the telemetry's last fix (at 2 s): the step says none has a position.
+    let out = kf(&[
+        "select",
+        s(&clip),
+        "--telemetry",
+        s(&srt),
+        "--start",
+        "2.5s",
+        "--geo-distance",
+        "5",
+        "-o",
+        s(&p),
+        "--force",
+    ]);
+    let (code, err) = code_and_stderr(&out);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("plugin `geo-distance`: none of the 5 candidates has a position"),
+        "{err}"
+    );
     // A file with no entry at all: an error naming it.
     let junk = tmp.path().join("junk.srt");
     std::fs::write(&junk, "not a subtitle file\n").unwrap();
