@@ -1,7 +1,8 @@
 //! `select`: one analysis pass over the input for the frame count, timestamps and the scores the
-//! samplers need (or none, when a project for the same unchanged input already caches them), then
-//! the samplers in a fixed chain: boundaries → every-nth | fps → blur → manual add/remove.
-//! Writes the project file atomically.
+//! samplers need (or none, when a project for the same unchanged input already caches them), each
+//! frame's position from telemetry when there is any (`select::telemetry`), then the samplers in
+//! keyframer's fixed chain (see [`crate::steps::check_order`]). Writes the project file
+//! atomically.
 
 pub mod preview;
 mod telemetry;
