@@ -339,6 +339,19 @@ pub struct SelectArgs {
     /// Frame rate to assume for an image folder (needed for --fps and times).
     #[arg(long, value_name = "FPS")]
     pub images_fps: Option<f64>,
+    /// Telemetry of the flight: a DJI SRT subtitle file or a GPX track (aligned by the video's
+    /// creation time). Default: the DJI SRT beside the video (same name, .SRT), or the EXIF GPS
+    /// tags of an image folder's images.
+    #[arg(long, value_name = "FILE")]
+    pub telemetry: Option<PathBuf>,
+    /// Seconds added to a frame's timestamp to find it in the telemetry (corrects a clock).
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    pub telemetry_offset: f64,
     /// Replace an existing project file.
     #[arg(long)]
     pub force: bool,
@@ -386,8 +399,9 @@ pub struct MovementArgs {
     /// rotation and is discounted too).
     #[arg(long)]
     pub derotate: bool,
-    /// Horizontal field of view of the camera in degrees, for --derotate.
-    #[arg(long, value_name = "DEG", requires = "derotate")]
+    /// Horizontal field of view of the camera in degrees, for --derotate and
+    /// --footprint-overlap (which otherwise takes it from the telemetry's focal length).
+    #[arg(long, value_name = "DEG")]
     pub hfov: Option<f64>,
     /// Farneback parameters.
     #[command(flatten)]
@@ -705,10 +719,36 @@ fn positive(name: &str, v: Option<f64>) -> Result<Option<f64>> {
 impl SelectArgs {
     /// Validated settings.
     pub fn settings(&self, quiet: bool) -> Result<SelectSettings> {
+        let mut steps = keyframer::steps::from_flags(&self.steps.0)?;
+        let footprint = steps.iter_mut().find_map(|s| match s {
+            keyframer::steps::Step::FootprintOverlap { hfov, .. } => Some(hfov),
+            _ => None,
+        });
+        match (self.movement.hfov, footprint) {
+            (Some(h), Some(hfov)) => *hfov = Some(h),
+            (Some(_), None) if !self.movement.derotate => {
+                return Err(Error::param(
+                    "--hfov",
+                    "the field of view is for --derotate or --footprint-overlap; give one",
+                ))
+            }
+            _ => {}
+        }
+        for s in steps.iter().filter(|s| s.id() == "footprint-overlap") {
+            s.validate().map_err(|e| Error::param("--hfov", e.msg))?;
+        }
+        if !self.telemetry_offset.is_finite() {
+            return Err(Error::param(
+                "--telemetry-offset",
+                format!("must be a number of seconds, got {}", self.telemetry_offset),
+            ));
+        }
         Ok(SelectSettings {
             input: self.input.clone(),
             output: self.output.clone(),
-            steps: keyframer::steps::from_flags(&self.steps.0)?,
+            steps,
+            telemetry: self.telemetry.clone(),
+            telemetry_offset_s: self.telemetry_offset,
             movement: self.movement.request()?,
             backend: self.analysis.backend.into(),
             adapter: self.analysis.adapter.clone(),

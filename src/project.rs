@@ -1,10 +1,15 @@
 //! The project file (JSON): input reference and fingerprint, metadata, boundaries, keyframes, the
-//! per-frame cache (timestamps, scores) and the history of steps. Loading validates every field and
-//! names the offending one; saving is atomic.
+//! per-frame cache (timestamps, scores, telemetry positions) and the history of steps. Loading
+//! validates every field and names the offending one; saving is atomic.
+//!
+//! Versions: 2 adds `cache.telemetry` (per-frame positions and where they came from, absent when
+//! the input has none); version 1 files load unchanged (they have no positions) and are written
+//! back as version 2.
 
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
+use crate::source::telemetry::{Position, TelemetryKind};
 use crate::source::{Metadata, SourceKind};
 use crate::steps::Boundaries;
 use serde::{Deserialize, Serialize};
@@ -12,8 +17,11 @@ use std::path::{Path, PathBuf};
 
 pub use crate::steps::HistoryEntry;
 
-/// Version of the project file layout this build reads and writes.
-pub const SCHEMA_VERSION: u32 = 1;
+/// Version of the project file layout this build writes.
+pub const SCHEMA_VERSION: u32 = 2;
+
+/// Versions this build reads: 1 is 2 without `cache.telemetry`.
+const READS: [u32; 2] = [1, SCHEMA_VERSION];
 
 /// A keyframe selection and everything needed to reproduce and export it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -72,6 +80,40 @@ pub struct Cache {
     /// Stationary-sampler runs (reference mode: their frame pairs depend on the threshold).
     #[serde(default)]
     pub stationary: Vec<StationaryCache>,
+    /// Each frame's camera position from telemetry (absent: none known).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub telemetry: Option<TelemetryCache>,
+}
+
+/// Per-frame positions from telemetry and where they came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TelemetryCache {
+    /// The file read: the key under which the positions are reused.
+    pub source: TelemetrySource,
+    /// What was wrong with it (`FILE:line N: ...`), as `select` warned.
+    pub warnings: Vec<String>,
+    /// One entry per frame: its position interpolated at the frame's timestamp, `null` for a
+    /// frame outside the telemetry's time span (or an image without GPS tags).
+    pub positions: Vec<Option<Position>>,
+    /// The camera of `telemetry::CAMERAS` the video's container tags or the first image's EXIF
+    /// model name, when one does.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<String>,
+}
+
+/// Where a project's positions came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TelemetrySource {
+    /// The telemetry file, relative to the project file's folder when possible (the input itself
+    /// for EXIF).
+    pub path: PathBuf,
+    /// DJI SRT, GPX or EXIF.
+    pub kind: TelemetryKind,
+    /// Seconds added to the video's clock to find a frame's time in the telemetry
+    /// (`--telemetry-offset`).
+    pub offset_s: f64,
+    /// The telemetry file's fingerprint (None for EXIF, which the input's fingerprint covers).
+    pub fingerprint: Option<Fingerprint>,
 }
 
 /// Cached movement between consecutive frames.
@@ -174,11 +216,11 @@ impl Project {
     /// plugins, backends and parameters, so that everything that reads a loaded project (export,
     /// report, `workflow save`) can trust it. The error is (field path, message).
     pub fn validate(&self) -> std::result::Result<(), (String, String)> {
-        if self.schema_version != SCHEMA_VERSION {
+        if !READS.contains(&self.schema_version) {
             return Err((
                 "schema_version".into(),
                 format!(
-                    "version {} is not supported by this build (expects {SCHEMA_VERSION})",
+                    "version {} is not supported by this build (reads {READS:?})",
                     self.schema_version
                 ),
             ));
@@ -190,6 +232,7 @@ impl Project {
         self.validate_sharpness(n)?;
         self.validate_movement(n)?;
         self.validate_stationary(n)?;
+        self.validate_telemetry(n)?;
         self.validate_history(n)
     }
 
@@ -356,6 +399,42 @@ impl Project {
                 ));
             }
             check_frames(&r.keyframes, n).map_err(|msg| (at("keyframes"), msg))?;
+        }
+        Ok(())
+    }
+
+    /// Telemetry: one entry per frame, latitudes and longitudes in range, finite numbers.
+    fn validate_telemetry(&self, n: usize) -> std::result::Result<(), (String, String)> {
+        let Some(tel) = &self.cache.telemetry else {
+            return Ok(());
+        };
+        let at = |k: &str| format!("cache.telemetry.{k}");
+        if !tel.source.offset_s.is_finite() {
+            return Err((at("source.offset_s"), "must be a finite number".into()));
+        }
+        if tel.positions.len() != n {
+            return Err((
+                at("positions"),
+                format!("{} positions for {n} frames", tel.positions.len()),
+            ));
+        }
+        for (i, p) in tel.positions.iter().enumerate() {
+            let Some(p) = p else { continue };
+            let optional = [
+                p.rel_alt_m,
+                p.abs_alt_m,
+                p.gimbal_pitch_deg,
+                p.gimbal_yaw_deg,
+                p.focal_35mm,
+            ];
+            if !(p.lat_deg.abs() <= 90.0 && p.lon_deg.abs() <= 180.0)
+                || optional.iter().flatten().any(|v| !v.is_finite())
+            {
+                return Err((
+                    at(&format!("positions[{i}]")),
+                    "latitude within ±90°, longitude within ±180° and finite numbers".into(),
+                ));
+            }
         }
         Ok(())
     }

@@ -39,6 +39,8 @@ pub struct AnalysisSection {
     pub derotate: Option<bool>,
     /// Horizontal field of view in degrees for `derotate` (`--hfov`).
     pub hfov: Option<f64>,
+    /// Seconds added to a frame's timestamp to find it in the telemetry (`--telemetry-offset`).
+    pub telemetry_offset: Option<f64>,
     /// Farnebäck parameters.
     pub farneback: Option<FarnebackSection>,
 }
@@ -213,6 +215,12 @@ impl Workflow {
             None => BackendChoice::Auto,
             Some(b) => b.parse().map_err(|e| file.error("analysis.backend", e))?,
         };
+        if let Some(o) = an.telemetry_offset.filter(|o| !o.is_finite()) {
+            return Err(file.error(
+                "analysis.telemetry_offset",
+                format!("must be a number of seconds, got {o}"),
+            ));
+        }
         if let Some(f) = an.images_fps.filter(|f| !(f.is_finite() && *f > 0.0)) {
             return Err(file.error(
                 "analysis.images_fps",
@@ -511,6 +519,9 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
     if p.input.kind == crate::source::SourceKind::Images {
         // The rate given with --images-fps is the folder's rate in the metadata.
         analysis.images_fps = p.metadata.fps;
+    }
+    if let Some(tel) = &p.cache.telemetry {
+        analysis.telemetry_offset = (tel.source.offset_s != 0.0).then_some(tel.source.offset_s);
     }
     let export = exports
         .iter()

@@ -1,9 +1,11 @@
 //! `select`: one analysis pass over the input for the frame count, timestamps and the scores the
-//! samplers need (or none, when a project for the same unchanged input already caches them), then
-//! the samplers in a fixed chain: boundaries → every-nth | fps → blur → manual add/remove.
-//! Writes the project file atomically.
+//! samplers need (or none, when a project for the same unchanged input already caches them), each
+//! frame's position from telemetry when there is any (`select::telemetry`), then the samplers in
+//! keyframer's fixed chain (see [`crate::steps::check_order`]). Writes the project file
+//! atomically.
 
 pub mod preview;
+mod telemetry;
 
 use crate::analysis::{self, MovementRequest, Request, StationaryRequest};
 use crate::error::{Error, Result};
@@ -46,6 +48,10 @@ pub struct SelectSettings {
     pub adapter: Option<String>,
     /// Frame rate to assume for image folders.
     pub images_fps: Option<f64>,
+    /// Telemetry file (DJI SRT or GPX); None: the SRT sidecar beside a video, or the images' EXIF.
+    pub telemetry: Option<PathBuf>,
+    /// Seconds added to a frame's timestamp to find it in the telemetry.
+    pub telemetry_offset_s: f64,
     /// Replace an existing project file.
     pub force: bool,
     /// Seconds between analysis checkpoints (0: none).
@@ -77,6 +83,8 @@ impl SelectSettings {
             backend: w.backend,
             adapter: an.adapter,
             images_fps: an.images_fps,
+            telemetry: None,
+            telemetry_offset_s: an.telemetry_offset.unwrap_or(0.0),
             force: true,
             checkpoint_every_s: Self::CHECKPOINT_EVERY_S,
             preview: an.preview == Some(true),
@@ -233,6 +241,13 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         }
         cached => known.analyse(s, open, &plan, cached, full.then(|| resume(s, &input_ref)))?,
     };
+    known.cache.telemetry = telemetry::positions(
+        s,
+        input_ref.kind,
+        metadata.frame_count,
+        known.cache.timestamps_s.as_deref(),
+        known.cache.telemetry.take(),
+    )?;
     let (keys, history) = apply(s, &known, &metadata, &auto)?;
     let keys = drop_damaged(s, keys, &known.damaged);
     let project = Project {
@@ -655,6 +670,9 @@ fn apply(
         stationary,
         stationary_auto: auto.wants_auto_stationary,
         spacing_px: auto.spacing,
+        positions: cache.telemetry.as_ref().map(|t| t.positions.as_slice()),
+        camera: cache.telemetry.as_ref().and_then(|t| t.camera.as_deref()),
+        frame_size: (w, h),
     };
     for step in &s.steps {
         if let Some(applied) = step.apply(&at, &mut keys)? {

@@ -22,6 +22,50 @@ use std::path::{Path, PathBuf};
 use time::format_description::well_known::Rfc3339;
 use time::OffsetDateTime;
 
+/// What kind of telemetry a project's positions came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TelemetryKind {
+    /// A DJI SRT subtitle sidecar.
+    DjiSrt,
+    /// A GPX track, timed from the video's creation time.
+    Gpx,
+    /// The EXIF GPS tags of each image of an image folder (or of a single image).
+    Exif,
+}
+
+/// One frame's camera position and attitude, as a project stores it (a [`Fix`] interpolated at
+/// the frame's timestamp, without the exposure facts).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Position {
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    /// Height above the take-off point, metres.
+    pub rel_alt_m: Option<f64>,
+    /// Altitude above sea level, metres.
+    pub abs_alt_m: Option<f64>,
+    /// Gimbal pitch, degrees (-90: nadir).
+    pub gimbal_pitch_deg: Option<f64>,
+    /// Gimbal yaw, degrees clockwise from north.
+    pub gimbal_yaw_deg: Option<f64>,
+    /// 35 mm equivalent focal length, millimetres.
+    pub focal_35mm: Option<f64>,
+}
+
+impl From<&Fix> for Position {
+    fn from(f: &Fix) -> Position {
+        Position {
+            lat_deg: f.lat_deg,
+            lon_deg: f.lon_deg,
+            rel_alt_m: f.rel_alt_m,
+            abs_alt_m: f.abs_alt_m,
+            gimbal_pitch_deg: f.gimbal_pitch_deg,
+            gimbal_yaw_deg: f.gimbal_yaw_deg,
+            focal_35mm: f.focal_35mm,
+        }
+    }
+}
+
 /// One telemetry entry.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Fix {
@@ -37,6 +81,8 @@ pub struct Fix {
     pub focal_35mm: Option<f64>,
     /// Gimbal pitch, degrees (-90: nadir).
     pub gimbal_pitch_deg: Option<f64>,
+    /// Gimbal yaw, degrees clockwise from north (DJI's `gb_yaw`).
+    pub gimbal_yaw_deg: Option<f64>,
     pub iso: Option<f64>,
     /// Exposure time, seconds.
     pub shutter_s: Option<f64>,
@@ -179,6 +225,7 @@ pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Tra
             abs_alt_m: p.elevation,
             focal_35mm: None,
             gimbal_pitch_deg: None,
+            gimbal_yaw_deg: None,
             iso: None,
             shutter_s: None,
             fnum: None,
@@ -268,11 +315,116 @@ pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
         abs_alt_m: altitude,
         focal_35mm: focal,
         gimbal_pitch_deg: None,
+        gimbal_yaw_deg: None,
         iso: None,
         shutter_s: None,
         fnum: None,
         line: 0,
     }))
+}
+
+/// A camera of the table [`CAMERAS`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Its name.
+    pub name: &'static str,
+    /// How its files name it: the EXIF `Model` code of its photos and the product name (matched
+    /// without case, spaces or dashes).
+    pub names: &'static [&'static str],
+    /// 35 mm equivalent focal length of its main camera, millimetres.
+    pub focal_35mm: f64,
+}
+
+/// Common DJI cameras and their 35 mm equivalent focal lengths, as DJI's specification pages
+/// state them (with the diagonal fields of view they give: Mini 2 83°, Mini 3 Pro and Mini 4 Pro
+/// 82.1°, Air 2 84°, Air 2S 88°, Mavic 3 84°, Mavic Pro 78.8°, Phantom 4 Pro 84°, Phantom 4 94°).
+pub const CAMERAS: &[Camera] = &[
+    Camera {
+        name: "DJI Mini 2",
+        names: &["FC7303", "Mini 2"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Mini 3 Pro",
+        names: &["FC3582", "Mini 3 Pro"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Mini 4 Pro",
+        names: &["FC8482", "Mini 4 Pro"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Mavic Air 2",
+        names: &["FC3170", "Mavic Air 2", "Air 2"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Air 2S",
+        names: &["FC3411", "Air 2S"],
+        focal_35mm: 22.0,
+    },
+    Camera {
+        name: "DJI Mavic 3",
+        names: &["L2D-20c", "Mavic 3"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Mavic Pro",
+        names: &["FC220", "Mavic Pro"],
+        focal_35mm: 26.0,
+    },
+    Camera {
+        name: "DJI Phantom 4 Pro",
+        names: &["FC6310", "Phantom 4 Pro"],
+        focal_35mm: 24.0,
+    },
+    Camera {
+        name: "DJI Phantom 4",
+        names: &["FC330", "Phantom 4"],
+        focal_35mm: 20.0,
+    },
+];
+
+/// The camera of [`CAMERAS`] that `text` (an EXIF model, a container tag) names: the one whose
+/// longest name it contains, compared without case, spaces or dashes.
+pub fn known_camera(text: &str) -> Option<&'static Camera> {
+    let squash = |s: &str| -> String {
+        s.chars()
+            .filter(|c| c.is_ascii_alphanumeric())
+            .map(|c| c.to_ascii_lowercase())
+            .collect()
+    };
+    let text = squash(text);
+    CAMERAS
+        .iter()
+        .flat_map(|c| c.names.iter().map(move |n| (c, squash(n))))
+        .filter(|(_, n)| text.contains(n.as_str()))
+        .max_by_key(|(_, n)| n.len())
+        .map(|(c, _)| c)
+}
+
+/// The camera a video's container tags or an image's EXIF `Model` name, when it is one of
+/// [`CAMERAS`].
+pub fn camera_of(input: &Path, image: bool) -> Option<&'static Camera> {
+    if image {
+        let file = std::fs::File::open(input).ok()?;
+        let exif = exif::Reader::new()
+            .read_from_container(&mut std::io::BufReader::new(file))
+            .ok()?;
+        let model = exif.get_field(exif::Tag::Model, exif::In::PRIMARY)?;
+        return known_camera(&model.display_value().to_string());
+    }
+    let out = std::process::Command::new("ffprobe")
+        .args(["-v", "error", "-show_entries", "format_tags"])
+        .args(["-of", "default=noprint_wrappers=1"])
+        .arg(input)
+        .output()
+        .ok()?;
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.split_once('=').map(|(_, v)| v))
+        .find_map(known_camera)
 }
 
 /// `HH:MM:SS,mmm` (or with a dot) in seconds.
@@ -334,6 +486,7 @@ fn fix_of(body: &str, t_s: f64, line: usize) -> std::result::Result<Fix, String>
         abs_alt_m: num(&["abs_alt", "altitude"]).or(gps_alt),
         focal_35mm: focal.filter(|f| *f > 0.0),
         gimbal_pitch_deg: num(&["gb_pitch", "gimbal_pitch", "pitch"]),
+        gimbal_yaw_deg: num(&["gb_yaw", "gimbal_yaw", "yaw"]),
         iso: num(&["iso"]),
         shutter_s: shutter.filter(|s| s.is_finite() && *s > 0.0),
         fnum: fnum.filter(|f| *f > 0.0),
@@ -427,11 +580,18 @@ pub fn wgs84_radii(lat_deg: f64) -> (f64, f64) {
 /// radii at their mean latitude, within millimetres over the hundreds of metres between
 /// consecutive fixes or keyframes (beyond a few kilometres it only serves to see a jump).
 pub fn distance_m(a: &Fix, b: &Fix) -> f64 {
-    let lat = 0.5 * (a.lat_deg + b.lat_deg);
-    let (meridian, prime) = wgs84_radii(lat);
-    let north = (b.lat_deg - a.lat_deg).to_radians() * meridian;
-    let east = (b.lon_deg - a.lon_deg).to_radians() * prime * lat.to_radians().cos();
+    let (east, north) = east_north_m((a.lat_deg, a.lon_deg), (b.lat_deg, b.lon_deg));
     north.hypot(east)
+}
+
+/// East and north metres from `a` to `b` (latitude, longitude in degrees), on the tangent plane
+/// with the ellipsoid's radii at their mean latitude (see [`distance_m`]).
+pub fn east_north_m(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
+    let lat = 0.5 * (a.0 + b.0);
+    let (meridian, prime) = wgs84_radii(lat);
+    let north = (b.0 - a.0).to_radians() * meridian;
+    let east = (b.1 - a.1).to_radians() * prime * lat.to_radians().cos();
+    (east, north)
 }
 
 /// The fix at time `t_s`, linear between the two entries around it (positions, altitudes and
@@ -463,6 +623,11 @@ pub fn at(fixes: &[Fix], t_s: f64) -> Option<Fix> {
         rel_alt_m: mix_opt(a.rel_alt_m, b.rel_alt_m),
         abs_alt_m: mix_opt(a.abs_alt_m, b.abs_alt_m),
         gimbal_pitch_deg: mix_opt(a.gimbal_pitch_deg, b.gimbal_pitch_deg),
+        gimbal_yaw_deg: match (a.gimbal_yaw_deg, b.gimbal_yaw_deg) {
+            // The short way round: 350° to 10° passes north.
+            (Some(x), Some(y)) => Some(mix(x, x + (y - x + 540.0).rem_euclid(360.0) - 180.0)),
+            (x, y) => x.or(y),
+        },
         ..a.clone()
     })
 }
@@ -682,6 +847,23 @@ mod tests {
         assert_eq!(creation_time(&v).unwrap(), Some(want));
         let bare = make("bare.mkv", ["-map_metadata", "-1", "-fflags", "+bitexact"]);
         assert_eq!(creation_time(&bare).unwrap(), None);
+    }
+
+    #[test]
+    fn cameras_are_found_by_model_code_or_name() {
+        assert_eq!(known_camera("FC3582").unwrap().name, "DJI Mini 3 Pro");
+        assert_eq!(
+            known_camera("dji mini-4 pro").unwrap().name,
+            "DJI Mini 4 Pro"
+        );
+        // The longest name wins: "Phantom 4 Pro" over "Phantom 4", "Air 2S" over "Air 2".
+        assert_eq!(
+            known_camera("DJI Phantom 4 Pro V2").unwrap().focal_35mm,
+            24.0
+        );
+        assert_eq!(known_camera("Phantom 4").unwrap().focal_35mm, 20.0);
+        assert_eq!(known_camera("DJIAir2S").unwrap().focal_35mm, 22.0);
+        assert!(known_camera("Lavf60.16.100").is_none());
     }
 
     #[test]

@@ -11,7 +11,9 @@ pub mod blur;
 mod boundaries;
 mod every_nth;
 pub mod flags;
+pub mod footprint;
 mod fps;
+pub mod geo_distance;
 mod manual;
 pub mod spacing;
 pub mod stationary;
@@ -29,6 +31,7 @@ pub use values::{BoundArg, NumOrText, Threshold};
 
 use crate::error::{Error, Result};
 use crate::params::{Backend, Metric, MovementRequest, StationaryRequest};
+use crate::source::telemetry::Position;
 use serde::{Deserialize, Serialize};
 
 /// Defaults of the optional step parameters (the flags' defaults too).
@@ -88,6 +91,48 @@ pub struct Inputs<'a> {
     pub stationary_auto: bool,
     /// The spacing threshold `auto` was resolved to.
     pub spacing_px: Option<f64>,
+    /// Each frame's camera position from telemetry, when the input has any.
+    pub positions: Option<&'a [Option<Position>]>,
+    /// The camera the input names (one of `telemetry::CAMERAS`), when known.
+    pub camera: Option<&'a str>,
+    /// Width and height of the frames.
+    pub frame_size: (u32, u32),
+}
+
+/// The positions a geo step reads: an error naming the step when the input has none, a warning
+/// when some of the candidates `keys` have none (they are never kept).
+fn positions<'a>(
+    at: &Inputs<'a>,
+    plugin: &'static str,
+    keys: &[usize],
+) -> Result<&'a [Option<Position>]> {
+    let refuse = || Error::Plugin {
+        plugin,
+        msg: "needs each frame's position, and the input has no telemetry: give --telemetry \
+              FILE (DJI SRT or GPX), put the DJI .SRT beside the video, or use images with EXIF \
+              GPS tags"
+            .into(),
+    };
+    let positions = at.positions.ok_or_else(refuse)?;
+    let without = (keys.iter())
+        .filter(|&&k| positions.get(k).is_none_or(Option::is_none))
+        .count();
+    if without == keys.len() && !keys.is_empty() {
+        return Err(Error::Plugin {
+            plugin,
+            msg: format!(
+                "none of the {without} candidates has a position (they lie outside the \
+                 telemetry's time span; check --telemetry-offset)"
+            ),
+        });
+    }
+    if without > 0 {
+        log::warn!(
+            "{plugin}: {without} of {} candidates have no position and are not kept",
+            keys.len()
+        );
+    }
+    Ok(positions)
 }
 
 /// The flags of every step, in the chain's order.
@@ -96,6 +141,8 @@ pub fn flags() -> impl Iterator<Item = &'static Flag> {
         boundaries::FLAGS,
         stationary::FLAGS,
         spacing::FLAGS,
+        geo_distance::FLAGS,
+        footprint::FLAGS,
         every_nth::FLAGS,
         fps::FLAGS,
         blur::FLAGS,
@@ -111,6 +158,8 @@ pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
         boundaries::from_flags,
         stationary::from_flags,
         spacing::from_flags,
+        geo_distance::from_flags,
+        footprint::from_flags,
         every_nth::from_flags,
         fps::from_flags,
         blur::from_flags,
@@ -153,6 +202,11 @@ pub enum Step {
     },
     /// A keyframe every `threshold` pixels of accumulated movement.
     Spacing { threshold: Threshold },
+    /// A keyframe each time the camera has moved `metres` (telemetry positions).
+    GeoDistance { metres: f64 },
+    /// A keyframe when the ground footprint overlaps the last keyframe's by less than
+    /// `percent`; `hfov` in degrees (default: from the telemetry's focal length).
+    FootprintOverlap { percent: f64, hfov: Option<f64> },
     /// Every n-th candidate.
     #[serde(alias = "every")]
     EveryNth { n: usize },
@@ -202,6 +256,8 @@ impl Step {
             Step::Boundaries { .. } => "boundaries",
             Step::Stationary { .. } => "stationary",
             Step::Spacing { .. } => "spacing",
+            Step::GeoDistance { .. } => "geo-distance",
+            Step::FootprintOverlap { .. } => "footprint-overlap",
             Step::EveryNth { .. } => "every-nth",
             Step::Fps { .. } => "fps",
             Step::Blur { .. } => "blur",
@@ -216,6 +272,10 @@ impl Step {
             Step::Boundaries { .. } => return Ok(None),
             Step::Stationary { .. } => stationary::apply(at, keys)?,
             Step::Spacing { threshold } => spacing::apply(at, keys, *threshold)?,
+            Step::GeoDistance { metres } => geo_distance::apply(at, keys, *metres)?,
+            Step::FootprintOverlap { percent, hfov } => {
+                footprint::apply(at, keys, *percent, *hfov)?
+            }
             Step::EveryNth { n } => every_nth::apply(keys, *n)?,
             Step::Fps { fps } => fps::apply(at, keys, *fps)?,
             Step::Blur { .. } => match self.blur_params() {
@@ -232,9 +292,11 @@ impl Step {
             Step::Boundaries { .. } => 0,
             Step::Stationary { .. } => 1,
             Step::Spacing { .. } => 2,
-            Step::EveryNth { .. } | Step::Fps { .. } => 3,
-            Step::Blur { .. } => 4,
-            Step::Manual { .. } => 5,
+            Step::GeoDistance { .. } => 3,
+            Step::FootprintOverlap { .. } => 4,
+            Step::EveryNth { .. } | Step::Fps { .. } => 5,
+            Step::Blur { .. } => 6,
+            Step::Manual { .. } => 7,
         }
     }
 
@@ -282,6 +344,20 @@ impl Step {
                 }
             }
             Step::EveryNth { n: 0 } => return bad("n", "must be at least 1".into()),
+            Step::GeoDistance { metres } if !(metres.is_finite() && *metres > 0.0) => {
+                return bad("metres", format!("must be a positive number, got {metres}"))
+            }
+            Step::FootprintOverlap { percent, hfov } => {
+                if !(*percent > 0.0 && *percent < 100.0) {
+                    return bad(
+                        "percent",
+                        format!("must be between 0 and 100 (exclusive), got {percent}"),
+                    );
+                }
+                if let Some(h) = hfov.filter(|h| !(*h > 1.0 && *h < 179.0)) {
+                    return bad("hfov", format!("{h} must be between 1 and 179 degrees"));
+                }
+            }
             Step::Fps { fps } if !(fps.is_finite() && *fps > 0.0) => {
                 return bad("fps", format!("must be a positive number, got {fps}"))
             }
@@ -304,7 +380,8 @@ impl Step {
 }
 
 /// Checks that `steps` follow keyframer's chain (boundaries → stationary → spacing →
-/// every-nth/fps → blur → manual), at most one of each: the error names the step's index.
+/// geo-distance → footprint-overlap → every-nth/fps → blur → manual), at most one of each: the
+/// error names the step's index.
 pub fn check_order(steps: &[Step]) -> std::result::Result<(), (usize, String)> {
     let mut last: Option<&Step> = None;
     for (i, s) in steps.iter().enumerate() {
@@ -321,7 +398,7 @@ pub fn check_order(steps: &[Step]) -> std::result::Result<(), (usize, String)> {
             return Err((
                 i,
                 format!(
-                    "`{}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → every-nth/fps → blur → manual",
+                    "`{}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual",
                     s.id(),
                     p.id()
                 ),
@@ -379,6 +456,10 @@ pub enum Applied {
         movement: Option<MovementRequest>,
         threshold_px: f64,
     },
+    /// The geo-distance sampler.
+    GeoDistance { metres: f64 },
+    /// The footprint-overlap sampler (`hfov` as given).
+    FootprintOverlap { hfov: Option<f64>, percent: f64 },
     /// Every n-th candidate.
     EveryNth { n: usize },
     /// Resampled by timestamps.
@@ -419,6 +500,11 @@ impl Applied {
             },
             Applied::Spacing { threshold_px, .. } => Step::Spacing {
                 threshold: Threshold::Px(*threshold_px),
+            },
+            Applied::GeoDistance { metres } => Step::GeoDistance { metres: *metres },
+            Applied::FootprintOverlap { percent, hfov } => Step::FootprintOverlap {
+                percent: *percent,
+                hfov: *hfov,
             },
             Applied::EveryNth { n } => Step::EveryNth { n: *n },
             Applied::Fps { fps } => Step::Fps { fps: *fps },
@@ -489,6 +575,12 @@ impl Applied {
                 count("reset_delta", *reset_delta)
             }
             Applied::Spacing { threshold_px, .. } => positive("threshold_px", Some(*threshold_px)),
+            Applied::GeoDistance { .. } | Applied::FootprintOverlap { .. } => {
+                match self.step().map(|s| s.validate()) {
+                    Some(Err(e)) => bad(e.key, e.msg),
+                    _ => Ok(()),
+                }
+            }
             Applied::EveryNth { n } => count("n", Some(*n)),
             Applied::Fps { fps } => positive("fps", Some(*fps)),
             Applied::Blur { ratio, window, .. } => {
@@ -520,11 +612,13 @@ impl Applied {
 
     /// Reads a history entry; the error names the parameter (`params.fps`).
     pub fn from_entry(e: &HistoryEntry) -> std::result::Result<Applied, (String, String)> {
-        const PLUGINS: [&str; 8] = [
+        const PLUGINS: [&str; 10] = [
             "boundaries",
             "preview",
             "stationary",
             "spacing",
+            "geo-distance",
+            "footprint-overlap",
             "every-nth",
             "fps",
             "blur",

@@ -50,7 +50,7 @@ fn select_fps_every_and_boundaries_then_export() {
     ]);
     assert_eq!(keyframes(&p2), vec![20, 27, 34, 41, 48, 55]);
     let proj = json(&p2);
-    assert_eq!(proj["schema_version"], 1);
+    assert_eq!(proj["schema_version"], 2);
     assert_eq!(
         proj["input"]["path"], "clip.mp4",
         "input path relative to the project"

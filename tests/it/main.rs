@@ -20,3 +20,4 @@ mod safety;
 mod scene;
 mod segment;
 mod sharpness;
+mod telemetry;

@@ -70,6 +70,10 @@ pub struct SceneArgs {
     /// level), for video.SRT.
     #[arg(long, default_value = "47.3769,8.5417,408")]
     pub origin: String,
+    /// Camera pitch below the horizon in degrees for the survey presets (default 45; 90 looks
+    /// straight down).
+    #[arg(long, value_name = "DEG")]
+    pub pitch: Option<f64>,
     /// No progress bar; only errors and warnings on stderr.
     #[arg(short, long)]
     pub quiet: bool,
@@ -144,6 +148,7 @@ impl SceneArgs {
             quiet: self.quiet,
             adapter: self.adapter.clone(),
             origin: parse_origin(&self.origin)?,
+            pitch_deg: self.pitch,
         })
     }
 }

@@ -71,6 +71,8 @@ pub struct SceneSettings {
     pub adapter: Option<String>,
     /// Where the world origin is on Earth (for video.SRT).
     pub origin: srt::GeoOrigin,
+    /// Camera pitch below the horizon of the survey presets, degrees (None: 45; 90: nadir).
+    pub pitch_deg: Option<f64>,
 }
 
 /// An inclusive range of frame indices.
@@ -207,6 +209,20 @@ fn validate(s: &SceneSettings) -> Result<f64> {
     }
     if s.blur_samples == 0 || s.blur_samples > 64 {
         return Err(Error::param("--blur-samples", "must be in 1..=64"));
+    }
+    if let Some(p) = s.pitch_deg {
+        if s.preset == Preset::Orbit {
+            return Err(Error::param(
+                "--pitch",
+                "the orbit looks at its point of interest; --pitch is for the survey presets",
+            ));
+        }
+        if !(p > 0.0 && p <= 90.0) {
+            return Err(Error::param(
+                "--pitch",
+                format!("must be in (0, 90], got {p}"),
+            ));
+        }
     }
     let seconds = s.seconds.unwrap_or(s.preset.default_seconds());
     if !(seconds.is_finite() && seconds > 0.0) {
@@ -360,7 +376,10 @@ fn check_sidecar_is_ours(out: &std::path::Path) -> Result<()> {
 fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let frames = (seconds * s.fps).round() as usize;
     let terrain = Terrain::new(s.seed);
-    let flight = Flight::new(s.preset, seconds, s.seed, &|x, y| terrain.height(x, y));
+    let mut flight = Flight::new(s.preset, seconds, s.seed, &|x, y| terrain.height(x, y));
+    if let Some(p) = s.pitch_deg {
+        flight = flight.with_camera_pitch(p);
+    }
     let last_t = (frames - 1) as f64 / s.fps + 0.5 * SHUTTER / s.fps;
     if last_t > flight.duration() {
         return Err(Error::param(

@@ -273,6 +273,15 @@ impl Flight {
         flight
     }
 
+    /// The survey presets' camera looking `pitch_deg` below the horizon instead of 45° (90:
+    /// straight down); the orbit's camera keeps looking at its point of interest.
+    pub fn with_camera_pitch(mut self, pitch_deg: f64) -> Flight {
+        if self.preset != Preset::Orbit {
+            self.pitch = pitch_deg.to_radians();
+        }
+        self
+    }
+
     /// The preset.
     pub fn preset(&self) -> Preset {
         self.preset
@@ -350,6 +359,11 @@ impl Flight {
             Preset::Orbit => self.poi + V3(0.0, 0.0, 2.0) - c,
             _ => {
                 let (sp, cp) = self.pitch.sin_cos();
+                if cp < 1e-6 {
+                    // Straight down: image up along the heading, image right to its right.
+                    let right = V3(heading.sin(), -heading.cos(), 0.0);
+                    return Pose::looking_right(c, V3(0.0, 0.0, -1.0), right);
+                }
                 V3(cp * heading.cos(), cp * heading.sin(), -sp)
             }
         };

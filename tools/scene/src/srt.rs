@@ -1,7 +1,7 @@
 //! The synthetic flight's telemetry as a DJI SRT sidecar (`video.SRT`): every frame's
 //! ground-truth camera centre as latitude, longitude and altitudes around a geographic origin, in
 //! the bracketed layout of DJI's recent drones, with the 35 mm equivalent focal length and the
-//! gimbal pitch, so tests of keyframer's telemetry know the truth. Positions carry 9 decimals
+//! gimbal pitch and yaw, so tests of keyframer's telemetry know the truth. Positions carry 9 decimals
 //! (real DJI files have 6, about 0.1 m) so the truth survives the text.
 
 use crate::math::Pose;
@@ -40,13 +40,14 @@ pub fn entry(i: usize, fps: f64, pose: &Pose, t: &crate::Telemetry) -> String {
     let c = pose.centre;
     let (lat, lon) = t.origin.lat_lon(c.0, c.1);
     let pitch = pose.rot[2].2.clamp(-1.0, 1.0).asin().to_degrees();
+    let yaw = yaw_deg(pose);
     let ms = (t0 * 1000.0).round() as u64;
     format!(
         "{}\n{} --> {}\n<font size=\"28\">FrameCnt: {}, DiffTime: {}ms\n\
          2024-05-01 {:02}:{:02}:{:02}.{:03}\n\
          [iso: 100] [shutter: 1/1000.0] [fnum: 2.8] [ev: 0] [focal_len: {:.2}] \
          [latitude: {lat:.9}] [longitude: {lon:.9}] [rel_alt: {:.3} abs_alt: {:.3}] \
-         [gb_yaw: 0.0 gb_pitch: {pitch:.2} gb_roll: 0.0] </font>\n\n",
+         [gb_yaw: {yaw:.2} gb_pitch: {pitch:.2} gb_roll: 0.0] </font>\n\n",
         i + 1,
         clock(t0),
         clock(t1),
@@ -60,6 +61,18 @@ pub fn entry(i: usize, fps: f64, pose: &Pose, t: &crate::Telemetry) -> String {
         c.2 - t.takeoff_z_m,
         t.origin.alt_m + c.2,
     )
+}
+
+/// The camera's heading in degrees clockwise from north (DJI's `gb_yaw`): of its viewing
+/// direction, or of the image's up direction when it looks (nearly) straight down.
+pub fn yaw_deg(pose: &Pose) -> f64 {
+    let (z, y) = (pose.rot[2], pose.rot[1]);
+    let (east, north) = if z.0.hypot(z.1) > 1e-3 {
+        (z.0, z.1)
+    } else {
+        (-y.0, -y.1)
+    };
+    east.atan2(north).to_degrees()
 }
 
 /// `HH:MM:SS,mmm`.
@@ -109,6 +122,8 @@ mod tests {
             (Some(-45.0), Some(25.2))
         );
         assert!((b.t_s - 61.0 / 30.0).abs() < 1e-3 && b.gimbal_pitch_deg == Some(-89.99));
+        // Both face north (the second by its image's up direction).
+        assert_eq!((a.gimbal_yaw_deg, b.gimbal_yaw_deg), (Some(0.0), Some(0.0)));
         // 120 m east and 80 m south: keyframer measures 144.222 m (sqrt(120² + 80²)) within 1 cm
         // (the 9 decimals of the text are 0.1 mm; east is taken at the origin's latitude here
         // and at the mean latitude there).
