@@ -113,13 +113,13 @@ impl CameraPath {
 }
 
 /// Smallest and largest value (infinities when there is none).
-fn bounds(v: impl Iterator<Item = f64>) -> (f64, f64) {
+pub(super) fn bounds(v: impl Iterator<Item = f64>) -> (f64, f64) {
     let inf = f64::INFINITY;
     v.fold((inf, -inf), |(a, b), x| (a.min(x), b.max(x)))
 }
 
 /// Maps projected coordinates into the plot square, centred, same scale on both axes.
-fn plot_transform(p: &[(usize, f64, f64)]) -> impl Fn(f64, f64) -> (f64, f64) {
+pub(super) fn plot_transform(p: &[(usize, f64, f64)]) -> impl Fn(f64, f64) -> (f64, f64) {
     let (minx, maxx) = bounds(p.iter().map(|q| q.1));
     let (miny, maxy) = bounds(p.iter().map(|q| q.2));
     let span = (maxx - minx).max(maxy - miny).max(1e-12);

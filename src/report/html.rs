@@ -1,5 +1,5 @@
-//! The report page: summary, timeline (inline SVG with hover details), thumbnails, steps and the
-//! camera path, in one HTML file with no external reference. The page is the askama template
+//! The report page: summary, timeline (inline SVG with hover details), thumbnails, steps, the
+//! camera path and the flight map, in one HTML file with no external reference. The page is the askama template
 //! `templates/report.html`, which escapes every value it is given except the two SVG drawings
 //! keyframer makes and the JSON data (whose `<` are escaped here).
 
@@ -40,6 +40,8 @@ struct Page<'a> {
     thumbs: Vec<ThumbView>,
     steps: Vec<StepRow>,
     camera: Option<CameraView>,
+    /// The flight map's SVG, when the project has telemetry positions.
+    map: Option<String>,
     data: String,
 }
 
@@ -110,6 +112,7 @@ pub fn page(p: &PageInput) -> Result<String> {
                 stats: c.stats(),
                 svg: c.svg(),
             }),
+        map: super::map::FlightMap::from_project(pr).map(|m| m.svg()),
         data: hover_data(pr, tl),
     }
     .render()

@@ -1,8 +1,9 @@
 //! `keyframer report`: one self-contained HTML page (inline SVG, CSS, JS, data: URI thumbnails)
-//! showing a project's timeline, keyframe thumbnails, steps and camera path, plus a PNG timeline.
+//! showing a project's timeline, keyframe thumbnails, steps, camera path and flight map, plus a PNG timeline.
 
 mod camera;
 mod html;
+mod map;
 pub mod thumbs;
 pub mod timeline;
 

@@ -50,7 +50,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
 }
 
 /// A point on the ground: metres east and north of the reference.
-type Pt = (f64, f64);
+pub(crate) type Pt = (f64, f64);
 
 /// The step on `keys`.
 pub fn apply(
@@ -75,9 +75,9 @@ pub fn apply(
     Ok(Applied::FootprintOverlap { percent, hfov })
 }
 
-/// The footprint of every candidate (None: no position, or too low), saying once what it
-/// assumed.
-fn footprints(
+/// The footprint of every candidate (None: no position, or too low), in metres east and north
+/// of the first candidate with a position, saying once what it assumed.
+pub(crate) fn footprints(
     keys: &[usize],
     positions: &[Option<Position>],
     hfov: Option<f64>,

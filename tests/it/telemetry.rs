@@ -622,3 +622,134 @@ fn footprint_field_of_view_from_hfov_or_the_camera_table() {
         "{with_table:?} vs {with_hfov:?}"
     );
 }
+
+/// The numbers of `name="..."` attributes in `tag`.
+fn attr_numbers(tag: &str, name: &str) -> Vec<f64> {
+    let Some(v) = tag.split(&format!(" {name}=\"")).nth(1) else {
+        return Vec::new();
+    };
+    v.split('"')
+        .next()
+        .unwrap()
+        .split([' ', ','])
+        .map(|x| x.parse().unwrap())
+        .collect()
+}
+
+/// The report's flight map: every keyframe marked where the truth puts it (one scale, north up)
+/// with its footprint where the true footprint lies, and the map seen in headless Chromium.
+#[test]
+fn report_flight_map_draws_keyframes_and_footprints_where_the_truth_is() {
+    let dir = nadir();
+    let poses = truth(dir);
+    let scene = json(&dir.join("scene.json"));
+    let ground = scene["telemetry"]["takeoff_z_m"].as_f64().unwrap();
+    // From frame 90: the footprints come relative to the first keyframe, the map from frame 0.
+    let (project, keys) = select(
+        dir,
+        "map.json",
+        &["--start", "90", "--footprint-overlap", "80"],
+    );
+    let html = dir.join("map-report.html");
+    kf_ok(&[
+        "report",
+        s(&project),
+        "-o",
+        s(&html),
+        "--force",
+        "--thumbs",
+        "0",
+    ]);
+    let page = std::fs::read_to_string(&html).unwrap();
+    let map = page
+        .split("<svg id=\"flight-map\"")
+        .nth(1)
+        .expect("a flight map")
+        .split("</svg>")
+        .next()
+        .unwrap();
+    assert!(map.contains(&format!("data-keyframes=\"{}\"", keys.len())));
+    // (frame, mark, footprint) per keyframe, in px.
+    type Mark = (usize, (f64, f64), Vec<(f64, f64)>);
+    let marks: Vec<Mark> = map
+        .split("<g class=\"kf\"")
+        .skip(1)
+        .map(|g| {
+            let frame = attr_numbers(g, "data-frame")[0] as usize;
+            let poly = attr_numbers(g, "points");
+            let print = poly.chunks(2).map(|p| (p[0], p[1])).collect();
+            let (cx, cy) = (attr_numbers(g, "cx")[0], attr_numbers(g, "cy")[0]);
+            (frame, (cx, cy), print)
+        })
+        .collect();
+    assert_eq!(marks.iter().map(|m| m.0).collect::<Vec<_>>(), keys);
+    // One scale from the first and last keyframes' true centres (x east, y north).
+    let (first, last) = (&marks[0], &marks[marks.len() - 1]);
+    let (a, b) = (&poses[first.0].centre, &poses[last.0].centre);
+    let px = (last.1 .0 - first.1 .0).hypot(last.1 .1 - first.1 .1);
+    let k = px / (b[0] - a[0]).hypot(b[1] - a[1]);
+    let to_px = |x: f64, y: f64| (first.1 .0 + k * (x - a[0]), first.1 .1 - k * (y - a[1]));
+    for (frame, mark, print) in &marks {
+        let c = &poses[*frame].centre;
+        let want = to_px(c[0], c[1]);
+        assert!(
+            (mark.0 - want.0).hypot(mark.1 - want.1) < 1.0,
+            "frame {frame}: mark {mark:?}, truth at {want:?}"
+        );
+        let truth_print: Vec<(f64, f64)> = true_footprint(&poses[*frame], &scene, ground)
+            .into_iter()
+            .map(|(x, y)| to_px(x, y))
+            .collect();
+        assert_eq!(print.len(), 4, "frame {frame}");
+        let width =
+            (truth_print[1].0 - truth_print[0].0).hypot(truth_print[1].1 - truth_print[0].1);
+        // Corners in the same order: top-left, top-right, bottom-right, bottom-left.
+        for (p, t) in print.iter().zip(&truth_print) {
+            assert!(
+                (p.0 - t.0).hypot(p.1 - t.1) < 0.03 * width,
+                "frame {frame}: footprint corner {p:?}, truth {t:?} (width {width:.1} px)"
+            );
+        }
+    }
+    if !Path::new("/usr/bin/chromium").exists() {
+        println!("SKIPPED the screenshot: /usr/bin/chromium is absent");
+        return;
+    }
+    let profile = tempfile::tempdir().unwrap();
+    let shot = dir.join("map-report.png");
+    let out = std::process::Command::new("/usr/bin/chromium")
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+            "--hide-scrollbars",
+            "--force-device-scale-factor=1",
+            "--window-size=1300,3000",
+        ])
+        .arg(format!("--user-data-dir={}", profile.path().display()))
+        .arg(format!("--screenshot={}", shot.display()))
+        .arg(format!("file://{}", html.display()))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = image::open(&shot).unwrap().to_rgb8();
+    // The keyframe marks' magenta (#cc00cc), drawn nowhere else on the page.
+    let marked = img
+        .pixels()
+        .filter(|p| {
+            (i32::from(p[0]) - 204).abs() < 8
+                && i32::from(p[1]) < 8
+                && (i32::from(p[2]) - 204).abs() < 8
+        })
+        .count();
+    assert!(
+        marked >= 20 * keys.len(),
+        "{marked} magenta pixels for {} keyframe marks",
+        keys.len()
+    );
+}
