@@ -497,3 +497,100 @@ fn frames_without_position_are_untagged_and_a_known_camera_is_named() {
         assert!(f["position"].is_object(), "frame {i}");
     }
 }
+
+/// An image folder whose JPEGs carry their own GPS tags (one has none): copied byte for byte they
+/// keep their own EXIF; re-encoded (`--scale`) they are tagged from the project's positions (no
+/// capture time: an image folder has no creation time), the untagged one counted in one warning.
+#[test]
+fn image_folder_copies_keep_their_exif_and_re_encoded_images_are_tagged() {
+    use keyframer::geotag::{tag_jpeg, GeoTag};
+    let tmp = tempfile::tempdir().unwrap();
+    let folder = tmp.path().join("images");
+    std::fs::create_dir(&folder).unwrap();
+    ffmpeg(&[
+        "-f",
+        "lavfi",
+        "-i",
+        "testsrc2=size=64x48:rate=5:duration=1",
+        s(&folder.join("img%02d.jpg")),
+    ]);
+    let mut truth = Vec::new();
+    for i in 1..=5 {
+        let path = folder.join(format!("img{i:02}.jpg"));
+        if i == 3 {
+            truth.push(None);
+            continue;
+        }
+        let tag = GeoTag {
+            lat_deg: 51.5 - 1e-4 * i as f64,
+            lon_deg: -0.12 - 3e-4 * i as f64,
+            alt_m: Some(30.0 + 2.5 * i as f64),
+            taken: None,
+            focal_35mm: Some(28.0),
+            make: None,
+            model: None,
+            source: format!("original {i}"),
+        };
+        let mut bytes = std::fs::read(&path).unwrap();
+        tag_jpeg(&path, &mut bytes, &tag).unwrap();
+        std::fs::write(&path, bytes).unwrap();
+        truth.push(Some(tag));
+    }
+    let project = tmp.path().join("p.json");
+    kf_ok(&["select", s(&folder), "--every", "1", "-o", s(&project)]);
+
+    let copies = tmp.path().join("copies");
+    export(&project, &copies, &[]);
+    let scaled = tmp.path().join("scaled");
+    let err = export(&project, &scaled, &["--scale", "0.5"]);
+    assert_eq!(
+        err.matches("1 of the 5 exported images have no telemetry position")
+            .count(),
+        1,
+        "{err}"
+    );
+    for (out, copied) in [(&copies, true), (&scaled, false)] {
+        let manifest = json(&out.join("manifest.json"));
+        let frames = manifest["frames"].as_array().unwrap();
+        let tags = exif(&out.join("images"));
+        assert_eq!(frames.len(), 5);
+        for (f, want) in frames.iter().zip(&truth) {
+            let name = f["file"].as_str().unwrap();
+            let (i, e) = (f["index"].as_u64().unwrap(), &tags[name]);
+            let Some(want) = want else {
+                assert!(!has_gps(e) && f.get("position").is_none(), "{name}: {e}");
+                continue;
+            };
+            let got = (
+                e["Composite:GPSLatitude"].as_f64().unwrap(),
+                e["Composite:GPSLongitude"].as_f64().unwrap(),
+            );
+            for (g, w) in [(got.0, want.lat_deg), (got.1, want.lon_deg)] {
+                assert!((g - w).abs() < 1e-7, "{name}: {g} vs {w}");
+            }
+            let alt = e["EXIF:GPSAltitude"].as_f64().unwrap();
+            assert!((alt - want.alt_m.unwrap()).abs() <= 0.5e-3, "{name}");
+            assert!((f["position"]["lat_deg"].as_f64().unwrap() - want.lat_deg).abs() < 1e-7);
+            let description = if copied {
+                want.source.clone()
+            } else {
+                format!("frame {i} of {name}")
+            };
+            assert_eq!(
+                e["EXIF:ImageDescription"].as_str(),
+                Some(description.as_str())
+            );
+            assert!(e.get("EXIF:DateTimeOriginal").is_none(), "{name}");
+        }
+        if copied {
+            for f in frames {
+                let name = f["file"].as_str().unwrap();
+                assert_eq!(
+                    std::fs::read(out.join("images").join(name)).unwrap(),
+                    std::fs::read(folder.join(name)).unwrap(),
+                    "{name}: copied byte for byte"
+                );
+            }
+        }
+    }
+}
