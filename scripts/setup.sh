@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates curl unzip colmap chromium jq fonts-dejavu-core libimage-exiftool-perl)
+packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates curl unzip colmap chromium jq fonts-dejavu-core libimage-exiftool-perl sqlite3)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

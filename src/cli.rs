@@ -465,6 +465,10 @@ pub struct ExportArgs {
     /// Write into a non-empty folder, replacing an earlier export.
     #[arg(long)]
     pub force: bool,
+    /// Leave the telemetry positions out of the export: no EXIF GPS tags in the JPEGs, no
+    /// positions in manifest.json (by default both are written when the project has positions).
+    #[arg(long)]
+    pub no_geotag: bool,
     /// Segmentation masks for every exported image.
     #[command(flatten)]
     pub masks: MaskArgs,
@@ -824,6 +828,7 @@ impl ExportArgs {
                 backend: self.masks.mask_backend.into(),
                 overlay: self.masks.mask_overlay,
             }),
+            !self.no_geotag,
         )
     }
 }

@@ -1,10 +1,14 @@
 //! Export: re-decodes the selected frames in one sequential pass, crops then resizes them
 //! (INTER_AREA), writes them atomically with sortable names (or the original names for image
-//! folders, copied byte for byte when nothing changes them), and writes a manifest last.
+//! folders, copied byte for byte when nothing changes them), and writes a manifest last. When the
+//! project has telemetry positions, every JPEG it encodes carries its frame's position as EXIF
+//! geotags and the manifest lists them (unless `geotag` is off); byte-copied originals keep their
+//! own EXIF, PNGs get none.
 
 pub use crate::encode::encode;
 use crate::error::{CvContext, Error, Result};
 use crate::fsutil;
+use crate::geotag::{tag_jpeg, GeoTag};
 pub use crate::manifest::{
     parse_crop, parse_size, read_manifest, Crop, ExportSettings, ExportedFrame, Format, Manifest,
     MissingFrame, Resize, DEFAULT_QUALITY, IMAGE_DIR, LAYOUT, MANIFEST, MASK_DIR, OVERLAY_DIR,
@@ -12,12 +16,14 @@ pub use crate::manifest::{
 };
 use crate::project::Project;
 use crate::segment::{MaskSettings, Segmenter};
+use crate::source::telemetry::{self, Camera, Position};
 use crate::source::{self, OpenOptions, SourceKind};
 use opencv::core::{Mat, Rect};
 use opencv::prelude::*;
 use opencv::{imgcodecs, imgproc};
 
 use std::path::{Path, PathBuf};
+use time::OffsetDateTime;
 
 /// Checks the crop against the frame and returns the output size.
 pub fn output_size(settings: &ExportSettings, width: u32, height: u32) -> Result<(u32, u32)> {
@@ -144,6 +150,24 @@ pub fn export(
     check_size(settings, size)?;
     let is_video = meta.kind == SourceKind::Video;
     let names = output_names(&project, src.as_ref(), settings, is_video)?;
+    let geo = match &project.cache.telemetry {
+        Some(tel) if settings.geotag => Some(Geo::new(
+            tel,
+            &project.keyframes,
+            &input,
+            src.as_ref(),
+            is_video,
+        )),
+        _ => None,
+    };
+    if geo.is_some()
+        && !byte_copy(src.as_ref(), settings, is_video)
+        && names.iter().any(|n| format_of(n) == Format::Png)
+    {
+        log::warn!(
+            "PNG images are not geotagged (EXIF inside PNG is a text chunk photogrammetry tools do not read); manifest.json lists their positions"
+        );
+    }
     let network = match &settings.masks {
         Some(m) => Some(crate::model_desc::ModelDesc::load(&m.model)?.model),
         None => None,
@@ -163,6 +187,7 @@ pub fn export(
         names: &names,
         size,
         quiet,
+        geo: geo.as_ref(),
     };
     let result = stage_and_commit(&job, out, dir.is_new(), src.as_mut(), masker.as_mut());
     let (frames, missing) = match result {
@@ -188,7 +213,114 @@ pub fn export(
         mask_ms_per_image: masker.as_ref().and_then(|m| m.seg.ms_per_image()),
     };
     write_manifest(out, &manifest)?;
+    if geo.is_some() {
+        let unplaced = manifest
+            .frames
+            .iter()
+            .filter(|f| f.position.is_none())
+            .count();
+        if unplaced > 0 {
+            log::warn!(
+                "{unplaced} of the {} exported images have no telemetry position (outside the telemetry's time span or without GPS tags): they carry no geotag and manifest.json lists no position for them",
+                manifest.frames.len()
+            );
+        }
+    }
     Ok(manifest)
+}
+
+/// What the JPEGs of one export are geotagged with: the project's positions and what every frame
+/// shares (the video's creation time, the camera).
+struct Geo<'a> {
+    /// One per frame of the input (the project's `cache.telemetry.positions`).
+    positions: &'a [Option<Position>],
+    /// Frame 0's capture time (the video's `creation_time`, UTC), when the container records one.
+    created: Option<OffsetDateTime>,
+    camera: Option<&'static Camera>,
+    /// What each keyframe's ImageDescription names it (`frame N of NAME`), in keyframe order.
+    sources: Vec<String>,
+}
+
+impl<'a> Geo<'a> {
+    fn new(
+        tel: &'a crate::project::TelemetryCache,
+        keyframes: &[usize],
+        input: &Path,
+        src: &dyn source::FrameSource,
+        is_video: bool,
+    ) -> Geo<'a> {
+        let created = if is_video {
+            match telemetry::creation_time(input) {
+                Ok(Some(t)) => Some(t),
+                Ok(None) => {
+                    log::warn!(
+                        "{}: the container records no creation time, so the geotags carry no DateTimeOriginal",
+                        input.display()
+                    );
+                    None
+                }
+                Err(e) => {
+                    log::warn!("{e}: the geotags carry no DateTimeOriginal");
+                    None
+                }
+            }
+        } else {
+            None
+        };
+        let file_name = |p: &Path| {
+            p.file_name()
+                .unwrap_or(p.as_os_str())
+                .to_string_lossy()
+                .into_owned()
+        };
+        let sources = keyframes
+            .iter()
+            .map(|&i| {
+                let name = match src.file_of(i) {
+                    Some(f) if !is_video => file_name(f),
+                    _ => file_name(input),
+                };
+                format!("frame {i} of {name}")
+            })
+            .collect();
+        Geo {
+            positions: &tel.positions,
+            created,
+            camera: tel.camera.as_deref().and_then(telemetry::camera_named),
+            sources,
+        }
+    }
+
+    fn position(&self, index: usize) -> Option<&'a Position> {
+        self.positions.get(index).and_then(Option::as_ref)
+    }
+
+    /// The tag of keyframe number `k` (frame `p`'s position, shown at `timestamp_s`).
+    fn tag(&self, k: usize, p: &Position, timestamp_s: Option<f64>) -> GeoTag {
+        let taken = match (self.created, timestamp_s) {
+            (Some(t0), Some(t)) if t.is_finite() => {
+                Some(t0 + time::Duration::milliseconds((t * 1000.0).round() as i64))
+            }
+            _ => None,
+        };
+        GeoTag {
+            lat_deg: p.lat_deg,
+            lon_deg: p.lon_deg,
+            alt_m: p.abs_alt_m,
+            taken,
+            focal_35mm: p.focal_35mm.or(self.camera.map(|c| c.focal_35mm)),
+            // The table's cameras are all named `MAKE PRODUCT`; their photos' Model is the code.
+            make: self
+                .camera
+                .and_then(|c| c.name.split_once(' '))
+                .map(|(make, _)| make.to_string()),
+            model: self
+                .camera
+                .and_then(|c| c.names.first())
+                .map(|m| m.to_string()),
+            source: self.sources.get(k).cloned().unwrap_or_default(),
+        }
+    }
 }
 
 /// The file name of every keyframe's image, checked: plain names, no two alike.
@@ -431,6 +563,7 @@ fn copy_originals(
             file: name.clone(),
             mask: None,
             overlay: None,
+            position: job.geo.and_then(|g| g.position(index)).cloned(),
         });
         if let Some(m) = masker.as_deref_mut() {
             let img = imgcodecs::imread(&from, imgcodecs::IMREAD_COLOR)
@@ -473,16 +606,24 @@ fn decode_and_encode(
                 )
             })?;
         let name = &job.names[k];
-        let bytes = encode(&img, format_of(name), job.settings.quality)?;
-        fsutil::write_atomic(&images.join(name), &bytes)?;
+        let path = images.join(name);
+        let format = format_of(name);
+        let mut bytes = encode(&img, format, job.settings.quality)?;
+        let timestamp_s = frame
+            .timestamp_s
+            .or_else(|| timestamps.and_then(|t| t.get(frame.index).copied()));
+        let position = job.geo.and_then(|g| g.position(frame.index));
+        if let (Some(g), Some(p), Format::Jpg) = (job.geo, position, format) {
+            tag_jpeg(&path, &mut bytes, &g.tag(k, p, timestamp_s))?;
+        }
+        fsutil::write_atomic(&path, &bytes)?;
         frames.push(ExportedFrame {
             index: frame.index,
-            timestamp_s: frame
-                .timestamp_s
-                .or_else(|| timestamps.and_then(|t| t.get(frame.index).copied())),
+            timestamp_s,
             file: name.clone(),
             mask: None,
             overlay: None,
+            position: position.cloned(),
         });
         if let Some(m) = masker.as_deref_mut() {
             m.push(name.clone(), img, &mut frames)?;
@@ -573,6 +714,8 @@ struct Job<'a> {
     names: &'a [String],
     size: (u32, u32),
     quiet: bool,
+    /// What the JPEGs are geotagged with (None: no positions or `geotag` off).
+    geo: Option<&'a Geo<'a>>,
 }
 
 /// Moves the staged files into place and removes what the earlier manifest listed that this

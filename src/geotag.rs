@@ -9,6 +9,7 @@ use little_exif::filetype::FileExtension;
 use little_exif::metadata::Metadata;
 use little_exif::rational::uR64;
 use std::path::Path;
+use time::OffsetDateTime;
 
 /// What an exported image is tagged with.
 #[derive(Debug, Clone, PartialEq)]
@@ -17,8 +18,9 @@ pub struct GeoTag {
     pub lon_deg: f64,
     /// Metres above sea level.
     pub alt_m: Option<f64>,
-    /// Capture time, `YYYY:MM:DD HH:MM:SS` (EXIF's format) and its milliseconds.
-    pub taken: Option<(String, u16)>,
+    /// Capture time: DateTimeOriginal and SubSecTimeOriginal (milliseconds) in its own offset,
+    /// which OffsetTimeOriginal states (`+00:00` for UTC).
+    pub taken: Option<OffsetDateTime>,
     /// 35 mm equivalent focal length, millimetres.
     pub focal_35mm: Option<f64>,
     pub make: Option<String>,
@@ -71,9 +73,28 @@ pub fn tag_jpeg(path: &Path, jpeg: &mut Vec<u8>, tag: &GeoTag) -> Result<()> {
             denominator: 1000,
         }]));
     }
-    if let Some((when, ms)) = &tag.taken {
-        m.set_tag(ExifTag::DateTimeOriginal(when.clone()));
-        m.set_tag(ExifTag::SubSecTimeOriginal(format!("{ms:03}")));
+    if let Some(t) = tag.taken {
+        let (date, offset) = (t.date(), t.offset());
+        m.set_tag(ExifTag::DateTimeOriginal(format!(
+            "{:04}:{:02}:{:02} {:02}:{:02}:{:02}",
+            date.year(),
+            u8::from(date.month()),
+            date.day(),
+            t.hour(),
+            t.minute(),
+            t.second()
+        )));
+        m.set_tag(ExifTag::SubSecTimeOriginal(format!(
+            "{:03}",
+            t.millisecond()
+        )));
+        let minutes = offset.whole_minutes();
+        let sign = if minutes < 0 { '-' } else { '+' };
+        m.set_tag(ExifTag::OffsetTimeOriginal(format!(
+            "{sign}{:02}:{:02}",
+            minutes.unsigned_abs() / 60,
+            minutes.unsigned_abs() % 60
+        )));
     }
     if let Some(f) = tag.focal_35mm.filter(|f| *f > 0.0 && *f < 65_535.0) {
         m.set_tag(ExifTag::FocalLengthIn35mmFormat(vec![f.round() as u16]));
@@ -112,7 +133,7 @@ mod tests {
                 lat_deg: lat,
                 lon_deg: lon,
                 alt_m: Some(alt),
-                taken: Some(("2024:05:01 10:00:03".into(), 250)),
+                taken: Some(time::macros::datetime!(2024-05-01 10:00:03.250 UTC)),
                 focal_35mm: Some(25.2),
                 make: Some("DJI".into()),
                 model: None,

@@ -4,6 +4,7 @@
 //! these without depending on the exporter.
 
 use crate::error::{Error, Result};
+use crate::source::telemetry::Position;
 use crate::source::SourceKind;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -62,6 +63,19 @@ pub struct ExportSettings {
     /// Segmentation masks written beside the images (`masks/<image name>.png`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub masks: Option<MaskSettings>,
+    /// Write each frame's telemetry position into its JPEG's EXIF and into the manifest (when the
+    /// project has positions; `--no-geotag` turns it off). Written only when off: manifests
+    /// without it (also those of versions before it) read as on, the default.
+    #[serde(default = "on", skip_serializing_if = "is_on")]
+    pub geotag: bool,
+}
+
+fn on() -> bool {
+    true
+}
+
+fn is_on(b: &bool) -> bool {
+    *b
 }
 
 impl ExportSettings {
@@ -74,6 +88,7 @@ impl ExportSettings {
         format: Option<Format>,
         quality: u8,
         masks: Option<MaskSettings>,
+        geotag: bool,
     ) -> Result<ExportSettings> {
         let resize = match (resize, scale) {
             (Some(s), _) => {
@@ -99,6 +114,7 @@ impl ExportSettings {
             format,
             quality,
             masks,
+            geotag,
         })
     }
 }
@@ -160,6 +176,10 @@ pub struct ExportedFrame {
     /// Overlay preview file name inside `overlays/`, when requested.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub overlay: Option<String>,
+    /// The frame's telemetry position (latitude, longitude, altitudes, gimbal, 35 mm focal
+    /// length), when the project has one for it and the export geotags.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<Position>,
 }
 
 /// The manifest: what was exported from what, with which settings and which tool.

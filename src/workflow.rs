@@ -87,6 +87,9 @@ pub struct Export {
     /// `"x,y,w,h"` in source pixels.
     pub crop: Option<String>,
     pub masks: Option<Masks>,
+    /// `false` is `export --no-geotag` (absent: on).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geotag: Option<bool>,
 }
 
 /// A workflow's content.
@@ -458,6 +461,7 @@ fn export_settings(
         format,
         e.quality.unwrap_or(crate::manifest::DEFAULT_QUALITY),
         masks,
+        e.geotag != Some(false),
     )
     .map_err(|err| match err {
         // from_parts names its parameters by key (`resize`, `scale`, `crop`, `quality`).
@@ -586,6 +590,7 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             }),
             overlay: Some(mk.overlay),
         }),
+        geotag: (!s.geotag).then_some(false),
     })
 }
 

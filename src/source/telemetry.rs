@@ -328,8 +328,8 @@ pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
 pub struct Camera {
     /// Its name.
     pub name: &'static str,
-    /// How its files name it: the EXIF `Model` code of its photos and the product name (matched
-    /// without case, spaces or dashes).
+    /// How its files name it: the EXIF `Model` code of its photos (first; geotagged exports carry
+    /// it) and the product name (matched without case, spaces or dashes).
     pub names: &'static [&'static str],
     /// 35 mm equivalent focal length of its main camera, millimetres.
     pub focal_35mm: f64,
@@ -402,6 +402,11 @@ pub fn known_camera(text: &str) -> Option<&'static Camera> {
         .filter(|(_, n)| text.contains(n.as_str()))
         .max_by_key(|(_, n)| n.len())
         .map(|(c, _)| c)
+}
+
+/// The camera of [`CAMERAS`] called `name` (as a project records it).
+pub fn camera_named(name: &str) -> Option<&'static Camera> {
+    CAMERAS.iter().find(|c| c.name == name)
 }
 
 /// The camera a video's container tags or an image's EXIF `Model` name, when it is one of

@@ -9,6 +9,7 @@ mod experiment;
 mod fixtures;
 mod flow;
 mod foundation;
+mod geotag;
 mod inputs;
 mod layers;
 mod movement;
