@@ -219,3 +219,32 @@ pub fn clip_and_project(dir: &Path) -> (PathBuf, PathBuf) {
     ]);
     (clip, project)
 }
+
+/// A folder `dir/images` of five 64x48 JPEGs (`img01.jpg`..`img05.jpg`), each tagged by
+/// keyframer's geotag with `tag(i)` (i from 1; `None`: left untagged); returns the folder and the
+/// tags in file order.
+pub fn tagged_image_folder(
+    dir: &Path,
+    tag: impl Fn(usize) -> Option<keyframer::geotag::GeoTag>,
+) -> (PathBuf, Vec<Option<keyframer::geotag::GeoTag>>) {
+    let folder = dir.join("images");
+    std::fs::create_dir(&folder).unwrap();
+    ffmpeg(&[
+        "-f",
+        "lavfi",
+        "-i",
+        "testsrc2=size=64x48:rate=5:duration=1",
+        s(&folder.join("img%02d.jpg")),
+    ]);
+    let tags = (1..=5)
+        .map(|i| {
+            let t = tag(i)?;
+            let path = folder.join(format!("img{i:02}.jpg"));
+            let mut bytes = std::fs::read(&path).unwrap();
+            keyframer::geotag::tag_jpeg(&path, &mut bytes, &t).unwrap();
+            std::fs::write(&path, bytes).unwrap();
+            Some(t)
+        })
+        .collect();
+    (folder, tags)
+}

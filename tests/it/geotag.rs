@@ -503,25 +503,10 @@ fn frames_without_position_are_untagged_and_a_known_camera_is_named() {
 /// capture time: an image folder has no creation time), the untagged one counted in one warning.
 #[test]
 fn image_folder_copies_keep_their_exif_and_re_encoded_images_are_tagged() {
-    use keyframer::geotag::{tag_jpeg, GeoTag};
+    use keyframer::geotag::GeoTag;
     let tmp = tempfile::tempdir().unwrap();
-    let folder = tmp.path().join("images");
-    std::fs::create_dir(&folder).unwrap();
-    ffmpeg(&[
-        "-f",
-        "lavfi",
-        "-i",
-        "testsrc2=size=64x48:rate=5:duration=1",
-        s(&folder.join("img%02d.jpg")),
-    ]);
-    let mut truth = Vec::new();
-    for i in 1..=5 {
-        let path = folder.join(format!("img{i:02}.jpg"));
-        if i == 3 {
-            truth.push(None);
-            continue;
-        }
-        let tag = GeoTag {
+    let (folder, tags) = crate::common::tagged_image_folder(tmp.path(), |i| {
+        (i != 3).then(|| GeoTag {
             lat_deg: 51.5 - 1e-4 * i as f64,
             lon_deg: -0.12 - 3e-4 * i as f64,
             alt_m: Some(30.0 + 2.5 * i as f64),
@@ -530,12 +515,9 @@ fn image_folder_copies_keep_their_exif_and_re_encoded_images_are_tagged() {
             make: None,
             model: None,
             source: format!("original {i}"),
-        };
-        let mut bytes = std::fs::read(&path).unwrap();
-        tag_jpeg(&path, &mut bytes, &tag).unwrap();
-        std::fs::write(&path, bytes).unwrap();
-        truth.push(Some(tag));
-    }
+        })
+    });
+    let truth: Vec<_> = tags;
     let project = tmp.path().join("p.json");
     kf_ok(&["select", s(&folder), "--every", "1", "-o", s(&project)]);
 

@@ -67,7 +67,7 @@ fn poses(dir: &Path) -> Vec<(f64, [f64; 7])> {
 }
 
 /// Camera-to-world rotation matrix (rows) of a quaternion (x, y, z, w).
-fn rotation(q: &[f64]) -> [[f64; 3]; 3] {
+pub fn rotation(q: &[f64]) -> [[f64; 3]; 3] {
     let (x, y, z, w) = (q[0], q[1], q[2], q[3]);
     [
         [

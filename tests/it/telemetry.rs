@@ -52,26 +52,9 @@ fn truth(dir: &Path) -> Vec<Truth> {
         .lines()
         .map(|l| {
             let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
-            let (x, y, z, w) = (v[4], v[5], v[6], v[7]);
             Truth {
                 centre: [v[1], v[2], v[3]],
-                rot: [
-                    [
-                        1.0 - 2.0 * (y * y + z * z),
-                        2.0 * (x * y - z * w),
-                        2.0 * (x * z + y * w),
-                    ],
-                    [
-                        2.0 * (x * y + z * w),
-                        1.0 - 2.0 * (x * x + z * z),
-                        2.0 * (y * z - x * w),
-                    ],
-                    [
-                        2.0 * (x * z - y * w),
-                        2.0 * (y * z + x * w),
-                        1.0 - 2.0 * (x * x + y * y),
-                    ],
-                ],
+                rot: crate::scene::rotation(&v[4..8]),
             }
         })
         .collect()
@@ -500,25 +483,10 @@ fn gpx_track_gives_every_frame_its_position() {
 /// gets its image's position; one image without tags has none.
 #[test]
 fn exif_tagged_folder_gives_every_image_its_position() {
-    use keyframer::geotag::{tag_jpeg, GeoTag};
+    use keyframer::geotag::GeoTag;
     let tmp = tempfile::tempdir().unwrap();
-    let folder = tmp.path().join("images");
-    std::fs::create_dir(&folder).unwrap();
-    ffmpeg(&[
-        "-f",
-        "lavfi",
-        "-i",
-        "testsrc2=size=64x48:rate=5:duration=1",
-        s(&folder.join("img%02d.jpg")),
-    ]);
-    let mut truth = Vec::new();
-    for i in 1..=5 {
-        let path = folder.join(format!("img{i:02}.jpg"));
-        if i == 3 {
-            truth.push(None);
-            continue;
-        }
-        let tag = GeoTag {
+    let (folder, tags) = crate::common::tagged_image_folder(tmp.path(), |i| {
+        (i != 3).then(|| GeoTag {
             lat_deg: -33.5 + 1e-4 * i as f64,
             lon_deg: 151.25 - 3e-4 * i as f64,
             alt_m: Some(10.0 * i as f64),
@@ -527,12 +495,12 @@ fn exif_tagged_folder_gives_every_image_its_position() {
             make: None,
             model: None,
             source: format!("test image {i}"),
-        };
-        let mut bytes = std::fs::read(&path).unwrap();
-        tag_jpeg(&path, &mut bytes, &tag).unwrap();
-        std::fs::write(&path, bytes).unwrap();
-        truth.push(Some((tag.lat_deg, tag.lon_deg, tag.alt_m)));
-    }
+        })
+    });
+    let truth: Vec<_> = tags
+        .iter()
+        .map(|t| t.as_ref().map(|t| (t.lat_deg, t.lon_deg, t.alt_m)))
+        .collect();
     let p = tmp.path().join("p.json");
     kf_ok(&["select", s(&folder), "--every", "1", "-o", s(&p)]);
     let got = positions(&p);
