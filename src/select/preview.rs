@@ -2,7 +2,8 @@
 //! with `ffmpeg -skip_frame nokey`), mapped back to the video's frame indices. Much faster than a
 //! full analysis when keyframes are sparse; coarse by construction: only codec keyframes can be
 //! chosen, and counts in frames (every N, blur window, reset delta) count keyframes. The project
-//! is marked `preview`, holds no scores, and is never reused as a cache.
+//! is marked `preview`, holds no scores (only timestamps and, with telemetry, every frame's
+//! position), and is never reused as a cache.
 
 use super::{self as select, SelectReport, SelectSettings};
 use crate::error::{Error, Result};
@@ -100,8 +101,18 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
         (Some(last), Some(fps)) => Some(last + 1.0 / fps),
         _ => None,
     };
+    // Positions for every frame, as a full selection keeps them (export geotags, the map), when
+    // the keyframes had any.
+    let telemetry = match p.cache.telemetry.is_some() {
+        true => {
+            let ts = Some(index.timestamps_s.as_slice());
+            super::telemetry::positions(s, SourceKind::Video, n_all, ts, None)?
+        }
+        false => None,
+    };
     p.cache = Cache {
         timestamps_s: Some(index.timestamps_s.clone()),
+        telemetry,
         ..Cache::default()
     };
     p.preview = true;

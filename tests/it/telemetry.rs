@@ -721,3 +721,27 @@ fn report_flight_map_draws_keyframes_and_footprints_where_the_truth_is() {
         keys.len()
     );
 }
+
+/// `select --preview` keeps every frame's position (for the geotagged export and the map), the
+/// positions a full selection stores.
+#[test]
+fn preview_keeps_every_frames_position() {
+    let dir = oblique();
+    let (full, _) = select(dir, "full-positions.json", &["--every", "30"]);
+    let (preview, keys) = select(
+        dir,
+        "preview-positions.json",
+        &["--preview", "--geo-distance", "20"],
+    );
+    assert!(!keys.is_empty());
+    assert_eq!(json(&preview)["preview"], true);
+    let (a, b) = (positions(&full), positions(&preview));
+    assert_eq!(a.len(), b.len());
+    for (i, (a, b)) in a.iter().zip(&b).enumerate() {
+        let (a, b) = (a.unwrap(), b.expect("a position for every frame"));
+        assert!(
+            (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 1e-9,
+            "frame {i}: {a:?} vs {b:?}"
+        );
+    }
+}
