@@ -39,6 +39,10 @@ pub struct AnalysisSection {
     pub derotate: Option<bool>,
     /// Horizontal field of view in degrees for `derotate` (`--hfov`).
     pub hfov: Option<f64>,
+    /// A telemetry file for every input (`--telemetry`), relative to the workflow file: a GPX
+    /// track that covers the flights, each video placed in it by its creation time. Without it,
+    /// each video's SRT sidecar (or the images' EXIF) is used.
+    pub telemetry: Option<PathBuf>,
     /// Seconds added to a frame's timestamp to find it in the telemetry (`--telemetry-offset`).
     pub telemetry_offset: Option<f64>,
     /// Farnebäck parameters.
@@ -218,6 +222,15 @@ impl Workflow {
             None => BackendChoice::Auto,
             Some(b) => b.parse().map_err(|e| file.error("analysis.backend", e))?,
         };
+        if let Some(t) = &an.telemetry {
+            let dir = file.path().parent().unwrap_or(Path::new("."));
+            if !dir.join(t).is_file() {
+                return Err(file.error(
+                    "analysis.telemetry",
+                    format!("{}: no such telemetry file", dir.join(t).display()),
+                ));
+            }
+        }
         if let Some(o) = an.telemetry_offset.filter(|o| !o.is_finite()) {
             return Err(file.error(
                 "analysis.telemetry_offset",
@@ -526,6 +539,11 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
     }
     if let Some(tel) = &p.cache.telemetry {
         analysis.telemetry_offset = (tel.source.offset_s != 0.0).then_some(tel.source.offset_s);
+        // A GPX track can serve other flights; an SRT belongs to its video (found beside each).
+        if tel.source.kind == crate::source::telemetry::TelemetryKind::Gpx {
+            let dir = project.parent().unwrap_or(Path::new("."));
+            analysis.telemetry = Some(crate::fsutil::absolute(&dir.join(&tel.source.path)));
+        }
     }
     let export = exports
         .iter()

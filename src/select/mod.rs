@@ -83,7 +83,10 @@ impl SelectSettings {
             backend: w.backend,
             adapter: an.adapter,
             images_fps: an.images_fps,
-            telemetry: None,
+            telemetry: an.telemetry.as_ref().map(|t| {
+                let dir = w.path.parent().unwrap_or(Path::new("."));
+                crate::fsutil::absolute(&dir.join(t))
+            }),
             telemetry_offset_s: an.telemetry_offset.unwrap_or(0.0),
             force: true,
             checkpoint_every_s: Self::CHECKPOINT_EVERY_S,

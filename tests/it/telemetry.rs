@@ -472,11 +472,31 @@ fn gpx_track_gives_every_frame_its_position() {
     ]);
     let (_, err) = code_and_stderr(&again);
     assert!(err.contains("reusing the positions"), "{err}");
-    // `workflow save` records the offset (the track itself belongs to this input).
+    // `workflow save` records the track and the offset, and `run` of the workflow places the
+    // video in the track again: the same positions and keyframes.
     let w = tmp.path().join("w.toml");
     kf_ok(&["workflow", "save", s(&p), "-o", s(&w)]);
     let text = std::fs::read_to_string(&w).unwrap();
     assert!(text.contains("telemetry_offset = 0.5"), "{text}");
+    let track = keyframer::fsutil::absolute(&gpx);
+    assert!(
+        text.contains(&format!("telemetry = {:?}", track.display().to_string())),
+        "{text}"
+    );
+    let runs = tmp.path().join("runs");
+    kf_ok(&["run", s(&w), s(&clip), "--out", s(&runs)]);
+    let ran = folder_in(&runs, &clip).join("project.json");
+    assert_eq!(positions(&ran), positions(&p));
+    assert_eq!(keyframes(&ran), keyframes(&p));
+    // A workflow naming a track that is not there is refused with its key.
+    let moved = tmp.path().join("moved.toml");
+    std::fs::write(&moved, text.replace("track.gpx", "gone.gpx")).unwrap();
+    let (code, err) = code_and_stderr(&kf(&["run", s(&moved), s(&clip), "--out", s(&runs)]));
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("analysis.telemetry") && err.contains("gone.gpx"),
+        "{err}"
+    );
 }
 
 /// An image folder whose JPEGs carry EXIF GPS tags (written by keyframer's geotag): each frame
