@@ -150,24 +150,7 @@ pub fn export(
     check_size(settings, size)?;
     let is_video = meta.kind == SourceKind::Video;
     let names = output_names(&project, src.as_ref(), settings, is_video)?;
-    let geo = match &project.cache.telemetry {
-        Some(tel) if settings.geotag => Some(Geo::new(
-            tel,
-            &project.keyframes,
-            &input,
-            src.as_ref(),
-            is_video,
-        )),
-        _ => None,
-    };
-    if geo.is_some()
-        && !byte_copy(src.as_ref(), settings, is_video)
-        && names.iter().any(|n| format_of(n) == Format::Png)
-    {
-        log::warn!(
-            "PNG images are not geotagged (EXIF inside PNG is a text chunk photogrammetry tools do not read); manifest.json lists their positions"
-        );
-    }
+    let geo = geo_of(&project, &input, src.as_ref(), settings, &names);
     let network = match &settings.masks {
         Some(m) => Some(crate::model_desc::ModelDesc::load(&m.model)?.model),
         None => None,
@@ -213,20 +196,38 @@ pub fn export(
         mask_ms_per_image: masker.as_ref().and_then(|m| m.seg.ms_per_image()),
     };
     write_manifest(out, &manifest)?;
-    if geo.is_some() {
-        let unplaced = manifest
-            .frames
-            .iter()
-            .filter(|f| f.position.is_none())
-            .count();
-        if unplaced > 0 {
-            log::warn!(
-                "{unplaced} of the {} exported images have no telemetry position (outside the telemetry's time span or without GPS tags): they carry no geotag and manifest.json lists no position for them",
-                manifest.frames.len()
-            );
-        }
+    let unplaced = manifest.frames.iter().filter(|f| f.position.is_none());
+    match (geo.is_some(), unplaced.count()) {
+        (true, n) if n > 0 => log::warn!(
+            "{n} of the {} exported images have no telemetry position (outside the telemetry's time span or without GPS tags): they carry no geotag and manifest.json lists no position for them",
+            manifest.frames.len()
+        ),
+        _ => {}
     }
     Ok(manifest)
+}
+
+/// The geotags of the keyframes when the project has positions and `settings` wants them;
+/// warns once that PNG images are not tagged.
+fn geo_of<'a>(
+    project: &'a Project,
+    input: &Path,
+    src: &dyn source::FrameSource,
+    settings: &ExportSettings,
+    names: &[String],
+) -> Option<Geo<'a>> {
+    let tel = project
+        .cache
+        .telemetry
+        .as_ref()
+        .filter(|_| settings.geotag)?;
+    let is_video = src.metadata().kind == SourceKind::Video;
+    if !byte_copy(src, settings, is_video) && names.iter().any(|n| format_of(n) == Format::Png) {
+        log::warn!(
+            "PNG images are not geotagged (EXIF inside PNG is a text chunk photogrammetry tools do not read); manifest.json lists their positions"
+        );
+    }
+    Some(Geo::new(tel, &project.keyframes, input, src, is_video))
 }
 
 /// What the JPEGs of one export are geotagged with: the project's positions and what every frame

@@ -78,19 +78,7 @@ pub(crate) fn positions(
         }
         return Ok(None);
     };
-    let project_dir = fsutil::absolute(&s.output)
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_default();
-    let source = TelemetrySource {
-        path: fsutil::relative_to(&file, &project_dir),
-        kind: tkind,
-        offset_s: s.telemetry_offset_s,
-        fingerprint: match tkind {
-            TelemetryKind::Exif => None,
-            _ => Some(fsutil::fingerprint_file(&file)?),
-        },
-    };
+    let source = source_of(s, &file, tkind)?;
     if let Some(c) = cached.filter(|c| c.source == source && c.positions.len() == frames) {
         log::info!(
             "reusing the positions from {} cached in {} (unchanged)",
@@ -140,18 +128,42 @@ pub(crate) fn positions(
         }
         return Ok(None);
     }
-    let camera = match kind {
-        SourceKind::Video => telemetry::camera_of(&s.input, false),
-        SourceKind::Image => telemetry::camera_of(&s.input, true),
-        SourceKind::Images => (source::folder_images(&s.input)?.first())
-            .and_then(|first| telemetry::camera_of(first, true)),
-    };
     Ok(Some(TelemetryCache {
         source,
         warnings,
         positions,
-        camera: camera.map(|c| c.name.to_string()),
+        camera: camera_of(&s.input, kind)?,
     }))
+}
+
+/// Where the positions come from, as the project records it: `file` relative to the project's
+/// folder, its kind, the offset and (except for EXIF) the file's fingerprint.
+fn source_of(s: &SelectSettings, file: &Path, kind: TelemetryKind) -> Result<TelemetrySource> {
+    let project_dir = fsutil::absolute(&s.output)
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    Ok(TelemetrySource {
+        path: fsutil::relative_to(file, &project_dir),
+        kind,
+        offset_s: s.telemetry_offset_s,
+        fingerprint: match kind {
+            TelemetryKind::Exif => None,
+            _ => Some(fsutil::fingerprint_file(file)?),
+        },
+    })
+}
+
+/// The known camera ([`telemetry::CAMERAS`]) the video's container tags or the (first) image's
+/// EXIF name.
+fn camera_of(input: &Path, kind: SourceKind) -> Result<Option<String>> {
+    let camera = match kind {
+        SourceKind::Video => telemetry::camera_of(input, false),
+        SourceKind::Image => telemetry::camera_of(input, true),
+        SourceKind::Images => (source::folder_images(input)?.first())
+            .and_then(|first| telemetry::camera_of(first, true)),
+    };
+    Ok(camera.map(|c| c.name.to_string()))
 }
 
 /// Reads a DJI SRT (its times shifted by the offset) or a GPX track (timed from the video's
