@@ -266,8 +266,14 @@ impl Pump<'_, '_> {
                     }
                 }
                 Decoded::Frame(f, gray) => {
-                    for r in self.hand_off.frame(f, gray)? {
+                    let ready = self.hand_off.frame(f, gray)?;
+                    let submitted = !ready.is_empty();
+                    for r in ready {
                         self.take(r)?;
+                    }
+                    // Staged scores can only have landed after a batch went in.
+                    if submitted {
+                        self.scores(false)?;
                     }
                 }
             }
@@ -284,7 +290,6 @@ impl Pump<'_, '_> {
         if let (Some(m), Some(px)) = (self.moving.as_deref_mut(), r.pixels) {
             m.step(i, px)?;
         }
-        self.scores(false)?;
         if let Some(w) = self.worker {
             w.send(r.frame, &mut self.done.scores)?;
         }

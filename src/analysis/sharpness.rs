@@ -233,6 +233,9 @@ fn work(
             engine.submit(&pending)?;
             queued.extend(pending.drain(..).map(|f| f.index));
         }
+        if !full {
+            continue;
+        }
         for s in engine.take(all)? {
             let Some(index) = queued.pop_front() else {
                 return Err(Error::Gpu(

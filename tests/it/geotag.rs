@@ -61,17 +61,12 @@ fn truth(dir: &Path) -> Vec<Truth> {
     let given: Vec<f64> = ORIGIN.split(',').map(|x| x.parse().unwrap()).collect();
     assert_eq!(given, [lat0, lon0, alt0]);
     let (meridian, prime) = wgs84_radii(lat0);
-    std::fs::read_to_string(dir.join("poses.tum"))
-        .unwrap()
-        .lines()
-        .map(|l| {
-            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
-            Truth {
-                t_s: v[0],
-                lat_deg: lat0 + (v[2] / meridian).to_degrees(),
-                lon_deg: lon0 + (v[1] / (prime * lat0.to_radians().cos())).to_degrees(),
-                alt_m: alt0 + v[3],
-            }
+    (crate::scene::poses(dir).into_iter())
+        .map(|(t_s, v)| Truth {
+            t_s,
+            lat_deg: lat0 + (v[1] / meridian).to_degrees(),
+            lon_deg: lon0 + (v[0] / (prime * lat0.to_radians().cos())).to_degrees(),
+            alt_m: alt0 + v[2],
         })
         .collect()
 }

@@ -54,7 +54,7 @@ fn decode(video: &Path) -> Vec<Mat> {
 }
 
 /// (timestamp, [tx ty tz qx qy qz qw]) per line of poses.tum.
-fn poses(dir: &Path) -> Vec<(f64, [f64; 7])> {
+pub fn poses(dir: &Path) -> Vec<(f64, [f64; 7])> {
     std::fs::read_to_string(dir.join("poses.tum"))
         .unwrap()
         .lines()

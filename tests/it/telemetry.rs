@@ -47,15 +47,10 @@ struct Truth {
 }
 
 fn truth(dir: &Path) -> Vec<Truth> {
-    std::fs::read_to_string(dir.join("poses.tum"))
-        .unwrap()
-        .lines()
-        .map(|l| {
-            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
-            Truth {
-                centre: [v[1], v[2], v[3]],
-                rot: crate::scene::rotation(&v[4..8]),
-            }
+    (crate::scene::poses(dir).into_iter())
+        .map(|(_, v)| Truth {
+            centre: [v[0], v[1], v[2]],
+            rot: crate::scene::rotation(&v[3..7]),
         })
         .collect()
 }
