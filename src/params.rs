@@ -287,6 +287,58 @@ pub struct MovementRequest {
     pub derotate: Option<Derotate>,
 }
 
+impl MovementRequest {
+    /// The `select` flags that measure movement this way (Farnebäck parameters only where they
+    /// differ from the defaults). `--hfov` is shared with the footprint step's field of view.
+    pub fn to_flags(&self) -> Vec<String> {
+        let (statistic, trim) = self.statistic.to_flag();
+        let (f, d) = (self.farneback, FarnebackParams::default());
+        let mut pairs = vec![
+            ("movement", Some(statistic.to_string())),
+            ("trim", trim.map(|t| t.to_string())),
+            ("analysis-width", Some(self.analysis_width.to_string())),
+            ("flow-stride", Some(self.stride.to_string())),
+            ("hfov", self.derotate.map(|r| r.hfov_deg.to_string())),
+        ];
+        let farneback = [
+            (
+                "pyr-scale",
+                f.pyr_scale.to_string(),
+                d.pyr_scale.to_string(),
+            ),
+            ("levels", f.levels.to_string(), d.levels.to_string()),
+            ("winsize", f.winsize.to_string(), d.winsize.to_string()),
+            (
+                "iterations",
+                f.iterations.to_string(),
+                d.iterations.to_string(),
+            ),
+            ("poly-n", f.poly_n.to_string(), d.poly_n.to_string()),
+            (
+                "poly-sigma",
+                f.poly_sigma.to_string(),
+                d.poly_sigma.to_string(),
+            ),
+        ];
+        pairs.extend(farneback.map(|(k, v, default)| (k, (v != default).then_some(v))));
+        let mut out: Vec<String> = (pairs.into_iter())
+            .filter_map(|(k, v)| Some([format!("--{k}"), v?]))
+            .flatten()
+            .collect();
+        let switches = [
+            ("derotate", self.derotate.is_some()),
+            ("gaussian", f.gaussian),
+        ];
+        out.extend(
+            switches
+                .iter()
+                .filter(|s| s.1)
+                .map(|s| format!("--{}", s.0)),
+        );
+        out
+    }
+}
+
 fn one() -> u32 {
     1
 }

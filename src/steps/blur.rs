@@ -13,17 +13,21 @@ use serde::{Deserialize, Serialize};
 pub const FLAGS: &[Flag] = &[
     Flag::switch("blur", "Drop (filter) or replace blurry keyframes, after --every/--fps"),
     Flag::value::<Metric>("blur-metric", "METRIC", "Sharpness metric: tenengrad, laplacian (= laplacian-k1) or laplacian-k3")
-        .default("tenengrad"),
+        .default("tenengrad")
+        .sets("blur", "metric"),
     Flag::value::<usize>("blur-window", "W", "Half-width of the comparison window, in frames")
-        .default("10"),
+        .default("10")
+        .sets("blur", "window"),
     Flag::value::<f64>("blur-ratio", "RATIO", "Filter mode keeps a frame iff its score >= RATIO x the mean score within the window")
-        .default("0.8"),
+        .default("0.8")
+        .sets("blur", "ratio"),
     Flag::value::<BlurMode>("blur-mode", "BLUR_MODE", "filter: drop blurry keyframes; replace: move each keyframe to the sharpest frame in its window (never onto or across another keyframe)")
         .default("filter")
         .choices(&[
             ("filter", "Drop blurry keyframes"),
             ("replace", "Move keyframes to the sharpest nearby frame"),
-        ]),
+        ])
+        .sets("blur", "mode"),
 ];
 
 /// The step when `--blur` is given.

@@ -13,12 +13,14 @@ pub const FLAGS: &[Flag] = &[
         "start",
         "FRAME|SECONDSs",
         "First frame to consider: a frame index (`120`) or a time (`4.5s`)",
-    ),
+    )
+    .sets("boundaries", "start"),
     Flag::value::<Bound>(
         "end",
         "FRAME|SECONDSs",
         "Last frame to consider, inclusive: a frame index or a time",
-    ),
+    )
+    .sets("boundaries", "end"),
 ];
 
 /// The step when `--start` or `--end` is given.

@@ -10,13 +10,15 @@ pub const FLAGS: &[Flag] = &[
         "I,J,..",
         "Frames to add after sampling (comma-separated indices)",
     )
-    .list(),
+    .list()
+    .sets("manual", "add"),
     Flag::value::<usize>(
         "remove",
         "I,J,..",
         "Frames to remove after sampling (comma-separated indices)",
     )
-    .list(),
+    .list()
+    .sets("manual", "remove"),
 ];
 
 /// The step when `--add` or `--remove` is given.

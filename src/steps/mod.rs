@@ -175,6 +175,53 @@ pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
     Ok(steps)
 }
 
+impl Step {
+    /// The command-line flags that give this step, the inverse of [`from_flags`]: each
+    /// parameter goes through the flag that [`Flag::sets`] it (a switch that sets it stands for
+    /// the value that is its name: `--auto`), `--{plugin}` when that is a switch, and `--{key}`
+    /// for a parameter no step flag sets (`--hfov`, which `select` reads as a movement flag).
+    /// Unset parameters are left out, so `select` gives them its defaults.
+    pub fn to_flags(&self) -> Vec<String> {
+        let id = self.id();
+        let mut out = Vec::new();
+        if flags().any(|f| f.long == id && f.value_name.is_none()) {
+            out.push(format!("--{id}"));
+        }
+        let value = serde_json::to_value(self).unwrap_or_default();
+        let params = value
+            .get(id)
+            .and_then(|p| p.as_object())
+            .into_iter()
+            .flatten();
+        for (key, v) in params.filter(|(_, v)| !v.is_null()) {
+            let text = match v {
+                serde_json::Value::String(s) => s.clone(),
+                serde_json::Value::Array(a) => a
+                    .iter()
+                    .map(|x| x.to_string())
+                    .collect::<Vec<_>>()
+                    .join(","),
+                other => other.to_string(),
+            };
+            let setters = || flags().filter(|f| f.sets.is_some_and(|s| s == (id, key.as_str())));
+            match setters().find(|f| f.value_name.is_none() && f.long == text) {
+                Some(switch) => out.push(format!("--{}", switch.long)),
+                None => {
+                    let long = setters()
+                        .find(|f| f.value_name.is_some())
+                        .map(|f| f.long.to_string());
+                    out.push(format!(
+                        "--{}",
+                        long.unwrap_or_else(|| key.replace('_', "-"))
+                    ));
+                    out.push(text);
+                }
+            }
+        }
+        out
+    }
+}
+
 /// A step's parameter error, naming the flag that sets the parameter when there is one.
 fn flag_error(e: StepError) -> Error {
     match flags().find(|f| f.sets == Some((e.plugin, e.key))) {
@@ -719,6 +766,110 @@ mod tests {
             mode: None,
         };
         assert_eq!(steps[1].blur_params(), blur.blur_params());
+    }
+
+    /// `args` as the command line hands them to [`from_flags`] (as `cli::StepArgs`: defaults,
+    /// switches without a value, lists split at commas); `--hfov` is a movement flag that
+    /// `select` puts into the footprint step.
+    fn parse_flags(args: &[String]) -> Vec<Step> {
+        let mut v = FlagValues::default();
+        for f in flags().filter(|f| f.default.is_some()) {
+            v.set(f.long, vec![f.default.unwrap().to_string()]);
+        }
+        let (mut hfov, mut i) = (None, 0);
+        while i < args.len() {
+            let long = args[i].strip_prefix("--").unwrap();
+            if long == "hfov" {
+                hfov = Some(args[i + 1].parse::<f64>().unwrap());
+                i += 2;
+                continue;
+            }
+            let f = flags().find(|f| f.long == long).unwrap();
+            let values = match f.value_name {
+                None => Vec::new(),
+                Some(_) if f.list => args[i + 1].split(',').map(String::from).collect(),
+                Some(_) => vec![args[i + 1].clone()],
+            };
+            if let Some(check) = f.check {
+                values.iter().for_each(|x| check(x).unwrap());
+            }
+            i += 1 + usize::from(f.value_name.is_some());
+            v.set(f.long, values);
+        }
+        let mut steps = from_flags(&v).unwrap();
+        for s in &mut steps {
+            if let Step::FootprintOverlap { hfov: h, .. } = s {
+                *h = hfov;
+            }
+        }
+        steps
+    }
+
+    #[test]
+    fn to_flags_gives_the_step_back_through_the_flags() {
+        use crate::params::Metric;
+        let bound = |t: &str| Some(BoundArg(t.parse().unwrap()));
+        let steps = [
+            Step::Boundaries {
+                start: bound("12"),
+                end: bound("4.25s"),
+            },
+            Step::Stationary {
+                threshold: Some(Threshold::Px(7.5)),
+                reset_delta: Some(9),
+            },
+            Step::Stationary {
+                threshold: Some(Threshold::Auto),
+                reset_delta: Some(3),
+            },
+            Step::Spacing {
+                threshold: Threshold::Px(0.1 + 0.2),
+            },
+            Step::Spacing {
+                threshold: Threshold::Auto,
+            },
+            Step::Spacing {
+                threshold: Threshold::Count(60),
+            },
+            Step::GeoDistance { metres: 12.5 },
+            Step::FootprintOverlap {
+                percent: 70.0,
+                hfov: Some(84.5),
+            },
+            Step::FootprintOverlap {
+                percent: 35.5,
+                hfov: None,
+            },
+            Step::EveryNth { n: 7 },
+            Step::Fps { fps: 29.97 },
+            Step::Blur {
+                metric: Some(Metric::Laplacian { ksize: 3 }),
+                window: Some(4),
+                ratio: Some(0.65),
+                mode: Some(BlurMode::Replace),
+            },
+            Step::Manual {
+                add: vec![3, 60, 61],
+                remove: vec![5],
+            },
+        ];
+        for step in steps {
+            let flags = step.to_flags();
+            assert_eq!(
+                parse_flags(&flags),
+                std::slice::from_ref(&step),
+                "{flags:?}"
+            );
+        }
+        let auto = Step::Stationary {
+            threshold: Some(Threshold::Auto),
+            reset_delta: None,
+        };
+        assert_eq!(auto.to_flags(), ["--stationary", "--auto"]);
+        let count = Step::Spacing {
+            threshold: Threshold::Count(60),
+        };
+        assert_eq!(count.to_flags(), ["--spacing", "60kf"]);
     }
 
     #[test]

@@ -11,7 +11,8 @@ pub const FLAGS: &[Flag] = &[Flag::value::<Threshold>(
     "spacing",
     "PX|Nkf|auto",
     "Even camera movement: keep a frame each time the movement accumulated since the last keyframe reaches PX full-resolution pixels (`auto`: proposed from a sample, explained; `60kf`: the threshold that keeps 60 keyframes)",
-)];
+)
+.sets("spacing", "threshold")];
 
 /// The step when `--spacing` is given.
 pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {

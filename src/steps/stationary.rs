@@ -15,7 +15,8 @@ pub const FLAGS: &[Flag] = &[
     Flag::value::<usize>("reset-delta", "N", "Frames after which the stationary reference frame is re-anchored (carrying the movement accumulated so far), so flow is never asked across a larger gap")
         .default("15")
         .sets("stationary", "reset_delta"),
-    Flag::switch("auto", "Propose the stationary threshold from a sample of 40 frame pairs (explained on stderr)"),
+    Flag::switch("auto", "Propose the stationary threshold from a sample of 40 frame pairs (explained on stderr)")
+        .sets("stationary", "threshold"),
 ];
 
 /// The step when `--stationary` is given.

@@ -252,3 +252,50 @@ fn spacing_evens_out_camera_displacement() {
         "{err}"
     );
 }
+
+/// The flags `MovementRequest::to_flags` and `Step::to_flags` write give `select` the same
+/// movement measure and steps: the project records them as given.
+#[test]
+fn to_flags_give_select_the_same_request_and_steps() {
+    use keyframer::params::{Derotate, FarnebackParams, MovementRequest, Statistic};
+    use keyframer::steps::{Applied, Step, Threshold};
+    let d = tempfile::tempdir().unwrap();
+    let clip = testsrc(d.path(), "clip.mp4", 160, 120, "30", 1.0);
+    let project = d.path().join("p.json");
+    let request = MovementRequest {
+        farneback: FarnebackParams {
+            levels: 2,
+            poly_n: 7,
+            poly_sigma: 1.5,
+            gaussian: true,
+            ..FarnebackParams::default()
+        },
+        statistic: Statistic::TrimmedMean { trim: 0.2 },
+        analysis_width: 96,
+        stride: 3,
+        derotate: Some(Derotate { hfov_deg: 80.5 }),
+    };
+    let steps = [
+        Step::Spacing {
+            threshold: Threshold::Px(3.25),
+        },
+        Step::Manual {
+            add: vec![7, 8],
+            remove: Vec::new(),
+        },
+    ];
+    let mut flags = request.to_flags();
+    flags.extend(steps.iter().flat_map(Step::to_flags));
+    let mut args = vec!["select", s(&clip), "-o", s(&project), "--backend", "opencv"];
+    args.extend(flags.iter().map(String::as_str));
+    kf_ok(&args);
+    let p = keyframer::project::Project::load(&project).unwrap();
+    let applied: Vec<Applied> = p
+        .history
+        .iter()
+        .map(|e| Applied::from_entry(e).unwrap())
+        .collect();
+    let spacing = applied.iter().find(|a| a.step() == Some(steps[0].clone()));
+    assert_eq!(spacing.unwrap().analysis().1, Some(request), "{flags:?}");
+    assert!(applied.iter().any(|a| a.step() == Some(steps[1].clone())));
+}
