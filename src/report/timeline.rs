@@ -4,8 +4,7 @@
 use crate::error::{Error, Result};
 use crate::params::Metric;
 use crate::project::{MovementCache, Project};
-use crate::steps::Applied;
-use crate::steps::{blur, spacing, BlurMode};
+use crate::steps::{blur, geo_distance, spacing, Applied, BlurMode, HistoryEntry};
 use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
@@ -90,16 +89,62 @@ pub struct Timeline {
     pub range: Option<(usize, usize)>,
     /// What the project does not contain (shown on the page).
     pub missing: Vec<String>,
+    /// The frames shown, `from..=to` (all of them unless [`Timeline::view`] narrowed it).
+    pub view: (usize, usize),
 }
 
-/// x pixel of frame `f` of `n` frames: frame 0 at `LEFT`, the last frame at `WIDTH - RIGHT - 1`,
-/// rounded to whole pixels so that bars are crisp.
-pub fn frame_x(f: usize, n: usize) -> i32 {
-    let span = f64::from(WIDTH - LEFT - RIGHT - 1);
-    if n <= 1 {
-        return (f64::from(LEFT) + span / 2.0).round() as i32;
+/// Where the frames lie on the x axis: frame `from` at `left`, frame `to` at `left + span`,
+/// linear in between (a client maps a pixel back with [`Layout::frame_at`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Layout {
+    /// x pixel of the first frame shown.
+    pub left: u32,
+    /// Pixels from the first frame shown to the last.
+    pub span: u32,
+    /// Width of the drawing.
+    pub width: u32,
+    /// First frame shown.
+    pub from: usize,
+    /// Last frame shown (inclusive).
+    pub to: usize,
+}
+
+impl Layout {
+    /// The layout showing frames `from..=to`.
+    pub fn new(from: usize, to: usize) -> Layout {
+        let span = WIDTH - LEFT - RIGHT - 1;
+        Layout {
+            left: LEFT,
+            span,
+            width: WIDTH,
+            from,
+            to,
+        }
     }
-    (f64::from(LEFT) + f as f64 * span / (n - 1) as f64).round() as i32
+
+    /// x pixel of frame `f`, rounded to whole pixels so that bars are crisp (a single frame
+    /// shown sits in the middle).
+    pub fn x(&self, f: usize) -> i32 {
+        let (left, span) = (f64::from(self.left), f64::from(self.span));
+        if self.to <= self.from {
+            return (left + span / 2.0).round() as i32;
+        }
+        let at = (f as f64 - self.from as f64) * span / (self.to - self.from) as f64;
+        (left + at).round() as i32
+    }
+
+    /// The frame shown nearest to pixel `x`.
+    pub fn frame_at(&self, x: f64) -> usize {
+        let frames = (self.to.saturating_sub(self.from)) as f64;
+        let f = ((x - f64::from(self.left)) * frames / f64::from(self.span)).round();
+        self.from + (f.max(0.0) as usize).min(self.to.saturating_sub(self.from))
+    }
+}
+
+/// x pixel of frame `f` of `n` frames with all of them shown: frame 0 at `LEFT`, the last frame
+/// at `WIDTH - RIGHT - 1`.
+pub fn frame_x(f: usize, n: usize) -> i32 {
+    Layout::new(0, n.saturating_sub(1)).x(f)
 }
 
 /// Total height for `panels` panels.
@@ -125,9 +170,20 @@ pub fn panel_spans(panels: usize) -> impl Iterator<Item = (u32, u32)> {
 
 impl Timeline {
     /// Builds the timeline of `project`: sharpness per metric (with the blur threshold), movement
-    /// between consecutive frames, and movement accumulated since the previous keyframe (with the
-    /// spacing and stationary thresholds).
+    /// between consecutive frames, movement accumulated since the previous keyframe (with the
+    /// spacing and stationary thresholds) and, with telemetry, metres moved since the previous
+    /// keyframe (with the geo-distance threshold).
     pub fn from_project(project: &Project) -> Timeline {
+        Timeline::from_selection(project, &project.keyframes, &project.history)
+    }
+
+    /// The timeline of `project`'s cache for another selection: `keyframes` chosen by steps
+    /// recorded as `history`, whose thresholds it draws.
+    pub fn from_selection(
+        project: &Project,
+        keyframes: &[usize],
+        history: &[HistoryEntry],
+    ) -> Timeline {
         let n = project.metadata.frame_count;
         let cache = &project.cache;
         let range = project
@@ -135,7 +191,7 @@ impl Timeline {
             .candidates(n, cache.timestamps_s.as_deref())
             .ok()
             .and_then(|c| Some((*c.first()?, *c.last()?)));
-        let recorded = Recorded::of(project);
+        let recorded = Recorded::of(history);
         let mut panels = Vec::new();
         let mut missing = Vec::new();
         let how = |what: &str| match project.preview {
@@ -148,11 +204,19 @@ impl Timeline {
             panels.push(sharpness_panel(project, &recorded, range));
         }
         match cache.movement.first() {
-            Some(m) => panels.extend(movement_panels(project, m, &recorded, range)),
+            Some(m) => panels.extend(movement_panels(m, keyframes, &recorded, (n, range))),
             None => missing.push(format!(
                 "camera movement ({})",
                 how("--spacing or --stationary")
             )),
+        }
+        if let Some(t) = &cache.telemetry {
+            panels.push(telemetry_panel(
+                &t.positions,
+                keyframes,
+                &recorded,
+                (n, range),
+            ));
         }
         if cache.timestamps_s.is_none() {
             missing.push("timestamps (an image folder without --images-fps)".to_string());
@@ -168,19 +232,40 @@ impl Timeline {
             frames: n,
             timestamps_s: cache.timestamps_s.clone(),
             panels,
-            keyframes: project.keyframes.clone(),
+            keyframes: keyframes.to_vec(),
             range,
             missing,
+            view: (0, n.saturating_sub(1)),
         }
+    }
+
+    /// The same timeline showing only frames `from..=to` (clamped to the input), for zooming.
+    pub fn view(self, from: usize, to: usize) -> Timeline {
+        let to = to.min(self.frames.saturating_sub(1));
+        Timeline {
+            view: (from.min(to), to),
+            ..self
+        }
+    }
+
+    /// Where the frames shown lie on the x axis.
+    pub fn layout(&self) -> Layout {
+        Layout::new(self.view.0, self.view.1)
+    }
+
+    /// The keyframes shown.
+    fn keyframes_shown(&self) -> impl Iterator<Item = usize> + '_ {
+        let (from, to) = self.view;
+        self.keyframes
+            .iter()
+            .copied()
+            .filter(move |k| (from..=to).contains(k))
     }
 
     /// Distinct x pixels of the keyframe bars (keyframes closer than a pixel share one).
     pub fn bar_columns(&self) -> Vec<i32> {
-        let mut xs: Vec<i32> = self
-            .keyframes
-            .iter()
-            .map(|&k| frame_x(k, self.frames))
-            .collect();
+        let layout = self.layout();
+        let mut xs: Vec<i32> = self.keyframes_shown().map(|k| layout.x(k)).collect();
         xs.dedup();
         xs
     }
@@ -191,19 +276,19 @@ impl Timeline {
         top + f64::from(PANEL_H) * (1.0 - (v / max).clamp(0.0, 1.0))
     }
 
-    /// Polyline runs (broken at missing values) of curve `c` of panel `i`; long inputs are reduced
-    /// to the minimum and maximum of each pixel column.
+    /// Polyline runs (broken at missing values) of curve `c` of panel `i` over the frames shown;
+    /// long views are reduced to the minimum and maximum of each pixel column.
     pub fn polylines(&self, i: usize, c: &Curve, max: f64) -> Vec<Vec<(f64, f64)>> {
-        let n = self.frames.min(c.values.len());
+        let (layout, n) = (self.layout(), (self.view.1 + 1).min(c.values.len()));
         let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
         let mut cur: Vec<(f64, f64)> = Vec::new();
-        let dense = n > 2 * (WIDTH - LEFT - RIGHT) as usize;
-        let mut f = 0;
+        let dense = n.saturating_sub(self.view.0) > 2 * (WIDTH - LEFT - RIGHT) as usize;
+        let mut f = self.view.0;
         while f < n {
-            let x = frame_x(f, self.frames);
+            let x = layout.x(f);
             let mut end = f + 1;
             if dense {
-                while end < n && frame_x(end, self.frames) == x {
+                while end < n && layout.x(end) == x {
                     end += 1;
                 }
             }
@@ -233,10 +318,10 @@ impl Timeline {
         runs
     }
 
-    /// Frame-axis ticks: about eight round frame numbers.
+    /// Frame-axis ticks: about eight round frame numbers among the frames shown.
     pub fn ticks(&self) -> Vec<usize> {
-        let n = self.frames.max(1);
-        let raw = n as f64 / 8.0;
+        let (from, to) = self.view;
+        let raw = (to - from + 1) as f64 / 8.0;
         let mag = 10f64.powf(raw.max(1.0).log10().floor());
         let step = [1.0, 2.0, 5.0, 10.0]
             .iter()
@@ -244,7 +329,7 @@ impl Timeline {
             .find(|s| *s >= raw)
             .unwrap_or(10.0 * mag)
             .max(1.0) as usize;
-        (0..n).step_by(step).collect()
+        (from.div_ceil(step) * step..=to).step_by(step).collect()
     }
 
     fn tick_label(&self, f: usize) -> String {
@@ -265,9 +350,9 @@ impl Timeline {
         );
         s.push('\n');
         s.push_str(&svg_layer(h, |root| self.draw(root))?);
-        let mut last = None;
-        for &k in &self.keyframes {
-            let x = frame_x(k, n);
+        let (mut last, layout) = (None, self.layout());
+        for k in self.keyframes_shown() {
+            let x = layout.x(k);
             s.push_str(&format!(
                 r#"<g class="kf" data-frame="{k}" fill="{}">"#,
                 hex(KEYFRAME_RGB)
@@ -325,16 +410,17 @@ impl Timeline {
         self.draw_frame_axis(root)
     }
 
-    /// x pixel of the last frame.
+    /// x pixel of the last frame shown.
     fn x_end(&self) -> i32 {
-        frame_x(self.frames.saturating_sub(1), self.frames)
+        self.layout().x(self.view.1)
     }
 
     /// Shading of every panel's plot area outside the sampled range.
     fn draw_shading<DB: DrawingBackend>(&self, root: &Area<DB>) -> Drawn<DB> {
         if let Some((lo, hi)) = self.range {
-            let (lo_x, after_hi) = (frame_x(lo, self.frames), frame_x(hi, self.frames) + 1);
-            for (a, b) in [(LEFT as i32, lo_x), (after_hi, self.x_end() + 1)] {
+            let (layout, x_end) = (self.layout(), self.x_end());
+            let (lo_x, after_hi) = (layout.x(lo).min(x_end + 1), layout.x(hi) + 1);
+            for (a, b) in [(LEFT as i32, lo_x), (after_hi.max(LEFT as i32), x_end + 1)] {
                 for (y0, y1) in panel_spans(self.panels.len()).filter(|_| b > a) {
                     let shade = [(a, y0 as i32), (b, y1 as i32)];
                     root.draw(&Rectangle::new(shade, rgb(BOUNDARY_RGB).filled()))?;
@@ -390,7 +476,7 @@ impl Timeline {
         let by1 = bars_y(self.panels.len()).1 as i32;
         let centre = || axis_text(Pos::new(HPos::Center, VPos::Top));
         for t in self.ticks() {
-            let x = frame_x(t, self.frames);
+            let x = self.layout().x(t);
             let tick = vec![(x, by1), (x, by1 + 4)];
             root.draw(&PathElement::new(tick, rgb(AXIS_RGB)))?;
             root.draw(&Text::new(self.tick_label(t), (x, by1 + 6), centre()))?;
@@ -414,21 +500,21 @@ impl Timeline {
     }
 }
 
-/// The thresholds the project's last recorded steps used (a project is validated when loaded,
-/// so every history entry reads as an `Applied`).
+/// The thresholds the last recorded steps used (a project is validated when loaded, so every
+/// history entry reads as an `Applied`).
 struct Recorded {
     blur: Option<RecordedBlur>,
     spacing: Option<Option<f64>>,
     stationary: Option<Option<f64>>,
+    geo_distance: Option<f64>,
 }
 
 /// A blur step's metric, mode, ratio and window as recorded.
 type RecordedBlur = (Option<Metric>, Option<BlurMode>, Option<f64>, Option<usize>);
 
 impl Recorded {
-    fn of(project: &Project) -> Recorded {
-        let applied: Vec<Applied> = project
-            .history
+    fn of(history: &[HistoryEntry]) -> Recorded {
+        let applied: Vec<Applied> = history
             .iter()
             .filter_map(|e| Applied::from_entry(e).ok())
             .collect();
@@ -449,6 +535,10 @@ impl Recorded {
             }),
             stationary: applied.iter().rev().find_map(|a| match a {
                 Applied::Stationary { threshold_px, .. } => Some(*threshold_px),
+                _ => None,
+            }),
+            geo_distance: applied.iter().rev().find_map(|a| match a {
+                Applied::GeoDistance { metres } => Some(*metres),
                 _ => None,
             }),
         }
@@ -508,12 +598,11 @@ fn sharpness_panel(project: &Project, r: &Recorded, range: Option<(usize, usize)
 /// The movement between consecutive frames, and the movement accumulated since the previous
 /// keyframe with the spacing and stationary thresholds.
 fn movement_panels(
-    project: &Project,
     m: &MovementCache,
+    keyframes: &[usize],
     r: &Recorded,
-    range: Option<(usize, usize)>,
+    (n, range): (usize, Option<(usize, usize)>),
 ) -> [Panel; 2] {
-    let n = project.metadata.frame_count;
     let v = &m.series.values;
     let movement = Panel {
         title: format!(
@@ -537,20 +626,19 @@ fn movement_panels(
         name: "movement accumulated since the previous keyframe".into(),
         rgb: ACCUMULATED_RGB,
         dashed: false,
-        values: spacing::accumulated(v, &project.keyframes, range),
+        values: spacing::accumulated(v, keyframes, range),
     }];
     for (id, threshold, rgb) in [
         ("spacing", r.spacing, THRESHOLD_RGB[1]),
         ("stationary", r.stationary, THRESHOLD_RGB[2]),
     ] {
-        if let Some(t) = threshold.flatten() {
-            curves.push(Curve {
-                name: format!("{id} threshold {t:.1} px"),
-                rgb,
-                dashed: true,
-                values: spacing::threshold_series(n, range, t),
-            });
-        }
+        curves.extend(threshold_curve(
+            id,
+            threshold.flatten(),
+            "px",
+            rgb,
+            (n, range),
+        ));
     }
     let accumulated = Panel {
         title: "Movement accumulated since the previous keyframe (spacing keeps a frame when it reaches its threshold)".into(),
@@ -558,6 +646,46 @@ fn movement_panels(
         curves,
     };
     [movement, accumulated]
+}
+
+/// A threshold as a dashed curve over `frames` frames, when the steps used one.
+fn threshold_curve(
+    id: &str,
+    threshold: Option<f64>,
+    unit: &str,
+    rgb: [u8; 3],
+    (frames, range): (usize, Option<(usize, usize)>),
+) -> Option<Curve> {
+    threshold.map(|t| Curve {
+        name: format!("{id} threshold {t:.1} {unit}"),
+        rgb,
+        dashed: true,
+        values: spacing::threshold_series(frames, range, t),
+    })
+}
+
+/// Metres the camera moved since the previous keyframe (telemetry positions), with the
+/// geo-distance threshold.
+fn telemetry_panel(
+    positions: &[Option<crate::source::telemetry::Position>],
+    keyframes: &[usize],
+    r: &Recorded,
+    (n, range): (usize, Option<(usize, usize)>),
+) -> Panel {
+    let mut curves = vec![Curve {
+        name: "metres moved since the previous keyframe".into(),
+        rgb: GEO_RGB,
+        dashed: false,
+        values: geo_distance::moved(positions, keyframes, range),
+    }];
+    let geo = r.geo_distance;
+    let rgb = THRESHOLD_RGB[1];
+    curves.extend(threshold_curve("geo-distance", geo, "m", rgb, (n, range)));
+    Panel {
+        title: "Distance moved since the previous keyframe, by the telemetry's positions (geo-distance keeps a frame when it reaches its threshold)".into(),
+        unit: "m".into(),
+        curves,
+    }
 }
 
 /// A plotters drawing area in pixel coordinates.
@@ -647,6 +775,8 @@ pub const SHARPNESS_RGB: [[u8; 3]; 3] = [[31, 119, 180], [23, 190, 207], [140, 8
 pub const MOVEMENT_RGB: [u8; 3] = [44, 160, 44];
 /// Colour of the accumulated movement curve.
 pub const ACCUMULATED_RGB: [u8; 3] = [80, 80, 80];
+/// Colour of the distance moved by the telemetry's positions.
+pub const GEO_RGB: [u8; 3] = [31, 119, 180];
 /// Colours of the blur, spacing and stationary thresholds.
 pub const THRESHOLD_RGB: [[u8; 3]; 3] = [[255, 127, 14], [214, 39, 40], [148, 103, 189]];
 
@@ -665,5 +795,59 @@ pub fn number(v: f64) -> String {
         format!("{v:.1}")
     } else {
         format!("{v:.3}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A timeline of `frames` frames with one curve (the frame index) and `keyframes`.
+    fn timeline(frames: usize, keyframes: Vec<usize>) -> Timeline {
+        let curve = Curve {
+            name: "index".into(),
+            rgb: MOVEMENT_RGB,
+            dashed: false,
+            values: (0..frames).map(|f| f as f64).collect(),
+        };
+        Timeline {
+            frames,
+            timestamps_s: None,
+            panels: vec![Panel {
+                title: "panel".into(),
+                unit: "px".into(),
+                curves: vec![curve],
+            }],
+            keyframes,
+            range: Some((2, frames - 3)),
+            missing: Vec::new(),
+            view: (0, frames - 1),
+        }
+    }
+
+    #[test]
+    fn a_view_of_twenty_frames_spreads_them_over_the_plot() {
+        let full = timeline(1000, vec![5, 500, 510, 990]);
+        let layout = full.layout();
+        assert!((0..1000).all(|f| layout.x(f) == frame_x(f, 1000)));
+        assert_eq!(layout.frame_at(f64::from(frame_x(990, 1000))), 990);
+        let t = full.view(500, 519);
+        let l = t.layout();
+        let right = (LEFT + l.span) as i32;
+        assert_eq!(
+            (l.x(500), l.x(519), l.x(499) < LEFT as i32),
+            (LEFT as i32, right, true)
+        );
+        assert!(l.x(501) - l.x(500) >= 55, "{l:?}");
+        assert!((500..=519).all(|f| l.frame_at(f64::from(l.x(f))) == f));
+        assert_eq!((l.frame_at(0.0), l.frame_at(f64::from(WIDTH))), (500, 519));
+        assert_eq!(t.bar_columns(), [l.x(500), l.x(510)]);
+        assert_eq!(t.ticks(), [500, 505, 510, 515]);
+        let runs = t.polylines(0, &t.panels[0].curves[0], 1000.0);
+        let xs: Vec<i32> = runs.concat().iter().map(|p| p.0 as i32).collect();
+        assert_eq!(xs, (500..=519).map(|f| l.x(f)).collect::<Vec<_>>());
+        let svg = t.svg().unwrap();
+        assert_eq!(svg.matches("class=\"kf\"").count(), 2);
+        assert_eq!(timeline(100, Vec::new()).view(90, 500).view, (90, 99));
     }
 }

@@ -64,6 +64,31 @@ pub fn geo_distance(
     out
 }
 
+/// The series the report draws under the geo-distance threshold: metres from the position of
+/// the previous keyframe (before the first: of the first frame with a position), NaN outside
+/// the sampled range `lo..=hi` (none: every frame) and where a frame or its reference has no
+/// position. At the keyframes [`geo_distance`] chose it is the distance it compared.
+pub fn moved(
+    positions: &[Option<Position>],
+    keyframes: &[usize],
+    range: Option<(usize, usize)>,
+) -> Vec<f64> {
+    let (lo, hi) = range.unwrap_or((0, positions.len().saturating_sub(1)));
+    let mut out = vec![f64::NAN; positions.len()];
+    let mut from: Option<&Position> = None;
+    for (f, o) in out.iter_mut().enumerate().take(hi + 1).skip(lo) {
+        let here = positions[f].as_ref();
+        from = from.or(here);
+        if let (Some(a), Some(b)) = (from, here) {
+            *o = distance_3d(a, b);
+        }
+        if keyframes.binary_search(&f).is_ok() {
+            from = here;
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -93,6 +118,10 @@ mod tests {
         ];
         let c: Vec<usize> = (0..p.len()).collect();
         assert_eq!(geo_distance(&c, &p, 2.5), vec![0, 3, 5]);
+        let m = moved(&p, &[0, 3, 5], Some((1, 5)));
+        assert!(m[0].is_nan() && m[2].is_nan(), "{m:?}");
+        assert_eq!(m[1], 0.0);
+        assert!(m[3] >= 2.5 && m[4] < 2.5 && m[5] >= 2.5, "{m:?}");
         let d = distance_3d(p[0].as_ref().unwrap(), p[3].as_ref().unwrap());
         assert!((d - 1.112f64.hypot(3.0)).abs() < 0.01, "{d}");
     }

@@ -186,6 +186,8 @@ fn report_page_is_self_contained_and_png_timeline_has_the_keyframe_bars() {
     assert!(html.contains("blur threshold: 0.8 x mean of ±10 frames"));
     assert!(html.contains("spacing threshold 25.0 px"));
     assert!(html.contains("id=\"camera-none\""));
+    // No telemetry: no distance panel.
+    assert!(!html.contains("Distance moved since the previous keyframe"));
     assert!(
         !html.contains("id=\"missing\""),
         "nothing should be missing"

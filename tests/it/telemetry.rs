@@ -145,7 +145,7 @@ fn geo_distance_spaces_keyframes_evenly_by_the_truth() {
     let dir = oblique();
     let poses = truth(dir);
     let d = 8.0;
-    let (_, keys) = select(dir, "geo.json", &["--geo-distance", "8"]);
+    let (project, keys) = select(dir, "geo.json", &["--geo-distance", "8"]);
     let step = poses
         .windows(2)
         .map(|w| dist(&w[0], &w[1]))
@@ -163,6 +163,49 @@ fn geo_distance_spaces_keyframes_evenly_by_the_truth() {
     let var = spacing.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / spacing.len() as f64;
     let cv = var.sqrt() / mean;
     assert!(cv <= 0.05, "coefficient of variation {cv} ({spacing:?})");
+    geo_panel_shows_the_distances_the_step_compared(dir, &project, &keys, d);
+}
+
+/// The report's telemetry panel: metres moved since the previous keyframe reach the
+/// geo-distance threshold (drawn) at every keyframe after the first and stay below it between.
+fn geo_panel_shows_the_distances_the_step_compared(
+    dir: &Path,
+    project: &Path,
+    keys: &[usize],
+    d: f64,
+) {
+    let html = dir.join("geo-report.html");
+    let args = [
+        "report",
+        s(project),
+        "-o",
+        s(&html),
+        "--force",
+        "--thumbs",
+        "0",
+    ];
+    kf_ok(&args);
+    let page = std::fs::read_to_string(&html).unwrap();
+    let svg = page.split("<svg id=\"timeline\"").nth(1).unwrap();
+    assert!(svg.contains("Distance moved since the previous keyframe"));
+    assert!(svg.contains("geo-distance threshold 8.0 m"));
+    let data = page.split("id=\"kf-data\">").nth(1).unwrap();
+    let data: serde_json::Value =
+        serde_json::from_str(data.split("</script>").next().unwrap()).unwrap();
+    let curve = data["curves"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["name"] == "metres moved since the previous keyframe")
+        .expect("the telemetry curve");
+    let values = curve["values"].as_array().unwrap();
+    for (f, v) in values.iter().enumerate().skip(keys[0] + 1) {
+        let Some(v) = v.as_f64() else { continue };
+        match keys.binary_search(&f) {
+            Ok(_) => assert!(v >= d - 1e-3, "keyframe {f}: {v} m"),
+            Err(_) => assert!(v < d + 1e-3, "frame {f}: {v} m"),
+        }
+    }
 }
 
 /// `--footprint-overlap 80`: consecutive keyframes' true ground footprints (image corners cast
@@ -652,6 +695,9 @@ fn report_flight_map_draws_keyframes_and_footprints_where_the_truth_is() {
         .next()
         .unwrap();
     assert!(map.contains(&format!("data-keyframes=\"{}\"", keys.len())));
+    // The timeline's telemetry panel, without a geo-distance threshold to draw.
+    assert!(page.contains("Distance moved since the previous keyframe"));
+    assert!(!page.contains("geo-distance threshold"));
     // (frame, mark, footprint) per keyframe, in px.
     type Mark = (usize, (f64, f64), Vec<(f64, f64)>);
     let marks: Vec<Mark> = map
