@@ -509,7 +509,12 @@ fn record_movement(analysis: &mut AnalysisSection, req: &MovementRequest) {
 /// The workflow that reproduces a project's selection (its history), plus exports like the ones
 /// whose folders are given (read from their manifests).
 pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
-    let p = Project::load(project)?;
+    from_loaded(&Project::load(project)?, project, exports)
+}
+
+/// [`from_project`] for a project already in memory (`review` saves the workflow of an edit not
+/// yet written); `project` is where it lives (relative paths in it are relative to its folder).
+pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<String> {
     let bad = |msg: String| Error::file(project, None, "project file", "history", msg);
     let mut analysis = AnalysisSection::default();
     let mut sample = Vec::new();
@@ -616,10 +621,21 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
 /// written atomically to `output`, which may be none of what the save reads (the project, its
 /// input, the exports' manifests) and is replaced only with `force`. Returns `output`.
 pub fn save(project: &Path, exports: &[PathBuf], output: &Path, force: bool) -> Result<PathBuf> {
-    let text = from_project(project, exports)?;
+    save_loaded(&Project::load(project)?, project, exports, output, force)
+}
+
+/// [`save`] for a project already in memory, living at `project`.
+pub fn save_loaded(
+    p: &Project,
+    project: &Path,
+    exports: &[PathBuf],
+    output: &Path,
+    force: bool,
+) -> Result<PathBuf> {
+    let text = from_loaded(p, project, exports)?;
     Workflow::from_text(output, text.clone())
         .map_err(|e| Error::input(project, format!("cannot be saved as a workflow: {e}")))?;
-    let source = Project::load(project)?.input_path(project);
+    let source = p.input_path(project);
     let manifests: Vec<PathBuf> = exports
         .iter()
         .map(|e| e.join(crate::manifest::MANIFEST))

@@ -23,12 +23,56 @@ use std::path::{Path, PathBuf};
 
 pub use crate::steps::Threshold;
 
+/// The threshold an earlier `select` proposed from its movement sample for `plugin`
+/// (`stationary` or `spacing` with `auto`), measured the way `movement` says on `backend`, as its
+/// project's `history` records it. The sample is a function of the input (unchanged: its
+/// fingerprint matched) and of those two, so re-selecting reuses it instead of decoding the
+/// sample again; the selection then stays the one the cache was made for.
+pub fn recorded_auto(
+    history: &[HistoryEntry],
+    plugin: &str,
+    movement: &MovementRequest,
+    backend: Backend,
+) -> Option<f64> {
+    history
+        .iter()
+        .find_map(|e| match Applied::from_entry(e).ok()? {
+            Applied::Stationary {
+                auto: true,
+                backend: Some(b),
+                movement: Some(m),
+                threshold_px: Some(t),
+                ..
+            } if plugin == "stationary" && b == backend && m == *movement => Some(t),
+            Applied::Spacing {
+                auto: true,
+                backend: Some(b),
+                movement: Some(m),
+                threshold_px,
+                ..
+            } if plugin == "spacing" && b == backend && m == *movement => Some(threshold_px),
+            _ => None,
+        })
+}
+
 /// The stationary step's threshold (`auto` resolved; None: 1 % of the frame width) and reset
 /// delta.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Stationary {
-    threshold: Option<f64>,
-    reset_delta: usize,
+pub struct Stationary {
+    pub threshold: Option<f64>,
+    pub reset_delta: usize,
+}
+
+/// The chain's thresholds with `auto` resolved, and the movement measurement they apply to: what
+/// the steps need besides the cached series.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Resolved {
+    pub movement: MovementRequest,
+    pub stationary: Option<Stationary>,
+    /// The stationary threshold was asked for as `auto`.
+    pub stationary_auto: bool,
+    /// The spacing threshold in pixels (given, or proposed for `auto`); None for `Nkf` or none.
+    pub spacing_px: Option<f64>,
 }
 
 /// Validated settings of one `select` run.
@@ -179,8 +223,15 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             codec_keyframes: None,
         },
     )?;
-    report.project.save(&s.output, true)?;
-    let checkpoint = checkpoint_path(&s.output);
+    write(&report.project, &s.output)?;
+    Ok(report)
+}
+
+/// Writes `project` to `output` atomically and removes the analysis checkpoint beside it: the
+/// end of every `select` (and of `review`'s save).
+pub fn write(project: &Project, output: &Path) -> Result<()> {
+    project.save(output, true)?;
+    let checkpoint = checkpoint_path(output);
     if checkpoint.is_file() {
         if let Err(e) = std::fs::remove_file(&checkpoint) {
             log::warn!(
@@ -189,7 +240,7 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             );
         }
     }
-    Ok(report)
+    Ok(())
 }
 
 /// The manual step of `steps` (frames added and removed by index), when there is one.
@@ -221,7 +272,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;
     let auto = AutoThresholds::find(s, open, &known)?;
-    let stationary_req = match auto.stationary {
+    let stationary_req = match auto.resolved.stationary {
         Some(st) => Some(steps::stationary::request(
             st.threshold,
             st.reset_delta,
@@ -251,8 +302,14 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         known.cache.timestamps_s.as_deref(),
         known.cache.telemetry.take(),
     )?;
-    let (keys, history) = apply(s, &known, &metadata, &auto)?;
-    let keys = drop_damaged(s, keys, &known.damaged);
+    let (keys, history) = run_steps(
+        &s.input,
+        &s.steps,
+        &auto.resolved,
+        &known.cache,
+        &metadata,
+        &known.damaged,
+    )?;
     let project = Project {
         schema_version: SCHEMA_VERSION,
         tool_version: env!("CARGO_PKG_VERSION").into(),
@@ -297,13 +354,13 @@ fn resume(s: &SelectSettings, input: &InputRef) -> analysis::Resume {
 }
 
 /// Keyframes without the damaged frames blur replace or `--add` may have moved there.
-fn drop_damaged(s: &SelectSettings, mut keys: Vec<usize>, damaged: &[usize]) -> Vec<usize> {
+fn drop_damaged(input: &Path, mut keys: Vec<usize>, damaged: &[usize]) -> Vec<usize> {
     let before = keys.len();
     keys.retain(|k| damaged.binary_search(k).is_err());
     if keys.len() < before {
         log::warn!(
             "{}: {} damaged frame(s) dropped from the keyframes (moved there by blur replace or --add)",
-            s.input.display(),
+            input.display(),
             before - keys.len()
         );
     }
@@ -343,38 +400,6 @@ impl Known {
             },
             None => Known::default(),
         }
-    }
-
-    /// The threshold an earlier `select` proposed from its movement sample for `plugin`
-    /// (`stationary` or `spacing` with `auto`), measured the way `movement` says on `backend`. The
-    /// sample is a function of the input (unchanged: its fingerprint matched) and of those two, so
-    /// re-selecting reuses it instead of decoding the sample again; the selection then stays the
-    /// one the cache was made for.
-    fn recorded_auto(
-        &self,
-        plugin: &str,
-        movement: &MovementRequest,
-        backend: Backend,
-    ) -> Option<f64> {
-        self.history
-            .iter()
-            .find_map(|e| match Applied::from_entry(e).ok()? {
-                Applied::Stationary {
-                    auto: true,
-                    backend: Some(b),
-                    movement: Some(m),
-                    threshold_px: Some(t),
-                    ..
-                } if plugin == "stationary" && b == backend && m == *movement => Some(t),
-                Applied::Spacing {
-                    auto: true,
-                    backend: Some(b),
-                    movement: Some(m),
-                    threshold_px,
-                    ..
-                } if plugin == "spacing" && b == backend && m == *movement => Some(threshold_px),
-                _ => None,
-            })
     }
 
     /// The stationary sampler runs during decoding and needs its frame range first: with
@@ -502,9 +527,7 @@ impl Known {
 /// The thresholds the steps use: given ones, or proposed from a sample of the movement for
 /// `--auto` / `--spacing auto` (with the explanations `select` prints).
 struct AutoThresholds {
-    stationary: Option<Stationary>,
-    spacing: Option<f64>,
-    wants_auto_stationary: bool,
+    resolved: Resolved,
     proposals: Vec<String>,
 }
 
@@ -512,18 +535,7 @@ impl AutoThresholds {
     fn find(s: &SelectSettings, open: &OpenOptions, known: &Known) -> Result<AutoThresholds> {
         let wants_auto_stationary = matches!(s.stationary(), Some((Some(Threshold::Auto), _)));
         let mut t = AutoThresholds {
-            stationary: s.stationary().map(|(t, reset_delta)| Stationary {
-                threshold: match t {
-                    Some(Threshold::Px(v)) => Some(v),
-                    _ => None,
-                },
-                reset_delta,
-            }),
-            spacing: match s.spacing() {
-                Some(Threshold::Px(v)) => Some(v),
-                _ => None,
-            },
-            wants_auto_stationary,
+            resolved: Resolved::given(&s.steps, s.movement),
             proposals: Vec::new(),
         };
         let auto_spacing = s.spacing() == Some(Threshold::Auto);
@@ -533,7 +545,7 @@ impl AutoThresholds {
         let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
         let recorded = |plugin: &str, wanted: bool| {
             wanted
-                .then(|| known.recorded_auto(plugin, &s.movement, backend))
+                .then(|| recorded_auto(&known.history, plugin, &s.movement, backend))
                 .flatten()
         };
         let reused = |what: &str, t: f64| {
@@ -563,7 +575,7 @@ impl AutoThresholds {
                     (p.threshold, format!("stationary --auto: {}", p.explanation))
                 }
             };
-            if let Some(st) = t.stationary.as_mut() {
+            if let Some(st) = t.resolved.stationary.as_mut() {
                 st.threshold = Some(threshold);
             }
             t.proposals.push(said);
@@ -577,7 +589,7 @@ impl AutoThresholds {
                     (p.threshold, format!("spacing auto: {}", p.explanation))
                 }
             };
-            t.spacing = Some(threshold);
+            t.resolved.spacing_px = Some(threshold);
             t.proposals.push(said);
         }
         Ok(t)
@@ -629,29 +641,66 @@ impl Plan {
     }
 }
 
-/// Runs every step in order on the candidates (damaged frames never are) over the analysed or
-/// cached series; returns the keyframes and the history.
-fn apply(
-    s: &SelectSettings,
-    known: &Known,
+impl Resolved {
+    /// The thresholds `steps` give as numbers (`auto` still unresolved), for `movement`.
+    pub fn given(steps: &[Step], movement: MovementRequest) -> Resolved {
+        let px = |t: Option<Threshold>| match t {
+            Some(Threshold::Px(v)) => Some(v),
+            _ => None,
+        };
+        let (mut stationary, mut stationary_auto, mut spacing_px) = (None, false, None);
+        for step in steps {
+            match step {
+                Step::Stationary {
+                    threshold,
+                    reset_delta,
+                } => {
+                    stationary_auto = *threshold == Some(Threshold::Auto);
+                    stationary = Some(Stationary {
+                        threshold: px(*threshold),
+                        reset_delta: reset_delta.unwrap_or(steps::defaults::RESET_DELTA),
+                    });
+                }
+                Step::Spacing { threshold } => spacing_px = px(Some(*threshold)),
+                _ => {}
+            }
+        }
+        Resolved {
+            movement,
+            stationary,
+            stationary_auto,
+            spacing_px,
+        }
+    }
+}
+
+/// Runs every step in order on the candidates (damaged frames never are) over the cached series
+/// of `cache`, with `resolved` thresholds; returns the keyframes (no damaged frame) and the
+/// history. `select` and `review` both run their chains through here.
+pub fn run_steps(
+    input: &Path,
+    steps: &[Step],
+    resolved: &Resolved,
+    cache: &Cache,
     metadata: &Metadata,
-    auto: &AutoThresholds,
+    damaged: &[usize],
 ) -> Result<(Vec<usize>, Vec<HistoryEntry>)> {
-    let (cache, boundaries) = (&known.cache, s.boundaries());
+    let boundaries = steps::boundaries(steps);
     let ts = cache.timestamps_s.as_deref();
     let range = boundaries.candidates(metadata.frame_count, ts)?;
     let mut keys = range.clone();
-    keys.retain(|k| known.damaged.binary_search(k).is_err());
+    keys.retain(|k| damaged.binary_search(k).is_err());
     let mut history = vec![Applied::Boundaries {
         end: boundaries.end,
         start: boundaries.start,
     }
     .entry(keys.len())];
-    let stationary = match auto.stationary {
+    let movement = &resolved.movement;
+    let stationary = match resolved.stationary {
         Some(st) => {
             let (t, delta) = (st.threshold, st.reset_delta);
             let req = steps::stationary::request(t, delta, &boundaries, metadata, ts)?;
-            let run = cache.stationary(&s.movement, &req);
+            let run = cache.stationary(movement, &req);
             run.map(|r| (req, r.keyframes.as_slice(), r.backend))
         }
         None => None,
@@ -668,19 +717,19 @@ fn apply(
             .filter(|x| x.width == w && x.height == h)
             .map(|x| (x.metric, x.scores.as_slice(), x.backend))
             .collect(),
-        movement_request: Some(s.movement),
-        movement: (cache.movement(&s.movement)).map(|m| (m.series.values.as_slice(), m.backend)),
+        movement_request: Some(*movement),
+        movement: (cache.movement(movement)).map(|m| (m.series.values.as_slice(), m.backend)),
         stationary,
-        stationary_auto: auto.wants_auto_stationary,
-        spacing_px: auto.spacing,
+        stationary_auto: resolved.stationary_auto,
+        spacing_px: resolved.spacing_px,
         positions: cache.telemetry.as_ref().map(|t| t.positions.as_slice()),
         camera: cache.telemetry.as_ref().and_then(|t| t.camera.as_deref()),
         frame_size: (w, h),
     };
-    for step in &s.steps {
+    for step in steps {
         if let Some(applied) = step.apply(&at, &mut keys)? {
             history.push(applied.entry(keys.len()));
         }
     }
-    Ok((keys, history))
+    Ok((drop_damaged(input, keys, damaged), history))
 }

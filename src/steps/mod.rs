@@ -48,6 +48,17 @@ pub mod defaults {
     pub const FLOW_STRIDE: u32 = 2;
     /// Fraction dropped at each end by the trimmed-mean statistic.
     pub const TRIM: f64 = 0.1;
+
+    /// The movement `select` measures when no movement flag is given.
+    pub fn movement() -> crate::params::MovementRequest {
+        crate::params::MovementRequest {
+            farneback: crate::params::FarnebackParams::default(),
+            statistic: crate::params::Statistic::Median,
+            analysis_width: ANALYSIS_WIDTH,
+            stride: FLOW_STRIDE,
+            derotate: None,
+        }
+    }
 }
 
 /// Checks how movement is to be measured (every sampler that reads movement shares it); errors
