@@ -67,6 +67,25 @@ pub enum Command {
     Eval(EvalArgs),
     /// Self-contained HTML report of a project (timeline, thumbnails, steps) plus a PNG timeline.
     Report(ReportArgs),
+    /// Interactive review in the browser: change any step on the cached scores and see the new
+    /// selection, preview frames, add/remove keyframes, save the project or a workflow.
+    Review(ReviewArgs),
+}
+
+/// `review` flags.
+#[derive(Debug, Args)]
+pub struct ReviewArgs {
+    /// Project file written by `select` (saving from the page replaces it).
+    pub project: PathBuf,
+    /// An export of the project: its images, masks and overlays are shown over the frames.
+    #[arg(long, value_name = "DIR")]
+    pub export: Option<PathBuf>,
+    /// Port on 127.0.0.1 (default: a free one).
+    #[arg(long)]
+    pub port: Option<u16>,
+    /// Open the page in the default browser.
+    #[arg(long)]
+    pub open: bool,
 }
 
 /// `report` flags.

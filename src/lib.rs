@@ -26,6 +26,7 @@ pub mod params;
 pub mod progress;
 pub mod project;
 pub mod report;
+pub mod review;
 pub mod segment;
 pub mod select;
 pub mod source;

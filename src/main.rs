@@ -123,6 +123,7 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Colmap(a) => colmap(&a, quiet),
         Command::Eval(a) => eval(&a),
         Command::Report(a) => report(&a),
+        Command::Review(a) => review(&a),
         Command::Run(a) => run_workflow(&a, quiet),
         Command::Workflow(cli::WorkflowCommand::Save(a)) => workflow_save(&a),
         Command::Workflow(cli::WorkflowCommand::Check(a)) => workflow_check(&a),
@@ -192,6 +193,32 @@ fn select(a: &cli::SelectArgs, quiet: bool) -> Result<Outcome> {
         eprintln!("warning: {}: {e}", settings.input.display());
     }
     Ok(Outcome::unless(!p.decode_problems.is_empty()))
+}
+
+fn review(a: &cli::ReviewArgs) -> Result<Outcome> {
+    use keyframer::review::{http::Served, Review, ReviewSettings};
+    let settings = ReviewSettings {
+        project: a.project.clone(),
+        export: a.export.clone(),
+        port: a.port,
+    };
+    let served = Served::bind(Review::open(&settings)?, a.port.unwrap_or(0))?;
+    let url = served.url();
+    // The first line on stdout: scripts and tests read the address from it.
+    println!("review: {url}");
+    use std::io::Write;
+    std::io::stdout().flush()?;
+    eprintln!("review: serving {} (Ctrl-C stops)", a.project.display());
+    let stopper = served.stopper();
+    ctrlc::set_handler(move || stopper.stop())?;
+    if a.open {
+        if let Err(e) = std::process::Command::new("xdg-open").arg(&url).spawn() {
+            eprintln!("warning: could not start a browser (xdg-open: {e}); open {url} yourself");
+        }
+    }
+    served.run();
+    eprintln!("review stopped");
+    Ok(Outcome::Ok)
 }
 
 fn report(a: &cli::ReportArgs) -> Result<Outcome> {

@@ -17,6 +17,7 @@ mod onnx_model;
 mod pipeline;
 mod preview;
 mod report;
+mod review;
 mod safety;
 mod scene;
 mod segment;

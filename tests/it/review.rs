@@ -1,0 +1,529 @@
+//! `keyframer review` over HTTP, as a browser or an attacker speaks to it: refusals (token, Host,
+//! Origin, paths) logged without the token, bad requests that write nothing, a save equal to
+//! `select` with the same steps and `--add`, the workflow save, a clean stop on Ctrl-C.
+
+use crate::common::{ffmpeg, json, kf_loud, kf_ok, s, testdata};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+
+/// The report test's project: a 4 s, 30 fps pan over a photo (320x240), selected with spacing 25
+/// and blur at analysis width 160, frames 60 and 61 added by hand. Made once; each test copies
+/// the clip and the project into its own folder (saving replaces the project).
+pub fn pan_project(dir: &Path) -> PathBuf {
+    static MADE: OnceLock<PathBuf> = OnceLock::new();
+    let made = MADE.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("review-fixture");
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let clip = dir.join("pan.mp4");
+        let photo = testdata("opencv-doc/aloeL.jpg");
+        ffmpeg(&[
+            "-loop",
+            "1",
+            "-framerate",
+            "30",
+            "-t",
+            "4",
+            "-i",
+            s(&photo),
+            "-vf",
+            "crop=320:240:'t*60':100",
+            "-c:v",
+            "libx264",
+            "-pix_fmt",
+            "yuv420p",
+            s(&clip),
+        ]);
+        let project = dir.join("pan.json");
+        kf_ok(&[
+            "select",
+            s(&clip),
+            "-o",
+            s(&project),
+            "--spacing",
+            "25",
+            "--blur",
+            "--backend",
+            "opencv",
+            "--analysis-width",
+            "160",
+            "--add",
+            "60,61",
+        ]);
+        dir
+    });
+    std::fs::create_dir_all(dir).unwrap();
+    for f in ["pan.mp4", "pan.json"] {
+        // Keeps the modification time: the project's input fingerprint includes it.
+        let ok = Command::new("cp")
+            .arg("-p")
+            .arg(made.join(f))
+            .arg(dir.join(f))
+            .status()
+            .unwrap();
+        assert!(ok.success());
+    }
+    dir.join("pan.json")
+}
+
+/// The `select` flags of the fixture's analysis (so a re-select reuses its cache).
+pub const PAN_ANALYSIS: [&str; 4] = ["--backend", "opencv", "--analysis-width", "160"];
+
+/// A running `keyframer review`, stopped with SIGINT on drop.
+pub struct Served {
+    pub child: Option<Child>,
+    pub port: u16,
+    pub token: String,
+    /// The page's address with the token, as printed.
+    #[allow(dead_code)]
+    pub url: String,
+    pub stderr: PathBuf,
+}
+
+impl Served {
+    pub fn start(project: &Path, extra: &[&str]) -> Served {
+        let stderr = project.with_extension("review-stderr.txt");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+            .args(["review", s(project), "--port", "0"])
+            .args(extra)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stderr).unwrap())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let url = line
+            .trim()
+            .strip_prefix("review: ")
+            .expect(&line)
+            .to_string();
+        let token = url.split("token=").nth(1).unwrap().to_string();
+        let port = url
+            .trim_start_matches("http://127.0.0.1:")
+            .split('/')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        Served {
+            child: Some(child),
+            port,
+            token,
+            url,
+            stderr,
+        }
+    }
+
+    /// One request with the token, the right Host and (for POST) the right Origin.
+    pub fn call(
+        &self,
+        method: &str,
+        path: &str,
+        body: Option<&serde_json::Value>,
+    ) -> (u16, serde_json::Value) {
+        let host = format!("127.0.0.1:{}", self.port);
+        let origin = format!("http://{host}");
+        let mut headers = vec![
+            ("Host", host.as_str()),
+            ("X-Keyframer-Token", self.token.as_str()),
+        ];
+        if method == "POST" {
+            headers.push(("Origin", origin.as_str()));
+        }
+        let body = body.map(|b| b.to_string());
+        let (code, bytes) = raw(self.port, method, path, &headers, body.as_deref());
+        (
+            code,
+            serde_json::from_slice(&bytes).unwrap_or(serde_json::Value::Null),
+        )
+    }
+
+    /// Sends SIGINT and waits: the exit code and stderr.
+    pub fn stop(&mut self) -> (i32, String) {
+        let mut child = self.child.take().unwrap();
+        Command::new("kill")
+            .args(["-INT", &child.id().to_string()])
+            .status()
+            .unwrap();
+        let status = child.wait().unwrap();
+        (
+            status.code().unwrap_or(-1),
+            std::fs::read_to_string(&self.stderr).unwrap(),
+        )
+    }
+}
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        if self.child.is_some() {
+            self.stop();
+        }
+    }
+}
+
+/// A raw HTTP/1.1 request; returns the status and the body.
+pub fn raw(
+    port: u16,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: Option<&str>,
+) -> (u16, Vec<u8>) {
+    let mut tcp = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    let mut rq = format!("{method} {path} HTTP/1.1\r\nConnection: close\r\n");
+    for (k, v) in headers {
+        rq += &format!("{k}: {v}\r\n");
+    }
+    if let Some(b) = body {
+        rq += &format!(
+            "Content-Type: application/json\r\nContent-Length: {}\r\n",
+            b.len()
+        );
+    }
+    rq += "\r\n";
+    rq += body.unwrap_or("");
+    tcp.write_all(rq.as_bytes()).unwrap();
+    let mut out = Vec::new();
+    tcp.read_to_end(&mut out).unwrap();
+    let split = out.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let head = String::from_utf8_lossy(&out[..split]).to_string();
+    let code = head.split(' ').nth(1).unwrap().parse().unwrap();
+    let mut body = out[split + 4..].to_vec();
+    if head
+        .to_ascii_lowercase()
+        .contains("transfer-encoding: chunked")
+    {
+        body = dechunk(&body);
+    }
+    (code, body)
+}
+
+fn dechunk(mut b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    loop {
+        let end = b.windows(2).position(|w| w == b"\r\n").unwrap();
+        let n = usize::from_str_radix(std::str::from_utf8(&b[..end]).unwrap().trim(), 16).unwrap();
+        if n == 0 {
+            return out;
+        }
+        out.extend_from_slice(&b[end + 2..end + 2 + n]);
+        b = &b[end + 4 + n..];
+    }
+}
+
+fn steps(v: serde_json::Value) -> serde_json::Value {
+    serde_json::json!({ "steps": v, "revision": 0 })
+}
+
+/// A request (method, path, headers, body) and the status it must get.
+type Case<'a> = (
+    &'a str,
+    String,
+    Vec<(&'a str, &'a str)>,
+    Option<&'a str>,
+    u16,
+);
+
+#[test]
+fn review_refuses_without_token_foreign_host_origin_and_paths() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_project(dir.path());
+    let mut srv = Served::start(&project, &[]);
+    let own = format!("127.0.0.1:{}", srv.port);
+    let origin = format!("http://{own}");
+    let tok = srv.token.clone();
+    let apply = r#"{"steps":[]}"#;
+    let cases: Vec<Case> = vec![
+        ("GET", "/api/state".into(), vec![("Host", &own)], None, 401),
+        (
+            "GET",
+            "/api/state".into(),
+            vec![("Host", &own), ("X-Keyframer-Token", "00ff")],
+            None,
+            401,
+        ),
+        (
+            "GET",
+            format!("/?token={}", "1".repeat(32)),
+            vec![("Host", &own)],
+            None,
+            401,
+        ),
+        (
+            "GET",
+            "/api/state".into(),
+            vec![("Host", "evil.example"), ("X-Keyframer-Token", &tok)],
+            None,
+            403,
+        ),
+        (
+            "POST",
+            "/api/apply".into(),
+            vec![
+                ("Host", &own),
+                ("X-Keyframer-Token", &tok),
+                ("Origin", "http://evil.example"),
+            ],
+            Some(apply),
+            403,
+        ),
+        (
+            "POST",
+            "/api/apply".into(),
+            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
+            Some(apply),
+            403,
+        ),
+        (
+            "GET",
+            "/api/state".into(),
+            vec![
+                ("Host", &own),
+                ("X-Keyframer-Token", &tok),
+                ("Sec-Fetch-Site", "cross-site"),
+            ],
+            None,
+            403,
+        ),
+        (
+            "GET",
+            "/api/export/image/..%2f..%2fetc%2fpasswd".into(),
+            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
+            None,
+            400,
+        ),
+        (
+            "GET",
+            "/../etc/passwd".into(),
+            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
+            None,
+            400,
+        ),
+        (
+            "GET",
+            "//etc/passwd".into(),
+            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
+            None,
+            400,
+        ),
+        (
+            "GET",
+            "/etc/passwd".into(),
+            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
+            None,
+            404,
+        ),
+        (
+            "GET",
+            "/api/frame/-1.jpg".into(),
+            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
+            None,
+            404,
+        ),
+        (
+            "GET",
+            "/api/export/image/3".into(),
+            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
+            None,
+            404,
+        ),
+    ];
+    for (method, path, headers, body, want) in &cases {
+        let (code, bytes) = raw(srv.port, method, path, headers, *body);
+        assert_eq!(
+            code,
+            *want,
+            "{method} {path} {headers:?}: {}",
+            String::from_utf8_lossy(&bytes)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+        assert!(
+            v["error"].as_str().is_some_and(|e| !e.is_empty()),
+            "{path}: {v}"
+        );
+    }
+    // The token's own requests pass.
+    let (code, state) = srv.call("GET", "/api/state", None);
+    assert_eq!(code, 200, "{state}");
+    assert_eq!(state["input"]["frames"], 120);
+    let (code, _) = raw(
+        srv.port,
+        "GET",
+        &format!("/?token={tok}"),
+        &[("Host", &own), ("Origin", &origin)],
+        None,
+    );
+    assert_eq!(code, 200);
+    let (_, err) = srv.stop();
+    let refused = err
+        .lines()
+        .filter(|l| l.contains("review: refused"))
+        .count();
+    assert_eq!(refused, cases.len(), "one log line per refusal:\n{err}");
+    assert!(!err.contains(&tok), "the token is never logged:\n{err}");
+}
+
+#[test]
+fn review_bad_request_writes_nothing_and_survives() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_project(dir.path());
+    let before = (
+        std::fs::read(&project).unwrap(),
+        std::fs::metadata(&project).unwrap().modified().unwrap(),
+    );
+    let srv = Served::start(&project, &[]);
+    let cases = [
+        (serde_json::json!("not a list"), None),
+        (serde_json::json!([{"no-such-step": {}}]), Some(0)),
+        (
+            serde_json::json!([{"spacing": {"threshold": 30}}, {"every-nth": {"n": 0}}]),
+            Some(1),
+        ),
+        (
+            serde_json::json!([{"blur": {}}, {"spacing": {"threshold": 30}}]),
+            Some(1),
+        ),
+        (
+            serde_json::json!([{"spacing": {"threshold": 30, "bogus": 1}}]),
+            Some(0),
+        ),
+    ];
+    for path in ["/api/apply", "/api/save", "/api/save-workflow"] {
+        for (bad, step) in &cases {
+            let (code, v) = srv.call("POST", path, Some(&steps(bad.clone())));
+            assert_eq!(code, 400, "{path} {bad}: {v}");
+            assert!(v["error"].as_str().is_some(), "{v}");
+            if step.is_some() {
+                assert_eq!(v["step"].as_u64().map(|i| i as usize), *step, "{bad}: {v}");
+            }
+        }
+    }
+    let host = format!("127.0.0.1:{}", srv.port);
+    let origin = format!("http://{host}");
+    let hdr = [
+        ("Host", host.as_str()),
+        ("X-Keyframer-Token", srv.token.as_str()),
+        ("Origin", origin.as_str()),
+    ];
+    let (code, _) = raw(srv.port, "POST", "/api/save", &hdr, Some("{not json"));
+    assert_eq!(code, 400);
+    // A save with a stale revision is refused too.
+    let (code, v) = srv.call(
+        "POST",
+        "/api/save",
+        Some(&serde_json::json!({"steps": [], "revision": 7})),
+    );
+    assert_eq!(code, 409, "{v}");
+    let after = (
+        std::fs::read(&project).unwrap(),
+        std::fs::metadata(&project).unwrap().modified().unwrap(),
+    );
+    assert!(before == after, "the project file is untouched");
+    assert!(!project.with_file_name("pan.workflow.toml").exists());
+    let (code, _) = srv.call("GET", "/api/state", None);
+    assert_eq!(code, 200, "the server still answers");
+}
+
+#[test]
+fn review_save_equals_select_with_add() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_project(&dir.path().join("a"));
+    let other = pan_project(&dir.path().join("b"));
+    let srv = Served::start(&project, &[]);
+    let (_, state) = srv.call("GET", "/api/state", None);
+    let keys: Vec<u64> = state["selection"]["keyframes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| k.as_u64().unwrap())
+        .collect();
+    assert_eq!(
+        keys,
+        json(&project)["keyframes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|k| k.as_u64().unwrap())
+            .collect::<Vec<_>>(),
+        "the page starts from the project's own selection"
+    );
+    let f = (1..119).find(|f| !keys.contains(f) && f % 7 == 3).unwrap();
+    let chain = serde_json::json!([
+        {"spacing": {"threshold": 30}},
+        {"blur": {}},
+        {"manual": {"add": [60, 61, f]}}
+    ]);
+    let (code, sel) = srv.call("POST", "/api/apply", Some(&steps(chain.clone())));
+    assert_eq!(code, 200, "{sel}");
+    let (code, saved) = srv.call("POST", "/api/save", Some(&steps(chain.clone())));
+    assert_eq!(code, 200, "{saved}");
+    assert_eq!(saved["revision"], 1);
+    let add = format!("60,61,{f}");
+    let clip = other.with_file_name("pan.mp4");
+    let mut args = vec![
+        "select",
+        s(&clip),
+        "-o",
+        s(&other),
+        "--spacing",
+        "30",
+        "--blur",
+        "--add",
+        &add,
+        "--force",
+    ];
+    args.extend(PAN_ANALYSIS);
+    let out = kf_loud(&args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && err.contains("nothing decoded"),
+        "{err}"
+    );
+    let (mine, theirs) = (json(&project), json(&other));
+    assert_eq!(mine, theirs, "review's save equals select with --add");
+    assert!(mine["keyframes"]
+        .as_array()
+        .unwrap()
+        .contains(&serde_json::json!(f)));
+    assert_eq!(
+        sel["keyframes"], mine["keyframes"],
+        "apply showed what save wrote"
+    );
+    // A second save from a stale page is refused; the saved file stays.
+    let (code, _) = srv.call("POST", "/api/save", Some(&steps(serde_json::json!([]))));
+    assert_eq!(code, 409);
+    assert_eq!(json(&project), theirs);
+    // The workflow of the same steps: `workflow check` accepts it, a second save needs force.
+    let (code, w) = srv.call("POST", "/api/save-workflow", Some(&steps(chain.clone())));
+    assert_eq!(code, 200, "{w}");
+    let wf = project.with_file_name("pan.workflow.toml");
+    let text = std::fs::read_to_string(&wf).unwrap();
+    assert!(
+        text.contains("plugin = \"spacing\"") && text.contains(&format!("{f}")),
+        "{text}"
+    );
+    kf_ok(&["workflow", "check", s(&wf)]);
+    let (code, _) = srv.call("POST", "/api/save-workflow", Some(&steps(chain)));
+    assert_eq!(code, 409);
+}
+
+#[test]
+fn review_stops_cleanly_on_sigint() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_project(dir.path());
+    let mut srv = Served::start(&project, &[]);
+    let (code, _) = srv.call("GET", "/api/status", None);
+    assert_eq!(code, 200);
+    let before: Vec<_> = crate::common::listing(dir.path());
+    let (code, err) = srv.stop();
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("review stopped"), "{err}");
+    let after: Vec<_> = crate::common::listing(dir.path());
+    assert_eq!(before, after, "nothing left beside the project");
+}
