@@ -2,15 +2,13 @@
 //! (bounded memory) or read from an export folder, plus the base64 needed for data: URIs.
 
 use crate::error::{CvContext, Error, Result};
-use crate::export::{self, Format};
+use crate::export;
 use crate::source;
-use opencv::core::Mat;
-use opencv::imgproc;
 use opencv::prelude::*;
 use std::path::Path;
 
-/// Width of a thumbnail in pixels.
-pub const THUMB_WIDTH: i32 = 160;
+/// Width of a thumbnail: the review page's frame strip.
+const STRIP: i32 = source::FrameSize::Strip.width();
 
 /// One thumbnail.
 #[derive(Debug, Clone)]
@@ -40,28 +38,13 @@ pub fn pick(keyframes: &[usize], max: usize) -> Vec<usize> {
     }
 }
 
-fn shrink(image: &Mat, what: &dyn Fn() -> String) -> Result<Vec<u8>> {
-    let (w, h) = (image.cols(), image.rows());
-    if w <= 0 || h <= 0 {
-        return Err(Error::param(
-            "thumbnail",
-            format!("{}: empty image", what()),
-        ));
-    }
-    let tw = THUMB_WIDTH.min(w);
-    let th = ((f64::from(h) * f64::from(tw) / f64::from(w)).round() as i32).max(1);
-    let small = crate::encode::resize(image, (tw, th), imgproc::INTER_AREA)
-        .cv(|| format!("resizing {} for a thumbnail", what()))?;
-    export::encode(&small, Format::Jpg, 80)
-}
-
 /// Thumbnails of `frames` (sorted, distinct) decoded from `input`; frames the stream does not
 /// reach are left out and returned as the second value.
 pub fn from_input(input: &Path, frames: &[usize]) -> Result<(Vec<Thumb>, Vec<usize>)> {
     let mut src = source::open(input, &source::OpenOptions::default())?;
     let mut thumbs = Vec::with_capacity(frames.len());
     let missing = source::read_indices(src.as_mut(), frames, |f| {
-        let jpeg = shrink(&f.image, &|| {
+        let jpeg = source::shrink(&f.image, STRIP, &|| {
             format!("{} frame {}", input.display(), f.index)
         })?;
         thumbs.push(Thumb {
@@ -94,7 +77,7 @@ pub fn from_export(dir: &Path, frames: &[usize]) -> Result<(Vec<Thumb>, Vec<usiz
         }
         thumbs.push(Thumb {
             frame: f,
-            jpeg: shrink(&image, &|| name.clone())?,
+            jpeg: source::shrink(&image, STRIP, &|| name.clone())?,
         });
     }
     Ok((thumbs, missing))

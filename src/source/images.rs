@@ -414,6 +414,16 @@ impl FrameSource for ImageSource {
         Ok(Some((index, self.timestamp(index))))
     }
 
+    /// Exact: the next frame is read from `file_of(index)`.
+    fn seek(&mut self, index: usize, _expect_ts: Option<f64>) -> Result<bool> {
+        if index >= self.files.len() {
+            return Ok(false);
+        }
+        self.next_index = index;
+        self.last_good = (0..index).rev().find(|&j| self.damage_of(j).is_none());
+        Ok(true)
+    }
+
     fn file_of(&self, index: usize) -> Option<&Path> {
         self.files.get(index).map(|p| p.as_path())
     }

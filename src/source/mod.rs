@@ -4,11 +4,13 @@
 pub mod codec_keyframes;
 mod images;
 mod natural;
+mod reader;
 pub mod telemetry;
 mod video;
 
 pub use images::{check_image, escaped_name, folder_images, is_image_name, ImageSource};
 pub use natural::natural_cmp;
+pub use reader::{shrink, FrameReader, FrameSize, DEFAULT_BUDGET_BYTES};
 pub use video::VideoSource;
 
 use crate::error::{Error, Result};
@@ -71,6 +73,13 @@ pub trait FrameSource: Send {
     /// Advances past the next frame without producing pixels (cheaper than `next_frame` when the
     /// decoder allows); returns its index and timestamp, or `None` at the end.
     fn skip_frame(&mut self) -> Result<Option<(usize, Option<f64>)>>;
+    /// Positions the source so that the next `next_frame` yields frame `index` with its index
+    /// and timestamp; `expect_ts` is that frame's timestamp from a sequential pass (the cache),
+    /// to check the landing against. `Ok(false)`: not supported, beyond the end or not exact;
+    /// the position is then unspecified and the caller reopens the source.
+    fn seek(&mut self, _index: usize, _expect_ts: Option<f64>) -> Result<bool> {
+        Ok(false)
+    }
     /// For image folders, the file behind frame `index`.
     fn file_of(&self, _index: usize) -> Option<&Path> {
         None

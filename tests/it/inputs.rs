@@ -1,9 +1,9 @@
 //! Input edge cases: rotation metadata, damaged images in a folder, file names that are not
-//! UTF-8, and the keyframe-only preview on AVI and on cut-short streams.
+//! UTF-8, the keyframe-only preview on AVI and on cut-short streams, and frames read on demand.
 
 use crate::common::*;
 use keyframer::source::codec_keyframes::{probe, CodecKeyframeSource};
-use keyframer::source::FrameSource;
+use keyframer::source::{self, FrameReader, FrameSize, FrameSource, OpenOptions};
 use opencv::core::{self, Mat};
 use opencv::imgcodecs;
 use opencv::prelude::*;
@@ -578,5 +578,110 @@ fn preview_reports_cut_short_streams() {
         );
         let declared = if k == 0 { 120 } else { 270 };
         assert!(np < declared, "{np} of {declared}");
+    }
+}
+
+/// The pixels of a JPEG.
+fn decoded(jpeg: &[u8]) -> Mat {
+    let m = imgcodecs::imdecode(
+        &core::Vector::<u8>::from_slice(jpeg),
+        imgcodecs::IMREAD_COLOR,
+    );
+    m.unwrap()
+}
+
+/// Frames read on demand in any order (seeks, forward skips, the decoder's drain at the end,
+/// and reopening when a seek cannot be verified) are the frames a sequential pass decodes,
+/// shrunk the same way; the JPEG cache stays within its budget; a frame beyond the end is an
+/// error naming the frame and the input.
+#[test]
+fn frames_on_demand_equal_sequential_decode() {
+    let d = tempfile::tempdir().unwrap();
+    // The report fixture's 4 s, 30 fps pan, with a codec keyframe every second to seek to.
+    let clip = d.path().join("pan.mp4");
+    let photo = testdata("opencv-doc/aloeL.jpg");
+    ffmpeg(&[
+        "-loop",
+        "1",
+        "-framerate",
+        "30",
+        "-t",
+        "4",
+        "-i",
+        s(&photo),
+        "-vf",
+        "crop=320:240:'t*60':100",
+        "-c:v",
+        "libx264",
+        "-g",
+        "30",
+        "-pix_fmt",
+        "yuv420p",
+        s(&clip),
+    ]);
+    let folder = image_folder(&d.path().join("images"), "jpg", 120);
+    let opts = OpenOptions::default();
+    let order = [119, 0, 61, 60, 3, 90];
+    let sizes = [FrameSize::Strip, FrameSize::Large];
+    for input in [&clip, &folder] {
+        let mut src = source::open(input, &opts).unwrap();
+        let ts = source::scan(src.as_mut(), |_| {}).unwrap().timestamps_s;
+        let mut want = BTreeMap::new();
+        let mut sorted = order.to_vec();
+        sorted.sort();
+        let mut src = source::open(input, &opts).unwrap();
+        let missing = source::read_indices(src.as_mut(), &sorted, |f| {
+            for size in sizes {
+                let jpeg = source::shrink(&f.image, size.width(), &String::new)?;
+                want.insert((f.index, size.width()), decoded(&jpeg));
+            }
+            Ok(())
+        });
+        assert_eq!(missing.unwrap(), Vec::<usize>::new());
+        // Timestamps a second off make every seek fail its check: reopen and decode forward.
+        let shifted = ts.as_ref().map(|t| t.iter().map(|x| x + 1.0).collect());
+        for (what, ts) in [
+            ("cached timestamps", ts.clone()),
+            ("no timestamps", None),
+            ("wrong timestamps", shifted),
+        ] {
+            let mut reader = FrameReader::open(input, &opts, ts, source::DEFAULT_BUDGET_BYTES);
+            let reader = reader.as_mut().unwrap();
+            assert_eq!(reader.frame_count(), 120);
+            for i in order {
+                for size in sizes {
+                    let got = decoded(&reader.read(i, size).unwrap());
+                    let want = &want[&(i, size.width())];
+                    assert_eq!(got.size().unwrap(), want.size().unwrap());
+                    let diff = core::norm2(&got, want, core::NORM_INF, &Mat::default()).unwrap();
+                    assert_eq!(diff, 0.0, "{} frame {i} {size:?}, {what}", input.display());
+                }
+            }
+            let e = reader.read(120, FrameSize::Strip).unwrap_err().to_string();
+            let named = e.contains("frame 120") && e.contains(&input.display().to_string());
+            assert!(named, "{e}");
+        }
+        // Every frame twice, both sizes, in a budget of a few JPEGs: the cache stays within it
+        // and serves a frame just read without decoding it again.
+        let budget = 60_000;
+        let mut reader = FrameReader::open(input, &opts, ts, budget).unwrap();
+        for _ in 0..2 {
+            for i in 0..120 {
+                for size in sizes {
+                    reader.read(i, size).unwrap();
+                    assert!(reader.cached_bytes() <= budget, "{}", reader.cached_bytes());
+                }
+            }
+        }
+        assert!(
+            reader.cached_bytes() > budget / 4,
+            "{}",
+            reader.cached_bytes()
+        );
+        let again = (
+            reader.read(119, FrameSize::Large),
+            reader.read(119, FrameSize::Large),
+        );
+        assert!(Arc::ptr_eq(&again.0.unwrap(), &again.1.unwrap()));
     }
 }
