@@ -2,6 +2,7 @@
 
 mod batch;
 mod blur;
+mod browser;
 mod checks;
 mod colmap;
 mod common;
