@@ -1,16 +1,15 @@
-//! A real headless Chromium driven over the DevTools protocol (the `headless_chrome` crate, sync),
+//! A real headless Chromium driven over the DevTools protocol (the small client in `cdp.rs`),
 //! for tests of pages: open a URL, wait for a JavaScript condition, evaluate, click, press keys,
 //! type, take a screenshot. A test takes the browser with `Browser::launch()`, which returns
 //! `None` (and prints SKIPPED) when Chromium is absent; browser tests run one at a time (each
 //! holds a process-wide lock) and each has its own Chromium, killed when the `Browser` drops.
 
-use headless_chrome::browser::tab::ModifierKey;
-use headless_chrome::protocol::cdp::{Emulation, Page, Runtime};
-use headless_chrome::LaunchOptions;
-use serde_json::Value;
-use std::ffi::OsStr;
+use crate::cdp::{Chromium, Connection};
+use crate::common::unbase64;
+use serde_json::{json, Value};
+use std::cell::RefCell;
 use std::path::Path;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 pub const CHROMIUM: &str = "/usr/bin/chromium";
@@ -27,14 +26,15 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 /// One headless Chromium (killed on drop) and the lock that keeps browser tests serial.
 pub struct Browser {
-    inner: headless_chrome::Browser,
+    chromium: RefCell<Chromium>,
     _turn: MutexGuard<'static, ()>,
 }
 
 /// One page of the browser.
 pub struct Tab<'b> {
-    tab: Arc<headless_chrome::Tab>,
-    _browser: &'b Browser,
+    id: String,
+    page: RefCell<Connection>,
+    browser: &'b Browser,
 }
 
 impl Browser {
@@ -49,97 +49,77 @@ impl Browser {
         let turn = ONE_AT_A_TIME
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let args: Vec<&OsStr> = [
+        let t = Instant::now();
+        let size = format!("--window-size={},{}", VIEWPORT.0, VIEWPORT.1);
+        let args = [
             "--disable-quic",
             "--disable-component-update",
             "--hide-scrollbars",
             "--force-device-scale-factor=1",
-        ]
-        .iter()
-        .map(OsStr::new)
-        .collect();
-        let options = LaunchOptions {
-            path: Some(CHROMIUM.into()),
-            headless: true,
-            sandbox: false,
-            window_size: Some(VIEWPORT),
-            args,
-            idle_browser_timeout: Duration::from_secs(120),
-            ..LaunchOptions::default()
-        };
-        let t = Instant::now();
-        let inner = headless_chrome::Browser::new(options).expect("start headless Chromium");
+            size.as_str(),
+        ];
+        let chromium = Chromium::start(CHROMIUM, &args).unwrap_or_else(|e| panic!("{e}"));
         eprintln!("chromium launched in {:?}", t.elapsed());
-        Some(Browser { inner, _turn: turn })
+        Some(Browser {
+            chromium: RefCell::new(chromium),
+            _turn: turn,
+        })
     }
 
     /// Opens `url` in a new tab of the viewport's size and waits until it has loaded.
     pub fn open(&self, url: &str) -> Tab<'_> {
-        let tab = self.inner.new_tab().expect("new tab");
-        tab.call_method(Emulation::SetDeviceMetricsOverride {
-            width: VIEWPORT.0,
-            height: VIEWPORT.1,
-            device_scale_factor: 1.0,
-            mobile: false,
-            scale: None,
-            screen_width: None,
-            screen_height: None,
-            position_x: None,
-            position_y: None,
-            dont_set_visible_size: None,
-            screen_orientation: None,
-            viewport: None,
-            display_feature: None,
-            device_posture: None,
-        })
-        .expect("set the viewport");
-        tab.call_method(Page::AddScriptToEvaluateOnNewDocument {
-            source: ERROR_COLLECTOR.to_string(),
-            world_name: None,
-            include_command_line_api: None,
-            run_immediately: None,
-        })
-        .expect("install the error collector");
-        tab.navigate_to(url)
-            .and_then(|t| t.wait_until_navigated())
-            .unwrap_or_else(|e| panic!("open {url}: {e}"));
-        Tab {
-            tab,
-            _browser: self,
-        }
+        let (id, page) = self
+            .chromium
+            .borrow_mut()
+            .new_page()
+            .unwrap_or_else(|e| panic!("{e}"));
+        let tab = Tab {
+            id,
+            page: RefCell::new(page),
+            browser: self,
+        };
+        tab.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": VIEWPORT.0, "height": VIEWPORT.1, "deviceScaleFactor": 1, "mobile": false}),
+        );
+        tab.call("Page.enable", json!({}));
+        tab.call(
+            "Page.addScriptToEvaluateOnNewDocument",
+            json!({ "source": ERROR_COLLECTOR }),
+        );
+        let r = tab.call("Page.navigate", json!({ "url": url }));
+        assert!(r.get("errorText").is_none(), "open {url}: {r}");
+        tab.wait_for(
+            "location.href !== 'about:blank' && document.readyState === 'complete'",
+            Duration::from_secs(30),
+        )
+        .unwrap_or_else(|e| panic!("open {url}: {e}"));
+        tab
     }
 }
 
 impl Tab<'_> {
+    /// Sends one DevTools command to the page; panics on a protocol error.
+    pub fn call(&self, method: &str, params: Value) -> Value {
+        self.page
+            .borrow_mut()
+            .call(method, params)
+            .unwrap_or_else(|e| panic!("{e}"))
+    }
+
     /// Evaluates `expr` in the page (awaiting a promise) and returns its value as JSON, or the
     /// exception's description. `undefined` is `Value::Null`.
     pub fn try_eval(&self, expr: &str) -> Result<Value, String> {
-        let r = self
-            .tab
-            .call_method(Runtime::Evaluate {
-                expression: expr.to_string(),
-                return_by_value: Some(true),
-                await_promise: Some(true),
-                user_gesture: Some(true),
-                object_group: None,
-                include_command_line_api: None,
-                silent: None,
-                context_id: None,
-                generate_preview: None,
-                throw_on_side_effect: None,
-                timeout: None,
-                disable_breaks: None,
-                repl_mode: None,
-                allow_unsafe_eval_blocked_by_csp: None,
-                unique_context_id: None,
-                serialization_options: None,
-            })
-            .map_err(|e| format!("evaluate {expr}: {e}"))?;
-        if let Some(ex) = r.exception_details {
-            let what = ex.exception.and_then(|o| o.description).unwrap_or(ex.text);
+        let params = json!({"expression": expr, "returnByValue": true, "awaitPromise": true, "userGesture": true});
+        let r = self.page.borrow_mut().call("Runtime.evaluate", params)?;
+        if let Some(ex) = r.get("exceptionDetails") {
+            let what = ex["exception"]["description"]
+                .as_str()
+                .or(ex["text"].as_str())
+                .unwrap_or("an exception");
             return Err(format!("{expr} threw: {what}"));
         }
-        Ok(r.result.value.unwrap_or(Value::Null))
+        Ok(r["result"].get("value").cloned().unwrap_or(Value::Null))
     }
 
     /// `try_eval`, panicking on an exception.
@@ -178,62 +158,122 @@ impl Tab<'_> {
         }
     }
 
+    fn mouse(&self, kind: &str, x: f64, y: f64) {
+        let mut params = json!({"type": kind, "x": x, "y": y});
+        if kind != "mouseMoved" {
+            params["button"] = json!("left");
+            params["clickCount"] = json!(1);
+        }
+        self.call("Input.dispatchMouseEvent", params);
+    }
+
     /// Moves the mouse to (`x`, `y`) in viewport CSS pixels.
     pub fn hover(&self, x: f64, y: f64) {
-        self.tab
-            .move_mouse_to_point(headless_chrome::browser::tab::point::Point { x, y })
-            .expect("move the mouse");
+        self.mouse("mouseMoved", x, y);
     }
 
     /// Moves the mouse to (`x`, `y`) and clicks the left button there.
     pub fn click(&self, x: f64, y: f64) {
-        self.tab
-            .click_point(headless_chrome::browser::tab::point::Point { x, y })
-            .expect("click");
+        for kind in ["mouseMoved", "mousePressed", "mouseReleased"] {
+            self.mouse(kind, x, y);
+        }
     }
 
-    /// Presses and releases a key by its DOM `key` name ("k", "Enter", "ArrowRight", "Escape"),
-    /// optionally after modifiers joined with '+': "Control+z", "Shift+ArrowLeft", "Alt+Meta+s".
+    /// Presses and releases a key by its DOM `key` name ("k", "Enter", "ArrowRight", "Escape",
+    /// "Tab", "Backspace", "Delete", "Home", "End", "PageUp", "PageDown", " " or any single
+    /// character), optionally after modifiers joined with '+': "Control+z", "Shift+ArrowLeft".
     pub fn key(&self, chord: &str) {
         let (mods, key) = match chord.rsplit_once('+') {
             Some((mods, key)) if !key.is_empty() => (mods, key),
             _ => ("", chord),
         };
-        let modifiers: Vec<ModifierKey> = mods
+        let modifiers = mods
             .split('+')
             .filter(|m| !m.is_empty())
             .map(|m| match m {
-                "Alt" => ModifierKey::Alt,
-                "Control" | "Ctrl" => ModifierKey::Ctrl,
-                "Meta" => ModifierKey::Meta,
-                "Shift" => ModifierKey::Shift,
+                "Alt" => 1,
+                "Control" | "Ctrl" => 2,
+                "Meta" => 4,
+                "Shift" => 8,
                 _ => panic!("unknown modifier {m:?} in {chord:?}"),
             })
-            .collect();
-        let modifiers = (!modifiers.is_empty()).then_some(modifiers.as_slice());
-        self.tab
-            .press_key_with_modifiers(key, modifiers)
-            .unwrap_or_else(|e| panic!("press {chord}: {e}"));
+            .fold(0, |a, b| a | b);
+        let (code, vk, text) = key_codes(key).unwrap_or_else(|| panic!("unknown key {key:?}"));
+        // Control, Alt and Meta chords type no text.
+        let text = if modifiers & 7 == 0 { text } else { None };
+        let mut down = json!({"type": if text.is_some() { "keyDown" } else { "rawKeyDown" },
+            "key": key, "code": code, "windowsVirtualKeyCode": vk, "nativeVirtualKeyCode": vk,
+            "modifiers": modifiers});
+        if let Some(t) = text {
+            down["text"] = json!(t);
+            down["unmodifiedText"] = json!(t);
+        }
+        self.call("Input.dispatchKeyEvent", down);
+        self.call(
+            "Input.dispatchKeyEvent",
+            json!({"type": "keyUp", "key": key, "code": code, "windowsVirtualKeyCode": vk,
+                "nativeVirtualKeyCode": vk, "modifiers": modifiers}),
+        );
     }
 
-    /// Types `text` key by key into the focused element.
+    /// Types `text` key by key (a keydown, input and keyup for each character) into the focused
+    /// element.
     pub fn type_text(&self, text: &str) {
-        self.tab
-            .type_str(text)
-            .unwrap_or_else(|e| panic!("type {text:?}: {e}"));
+        let mut buf = [0u8; 4];
+        for c in text.chars() {
+            self.key(c.encode_utf8(&mut buf));
+        }
     }
 
     /// A PNG of the viewport.
     pub fn screenshot_png(&self) -> Vec<u8> {
-        self.tab
-            .capture_screenshot(Page::CaptureScreenshotFormatOption::Png, None, None, true)
-            .expect("screenshot")
+        let r = self.call("Page.captureScreenshot", json!({"format": "png"}));
+        unbase64(r["data"].as_str().expect("screenshot data"))
+    }
+}
+
+/// The DOM `code`, the Windows virtual key code and the typed text of a key.
+fn key_codes(key: &str) -> Option<(String, u32, Option<String>)> {
+    let named = |code: &str, vk: u32, text: Option<&str>| {
+        Some((code.to_string(), vk, text.map(str::to_string)))
+    };
+    match key {
+        "Enter" => named("Enter", 13, Some("\r")),
+        "Tab" => named("Tab", 9, None),
+        "Escape" => named("Escape", 27, None),
+        "Backspace" => named("Backspace", 8, None),
+        "Delete" => named("Delete", 46, None),
+        " " => named("Space", 32, Some(" ")),
+        "ArrowLeft" => named("ArrowLeft", 37, None),
+        "ArrowUp" => named("ArrowUp", 38, None),
+        "ArrowRight" => named("ArrowRight", 39, None),
+        "ArrowDown" => named("ArrowDown", 40, None),
+        "Home" => named("Home", 36, None),
+        "End" => named("End", 35, None),
+        "PageUp" => named("PageUp", 33, None),
+        "PageDown" => named("PageDown", 34, None),
+        _ => {
+            let mut chars = key.chars();
+            let c = chars.next()?;
+            if chars.next().is_some() {
+                return None;
+            }
+            let upper = c.to_ascii_uppercase();
+            let (code, vk) = if c.is_ascii_alphabetic() {
+                (format!("Key{upper}"), u32::from(upper))
+            } else if c.is_ascii_digit() {
+                (format!("Digit{c}"), u32::from(c))
+            } else {
+                (String::new(), 0)
+            };
+            Some((code, vk, Some(c.to_string())))
+        }
     }
 }
 
 impl Drop for Tab<'_> {
     fn drop(&mut self) {
-        let _ = self.tab.close(false);
+        let _ = self.browser.chromium.borrow_mut().close_page(&self.id);
     }
 }
 

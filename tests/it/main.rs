@@ -3,6 +3,7 @@
 mod batch;
 mod blur;
 mod browser;
+mod cdp;
 mod checks;
 mod colmap;
 mod common;

@@ -4,7 +4,7 @@
 //! over the DevTools protocol (the keyframe marks, the hover tip, a screenshot).
 
 use crate::browser::{Browser, CHROMIUM, VIEWPORT};
-use crate::common::{code_and_stderr, ffmpeg, json, kf, kf_ok, s, testdata};
+use crate::common::{code_and_stderr, ffmpeg, json, kf, kf_ok, s, testdata, unbase64};
 use keyframer::report::timeline::{frame_x, GAP, KEYFRAME_RGB, LEFT, PANEL_H, RIGHT, TOP, WIDTH};
 use keyframer::report::{write_report, CameraPath, PathPoint, ReportSettings};
 use std::path::{Path, PathBuf};
@@ -102,28 +102,6 @@ fn bar_columns(img: &image::RgbImage, x0: u32, x1: u32, y0: u32, y1: u32, tol: i
         })
         .map(i64::from)
         .collect()
-}
-
-/// Decodes standard base64 (the test's own decoder, independent of the page's encoder).
-fn unbase64(text: &str) -> Vec<u8> {
-    let value = |c: u8| match c {
-        b'A'..=b'Z' => u32::from(c - b'A'),
-        b'a'..=b'z' => u32::from(c - b'a') + 26,
-        b'0'..=b'9' => u32::from(c - b'0') + 52,
-        b'+' => 62,
-        b'/' => 63,
-        _ => panic!("not base64: {c}"),
-    };
-    let mut out = Vec::new();
-    for chunk in text.as_bytes().chunks(4) {
-        let data: Vec<u8> = chunk.iter().copied().filter(|&c| c != b'=').collect();
-        let n = data
-            .iter()
-            .enumerate()
-            .fold(0u32, |acc, (i, &c)| acc | (value(c) << (18 - 6 * i)));
-        out.extend((0..data.len().saturating_sub(1)).map(|i| (n >> (16 - 8 * i)) as u8));
-    }
-    out
 }
 
 fn report(project: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
