@@ -2,6 +2,8 @@
 
 mod batch;
 mod blur;
+mod browser;
+mod cdp;
 mod checks;
 mod colmap;
 mod common;

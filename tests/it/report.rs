@@ -1,15 +1,16 @@
 //! `keyframer report`: a real project from a small panning clip, the self-contained page, the
 //! page in headless Chromium (no script error, keyframe bars where the project puts them), the PNG
-//! timeline, the camera path section, missing cache data, refusals and errors.
+//! timeline, the camera path section, missing cache data, refusals and errors; the page driven
+//! over the DevTools protocol (the keyframe marks, the hover tip, a screenshot).
 
-use crate::common::{code_and_stderr, ffmpeg, json, kf, kf_ok, s, testdata};
+use crate::browser::{Browser, CHROMIUM, VIEWPORT};
+use crate::common::{code_and_stderr, ffmpeg, json, kf, kf_ok, s, testdata, unbase64};
 use keyframer::report::timeline::{frame_x, GAP, KEYFRAME_RGB, LEFT, PANEL_H, RIGHT, TOP, WIDTH};
 use keyframer::report::{write_report, CameraPath, PathPoint, ReportSettings};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
-
-const CHROMIUM: &str = "/usr/bin/chromium";
+use std::time::{Duration, Instant};
 
 /// A project made once per test run: a 4 s, 30 fps pan (60 px/s) over a photo of the public test
 /// data (320x240), selected with
@@ -103,28 +104,6 @@ fn bar_columns(img: &image::RgbImage, x0: u32, x1: u32, y0: u32, y1: u32, tol: i
         .collect()
 }
 
-/// Decodes standard base64 (the test's own decoder, independent of the page's encoder).
-fn unbase64(text: &str) -> Vec<u8> {
-    let value = |c: u8| match c {
-        b'A'..=b'Z' => u32::from(c - b'A'),
-        b'a'..=b'z' => u32::from(c - b'a') + 26,
-        b'0'..=b'9' => u32::from(c - b'0') + 52,
-        b'+' => 62,
-        b'/' => 63,
-        _ => panic!("not base64: {c}"),
-    };
-    let mut out = Vec::new();
-    for chunk in text.as_bytes().chunks(4) {
-        let data: Vec<u8> = chunk.iter().copied().filter(|&c| c != b'=').collect();
-        let n = data
-            .iter()
-            .enumerate()
-            .fold(0u32, |acc, (i, &c)| acc | (value(c) << (18 - 6 * i)));
-        out.extend((0..data.len().saturating_sub(1)).map(|i| (n >> (16 - 8 * i)) as u8));
-    }
-    out
-}
-
 fn report(project: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     let mut args = vec!["report", s(project), "-o", s(out)];
     args.extend_from_slice(extra);
@@ -140,7 +119,7 @@ fn report_page_is_self_contained_and_png_timeline_has_the_keyframe_bars() {
         "the pan should give several keyframes: {keys:?}"
     );
     let out = dir.join("self-contained.html");
-    let t = std::time::Instant::now();
+    let t = Instant::now();
     let r = report(project, &out, &["--thumbs", "4", "--force"]);
     let (code, err) = code_and_stderr(&r);
     assert_eq!(code, 0, "{err}");
@@ -311,7 +290,7 @@ fn report_renders_in_headless_chromium_with_bars_at_the_keyframes() {
     let stats = path.stats().unwrap();
     assert!(html.contains(&format!("mean {:.4}", stats.mean_spacing)));
 
-    let t = std::time::Instant::now();
+    let t = Instant::now();
     let dom = chromium(&page, &["--dump-dom"]);
     eprintln!("chromium --dump-dom: {:?}", t.elapsed());
     // The handler's own source names the marker; only the attribute and element mean an error.
@@ -329,18 +308,13 @@ fn report_renders_in_headless_chromium_with_bars_at_the_keyframes() {
     let top: f64 = attr(&dom, "data-timeline-top").unwrap().parse().unwrap();
 
     let shot = dir.join("chromium.png");
-    let t = std::time::Instant::now();
+    let t = Instant::now();
     chromium(&page, &[&format!("--screenshot={}", shot.display())]);
     eprintln!("chromium --screenshot: {:?}", t.elapsed());
     let img = image::open(&shot).unwrap().to_rgb8();
     assert_eq!((img.width(), img.height()), (1300, 1000));
     // Not blank.
-    let lum: Vec<f64> = img
-        .pixels()
-        .map(|p| (u32::from(p[0]) + u32::from(p[1]) + u32::from(p[2])) as f64 / 3.0)
-        .collect();
-    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
-    let var = lum.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / lum.len() as f64;
+    let var = luminance_variance(&img);
     assert!(var > 100.0, "screenshot looks blank (variance {var:.1})");
     // Keyframe bars in the first panel at the expected columns, offset by the SVG's position.
     let (x0, y0) = (left.round() as i64, top.round() as i64);
@@ -372,6 +346,115 @@ fn report_renders_in_headless_chromium_with_bars_at_the_keyframes() {
         "onerror marker missing"
     );
     assert!(dom.contains("<pre id=\"script-error\">"));
+}
+
+/// Luminance variance of an RGB image (0 for a blank one).
+fn luminance_variance(img: &image::RgbImage) -> f64 {
+    let lum: Vec<f64> = img
+        .pixels()
+        .map(|p| (u32::from(p[0]) + u32::from(p[1]) + u32::from(p[2])) as f64 / 3.0)
+        .collect();
+    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
+    lum.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / lum.len() as f64
+}
+
+#[test]
+fn report_driven_over_devtools_marks_keyframes_and_shows_the_hovered_frame() {
+    let Some(browser) = Browser::launch() else {
+        return;
+    };
+    let (dir, project) = fixture();
+    let (keys, n) = project_keyframes(project);
+    let page = dir.join("devtools.html");
+    let settings = ReportSettings {
+        output: page.clone(),
+        timeline: None,
+        export: None,
+        thumbs: 0,
+        force: true,
+    };
+    write_report(project, &settings, None).unwrap();
+    let t = Instant::now();
+    let tab = browser.open(&format!("file://{}", page.display()));
+    tab.wait_for("document.body.dataset.rendered", Duration::from_secs(10))
+        .unwrap();
+    eprintln!("page open and rendered in {:?}", t.elapsed());
+
+    // The keyframe marks of the timeline are the project's keyframes, in order.
+    let marks = tab
+        .eval("[...document.querySelectorAll('#timeline g.kf')].map(g => Number(g.dataset.frame))");
+    let marks: Vec<usize> = serde_json::from_value(marks).unwrap();
+    assert_eq!(marks, keys);
+    assert_eq!(
+        tab.eval("document.body.dataset.rendered"),
+        serde_json::json!(format!("{} keyframes", keys.len()))
+    );
+
+    // Hovering frame k of the timeline shows its tip and moves the cursor line there.
+    tab.eval("document.getElementById('timeline').scrollIntoView()");
+    let rect = tab.eval(
+        "(r => [r.left, r.top])(document.getElementById('timeline').getBoundingClientRect())",
+    );
+    let (left, top) = (rect[0].as_f64().unwrap(), rect[1].as_f64().unwrap());
+    let row = top + f64::from(TOP + PANEL_H / 2);
+    assert!(
+        row < f64::from(VIEWPORT.1),
+        "timeline below the fold at {top}"
+    );
+    let key = keys[keys.len() / 2];
+    let plain = (key + 1..n).find(|f| !keys.contains(f)).unwrap();
+    for (frame, label) in [
+        (key, format!("frame {key}  (keyframe)")),
+        (plain, format!("frame {plain}")),
+    ] {
+        tab.hover(left + f64::from(frame_x(frame, n)), row);
+        tab.wait_for(
+            "getComputedStyle(document.getElementById('tip')).display === 'block'",
+            Duration::from_secs(5),
+        )
+        .unwrap();
+        let tip = tab.eval("document.getElementById('tip').textContent");
+        assert_eq!(tip.as_str().unwrap().lines().next(), Some(label.as_str()));
+        let cursor = tab.eval("[document.getElementById('cursor').getAttribute('x1'), document.getElementById('cursor').getAttribute('visibility')]");
+        let x: f64 = cursor[0].as_str().unwrap().parse().unwrap();
+        assert_eq!(
+            x.round() as i32,
+            frame_x(frame, n),
+            "cursor of frame {frame}"
+        );
+        assert_eq!(cursor[1], "visible");
+    }
+    // Leaving the timeline hides the tip and the cursor.
+    tab.hover(2.0, 2.0);
+    tab.wait_for(
+        "getComputedStyle(document.getElementById('tip')).display === 'none'",
+        Duration::from_secs(5),
+    )
+    .unwrap();
+    assert_eq!(
+        tab.eval("document.getElementById('cursor').getAttribute('visibility')"),
+        "hidden"
+    );
+    assert_eq!(tab.errors(), Vec::<String>::new());
+
+    // The screenshot is not blank and shows the bars at the keyframe columns.
+    let t = Instant::now();
+    let png = tab.screenshot_png();
+    eprintln!("screenshot over DevTools in {:?}", t.elapsed());
+    let img = image::load_from_memory(&png).unwrap().to_rgb8();
+    assert_eq!((img.width(), img.height()), VIEWPORT);
+    let var = luminance_variance(&img);
+    assert!(var > 100.0, "screenshot looks blank (variance {var:.1})");
+    let panel = (top.round() as i64 + i64::from(TOP)) as u32;
+    let got: Vec<i64> = bar_columns(&img, 0, VIEWPORT.0, panel + 2, panel + PANEL_H - 2, 12)
+        .into_iter()
+        .map(|x| x - left.round() as i64)
+        .collect();
+    assert_eq!(
+        got,
+        expected_columns(&keys, n),
+        "bar columns in the screenshot"
+    );
 }
 
 #[test]
