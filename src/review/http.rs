@@ -6,6 +6,7 @@
 
 use super::{parse_steps, ApiError, Review};
 use crate::error::{Error, Result};
+use crate::source::FrameSize;
 use serde_json::{json, Value};
 use std::io::Read;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -245,6 +246,15 @@ impl Served {
                 let force = body["force"].as_bool().unwrap_or(false);
                 let saved = review.save_workflow(&steps, force)?;
                 Ok(json_reply(200, &json!({"saved": saved})))
+            }
+            (Method::Get, ["api", "frame", index]) => {
+                let index = index_of(index)?;
+                let size = match query(rq.url(), "size").as_deref() {
+                    Some("large") => FrameSize::Large,
+                    _ => FrameSize::Strip,
+                };
+                let jpeg = review.frame(index, size)?;
+                Ok(reply(200, "image/jpeg", jpeg.to_vec()))
             }
             (Method::Get, ["api", "export", kind, index]) => {
                 let index = index_of(index)?;

@@ -15,6 +15,7 @@ use crate::params::MovementRequest;
 use crate::project::{HistoryEntry, Project, SCHEMA_VERSION};
 use crate::report::timeline::Timeline;
 use crate::select::{self, Resolved};
+use crate::source::{FrameReader, FrameSize, DEFAULT_BUDGET_BYTES};
 use crate::steps::{self, Applied, Step};
 use serde::Serialize;
 use serde_json::{json, Value};
@@ -121,6 +122,8 @@ pub struct Review {
     movement: MovementRequest,
     saved: Mutex<Saved>,
     busy: Mutex<Option<Busy>>,
+    /// Decodes frames on demand (opened at the first request), with its bounded JPEG cache.
+    frames: Mutex<Option<FrameReader>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -150,6 +153,7 @@ impl Review {
                 revision: 0,
             }),
             busy: Mutex::new(None),
+            frames: Mutex::new(None),
         })
     }
 
@@ -412,6 +416,56 @@ impl Review {
                 e => e.into(),
             }
         })
+    }
+
+    /// Frame `index` as a JPEG of `size`, decoded on demand (a bounded cache keeps recent ones).
+    pub fn frame(
+        &self,
+        index: usize,
+        size: FrameSize,
+    ) -> std::result::Result<Arc<Vec<u8>>, ApiError> {
+        let project = self.project();
+        if index >= project.metadata.frame_count {
+            return Err(ApiError::new(404, format!("no frame {index}")));
+        }
+        if project.damaged_frames.binary_search(&index).is_ok() {
+            return Err(ApiError::new(404, format!("frame {index} is damaged")));
+        }
+        let unavailable = |e: Error| ApiError::new(503, e.to_string());
+        let mut frames = lock(&self.frames);
+        if frames.is_none() {
+            let same =
+                select::identify(&self.input).map_err(unavailable)?.1 == project.input.fingerprint;
+            if !same {
+                return Err(ApiError::new(
+                    503,
+                    format!(
+                        "{} changed since the project was made",
+                        self.input.display()
+                    ),
+                ));
+            }
+            let open = crate::source::OpenOptions {
+                images_fps: project.metadata.fps,
+                codec_keyframes: None,
+            };
+            let ts = project.cache.timestamps_s.clone();
+            *frames = Some(
+                FrameReader::open(&self.input, &open, ts, DEFAULT_BUDGET_BYTES)
+                    .map_err(unavailable)?,
+            );
+        }
+        let reader = frames
+            .as_mut()
+            .ok_or_else(|| ApiError::new(503, "no frame reader"))?;
+        self.set_busy(Some(Busy {
+            what: format!("decoding frame {index}"),
+            done: 0,
+            total: 1,
+        }));
+        let jpeg = reader.read(index, size);
+        self.set_busy(None);
+        jpeg.map_err(|e| ApiError::new(404, e.to_string()))
     }
 
     /// The export's file of `kind` (`image`, `mask`, `overlay`) for frame `index`: a regular file
