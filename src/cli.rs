@@ -226,9 +226,13 @@ pub struct BenchArgs {
     #[arg(long)]
     pub adapter: Option<String>,
     /// pipeline: folder for the generated clips (kept and re-used; made by keyframer-bench-clip,
-    /// built with `cargo build --release -p keyframer-scene`) and scratch projects.
+    /// built with `cargo build --release -p keyframer-scene`) and scratch projects; review: its
+    /// synthetic project.
     #[arg(long, default_value = "keyframer-bench")]
     pub dir: PathBuf,
+    /// review: frames of the synthetic project (written into --dir).
+    #[arg(long, default_value_t = 10_000)]
+    pub review_frames: usize,
     /// pipeline: length of the 1080p30 clip in seconds.
     #[arg(long, default_value_t = 60)]
     pub seconds: u32,
@@ -282,6 +286,9 @@ pub enum BenchWhat {
     Flow,
     /// Whole-clip analysis vs decode-only on generated 1080p and 4K clips, with peak memory.
     Pipeline,
+    /// `review`'s answer to a parameter change on a synthetic project (--review-frames long):
+    /// the step chain, the timeline drawing, the HTTP round trip.
+    Review,
 }
 
 /// Which kernels implementation to use.

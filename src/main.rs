@@ -142,6 +142,13 @@ fn info(a: &cli::InfoArgs) -> Result<Outcome> {
 }
 
 fn bench(a: &cli::BenchArgs) -> Result<Outcome> {
+    if let cli::BenchWhat::Review = a.what {
+        print!(
+            "{}",
+            keyframer::review::bench::review(&a.dir, a.review_frames)?
+        );
+        return Ok(Outcome::Ok);
+    }
     if let cli::BenchWhat::Pipeline = a.what {
         print!(
             "{}",
@@ -151,7 +158,7 @@ fn bench(a: &cli::BenchArgs) -> Result<Outcome> {
     }
     let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(a.adapter.as_deref())?);
     match a.what {
-        cli::BenchWhat::Pipeline => {}
+        cli::BenchWhat::Pipeline | cli::BenchWhat::Review => {}
         cli::BenchWhat::Flow => {
             let pairs = a.frames.min(8);
             let rows = keyframer::bench::flow(&ctx, pairs, &a.strip_rows)?;

@@ -141,7 +141,12 @@ pub fn review(dir: &Path, frames: usize) -> Result<String> {
         Ok(stats(ms))
     };
     let api = |e: super::ApiError| Error::param("review", e.error);
-    let chain = time(&mut |s| review.select(s).map(|_| ()).map_err(api))?;
+    let mut counts = Vec::new();
+    let chain = time(&mut |s| {
+        counts.push(review.select(s).map_err(api)?.keyframes.len());
+        Ok(())
+    })?;
+    let (fewest, most) = (counts.iter().min(), counts.iter().max());
     let drawn = time(&mut |s| review.apply(s, None).map(|_| ()).map_err(api))?;
     let served = Served::bind(Review::open(&settings)?, 0)?;
     let (port, token) = (served.port(), served.token().to_string());
@@ -152,11 +157,14 @@ pub fn review(dir: &Path, frames: usize) -> Result<String> {
     let _ = server.join();
     let http = http?;
     let row = |what: &str, (p50, p95, max): (f64, f64, f64)| {
-        format!("| {what} | {p50:.1} | {p95:.1} | {max:.1} |\n")
+        format!("| {what} | {p50:.2} | {p95:.2} | {max:.2} |\n")
     };
     Ok(format!(
-        "review: {frames}-frame project, 40 parameter changes (spacing / blur ratio), ms \
-         (target: under 50 on the server)\n\n| what | median | p95 | max |\n|---|---|---|---|\n{}{}{}",
+        "review: {frames}-frame project, 40 parameter changes (spacing / blur ratio; {} to {} \
+         keyframes), ms (target: under 50 on the server)\n\n| what | median | p95 | max |\n\
+         |---|---|---|---|\n{}{}{}",
+        fewest.unwrap_or(&0),
+        most.unwrap_or(&0),
         row("step chain on the cached series", chain),
         row("chain + timeline SVG (Review::apply)", drawn),
         row("POST /api/apply over HTTP (localhost)", http),

@@ -527,3 +527,88 @@ fn review_stops_cleanly_on_sigint() {
     let after: Vec<_> = crate::common::listing(dir.path());
     assert_eq!(before, after, "nothing left beside the project");
 }
+
+#[test]
+fn review_serves_frames_and_the_export_files_of_its_manifest() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_project(dir.path());
+    let export = dir.path().join("exp");
+    kf_ok(&["export", s(&project), "--out", s(&export)]);
+    let srv = Served::start(&project, &["--export", s(&export)]);
+    let host = format!("127.0.0.1:{}", srv.port);
+    let get = |path: &str| {
+        raw(
+            srv.port,
+            "GET",
+            &format!("{path}?token={}", srv.token),
+            &[("Host", &host)],
+            None,
+        )
+    };
+    let keys = crate::common::keyframes(&project);
+    let (code, jpeg) = get(&format!("/api/export/image/{}", keys[1]));
+    assert_eq!(code, 200);
+    let manifest = json(&export.join("manifest.json"));
+    let file = manifest["frames"][1]["file"].as_str().unwrap();
+    assert_eq!(
+        jpeg,
+        std::fs::read(export.join("images").join(file)).unwrap(),
+        "the manifest's file, byte for byte"
+    );
+    let (code, _) = get("/api/export/mask/0");
+    assert_eq!(code, 404, "no masks were exported");
+    let non_key = (0..120).find(|f| !keys.contains(f)).unwrap();
+    assert_eq!(get(&format!("/api/export/image/{non_key}")).0, 404);
+    // Frames decode on demand: a JPEG of the frame at the strip width (160 px).
+    for (f, size, width) in [(119, "strip", 160), (3, "large", 320)] {
+        let (code, bytes) = raw(
+            srv.port,
+            "GET",
+            &format!("/api/frame/{f}.jpg?size={size}&token={}", srv.token),
+            &[("Host", &host)],
+            None,
+        );
+        assert_eq!(code, 200, "{}", String::from_utf8_lossy(&bytes));
+        let img = image::load_from_memory(&bytes).unwrap();
+        assert_eq!(img.width(), width, "frame {f} {size}");
+    }
+    assert_eq!(get("/api/frame/120.jpg").0, 404);
+    // A changed input is not decoded from: the page says why.
+    let clip = project.with_file_name("pan.mp4");
+    std::fs::write(&clip, b"no longer the video").unwrap();
+    let srv2 = Served::start(&project, &[]);
+    let host2 = format!("127.0.0.1:{}", srv2.port);
+    let (code, body) = raw(
+        srv2.port,
+        "GET",
+        &format!("/api/frame/5.jpg?token={}", srv2.token),
+        &[("Host", &host2)],
+        None,
+    );
+    assert_eq!(code, 503, "{}", String::from_utf8_lossy(&body));
+}
+
+#[test]
+fn bench_review_prints_its_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = kf_ok(&[
+        "bench",
+        "review",
+        "--review-frames",
+        "600",
+        "--dir",
+        s(dir.path()),
+    ]);
+    for row in [
+        "step chain on the cached series",
+        "chain + timeline SVG",
+        "POST /api/apply over HTTP",
+    ] {
+        assert!(out.contains(row), "{out}");
+    }
+    assert_eq!(
+        crate::common::listing(dir.path()),
+        vec!["review-bench.json".to_string()],
+        "writes only its project into --dir"
+    );
+}
