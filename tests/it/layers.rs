@@ -141,6 +141,7 @@ const LAYERS: [(&str, &[&str]); 4] = [
     (
         "commands",
         &[
+            "review",
             "select",
             "export",
             "batch",
