@@ -253,9 +253,14 @@ impl Review {
                     disabled.push((plugin, msg));
                 }
                 Err(e) => {
-                    let i = steps.iter().position(|s| e.to_string().contains(s.id()));
+                    let step = match &e {
+                        Error::Plugin { plugin, .. } => {
+                            steps.iter().position(|s| s.id() == *plugin)
+                        }
+                        _ => None,
+                    };
                     return Err(ApiError {
-                        step: i,
+                        step,
                         ..ApiError::new(400, e.to_string())
                     });
                 }
