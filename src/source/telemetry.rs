@@ -339,52 +339,24 @@ pub struct Camera {
 /// state them (with the diagonal fields of view they give: Mini 2 83°, Mini 3 Pro and Mini 4 Pro
 /// 82.1°, Air 2 84°, Air 2S 88°, Mavic 3 84°, Mavic Pro 78.8°, Phantom 4 Pro 84°, Phantom 4 94°).
 pub const CAMERAS: &[Camera] = &[
-    Camera {
-        name: "DJI Mini 2",
-        names: &["FC7303", "Mini 2"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Mini 3 Pro",
-        names: &["FC3582", "Mini 3 Pro"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Mini 4 Pro",
-        names: &["FC8482", "Mini 4 Pro"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Mavic Air 2",
-        names: &["FC3170", "Mavic Air 2", "Air 2"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Air 2S",
-        names: &["FC3411", "Air 2S"],
-        focal_35mm: 22.0,
-    },
-    Camera {
-        name: "DJI Mavic 3",
-        names: &["L2D-20c", "Mavic 3"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Mavic Pro",
-        names: &["FC220", "Mavic Pro"],
-        focal_35mm: 26.0,
-    },
-    Camera {
-        name: "DJI Phantom 4 Pro",
-        names: &["FC6310", "Phantom 4 Pro"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Phantom 4",
-        names: &["FC330", "Phantom 4"],
-        focal_35mm: 20.0,
-    },
+    camera("DJI Mini 2", &["FC7303", "Mini 2"], 24.0),
+    camera("DJI Mini 3 Pro", &["FC3582", "Mini 3 Pro"], 24.0),
+    camera("DJI Mini 4 Pro", &["FC8482", "Mini 4 Pro"], 24.0),
+    camera("DJI Mavic Air 2", &["FC3170", "Mavic Air 2", "Air 2"], 24.0),
+    camera("DJI Air 2S", &["FC3411", "Air 2S"], 22.0),
+    camera("DJI Mavic 3", &["L2D-20c", "Mavic 3"], 24.0),
+    camera("DJI Mavic Pro", &["FC220", "Mavic Pro"], 26.0),
+    camera("DJI Phantom 4 Pro", &["FC6310", "Phantom 4 Pro"], 24.0),
+    camera("DJI Phantom 4", &["FC330", "Phantom 4"], 20.0),
 ];
+
+const fn camera(name: &'static str, names: &'static [&'static str], focal_35mm: f64) -> Camera {
+    Camera {
+        name,
+        names,
+        focal_35mm,
+    }
+}
 
 /// The camera of [`CAMERAS`] that `text` (an EXIF model, a container tag) names: the one whose
 /// longest name it contains, compared without case, spaces or dashes.
