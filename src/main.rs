@@ -389,7 +389,7 @@ fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
     };
     let r = gpu::or_opencv("the analysis", backend, ctx.as_ref(), |backend, ctx| {
         let open = source::OpenOptions::default();
-        analysis::analyse(&a.input, &open, &request, backend, ctx, quiet)
+        analysis::analyse(&a.input, &open, &request, backend, ctx, quiet, None)
     })?;
     let scores = &r.sharpness[0].1;
     let ts = r.timestamps_s.as_deref();

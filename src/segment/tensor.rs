@@ -160,12 +160,12 @@ pub fn decode_output(
 
 /// An error saying the description does not fit the model.
 pub fn mismatch(desc: &ModelDesc, msg: String) -> Error {
-    Error::Plugin {
-        plugin: "segment",
-        msg: format!(
+    Error::plugin(
+        "segment",
+        format!(
             "{} does not match {}: {msg}",
             desc.path.display(),
             desc.model.display()
         ),
-    }
+    )
 }

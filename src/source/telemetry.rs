@@ -115,17 +115,12 @@ pub fn sidecar_of(video: &Path) -> Option<PathBuf> {
 
 /// Reads and parses the DJI SRT file at `path`. Fails when it cannot be read or holds no fix.
 pub fn read_dji_srt(path: &Path) -> Result<Track> {
-    let bytes = std::fs::read(path).map_err(|source| Error::Io {
-        path: path.into(),
-        source,
-    })?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let track = parse_dji_srt(path, &String::from_utf8_lossy(&bytes));
     if track.fixes.is_empty() {
         let why = track.warnings.first().map(String::as_str).unwrap_or("");
-        return Err(Error::Input {
-            path: path.into(),
-            msg: format!("no telemetry entry with a position (first problem: {why})"),
-        });
+        let msg = format!("no telemetry entry with a position (first problem: {why})");
+        return Err(Error::input(path, msg));
     }
     Ok(track)
 }
@@ -193,10 +188,7 @@ fn check_order_and_jumps(track: &mut Track, unit: &str) {
 /// without a time are skipped with a warning. Fails when the file cannot be read or parsed, or
 /// holds no timed point.
 pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Track> {
-    let file = std::fs::File::open(path).map_err(|source| Error::Io {
-        path: path.into(),
-        source,
-    })?;
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let gpx = gpx::read(std::io::BufReader::new(file))
         .map_err(|e| Error::input(path, format!("not a readable GPX file: {e}")))?;
     let mut track = Track {
@@ -261,10 +253,7 @@ pub fn creation_time(video: &Path) -> Result<Option<OffsetDateTime>> {
 /// an unreadable EXIF block is an error naming the image.
 pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
     use exif::{In, Tag, Value};
-    let file = std::fs::File::open(image).map_err(|source| Error::Io {
-        path: image.into(),
-        source,
-    })?;
+    let file = std::fs::File::open(image).map_err(|e| Error::io(image, e))?;
     let exif = match exif::Reader::new().read_from_container(&mut std::io::BufReader::new(file)) {
         Ok(e) => e,
         Err(exif::Error::NotFound(_)) => return Ok(None),
