@@ -463,16 +463,7 @@ fn fix_of(body: &str, t_s: f64, line: usize) -> std::result::Result<Fix, String>
 /// `key: value` and `key value` pairs of an entry, keys lower-cased: the bracketed family's
 /// `[a: 1 b: 2]` and the older family's comma-separated `ISO:100` / `SS 320` / `H 40.5m`.
 fn fields(body: &str) -> Vec<(String, String)> {
-    let cleaned: String = body
-        .chars()
-        .map(|c| {
-            if matches!(c, '[' | ']' | ',' | '<' | '>') {
-                ' '
-            } else {
-                c
-            }
-        })
-        .collect();
+    let cleaned = body.replace(['[', ']', ',', '<', '>'], " ");
     let words: Vec<&str> = cleaned.split_whitespace().collect();
     let mut out = Vec::new();
     let mut k = 0;
