@@ -106,15 +106,10 @@ pub fn folder_name(input: &Path) -> String {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "input".into())
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || "-_.".contains(c) {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
+        .replace(
+            |c: char| !(c.is_ascii_alphanumeric() || "-_.".contains(c)),
+            "_",
+        );
     let hash = fsutil::fnv1a64(resolved.as_os_str().as_bytes());
     format!("{base}-{hash:016x}")
 }

@@ -166,17 +166,8 @@ fn fmt_ratio(a: f64, b: Option<f64>) -> String {
 /// Runs the benchmark; progress on stderr, the report returned.
 pub fn run(s: &Settings) -> Result<String> {
     std::fs::create_dir_all(&s.dir).map_err(|e| Error::io(&s.dir, e))?;
-    let mut clips = vec![(
-        clip(
-            &s.dir,
-            &format!("1080p30-{}s.mp4", s.seconds),
-            1920,
-            1080,
-            30,
-            s.seconds,
-        )?,
-        true,
-    )];
+    let name = format!("1080p30-{}s.mp4", s.seconds);
+    let mut clips = vec![(clip(&s.dir, &name, 1920, 1080, 30, s.seconds)?, true)];
     for &m in &s.k4_minutes {
         let name = format!("2160p{}-{m}min.mp4", s.k4_fps);
         clips.push((clip(&s.dir, &name, 3840, 2160, s.k4_fps, m * 60)?, false));
@@ -287,13 +278,8 @@ fn tradeoffs(s: &Settings) -> Result<String> {
                 .arg(&clip)
                 .args(["--spacing", "200", "--backend", "opencv", "--quiet"])
                 .args(["--analysis-width", &w.to_string()])
-                .args([
-                    "--flow-stride",
-                    &k.to_string(),
-                    "--checkpoint-every",
-                    "0",
-                    "-o",
-                ])
+                .args(["--flow-stride", &k.to_string()])
+                .args(["--checkpoint-every", "0", "-o"])
                 .arg(&project),
             "keyframer select (trade-off)",
         )?;

@@ -121,6 +121,14 @@ impl Error {
         }
     }
 
+    /// Shorthand for [`Error::Plugin`].
+    pub fn plugin(plugin: &'static str, msg: impl Into<String>) -> Self {
+        Error::Plugin {
+            plugin,
+            msg: msg.into(),
+        }
+    }
+
     /// Shorthand for [`Error::Param`].
     pub fn param(name: impl Into<String>, msg: impl Into<String>) -> Self {
         Error::Param {

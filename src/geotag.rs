@@ -51,19 +51,12 @@ pub fn tag_jpeg(path: &Path, jpeg: &mut Vec<u8>, tag: &GeoTag) -> Result<()> {
         return Err(Error::output(path, msg));
     }
     let mut m = Metadata::new();
-    let hemisphere = |negative: bool, n: &str, s: &str| if negative { s } else { n }.to_string();
+    let lat_ref = if tag.lat_deg < 0.0 { "S" } else { "N" };
+    let lon_ref = if tag.lon_deg < 0.0 { "W" } else { "E" };
     m.set_tag(ExifTag::GPSVersionID(vec![2, 3, 0, 0]));
-    m.set_tag(ExifTag::GPSLatitudeRef(hemisphere(
-        tag.lat_deg < 0.0,
-        "N",
-        "S",
-    )));
+    m.set_tag(ExifTag::GPSLatitudeRef(lat_ref.into()));
     m.set_tag(ExifTag::GPSLatitude(dms(tag.lat_deg)));
-    m.set_tag(ExifTag::GPSLongitudeRef(hemisphere(
-        tag.lon_deg < 0.0,
-        "E",
-        "W",
-    )));
+    m.set_tag(ExifTag::GPSLongitudeRef(lon_ref.into()));
     m.set_tag(ExifTag::GPSLongitude(dms(tag.lon_deg)));
     if let Some(alt) = tag.alt_m.filter(|a| a.is_finite()) {
         m.set_tag(ExifTag::GPSAltitudeRef(vec![u8::from(alt < 0.0)]));

@@ -133,48 +133,41 @@ fn run(cli: Cli) -> Result<Outcome> {
 
 fn info(a: &cli::InfoArgs) -> Result<Outcome> {
     let i = keyframer::info::gather(a.adapter.as_deref());
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&i)?);
+    print_json_or(a.json, &i, keyframer::info::render)
+}
+
+/// Prints `value` as JSON (`--json`), else as the text `render` gives.
+fn print_json_or<T: serde::Serialize>(
+    json: bool,
+    value: &T,
+    render: fn(&T) -> String,
+) -> Result<Outcome> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(value)?);
     } else {
-        print!("{}", keyframer::info::render(&i));
+        print!("{}", render(value));
     }
     Ok(Outcome::Ok)
 }
 
 fn bench(a: &cli::BenchArgs) -> Result<Outcome> {
-    if let cli::BenchWhat::Review = a.what {
-        print!(
-            "{}",
-            keyframer::review::bench::review(&a.dir, a.review_frames)?
-        );
-        return Ok(Outcome::Ok);
-    }
-    if let cli::BenchWhat::Pipeline = a.what {
-        print!(
-            "{}",
-            keyframer::bench_pipeline::run(&a.pipeline_settings())?
-        );
-        return Ok(Outcome::Ok);
-    }
-    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(a.adapter.as_deref())?);
-    match a.what {
-        cli::BenchWhat::Pipeline | cli::BenchWhat::Review => {}
+    use keyframer::bench;
+    let ctx = || keyframer::gpu::GpuContext::new(a.adapter.as_deref()).map(std::sync::Arc::new);
+    let text = match a.what {
+        cli::BenchWhat::Pipeline => keyframer::bench_pipeline::run(&a.pipeline_settings())?,
+        cli::BenchWhat::Review => keyframer::review::bench::review(&a.dir, a.review_frames)?,
         cli::BenchWhat::Flow => {
-            let pairs = a.frames.min(8);
-            let rows = keyframer::bench::flow(&ctx, pairs, &a.strip_rows)?;
-            print!(
-                "{}",
-                keyframer::bench::render_flow(&ctx.info.name, pairs, &rows)
-            );
+            let (ctx, pairs) = (ctx()?, a.frames.min(8));
+            let rows = bench::flow(&ctx, pairs, &a.strip_rows)?;
+            bench::render_flow(&ctx.info.name, pairs, &rows)
         }
         cli::BenchWhat::Sharpness => {
-            let rows = keyframer::bench::sharpness(&ctx, a.frames, &a.strip_rows)?;
-            print!(
-                "{}",
-                keyframer::bench::render_sharpness(&ctx.info.name, a.frames, &rows)
-            );
+            let ctx = ctx()?;
+            let rows = bench::sharpness(&ctx, a.frames, &a.strip_rows)?;
+            bench::render_sharpness(&ctx.info.name, a.frames, &rows)
         }
-    }
+    };
+    print!("{text}");
     Ok(Outcome::Ok)
 }
 
@@ -313,22 +306,12 @@ fn export(a: &cli::ExportArgs, quiet: bool) -> Result<Outcome> {
 
 fn colmap(a: &cli::ColmapArgs, quiet: bool) -> Result<Outcome> {
     let rec = keyframer::colmap::run(&a.settings(), quiet)?;
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&rec)?);
-    } else {
-        print!("{}", keyframer::colmap::render(&rec));
-    }
-    Ok(Outcome::Ok)
+    print_json_or(a.json, &rec, keyframer::colmap::render)
 }
 
 fn eval(a: &cli::EvalArgs) -> Result<Outcome> {
     let r = keyframer::eval::evaluate(&a.settings())?;
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
-    } else {
-        print!("{}", keyframer::eval::render(&r));
-    }
-    Ok(Outcome::Ok)
+    print_json_or(a.json, &r, keyframer::eval::render)
 }
 
 fn segment(a: &cli::SegmentArgs) -> Result<Outcome> {
@@ -407,7 +390,7 @@ fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
     };
     let r = gpu::or_opencv("the analysis", backend, ctx.as_ref(), |backend, ctx| {
         let open = source::OpenOptions::default();
-        analysis::analyse(&a.input, &open, &request, backend, ctx, quiet)
+        analysis::analyse(&a.input, &open, &request, backend, ctx, quiet, None)
     })?;
     let scores = &r.sharpness[0].1;
     let ts = r.timestamps_s.as_deref();

@@ -74,22 +74,11 @@ pub struct Analysis {
     pub backend: Backend,
 }
 
-/// Runs one pass over `input`. `ctx` is the GPU context when the gpu backend is in use.
+/// Runs one pass over `input`. `ctx` is the GPU context when the gpu backend is in use. With
+/// `resume`, saves a checkpoint there periodically and resumes from it when it matches the input
+/// and request. The decode thread, the sharpness worker and the movement pass (this thread)
+/// overlap; queues between them are a few frames long.
 pub fn analyse(
-    input: &Path,
-    opts: &OpenOptions,
-    req: &Request,
-    backend: Backend,
-    ctx: Option<&Arc<GpuContext>>,
-    quiet: bool,
-) -> Result<Analysis> {
-    analyse_with(input, opts, req, backend, ctx, quiet, None)
-}
-
-/// As [`analyse`], saving a checkpoint to `resume` periodically and resuming from it when it
-/// matches the input and request. The decode thread, the sharpness worker and the movement
-/// pass (this thread) overlap; queues between them are a few frames long.
-pub fn analyse_with(
     input: &Path,
     opts: &OpenOptions,
     req: &Request,

@@ -1071,14 +1071,7 @@ impl FarnebackGpu {
         let what = "Farneback (8-bit gray)";
         self.ctx
             .upload_mat(buf, gray, opencv::core::CV_8UC1, w, h, what, &mut self.pad)?;
-        let mut enc = self.ctx.encoder("farneback pyramid");
-        self.encode(
-            &mut enc,
-            "farneback pyramid",
-            &self.pyramid_steps(slot),
-            None,
-        );
-        self.ctx.queue.submit([enc.finish()]);
+        self.submit_pyramid(self.ctx.encoder("farneback pyramid"), slot);
         Ok(())
     }
 
@@ -1098,14 +1091,15 @@ impl FarnebackGpu {
         }
         let mut enc = self.ctx.encoder("farneback pyramid");
         enc.copy_buffer_to_buffer(gray, 0, &self.slots[slot].gray, 0, bytes);
-        self.encode(
-            &mut enc,
-            "farneback pyramid",
-            &self.pyramid_steps(slot),
-            None,
-        );
-        self.ctx.queue.submit([enc.finish()]);
+        self.submit_pyramid(enc, slot);
         Ok(())
+    }
+
+    /// Records the expansion pyramid of `slot` after `enc`'s commands and submits them.
+    fn submit_pyramid(&self, mut enc: wgpu::CommandEncoder, slot: usize) {
+        let steps = self.pyramid_steps(slot);
+        self.encode(&mut enc, "farneback pyramid", &steps, None);
+        self.ctx.queue.submit([enc.finish()]);
     }
 
     /// Computes the flow from the frame in slot `from` to the frame in slot `to` into

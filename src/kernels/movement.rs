@@ -233,12 +233,9 @@ pub fn cpu_flow(
 
 /// Per-pixel magnitudes of a CV_32FC2 flow field, in f32 as the shader computes them.
 pub fn magnitudes(flow: &opencv::core::Mat) -> Result<Vec<f32>> {
-    use opencv::prelude::*;
-    let d = flow
-        .data_typed::<opencv::core::Vec2f>()
-        .map_err(|e| Error::param("flow", e.to_string()))?;
-    Ok(d.iter()
-        .map(|v| (v[0] * v[0] + v[1] * v[1]).sqrt())
+    let v = flow_values(flow)?;
+    Ok(v.chunks_exact(2)
+        .map(|d| (d[0] * d[0] + d[1] * d[1]).sqrt())
         .collect())
 }
 

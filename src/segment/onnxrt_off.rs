@@ -10,14 +10,14 @@ pub enum OrtRunner {}
 impl OrtRunner {
     /// Fails: keyframer was built without ONNX Runtime.
     pub fn load(desc: &ModelDesc) -> Result<OrtRunner> {
-        Err(Error::Plugin {
-            plugin: "segment",
-            msg: format!(
+        Err(Error::plugin(
+            "segment",
+            format!(
                 "cannot run {} with ONNX Runtime: keyframer was built without the `onnx` cargo \
                  feature (rebuild with default features, or use the opencv backend)",
                 desc.model.display()
             ),
-        })
+        ))
     }
 
     /// Unreachable: no runner exists.

@@ -134,19 +134,14 @@ pub fn decode_output(
             (0..plane)
                 .map(|p| match desc.output.kind {
                     OutputKind::Probability => u16::from(at(b, 0, p) >= desc.output.threshold),
-                    OutputKind::Scores => {
-                        // First maximum wins, so ties resolve the same way everywhere.
-                        let mut best = 0;
-                        let mut best_v = at(b, 0, p);
-                        for k in 1..c {
-                            let v = at(b, k, p);
-                            if v > best_v {
-                                best = k;
-                                best_v = v;
-                            }
+                    // First maximum wins, so ties resolve the same way everywhere.
+                    OutputKind::Scores => (1..c).fold(0, |best, k| {
+                        if at(b, k, p) > at(b, best, p) {
+                            k
+                        } else {
+                            best
                         }
-                        best as u16
-                    }
+                    }) as u16,
                 })
                 .collect()
         })
@@ -160,12 +155,12 @@ pub fn decode_output(
 
 /// An error saying the description does not fit the model.
 pub fn mismatch(desc: &ModelDesc, msg: String) -> Error {
-    Error::Plugin {
-        plugin: "segment",
-        msg: format!(
+    Error::plugin(
+        "segment",
+        format!(
             "{} does not match {}: {msg}",
             desc.path.display(),
             desc.model.display()
         ),
-    }
+    )
 }

@@ -423,6 +423,7 @@ impl Known {
             Backend::Opencv,
             None,
             s.quiet,
+            None,
         )?;
         self.cache.timestamps_s = a.timestamps_s;
         self.problems = a.problems;
@@ -458,7 +459,7 @@ impl Known {
         let request = plan.request(s);
         let a = gpu::or_opencv("the analysis", backend, ctx.as_ref(), |backend, ctx| {
             let before = ctx.map(|c| c.counts());
-            let a = analysis::analyse_with(
+            let a = analysis::analyse(
                 &s.input,
                 open,
                 &request,

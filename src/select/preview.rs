@@ -22,10 +22,10 @@ pub fn keyframe_bounds(b: &Boundaries, index: &CodecKeyframeIndex) -> Result<Bou
         Some(Bound::Frame(i)) => {
             let pos = k.partition_point(|&f| f < i);
             if pos == k.len() {
-                return Err(Error::Plugin {
-                    plugin: "preview",
-                    msg: format!("no codec keyframe at or after --start frame {i}"),
-                });
+                return Err(Error::plugin(
+                    "preview",
+                    format!("no codec keyframe at or after --start frame {i}"),
+                ));
             }
             Some(Bound::Frame(pos))
         }
@@ -34,10 +34,10 @@ pub fn keyframe_bounds(b: &Boundaries, index: &CodecKeyframeIndex) -> Result<Bou
     let end = match b.end {
         Some(Bound::Frame(i)) => match k.partition_point(|&f| f <= i) {
             0 => {
-                return Err(Error::Plugin {
-                    plugin: "preview",
-                    msg: format!("no codec keyframe at or before --end frame {i}"),
-                })
+                return Err(Error::plugin(
+                    "preview",
+                    format!("no codec keyframe at or before --end frame {i}"),
+                ))
             }
             n => Some(Bound::Frame(n - 1)),
         },

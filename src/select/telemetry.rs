@@ -43,10 +43,7 @@ fn kind_of_file(file: &Path) -> Result<TelemetryKind> {
         Some("srt") => return Ok(TelemetryKind::DjiSrt),
         _ => {}
     }
-    let io = |source| Error::Io {
-        path: file.into(),
-        source,
-    };
+    let io = |e| Error::io(file, e);
     let mut bytes = Vec::with_capacity(512);
     std::io::Read::read_to_end(
         &mut std::io::Read::take(std::fs::File::open(file).map_err(io)?, 512),

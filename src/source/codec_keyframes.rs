@@ -29,13 +29,13 @@ impl CodecKeyframeIndex {
 }
 
 fn missing_tool(tool: &str, e: std::io::Error) -> Error {
-    Error::Plugin {
-        plugin: "preview",
-        msg: format!(
+    Error::plugin(
+        "preview",
+        format!(
             "cannot run `{tool}` ({e}); the keyframe-only preview needs FFmpeg's command-line \
              tools (Debian/Ubuntu: apt-get install ffmpeg)"
         ),
-    }
+    )
 }
 
 /// Parses `ffprobe -show_entries packet=pts_time,dts_time,flags -of csv=p=0` output into an
@@ -165,10 +165,10 @@ impl CodecKeyframeSource {
             .stderr(Stdio::piped())
             .spawn()
             .map_err(|e| missing_tool("ffmpeg", e))?;
-        let pipe = child.stdout.take().ok_or_else(|| Error::Plugin {
-            plugin: "preview",
-            msg: "ffmpeg started without an output pipe".into(),
-        })?;
+        let pipe = child
+            .stdout
+            .take()
+            .ok_or_else(|| Error::plugin("preview", "ffmpeg started without an output pipe"))?;
         // The packet list ends where the data does: a stream cut short lists fewer packets than
         // the container declares frames (the full decode reports the same).
         let failure = super::video::short_stream(

@@ -115,17 +115,12 @@ pub fn sidecar_of(video: &Path) -> Option<PathBuf> {
 
 /// Reads and parses the DJI SRT file at `path`. Fails when it cannot be read or holds no fix.
 pub fn read_dji_srt(path: &Path) -> Result<Track> {
-    let bytes = std::fs::read(path).map_err(|source| Error::Io {
-        path: path.into(),
-        source,
-    })?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let track = parse_dji_srt(path, &String::from_utf8_lossy(&bytes));
     if track.fixes.is_empty() {
         let why = track.warnings.first().map(String::as_str).unwrap_or("");
-        return Err(Error::Input {
-            path: path.into(),
-            msg: format!("no telemetry entry with a position (first problem: {why})"),
-        });
+        let msg = format!("no telemetry entry with a position (first problem: {why})");
+        return Err(Error::input(path, msg));
     }
     Ok(track)
 }
@@ -193,10 +188,7 @@ fn check_order_and_jumps(track: &mut Track, unit: &str) {
 /// without a time are skipped with a warning. Fails when the file cannot be read or parsed, or
 /// holds no timed point.
 pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Track> {
-    let file = std::fs::File::open(path).map_err(|source| Error::Io {
-        path: path.into(),
-        source,
-    })?;
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let gpx = gpx::read(std::io::BufReader::new(file))
         .map_err(|e| Error::input(path, format!("not a readable GPX file: {e}")))?;
     let mut track = Track {
@@ -261,10 +253,7 @@ pub fn creation_time(video: &Path) -> Result<Option<OffsetDateTime>> {
 /// an unreadable EXIF block is an error naming the image.
 pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
     use exif::{In, Tag, Value};
-    let file = std::fs::File::open(image).map_err(|source| Error::Io {
-        path: image.into(),
-        source,
-    })?;
+    let file = std::fs::File::open(image).map_err(|e| Error::io(image, e))?;
     let exif = match exif::Reader::new().read_from_container(&mut std::io::BufReader::new(file)) {
         Ok(e) => e,
         Err(exif::Error::NotFound(_)) => return Ok(None),
@@ -339,52 +328,24 @@ pub struct Camera {
 /// state them (with the diagonal fields of view they give: Mini 2 83°, Mini 3 Pro and Mini 4 Pro
 /// 82.1°, Air 2 84°, Air 2S 88°, Mavic 3 84°, Mavic Pro 78.8°, Phantom 4 Pro 84°, Phantom 4 94°).
 pub const CAMERAS: &[Camera] = &[
-    Camera {
-        name: "DJI Mini 2",
-        names: &["FC7303", "Mini 2"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Mini 3 Pro",
-        names: &["FC3582", "Mini 3 Pro"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Mini 4 Pro",
-        names: &["FC8482", "Mini 4 Pro"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Mavic Air 2",
-        names: &["FC3170", "Mavic Air 2", "Air 2"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Air 2S",
-        names: &["FC3411", "Air 2S"],
-        focal_35mm: 22.0,
-    },
-    Camera {
-        name: "DJI Mavic 3",
-        names: &["L2D-20c", "Mavic 3"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Mavic Pro",
-        names: &["FC220", "Mavic Pro"],
-        focal_35mm: 26.0,
-    },
-    Camera {
-        name: "DJI Phantom 4 Pro",
-        names: &["FC6310", "Phantom 4 Pro"],
-        focal_35mm: 24.0,
-    },
-    Camera {
-        name: "DJI Phantom 4",
-        names: &["FC330", "Phantom 4"],
-        focal_35mm: 20.0,
-    },
+    camera("DJI Mini 2", &["FC7303", "Mini 2"], 24.0),
+    camera("DJI Mini 3 Pro", &["FC3582", "Mini 3 Pro"], 24.0),
+    camera("DJI Mini 4 Pro", &["FC8482", "Mini 4 Pro"], 24.0),
+    camera("DJI Mavic Air 2", &["FC3170", "Mavic Air 2", "Air 2"], 24.0),
+    camera("DJI Air 2S", &["FC3411", "Air 2S"], 22.0),
+    camera("DJI Mavic 3", &["L2D-20c", "Mavic 3"], 24.0),
+    camera("DJI Mavic Pro", &["FC220", "Mavic Pro"], 26.0),
+    camera("DJI Phantom 4 Pro", &["FC6310", "Phantom 4 Pro"], 24.0),
+    camera("DJI Phantom 4", &["FC330", "Phantom 4"], 20.0),
 ];
+
+const fn camera(name: &'static str, names: &'static [&'static str], focal_35mm: f64) -> Camera {
+    Camera {
+        name,
+        names,
+        focal_35mm,
+    }
+}
 
 /// The camera of [`CAMERAS`] that `text` (an EXIF model, a container tag) names: the one whose
 /// longest name it contains, compared without case, spaces or dashes.
@@ -502,16 +463,7 @@ fn fix_of(body: &str, t_s: f64, line: usize) -> std::result::Result<Fix, String>
 /// `key: value` and `key value` pairs of an entry, keys lower-cased: the bracketed family's
 /// `[a: 1 b: 2]` and the older family's comma-separated `ISO:100` / `SS 320` / `H 40.5m`.
 fn fields(body: &str) -> Vec<(String, String)> {
-    let cleaned: String = body
-        .chars()
-        .map(|c| {
-            if matches!(c, '[' | ']' | ',' | '<' | '>') {
-                ' '
-            } else {
-                c
-            }
-        })
-        .collect();
+    let cleaned = body.replace(['[', ']', ',', '<', '>'], " ");
     let words: Vec<&str> = cleaned.split_whitespace().collect();
     let mut out = Vec::new();
     let mut k = 0;

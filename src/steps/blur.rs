@@ -61,10 +61,7 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, b: &BlurParams) -> Result<Appli
         .iter()
         .find(|s| s.0 == b.metric)
         .map(|s| (s.1, s.2))
-        .ok_or_else(|| Error::Plugin {
-            plugin: "blur",
-            msg: format!("no {} scores were computed", b.metric),
-        })?;
+        .ok_or_else(|| Error::plugin("blur", format!("no {} scores were computed", b.metric)))?;
     *keys = blur(keys, scores, b, at.range.0, at.range.1)?;
     Ok(Applied::Blur {
         backend: Some(backend),
@@ -102,16 +99,13 @@ impl BlurParams {
     /// Checks ranges.
     pub fn validate(&self) -> Result<()> {
         if !(self.ratio.is_finite() && self.ratio > 0.0) {
-            return Err(Error::Plugin {
-                plugin: "blur",
-                msg: format!("ratio must be a positive number, got {}", self.ratio),
-            });
+            return Err(Error::plugin(
+                "blur",
+                format!("ratio must be a positive number, got {}", self.ratio),
+            ));
         }
         if self.window == 0 {
-            return Err(Error::Plugin {
-                plugin: "blur",
-                msg: "window must be at least 1 frame".into(),
-            });
+            return Err(Error::plugin("blur", "window must be at least 1 frame"));
         }
         Ok(())
     }
@@ -127,13 +121,13 @@ pub fn blur(
 ) -> Result<Vec<usize>> {
     p.validate()?;
     if hi >= scores.len() || lo > hi {
-        return Err(Error::Plugin {
-            plugin: "blur",
-            msg: format!(
+        return Err(Error::plugin(
+            "blur",
+            format!(
                 "range {lo}..={hi} does not fit {} scored frames",
                 scores.len()
             ),
-        });
+        ));
     }
     let window = |k: usize| k.saturating_sub(p.window).max(lo)..=k.saturating_add(p.window).min(hi);
     Ok(match p.mode {

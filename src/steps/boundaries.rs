@@ -92,18 +92,17 @@ impl Boundaries {
         timestamps_s: Option<&[f64]>,
     ) -> Result<Vec<usize>> {
         if frame_count == 0 {
-            return Err(Error::Plugin {
-                plugin: "boundaries",
-                msg: "the input has no frames".into(),
-            });
+            return Err(Error::plugin("boundaries", "the input has no frames"));
         }
         let resolve = |b: Bound, is_end: bool| -> Result<usize> {
             match b {
                 Bound::Frame(i) => Ok(i),
                 Bound::Seconds(s) => {
-                    let ts = timestamps_s.ok_or_else(|| Error::Plugin {
-                        plugin: "boundaries",
-                        msg: format!("`{b}` needs timestamps, and this input has no frame rate"),
+                    let ts = timestamps_s.ok_or_else(|| {
+                        Error::plugin(
+                            "boundaries",
+                            format!("`{b}` needs timestamps, and this input has no frame rate"),
+                        )
                     })?;
                     let t0 = ts.first().copied().unwrap_or(0.0);
                     // Tolerance for timestamps stored in milliseconds.
@@ -113,10 +112,10 @@ impl Boundaries {
                         match ts.iter().rposition(|&t| t - t0 <= s + eps) {
                             Some(i) => i,
                             None => {
-                                return Err(Error::Plugin {
-                                    plugin: "boundaries",
-                                    msg: format!("end {b} lies before the first frame"),
-                                })
+                                return Err(Error::plugin(
+                                    "boundaries",
+                                    format!("end {b} lies before the first frame"),
+                                ))
                             }
                         }
                     } else {
@@ -139,14 +138,14 @@ impl Boundaries {
             .unwrap_or(frame_count - 1)
             .min(frame_count - 1);
         if start > end {
-            return Err(Error::Plugin {
-                plugin: "boundaries",
-                msg: format!(
+            return Err(Error::plugin(
+                "boundaries",
+                format!(
                     "start ({}) is after end ({}) in a input of {frame_count} frames",
                     self.start.map(|b| b.to_string()).unwrap_or("0".into()),
                     self.end.map(|b| b.to_string()).unwrap_or("last".into())
                 ),
-            });
+            ));
         }
         Ok((start..=end).collect())
     }

@@ -150,10 +150,7 @@ pub(crate) fn footprints(
 }
 
 fn plugin_error(msg: &str) -> Error {
-    Error::Plugin {
-        plugin: ID,
-        msg: msg.into(),
-    }
+    Error::plugin(ID, msg)
 }
 
 /// The direction of travel at `placed[j]` (degrees clockwise from north), from the neighbouring

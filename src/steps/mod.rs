@@ -117,25 +117,26 @@ fn positions<'a>(
     plugin: &'static str,
     keys: &[usize],
 ) -> Result<&'a [Option<Position>]> {
-    let refuse = || Error::Plugin {
-        plugin,
-        msg: "needs each frame's position, and the input has no telemetry: give --telemetry \
+    let refuse = || {
+        Error::plugin(
+            plugin,
+            "needs each frame's position, and the input has no telemetry: give --telemetry \
               FILE (DJI SRT or GPX), put the DJI .SRT beside the video, or use images with EXIF \
-              GPS tags"
-            .into(),
+              GPS tags",
+        )
     };
     let positions = at.positions.ok_or_else(refuse)?;
     let without = (keys.iter())
         .filter(|&&k| positions.get(k).is_none_or(Option::is_none))
         .count();
     if without == keys.len() && !keys.is_empty() {
-        return Err(Error::Plugin {
+        return Err(Error::plugin(
             plugin,
-            msg: format!(
+            format!(
                 "none of the {without} candidates has a position (they lie outside the \
                  telemetry's time span; check --telemetry-offset)"
             ),
-        });
+        ));
     }
     if without > 0 {
         log::warn!(
@@ -300,10 +301,7 @@ pub struct StepError {
 impl StepError {
     /// As the library's error: the plugin and the message.
     pub fn into_error(self) -> Error {
-        Error::Plugin {
-            plugin: self.plugin,
-            msg: self.msg,
-        }
+        Error::plugin(self.plugin, self.msg)
     }
 }
 

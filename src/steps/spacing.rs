@@ -22,10 +22,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
 
 /// The step on `keys`, with the threshold as `given` (`auto` resolved in `at`).
 pub fn apply(at: &Inputs, keys: &mut Vec<usize>, given: Threshold) -> Result<Applied> {
-    let err = |msg: &str| Error::Plugin {
-        plugin: "spacing",
-        msg: msg.into(),
-    };
+    let err = |msg: &str| Error::plugin("spacing", msg);
     let (movement, backend) = at.movement.ok_or_else(|| err("no movement was computed"))?;
     let threshold = match (given, at.spacing_px) {
         (Threshold::Count(n), _) => {
@@ -53,16 +50,16 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, given: Threshold) -> Result<App
 /// frame i-1 to frame i.
 pub fn spacing(candidates: &[usize], movement: &[f64], threshold: f64) -> Result<Vec<usize>> {
     if !(threshold.is_finite() && threshold > 0.0) {
-        return Err(Error::Plugin {
-            plugin: "spacing",
-            msg: format!("threshold must be a positive number of pixels, got {threshold}"),
-        });
+        return Err(Error::plugin(
+            "spacing",
+            format!("threshold must be a positive number of pixels, got {threshold}"),
+        ));
     }
     if let Some(&bad) = candidates.iter().find(|&&c| c >= movement.len()) {
-        return Err(Error::Plugin {
-            plugin: "spacing",
-            msg: format!("frame {bad} has no movement value"),
-        });
+        return Err(Error::plugin(
+            "spacing",
+            format!("frame {bad} has no movement value"),
+        ));
     }
     let Some(&first) = candidates.first() else {
         return Ok(Vec::new());
@@ -89,10 +86,10 @@ pub fn spacing_for_count(candidates: &[usize], movement: &[f64], count: usize) -
         _ => 0.0,
     };
     if total.is_nan() || total <= 0.0 {
-        return Err(Error::Plugin {
-            plugin: "spacing",
-            msg: "the camera does not move over the candidate frames".into(),
-        });
+        return Err(Error::plugin(
+            "spacing",
+            "the camera does not move over the candidate frames",
+        ));
     }
     let kept = |t: f64| spacing(candidates, movement, t).map(|k| k.len());
     // kept(t) falls from candidates.len() (t tiny) to 1 (t > total); find the smallest t that

@@ -44,10 +44,7 @@ pub fn request(
     meta: &Metadata,
     timestamps_s: Option<&[f64]>,
 ) -> KfResult<StationaryRequest> {
-    let err = |msg: String| Error::Plugin {
-        plugin: "stationary",
-        msg,
-    };
+    let err = |msg: String| Error::plugin("stationary", msg);
     let (first, last) = match meta.frame_count_exact {
         true => {
             let c = b.candidates(meta.frame_count, timestamps_s)?;
@@ -79,10 +76,9 @@ pub fn request(
 
 /// The step on `keys`: the keyframes of the stationary run in `at`.
 pub fn apply(at: &Inputs, keys: &mut Vec<usize>) -> KfResult<Applied> {
-    let (req, run, backend) = at.stationary.ok_or_else(|| Error::Plugin {
-        plugin: "stationary",
-        msg: "no stationary run was computed".into(),
-    })?;
+    let (req, run, backend) = at
+        .stationary
+        .ok_or_else(|| Error::plugin("stationary", "no stationary run was computed"))?;
     keys.retain(|k| run.binary_search(k).is_ok());
     Ok(Applied::Stationary {
         auto: at.stationary_auto,
