@@ -2,12 +2,14 @@
 //! Origin, paths) logged without the token, bad requests that write nothing, a save equal to
 //! `select` with the same steps and `--add`, the workflow save, a clean stop on Ctrl-C.
 
-use crate::common::{ffmpeg, json, kf_loud, kf_ok, s, testdata};
+use crate::browser::{Browser, Tab};
+use crate::common::{ffmpeg, json, keyframes, kf_loud, kf_ok, s, testdata};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
+use std::time::Duration;
 
 /// The report test's project: a 4 s, 30 fps pan over a photo (320x240), selected with spacing 25
 /// and blur at analysis width 160, frames 60 and 61 added by hand. Made once; each test copies
@@ -611,4 +613,109 @@ fn bench_review_prints_its_table() {
         vec!["review-bench.json".to_string()],
         "writes only its project into --dir"
     );
+}
+
+// ----- the page in headless Chromium ------------------------------------------------------------
+
+/// How long the page may take for one step (load, one apply, one save).
+const PAGE_WAIT: Duration = Duration::from_secs(20);
+
+/// Opens the page of `srv` and waits until its first selection is drawn, failing on a script
+/// error.
+fn open_page<'b>(browser: &'b Browser, srv: &Served) -> Tab<'b> {
+    let tab = browser.open(&srv.url);
+    tab.wait_for(
+        "document.body.dataset.ready || document.body.dataset.scriptError",
+        PAGE_WAIT,
+    )
+    .unwrap();
+    assert_clean(&tab);
+    tab
+}
+
+/// No script error marked by the page, none collected by the harness.
+fn assert_clean(tab: &Tab) {
+    assert_eq!(
+        tab.eval("document.body.dataset.scriptError || null"),
+        serde_json::Value::Null
+    );
+    assert_eq!(tab.errors(), Vec::<String>::new());
+}
+
+/// The keyframe count the page shows.
+fn page_count(tab: &Tab) -> usize {
+    let v = tab.eval("Number(document.getElementById('kf-count').dataset.count)");
+    v.as_u64().expect("a count") as usize
+}
+
+/// How many selections the page has drawn.
+fn redraws(tab: &Tab) -> u64 {
+    let v = tab.eval("Number(document.body.dataset.redraws || 0)");
+    v.as_u64().unwrap_or(0)
+}
+
+/// Types `value` into the step editor's input `name` of step `plugin` (replacing its text) and
+/// presses Enter; waits until the page has drawn the selection this gives.
+fn set_param(tab: &Tab, plugin: &str, name: &str, value: &str) {
+    let before = redraws(tab);
+    let sel = format!("#step-{plugin} [name={name}]");
+    let found = tab.eval(&format!(
+        "(el => {{ if (!el) return false; el.scrollIntoView(); el.focus(); el.select(); return true; }})(document.querySelector('{sel}'))"
+    ));
+    assert_eq!(found, serde_json::json!(true), "{sel} in the editor");
+    tab.type_text(value);
+    tab.key("Enter");
+    tab.wait_for(
+        &format!("Number(document.body.dataset.redraws || 0) > {before}"),
+        PAGE_WAIT,
+    )
+    .unwrap();
+}
+
+/// The centre of the element `selector` in viewport pixels (scrolled into view first).
+fn centre(tab: &Tab, selector: &str) -> (f64, f64) {
+    let v = tab.eval(&format!(
+        "(el => {{ el.scrollIntoView({{block: 'center'}}); const r = el.getBoundingClientRect(); return [r.left + r.width / 2, r.top + r.height / 2]; }})(document.querySelector('{selector}'))"
+    ));
+    (v[0].as_f64().unwrap(), v[1].as_f64().unwrap())
+}
+
+/// Runs `select` on the pan clip beside `project` with the steps `flags` and the fixture's
+/// analysis, replacing `project`; it must reuse the cache.
+fn select_pan(project: &Path, flags: &[&str]) {
+    let clip = project.with_file_name("pan.mp4");
+    let mut args = vec!["select", s(&clip), "-o", s(project), "--force"];
+    args.extend(flags);
+    args.extend(PAN_ANALYSIS);
+    let out = kf_loud(&args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && err.contains("nothing decoded"),
+        "{err}"
+    );
+}
+
+#[test]
+fn review_page_threshold_change_gives_select_count() {
+    let Some(browser) = Browser::launch() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_project(&dir.path().join("a"));
+    let other = pan_project(&dir.path().join("b"));
+    select_pan(&other, &["--spacing", "40", "--blur", "--add", "60,61"]);
+    let want = keyframes(&other).len();
+    let srv = Served::start(&project, &[]);
+    let tab = open_page(&browser, &srv);
+    let first = page_count(&tab);
+    assert_eq!(first, keyframes(&project).len(), "the project's own count");
+    assert_ne!(first, want, "spacing 40 must change the count for this test to see it");
+    set_param(&tab, "spacing", "threshold", "40");
+    tab.wait_for(
+        &format!("document.getElementById('kf-count').dataset.count !== '{first}'"),
+        PAGE_WAIT,
+    )
+    .unwrap();
+    assert_eq!(page_count(&tab), want, "the page's count is select's");
+    assert_clean(&tab);
 }
