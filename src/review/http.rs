@@ -148,7 +148,7 @@ impl Served {
                 json_reply(e.status, &e.body())
             }
         };
-        if let Err(e) = rq.respond(response) {
+        if let Err(e) = respond_and_close(rq, response) {
             log::debug!("review: {method} {path}: {e}");
         }
         log::debug!("review: {method} {path} in {:?}", started.elapsed());
@@ -269,6 +269,38 @@ impl Served {
             _ => Err(ApiError::new(404, format!("no route {method} {path}"))),
         }
     }
+}
+
+/// Writes `response` with `Connection: close`, so that the browser opens a new connection for
+/// its next request. tiny_http (0.12) serves each connection on one thread of its pool for as long
+/// as the connection lives, and two connections accepted in quick succession can both be queued
+/// for a single idle thread: the second then waits until some other connection closes (seen as
+/// strip images of the page that never load). A connection per request ends each pool task as
+/// soon as its answer is written. tiny_http refuses a `Connection` header in a `Response`, hence
+/// the status line and headers written here.
+fn respond_and_close(
+    rq: Request,
+    response: Response<std::io::Cursor<Vec<u8>>>,
+) -> std::io::Result<()> {
+    use std::io::Write;
+    let status = response.status_code();
+    let mut head = format!(
+        "HTTP/1.1 {} {}\r\n",
+        status.0,
+        status.default_reason_phrase()
+    );
+    for h in response.headers() {
+        head += &format!("{}: {}\r\n", h.field, h.value);
+    }
+    let body = response.into_reader().into_inner();
+    head += &format!(
+        "Content-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    let mut w = rq.into_writer();
+    w.write_all(head.as_bytes())?;
+    w.write_all(&body)?;
+    w.flush()
 }
 
 /// A frame index in a path segment (`12` or `12.jpg`).
