@@ -10,7 +10,7 @@
   const S = {
     info: null, schema: [], steps: [], savedSteps: "[]", revision: 0,
     sel: null, view: null, cursor: 0, undo: [], redo: [], showMask: false, series: null,
-    exported: new Map(), applySeq: 0, inputAt: 0,
+    exported: new Map(), applySeq: 0, inputAt: 0, saving: false,
   };
   window.addEventListener("error", (e) => {
     document.body.dataset.scriptError = String(e.message || e);
@@ -68,17 +68,36 @@
     apply();
   }
 
+  // The text of a parameter's value in the editor (lists of frames as "60,61").
+  function shown(v) {
+    if (v === null || v === undefined) return "";
+    return Array.isArray(v) ? v.join(",") : String(v);
+  }
+
+  // The value of an editor's text: the manual lists are frame lists.
+  function parsed(plugin, text) {
+    if (plugin !== "manual") return coerce(text);
+    const parts = text.split(/[\s,]+/).filter((p) => p !== "");
+    const nums = parts.map(Number);
+    return nums.every((n) => Number.isInteger(n) && n >= 0) ? nums : text;
+  }
+
   function renderSteps() {
     const form = $("steps");
+    // The input being edited keeps its focus and its text across the redraw.
+    const active = document.activeElement;
+    const editing = active && form.contains(active) && active.name && active.closest("fieldset")
+      ? { row: active.closest("fieldset").id, name: active.name, value: active.value,
+          text: active.type === "text" } : null;
     form.textContent = "";
     const state = new Map(((S.sel && S.sel.steps_state) || []).map((s) => [s.plugin, s]));
     for (const plugin of CHAIN) {
       const params = S.schema.filter((p) => p.plugin === plugin);
-      if (plugin === "boundaries" || (params.length === 0 && plugin !== "manual")) continue;
+      if (params.length === 0 && plugin !== "manual") continue;
       const step = stepOf(plugin);
       const row = document.createElement("fieldset");
       row.id = "step-" + plugin;
-      const st = state.get(plugin);
+      const st = step ? state.get(plugin) : undefined;
       if (st && !st.enabled) row.classList.add("disabled");
       const legend = document.createElement("legend");
       const on = document.createElement("input");
@@ -86,21 +105,16 @@
       on.checked = !!step;
       on.name = "enabled";
       on.addEventListener("change", () => toggleStep(plugin, on.checked));
-      legend.append(on, " " + plugin);
-      if (st && st.enabled && st.kept !== null) {
+      const label = document.createElement("label");
+      label.append(on, " " + plugin);
+      legend.append(label);
+      if (st && st.enabled && st.kept !== null && st.kept !== undefined) {
         const kept = document.createElement("span");
         kept.className = "kept";
-        kept.textContent = " → " + st.kept;
+        kept.textContent = " → " + st.kept + " kept";
         legend.append(kept);
       }
       row.append(legend);
-      if (plugin === "manual") {
-        const p = document.createElement("p");
-        const m = (step && step.manual) || {};
-        p.textContent = "add " + JSON.stringify(m.add || []) + ", remove " +
-          JSON.stringify(m.remove || []) + " (click the timeline or press k)";
-        row.append(p);
-      }
       for (const p of params) {
         const label = document.createElement("label");
         label.title = p.help;
@@ -114,10 +128,11 @@
             input.append(o);
           }
         } else {
-          input.placeholder = p.default || "";
+          input.type = "text";
+          input.placeholder = p.default || (plugin === "manual" ? "frames, e.g. 12,40" : "");
+          if (plugin === "manual") input.classList.add("frames");
         }
-        const v = step && step[plugin] ? step[plugin][p.key] : null;
-        input.value = v === null || v === undefined ? "" : String(v);
+        input.value = shown(step && step[plugin] ? step[plugin][p.key] : null);
         input.disabled = !step;
         input.addEventListener("change", () => setParam(plugin, p.key, input.value));
         input.addEventListener("keydown", (e) => {
@@ -132,12 +147,27 @@
       if (st && !st.enabled) {
         const why = document.createElement("p");
         why.className = "needs";
-        why.textContent = st.reason + "; compute it with:";
+        why.textContent = (st.reason || "the project lacks this step's analysis") +
+          "; compute it with:";
         const code = document.createElement("code");
-        code.textContent = st.command;
-        row.append(why, code);
+        code.textContent = st.command || "";
+        const copy = document.createElement("button");
+        copy.type = "button";
+        copy.textContent = "Copy";
+        copy.addEventListener("click", () => {
+          navigator.clipboard.writeText(code.textContent).then(
+            () => say("command copied"), () => say("copy failed: select the text", true));
+        });
+        row.append(why, code, copy);
       }
       form.append(row);
+    }
+    if (editing) {
+      const el = form.querySelector("#" + editing.row + " [name=" + editing.name + "]");
+      if (el && !el.disabled) {
+        if (editing.text) el.value = editing.value;
+        el.focus();
+      }
     }
   }
 
@@ -149,6 +179,10 @@
         params[p.key] = p.default === null ? null : coerce(p.default);
       }
       if (plugin === "spacing" && params.threshold === null) params.threshold = "auto";
+      if (plugin === "manual") {
+        params.add = [];
+        params.remove = [];
+      }
       const required = { "every-nth": "n", fps: "fps", "geo-distance": "metres", "footprint-overlap": "percent" };
       if (required[plugin] && params[required[plugin]] === null) {
         say(plugin + ": give " + required[plugin] + " first", true);
@@ -162,7 +196,7 @@
     const steps = JSON.parse(JSON.stringify(S.steps));
     const step = steps.find((s) => stepId(s) === plugin);
     if (!step) return;
-    const v = coerce(text);
+    const v = parsed(plugin, text);
     if (JSON.stringify(step[plugin][key]) === JSON.stringify(v)) return;
     step[plugin][key] = v;
     S.inputAt = performance.now();
@@ -182,8 +216,6 @@
     else if (remove.includes(f)) drop(remove);
     else if (S.sel.keyframes.includes(f)) remove.push(f);
     else add.push(f);
-    add.sort((a, b) => a - b);
-    remove.sort((a, b) => a - b);
     m.manual = { add, remove };
     if (!add.length && !remove.length) steps.splice(steps.indexOf(m), 1);
     S.inputAt = performance.now();
@@ -225,16 +257,24 @@
     count.textContent = sel.keyframes.length + " keyframes of " + S.info.input.frames + " frames";
     S.view = { from: sel.layout.from, to: sel.layout.to };
     $("timeline").innerHTML = sel.timeline_svg;
+    // The drawing is the report's: its own ids (`timeline`, `cursor`) would clash with the
+    // page's, so they become classes; its hidden cursor line is the page's cursor.
+    for (const el of $("timeline").querySelectorAll("[id]")) {
+      el.classList.add("svg-" + el.id);
+      el.removeAttribute("id");
+    }
     renderSteps();
-    drawCursor();
     drawStrip();
+    drawCursor();
+    // The redraw time: from the input to the first frame painted with the new timeline (a
+    // task queued from requestAnimationFrame runs after that paint).
     const started = S.inputAt;
-    requestAnimationFrame(() => {
+    S.inputAt = 0;
+    requestAnimationFrame(() => setTimeout(() => {
       window.kfLastRedrawMs = performance.now() - started;
       window.kfLastServerMs = sel.server_ms;
-      S.inputAt = 0;
       document.body.dataset.redraws = String(Number(document.body.dataset.redraws || 0) + 1);
-    });
+    }, 0));
   }
 
   function svgScale() {
@@ -243,10 +283,16 @@
     return svg.getBoundingClientRect().width / S.sel.layout.width;
   }
 
-  // x in the timeline box (CSS px) of frame f, and back.
+  // x of frame f in the SVG's own units (the server's drawing is layout.width wide).
+  function svgX(f) {
+    const l = S.sel.layout;
+    if (l.to <= l.from) return l.left + l.span / 2;
+    return l.left + ((f - l.from) / (l.to - l.from)) * l.span;
+  }
+
+  // x of frame f in CSS px from the left edge of the timeline's SVG, and back.
   function xOf(f) {
-    const l = S.sel.layout, span = Math.max(1, l.to - l.from);
-    return (l.left + ((f - l.from) / span) * l.span) * svgScale();
+    return svgX(f) * svgScale();
   }
 
   function frameAt(x) {
@@ -255,9 +301,24 @@
     return Math.min(l.to, Math.max(l.from, f));
   }
 
+  // Viewport x of the SVG's left edge.
+  function svgLeft() {
+    const svg = $("timeline").querySelector("svg");
+    return (svg || $("timeline")).getBoundingClientRect().left;
+  }
+
   function drawCursor() {
-    const c = $("cursor");
-    c.style.left = xOf(S.cursor) + "px";
+    const c = $("timeline").querySelector(".svg-cursor");
+    if (c) {
+      const x = String(svgX(S.cursor));
+      c.setAttribute("x1", x);
+      c.setAttribute("x2", x);
+      c.setAttribute("stroke", "#cc0000");
+      c.setAttribute("visibility", "visible");
+    }
+    for (const fig of $("strip").children) {
+      fig.classList.toggle("cursor", Number(fig.dataset.frame) === S.cursor);
+    }
     const key = S.sel.keyframes.includes(S.cursor);
     $("view-info").textContent = "frame " + S.cursor + (key ? " (keyframe)" : "") +
       ", view " + S.view.from + "–" + S.view.to;
@@ -350,6 +411,8 @@
 
   // ----- save --------------------------------------------------------------------------------
   async function save() {
+    if (S.saving) return;
+    S.saving = true;
     try {
       const r = await api("POST", "/api/save", { steps: S.steps, revision: S.revision });
       S.revision = r.revision;
@@ -359,6 +422,8 @@
       apply();
     } catch (e) {
       say(e.message, true);
+    } finally {
+      S.saving = false;
     }
   }
 
@@ -383,7 +448,9 @@
 
   // ----- keyboard and pointer ----------------------------------------------------------------
   function onKey(e) {
-    if (e.target.closest && e.target.closest("input, select, textarea")) return;
+    const t = e.target;
+    if (t.matches && t.matches("select, textarea, input:not([type=checkbox]):not([type=button])")) return;
+    if ($("help").open) return;
     const ctrl = e.ctrlKey || e.metaKey;
     const keys = S.sel ? S.sel.keyframes : [];
     const next = keys.find((k) => k > S.cursor), prev = keys.slice().reverse().find((k) => k < S.cursor);
@@ -418,19 +485,20 @@
   function wire() {
     const box = $("timeline-box");
     let drag = null;
-    box.addEventListener("mousedown", (e) => {
+    $("timeline").addEventListener("mousedown", (e) => {
+      if (!S.sel || e.button !== 0) return;
       drag = { x: e.clientX, view: S.view, moved: false };
     });
     window.addEventListener("mouseup", (e) => {
       if (drag && !drag.moved) {
-        const f = frameAt(e.clientX - box.getBoundingClientRect().left);
+        const f = frameAt(e.clientX - svgLeft());
         S.cursor = f;
         toggleKeyframe(f);
       }
       drag = null;
     });
     box.addEventListener("mousemove", (e) => {
-      const x = e.clientX - box.getBoundingClientRect().left;
+      const x = e.clientX - svgLeft();
       if (drag && Math.abs(e.clientX - drag.x) > 4) {
         drag.moved = true;
         const perPx = (drag.view.to - drag.view.from) / (S.sel.layout.span * svgScale());
@@ -444,7 +512,7 @@
     });
     box.addEventListener("wheel", (e) => {
       e.preventDefault();
-      zoom(e.deltaY > 0 ? 1.25 : 0.8, frameAt(e.clientX - box.getBoundingClientRect().left));
+      zoom(e.deltaY > 0 ? 1.25 : 0.8, frameAt(e.clientX - svgLeft()));
     }, { passive: false });
     document.addEventListener("keydown", onKey);
     $("save").addEventListener("click", save);
@@ -485,7 +553,7 @@
         p.value = s.busy.done;
         p.title = s.busy.what;
       }
-      if (s.revision > S.revision) {
+      if (s.revision > S.revision && !S.saving) {
         say("the project was saved in another tab; reloaded");
         S.undo = [];
         S.redo = [];
@@ -495,6 +563,14 @@
       say("server not answering: " + e.message, true);
     }
   }
+
+  // For the browser tests: the viewport x of frame f on the timeline, the frame at a viewport x,
+  // the current keyframes.
+  window.kfTest = {
+    frameX: (f) => svgLeft() + xOf(f),
+    frameAt: (x) => frameAt(x - svgLeft()),
+    keyframes: () => (S.sel ? S.sel.keyframes.slice() : []),
+  };
 
   wire();
   load().catch((e) => say(e.message, true));

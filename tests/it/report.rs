@@ -349,7 +349,7 @@ fn report_renders_in_headless_chromium_with_bars_at_the_keyframes() {
 }
 
 /// Luminance variance of an RGB image (0 for a blank one).
-fn luminance_variance(img: &image::RgbImage) -> f64 {
+pub(crate) fn luminance_variance(img: &image::RgbImage) -> f64 {
     let lum: Vec<f64> = img
         .pixels()
         .map(|p| (u32::from(p[0]) + u32::from(p[1]) + u32::from(p[2])) as f64 / 3.0)

@@ -4,6 +4,7 @@
 
 use crate::browser::{Browser, Tab};
 use crate::common::{ffmpeg, json, keyframes, kf_loud, kf_ok, s, testdata};
+use keyframer::report::timeline::KEYFRAME_RGB;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
@@ -672,6 +673,34 @@ fn set_param(tab: &Tab, plugin: &str, name: &str, value: &str) {
     .unwrap();
 }
 
+/// The JSON paths where `a` and `b` differ, with both values (short).
+fn differences(a: &serde_json::Value, b: &serde_json::Value, at: &str) -> Vec<String> {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
+            keys.sort();
+            keys.dedup();
+            (keys.into_iter())
+                .flat_map(|k| {
+                    let null = Value::Null;
+                    let (u, v) = (x.get(k).unwrap_or(&null), y.get(k).unwrap_or(&null));
+                    differences(u, v, &format!("{at}.{k}"))
+                })
+                .collect()
+        }
+        (Value::Array(x), Value::Array(y)) if x.len() == y.len() => (x.iter().zip(y))
+            .enumerate()
+            .flat_map(|(i, (u, v))| differences(u, v, &format!("{at}[{i}]")))
+            .collect(),
+        _ if a == b => vec![],
+        _ => {
+            let short = |v: &Value| v.to_string().chars().take(200).collect::<String>();
+            vec![format!("{at}: {} vs {}", short(a), short(b))]
+        }
+    }
+}
+
 /// The centre of the element `selector` in viewport pixels (scrolled into view first).
 fn centre(tab: &Tab, selector: &str) -> (f64, f64) {
     let v = tab.eval(&format!(
@@ -709,7 +738,10 @@ fn review_page_threshold_change_gives_select_count() {
     let tab = open_page(&browser, &srv);
     let first = page_count(&tab);
     assert_eq!(first, keyframes(&project).len(), "the project's own count");
-    assert_ne!(first, want, "spacing 40 must change the count for this test to see it");
+    assert_ne!(
+        first, want,
+        "spacing 40 must change the count for this test to see it"
+    );
     set_param(&tab, "spacing", "threshold", "40");
     tab.wait_for(
         &format!("document.getElementById('kf-count').dataset.count !== '{first}'"),
@@ -718,4 +750,244 @@ fn review_page_threshold_change_gives_select_count() {
     .unwrap();
     assert_eq!(page_count(&tab), want, "the page's count is select's");
     assert_clean(&tab);
+}
+
+#[test]
+fn review_page_click_adds_keyframe_and_save_finds_it() {
+    let Some(browser) = Browser::launch() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_project(&dir.path().join("a"));
+    let other = pan_project(&dir.path().join("b"));
+    let srv = Served::start(&project, &[]);
+    let tab = open_page(&browser, &srv);
+    let second = open_page(&browser, &srv);
+    let keys = keyframes(&project);
+    let first = page_count(&tab);
+    assert_eq!(first, keys.len());
+    // A frame between two keyframes, away from both (at 120 frames a frame is 9 px wide).
+    let f = (2..118)
+        .find(|f| !keys.contains(f) && !keys.contains(&(f - 1)) && !keys.contains(&(f + 1)))
+        .unwrap();
+    tab.eval("document.getElementById('timeline').scrollIntoView()");
+    let x = tab.eval(&format!("kfTest.frameX({f})")).as_f64().unwrap();
+    let y = tab
+        .eval("(r => r.top + r.height / 4)(document.querySelector('#timeline svg').getBoundingClientRect())")
+        .as_f64()
+        .unwrap();
+    assert_eq!(
+        tab.eval(&format!("kfTest.frameAt({x})")),
+        serde_json::json!(f),
+        "the page maps the x back to frame {f}"
+    );
+    tab.click(x, y);
+    tab.wait_for(
+        &format!(
+            "document.getElementById('kf-count').dataset.count === '{}'",
+            first + 1
+        ),
+        PAGE_WAIT,
+    )
+    .unwrap();
+    assert!(tab
+        .eval("kfTest.keyframes()")
+        .as_array()
+        .unwrap()
+        .contains(&serde_json::json!(f)));
+    assert_eq!(tab.eval("document.body.dataset.dirty"), "1", "unsaved");
+    let (sx, sy) = centre(&tab, "#save");
+    tab.click(sx, sy);
+    tab.wait_for("document.body.dataset.revision === '1'", PAGE_WAIT)
+        .unwrap();
+    assert_clean(&tab);
+
+    let saved = json(&project);
+    assert!(
+        saved["keyframes"]
+            .as_array()
+            .unwrap()
+            .contains(&serde_json::json!(f)),
+        "frame {f} saved: {}",
+        saved["keyframes"]
+    );
+    let add = format!("60,61,{f}");
+    select_pan(&other, &["--spacing", "25", "--blur", "--add", &add]);
+    let theirs = json(&other);
+    assert!(
+        saved == theirs,
+        "the page's save differs from select --add at {:?}",
+        differences(&saved, &theirs, "")
+    );
+
+    // The other tab sees the save at its next poll.
+    second
+        .wait_for(
+            &format!(
+                "document.getElementById('kf-count').dataset.count === '{}'",
+                first + 1
+            ),
+            Duration::from_secs(3),
+        )
+        .unwrap();
+    assert_eq!(second.eval("document.body.dataset.revision"), "1");
+    assert_clean(&second);
+}
+
+#[test]
+fn review_page_screenshot_shows_timeline() {
+    let Some(browser) = Browser::launch() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_project(dir.path());
+    let srv = Served::start(&project, &[]);
+    let tab = open_page(&browser, &srv);
+    // The preview of the cursor's frame, decoded on demand, and the strip.
+    tab.wait_for(
+        "(im => im.complete && im.naturalWidth > 0)(document.getElementById('preview-image'))",
+        PAGE_WAIT,
+    )
+    .unwrap();
+    let strip_loaded = tab.wait_for(
+        "[...document.querySelectorAll('#strip img')].every(im => im.complete && im.naturalWidth > 0)",
+        PAGE_WAIT,
+    );
+    assert!(
+        strip_loaded.is_ok(),
+        "{strip_loaded:?}: {}",
+        tab.eval("JSON.stringify([...document.querySelectorAll('#strip img')].map(im => [im.src.replace(/token=.*/, ''), im.complete, im.naturalWidth, im.getBoundingClientRect().width]))")
+    );
+    let strip = tab.eval("document.querySelectorAll('#strip img').length");
+    assert!(strip.as_u64().unwrap() >= 2, "strip frames: {strip}");
+    let png = tab.screenshot_png();
+    if let Some(path) = std::env::var_os("KEYFRAMER_README_SHOT") {
+        std::fs::write(&path, &png).unwrap();
+        eprintln!("screenshot written to {}", Path::new(&path).display());
+    }
+    let img = image::load_from_memory(&png).unwrap().to_rgb8();
+    let var = crate::report::luminance_variance(&img);
+    assert!(var > 100.0, "screenshot looks blank (variance {var:.1})");
+    let r = tab.eval(
+        "(r => [r.left, r.top, r.right, r.bottom])(document.getElementById('timeline').getBoundingClientRect())",
+    );
+    let b: Vec<u32> = (0..4)
+        .map(|i| r[i].as_f64().unwrap().round().max(0.0) as u32)
+        .collect();
+    let (x1, y1) = (b[2].min(img.width()), b[3].min(img.height()));
+    assert!(x1 > b[0] + 100 && y1 > b[1] + 50, "timeline box {b:?}");
+    let keyframe_pixels = (b[0]..x1)
+        .flat_map(|x| (b[1]..y1).map(move |y| (x, y)))
+        .filter(|&(x, y)| {
+            let p = img.get_pixel(x, y).0;
+            (0..3).all(|c| (i32::from(p[c]) - i32::from(KEYFRAME_RGB[c])).abs() <= 12)
+        })
+        .count();
+    assert!(
+        keyframe_pixels > 100,
+        "{keyframe_pixels} keyframe-coloured pixels in the timeline box {b:?}"
+    );
+    assert_clean(&tab);
+}
+
+#[test]
+fn review_page_disables_steps_the_cache_lacks() {
+    let Some(browser) = Browser::launch() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let pan = pan_project(dir.path());
+    let project = dir.path().join("blur.json");
+    let clip = pan.with_file_name("pan.mp4");
+    let mut args = vec!["select", s(&clip), "-o", s(&project), "--blur"];
+    args.extend(PAN_ANALYSIS);
+    kf_ok(&args);
+    assert_eq!(
+        json(&project)["cache"]["movement"],
+        serde_json::json!([]),
+        "no movement cached"
+    );
+    let srv = Served::start(&project, &[]);
+    let tab = open_page(&browser, &srv);
+    let (cx, cy) = centre(&tab, "#step-spacing [name=enabled]");
+    let before = redraws(&tab);
+    tab.click(cx, cy);
+    tab.wait_for(
+        &format!("Number(document.body.dataset.redraws) > {before}"),
+        PAGE_WAIT,
+    )
+    .unwrap();
+    let row = tab.eval(
+        "(f => [f.className, (f.querySelector('code') || {}).textContent || ''])(document.getElementById('step-spacing'))",
+    );
+    assert_eq!(row[0], "disabled", "{row}");
+    let code = row[1].as_str().unwrap();
+    assert!(
+        code.contains("keyframer select") && code.contains("--spacing"),
+        "{code}"
+    );
+    assert_clean(&tab);
+
+    // Keyboard (the focus is on the checkbox just clicked): → moves the cursor, k toggles the
+    // keyframe there, Ctrl+Z undoes it.
+    let info = || tab.eval("document.getElementById('view-info').textContent");
+    let at = info();
+    assert!(at.as_str().unwrap().starts_with("frame 0"), "{at}");
+    tab.key("ArrowRight");
+    tab.wait_for(
+        "document.getElementById('view-info').textContent.startsWith('frame 1')",
+        PAGE_WAIT,
+    )
+    .unwrap();
+    let count = page_count(&tab);
+    tab.key("k");
+    tab.wait_for(
+        &format!("document.getElementById('kf-count').dataset.count !== '{count}'"),
+        PAGE_WAIT,
+    )
+    .unwrap();
+    let toggled = page_count(&tab);
+    assert_eq!(toggled.abs_diff(count), 1, "k toggles one keyframe");
+    tab.key("Control+z");
+    tab.wait_for(
+        &format!("document.getElementById('kf-count').dataset.count === '{count}'"),
+        PAGE_WAIT,
+    )
+    .unwrap();
+    assert_clean(&tab);
+}
+
+#[test]
+fn review_redraw_time_is_printed() {
+    let Some(browser) = Browser::launch() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let project = dir.path().join("synthetic.json");
+    keyframer::review::bench::synthetic_project(10_000)
+        .unwrap()
+        .save(&project, true)
+        .unwrap();
+    let srv = Served::start(&project, &[]);
+    let tab = open_page(&browser, &srv);
+    assert_eq!(
+        tab.eval("document.getElementById('kf-count').textContent.includes('10000 frames')"),
+        serde_json::json!(true)
+    );
+    let (mut redraw, mut server) = (Vec::new(), Vec::new());
+    for i in 0..10 {
+        set_param(&tab, "spacing", "threshold", &format!("{}", 150 + 10 * i));
+        redraw.push(tab.eval("window.kfLastRedrawMs").as_f64().unwrap());
+        server.push(tab.eval("window.kfLastServerMs").as_f64().unwrap());
+    }
+    assert_clean(&tab);
+    let stats = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        (v[v.len() / 2], v[v.len() - 1])
+    };
+    let ((rm, rx), (sm, sx)) = (stats(&mut redraw), stats(&mut server));
+    println!(
+        "review page, 10000 frames, 10 threshold changes: redraw median {rm:.1} ms, max {rx:.1} ms; \
+         server median {sm:.1} ms, max {sx:.1} ms"
+    );
 }
