@@ -339,7 +339,8 @@
 
   function setView(from, to) {
     const n = S.info.input.frames;
-    const w = Math.min(n - 1, Math.max(19, to - from));
+    // Whole frames: the server reads the view as indices.
+    const w = Math.round(Math.min(n - 1, Math.max(19, to - from)));
     from = Math.min(Math.max(0, Math.round(from)), n - 1 - w);
     S.view = { from, to: from + w };
     apply();

@@ -954,6 +954,20 @@ fn review_page_disables_steps_the_cache_lacks() {
         PAGE_WAIT,
     )
     .unwrap();
+    // + zooms in around the cursor (frame 1) to half the frames, 0 shows every frame again.
+    tab.key("+");
+    let view = "(m => m && [Number(m[1]), Number(m[2])])(document.getElementById('view-info').textContent.match(/view (\\d+)–(\\d+)$/))";
+    tab.wait_for(
+        &format!("(v => v && v[0] <= 1 && v[1] >= 1 && v[1] - v[0] < 80)({view})"),
+        PAGE_WAIT,
+    )
+    .unwrap();
+    tab.key("0");
+    tab.wait_for(
+        "document.getElementById('view-info').textContent.endsWith('view 0–119')",
+        PAGE_WAIT,
+    )
+    .unwrap();
     assert_clean(&tab);
 }
 
