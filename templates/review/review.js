@@ -358,7 +358,10 @@
   function showFrame(f) {
     clearTimeout(hoverTimer);
     hoverTimer = setTimeout(() => {
-      $("preview-image").src = img("/api/frame/" + f + ".jpg", "large");
+      const pi = $("preview-image");
+      // Without the input (moved, or a synthetic project) there is nothing to decode.
+      if (S.info.input.available) pi.src = img("/api/frame/" + f + ".jpg", "large");
+      else pi.alt = "frame " + f + ": the input " + S.info.input.path + " is not available";
       const ex = S.exported.get(f);
       const mask = $("preview-mask");
       const kind = ex && ex.mask ? "mask" : ex && ex.overlay ? "overlay" : null;
@@ -400,7 +403,7 @@
       if (S.sel.keyframes.includes(f)) fig.className = "key";
       const im = document.createElement("img");
       im.loading = "lazy";
-      im.src = img("/api/frame/" + f + ".jpg", "strip");
+      if (S.info.input.available) im.src = img("/api/frame/" + f + ".jpg", "strip");
       const cap = document.createElement("figcaption");
       cap.textContent = String(f);
       fig.append(im, cap);
