@@ -223,10 +223,10 @@ impl Served {
             (Method::Post, ["api", "apply"]) => {
                 let body = body(rq)?;
                 let steps = parse_steps(&body["steps"])?;
-                let view = &body["view"];
-                let view = (view["from"].as_u64().zip(view["to"].as_u64()))
-                    .map(|(a, b)| (a as usize, b as usize));
-                Ok(json_reply(200, &review.apply(&steps, view)?))
+                Ok(json_reply(
+                    200,
+                    &review.apply(&steps, view_of(&body["view"])?)?,
+                ))
             }
             (Method::Post, ["api", "save"]) => {
                 let body = body(rq)?;
@@ -301,6 +301,20 @@ fn respond_and_close(
     w.write_all(head.as_bytes())?;
     w.write_all(&body)?;
     w.flush()
+}
+
+/// The frames to show, `{"from": F, "to": T}` (absent or null: all of them).
+fn view_of(v: &Value) -> std::result::Result<Option<(usize, usize)>, ApiError> {
+    if v.is_null() {
+        return Ok(None);
+    }
+    match (v["from"].as_u64(), v["to"].as_u64()) {
+        (Some(a), Some(b)) if a <= b => Ok(Some((a as usize, b as usize))),
+        _ => Err(ApiError::new(
+            400,
+            format!("view: give whole frame numbers from <= to, got {v}"),
+        )),
+    }
 }
 
 /// A frame index in a path segment (`12` or `12.jpg`).

@@ -416,6 +416,32 @@ fn review_bad_request_writes_nothing_and_survives() {
     ];
     let (code, _) = raw(srv.port, "POST", "/api/save", &hdr, Some("{not json"));
     assert_eq!(code, 400);
+    for view in [
+        r#"{"from": 2.5, "to": 40}"#,
+        r#"{"from": 50, "to": 10}"#,
+        r#""all""#,
+    ] {
+        let body = format!(r#"{{"steps": [], "view": {view}}}"#);
+        let (code, bytes) = raw(srv.port, "POST", "/api/apply", &hdr, Some(&body));
+        assert_eq!(
+            code,
+            400,
+            "view {view}: {}",
+            String::from_utf8_lossy(&bytes)
+        );
+    }
+    let body = r#"{"steps": [], "view": {"from": 10, "to": 40}}"#;
+    let (code, bytes) = raw(srv.port, "POST", "/api/apply", &hdr, Some(body));
+    let v: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+    assert_eq!(
+        (
+            code,
+            v["layout"]["from"].as_u64(),
+            v["layout"]["to"].as_u64()
+        ),
+        (200, Some(10), Some(40)),
+        "{v}"
+    );
     // A save with a stale revision is refused too.
     let (code, v) = srv.call(
         "POST",
