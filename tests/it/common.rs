@@ -270,3 +270,40 @@ pub fn unbase64(text: &str) -> Vec<u8> {
     }
     out
 }
+
+/// A 4 s, 30 fps pan (60 px/s) over a photo of the public test data, 320x240, H.264 at `path`;
+/// `gop`: a codec keyframe every that many frames (None: x264's default).
+pub fn pan_clip(path: &Path, gop: Option<&str>) {
+    let photo = testdata("opencv-doc/aloeL.jpg");
+    let mut args = vec!["-loop", "1", "-framerate", "30", "-t", "4", "-i", s(&photo)];
+    args.extend(["-vf", "crop=320:240:'t*60':100", "-c:v", "libx264"]);
+    if let Some(g) = gop {
+        args.extend(["-g", g]);
+    }
+    args.extend(["-pix_fmt", "yuv420p", s(path)]);
+    ffmpeg(&args);
+}
+
+/// The `select` flags of the pan project's analysis (a re-select with them reuses its cache).
+pub const PAN_ANALYSIS: [&str; 4] = ["--backend", "opencv", "--analysis-width", "160"];
+
+/// `dir/pan.mp4` ([`pan_clip`]) and `dir/pan.json`, selected with spacing 25 and blur (so the
+/// cache holds timestamps, sharpness and movement), frames 60 and 61 added by hand.
+pub fn pan_project(dir: &Path) -> PathBuf {
+    let clip = dir.join("pan.mp4");
+    pan_clip(&clip, None);
+    let project = dir.join("pan.json");
+    let mut args = vec![
+        "select",
+        s(&clip),
+        "-o",
+        s(&project),
+        "--spacing",
+        "25",
+        "--blur",
+    ];
+    args.extend(PAN_ANALYSIS);
+    args.extend(["--add", "60,61"]);
+    kf_ok(&args);
+    project
+}

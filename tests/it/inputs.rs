@@ -599,26 +599,7 @@ fn frames_on_demand_equal_sequential_decode() {
     let d = tempfile::tempdir().unwrap();
     // The report fixture's 4 s, 30 fps pan, with a codec keyframe every second to seek to.
     let clip = d.path().join("pan.mp4");
-    let photo = testdata("opencv-doc/aloeL.jpg");
-    ffmpeg(&[
-        "-loop",
-        "1",
-        "-framerate",
-        "30",
-        "-t",
-        "4",
-        "-i",
-        s(&photo),
-        "-vf",
-        "crop=320:240:'t*60':100",
-        "-c:v",
-        "libx264",
-        "-g",
-        "30",
-        "-pix_fmt",
-        "yuv420p",
-        s(&clip),
-    ]);
+    crate::common::pan_clip(&clip, Some("30"));
     let folder = image_folder(&d.path().join("images"), "jpg", 120);
     let opts = OpenOptions::default();
     let order = [119, 0, 61, 60, 3, 90];

@@ -4,7 +4,7 @@
 //! over the DevTools protocol (the keyframe marks, the hover tip, a screenshot).
 
 use crate::browser::{Browser, CHROMIUM, VIEWPORT};
-use crate::common::{code_and_stderr, ffmpeg, json, kf, kf_ok, s, testdata, unbase64};
+use crate::common::{code_and_stderr, json, kf, kf_ok, s, unbase64};
 use keyframer::report::timeline::{frame_x, GAP, KEYFRAME_RGB, LEFT, PANEL_H, RIGHT, TOP, WIDTH};
 use keyframer::report::{write_report, CameraPath, PathPoint, ReportSettings};
 use std::path::{Path, PathBuf};
@@ -22,41 +22,7 @@ fn fixture() -> &'static (PathBuf, PathBuf) {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("report-fixture");
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let clip = dir.join("pan.mp4");
-        let photo = testdata("opencv-doc/aloeL.jpg");
-        ffmpeg(&[
-            "-loop",
-            "1",
-            "-framerate",
-            "30",
-            "-t",
-            "4",
-            "-i",
-            s(&photo),
-            "-vf",
-            "crop=320:240:'t*60':100",
-            "-c:v",
-            "libx264",
-            "-pix_fmt",
-            "yuv420p",
-            s(&clip),
-        ]);
-        let project = dir.join("pan.json");
-        kf_ok(&[
-            "select",
-            s(&clip),
-            "-o",
-            s(&project),
-            "--spacing",
-            "25",
-            "--blur",
-            "--backend",
-            "opencv",
-            "--analysis-width",
-            "160",
-            "--add",
-            "60,61",
-        ]);
+        let project = crate::common::pan_project(&dir);
         (dir, project)
     })
 }

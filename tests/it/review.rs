@@ -3,7 +3,7 @@
 //! `select` with the same steps and `--add`, the workflow save, a clean stop on Ctrl-C.
 
 use crate::browser::{Browser, Tab};
-use crate::common::{ffmpeg, json, keyframes, kf_loud, kf_ok, s, testdata};
+use crate::common::{json, keyframes, kf_loud, kf_ok, s, PAN_ANALYSIS};
 use keyframer::report::timeline::KEYFRAME_RGB;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -12,50 +12,16 @@ use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 use std::time::Duration;
 
-/// The report test's project: a 4 s, 30 fps pan over a photo (320x240), selected with spacing 25
+/// A copy of the pan project (`common::pan_project`): a 4 s, 30 fps pan over a photo (320x240), selected with spacing 25
 /// and blur at analysis width 160, frames 60 and 61 added by hand. Made once; each test copies
 /// the clip and the project into its own folder (saving replaces the project).
-pub fn pan_project(dir: &Path) -> PathBuf {
+pub fn pan_copy(dir: &Path) -> PathBuf {
     static MADE: OnceLock<PathBuf> = OnceLock::new();
     let made = MADE.get_or_init(|| {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("review-fixture");
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let clip = dir.join("pan.mp4");
-        let photo = testdata("opencv-doc/aloeL.jpg");
-        ffmpeg(&[
-            "-loop",
-            "1",
-            "-framerate",
-            "30",
-            "-t",
-            "4",
-            "-i",
-            s(&photo),
-            "-vf",
-            "crop=320:240:'t*60':100",
-            "-c:v",
-            "libx264",
-            "-pix_fmt",
-            "yuv420p",
-            s(&clip),
-        ]);
-        let project = dir.join("pan.json");
-        kf_ok(&[
-            "select",
-            s(&clip),
-            "-o",
-            s(&project),
-            "--spacing",
-            "25",
-            "--blur",
-            "--backend",
-            "opencv",
-            "--analysis-width",
-            "160",
-            "--add",
-            "60,61",
-        ]);
+        crate::common::pan_project(&dir);
         dir
     });
     std::fs::create_dir_all(dir).unwrap();
@@ -71,9 +37,6 @@ pub fn pan_project(dir: &Path) -> PathBuf {
     }
     dir.join("pan.json")
 }
-
-/// The `select` flags of the fixture's analysis (so a re-select reuses its cache).
-pub const PAN_ANALYSIS: [&str; 4] = ["--backend", "opencv", "--analysis-width", "160"];
 
 /// A running `keyframer review`, stopped with SIGINT on drop.
 pub struct Served {
@@ -236,13 +199,13 @@ type Case<'a> = (
 #[test]
 fn review_refuses_without_token_foreign_host_origin_and_paths() {
     let dir = tempfile::tempdir().unwrap();
-    let project = pan_project(dir.path());
+    let project = pan_copy(dir.path());
     let mut srv = Served::start(&project, &[]);
     let own = format!("127.0.0.1:{}", srv.port);
     let origin = format!("http://{own}");
     let tok = srv.token.clone();
     let apply = r#"{"steps":[]}"#;
-    let cases: Vec<Case> = vec![
+    let mut cases: Vec<Case> = vec![
         ("GET", "/api/state".into(), vec![("Host", &own)], None, 401),
         (
             "GET",
@@ -294,49 +257,18 @@ fn review_refuses_without_token_foreign_host_origin_and_paths() {
             None,
             403,
         ),
-        (
-            "GET",
-            "/api/export/image/..%2f..%2fetc%2fpasswd".into(),
-            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
-            None,
-            400,
-        ),
-        (
-            "GET",
-            "/../etc/passwd".into(),
-            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
-            None,
-            400,
-        ),
-        (
-            "GET",
-            "//etc/passwd".into(),
-            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
-            None,
-            400,
-        ),
-        (
-            "GET",
-            "/etc/passwd".into(),
-            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
-            None,
-            404,
-        ),
-        (
-            "GET",
-            "/api/frame/-1.jpg".into(),
-            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
-            None,
-            404,
-        ),
-        (
-            "GET",
-            "/api/export/image/3".into(),
-            vec![("Host", &own), ("X-Keyframer-Token", &tok)],
-            None,
-            404,
-        ),
     ];
+    // Paths outside the routes, with the token: refused all the same.
+    let paths = [
+        ("/api/export/image/..%2f..%2fetc%2fpasswd", 400),
+        ("/../etc/passwd", 400),
+        ("//etc/passwd", 400),
+        ("/etc/passwd", 404),
+        ("/api/frame/-1.jpg", 404),
+        ("/api/export/image/3", 404),
+    ];
+    let authed = vec![("Host", own.as_str()), ("X-Keyframer-Token", tok.as_str())];
+    cases.extend(paths.map(|(p, code)| ("GET", p.to_string(), authed.clone(), None, code)));
     for (method, path, headers, body, want) in &cases {
         let (code, bytes) = raw(srv.port, method, path, headers, *body);
         assert_eq!(
@@ -375,7 +307,7 @@ fn review_refuses_without_token_foreign_host_origin_and_paths() {
 #[test]
 fn review_bad_request_writes_nothing_and_survives() {
     let dir = tempfile::tempdir().unwrap();
-    let project = pan_project(dir.path());
+    let project = pan_copy(dir.path());
     let before = (
         std::fs::read(&project).unwrap(),
         std::fs::metadata(&project).unwrap().modified().unwrap(),
@@ -462,8 +394,8 @@ fn review_bad_request_writes_nothing_and_survives() {
 #[test]
 fn review_save_equals_select_with_add() {
     let dir = tempfile::tempdir().unwrap();
-    let project = pan_project(&dir.path().join("a"));
-    let other = pan_project(&dir.path().join("b"));
+    let project = pan_copy(&dir.path().join("a"));
+    let other = pan_copy(&dir.path().join("b"));
     let srv = Served::start(&project, &[]);
     let (_, state) = srv.call("GET", "/api/state", None);
     let keys: Vec<u64> = state["selection"]["keyframes"]
@@ -545,7 +477,7 @@ fn review_save_equals_select_with_add() {
 #[test]
 fn review_stops_cleanly_on_sigint() {
     let dir = tempfile::tempdir().unwrap();
-    let project = pan_project(dir.path());
+    let project = pan_copy(dir.path());
     let mut srv = Served::start(&project, &[]);
     let (code, _) = srv.call("GET", "/api/status", None);
     assert_eq!(code, 200);
@@ -560,7 +492,7 @@ fn review_stops_cleanly_on_sigint() {
 #[test]
 fn review_serves_frames_and_the_export_files_of_its_manifest() {
     let dir = tempfile::tempdir().unwrap();
-    let project = pan_project(dir.path());
+    let project = pan_copy(dir.path());
     let export = dir.path().join("exp");
     kf_ok(&["export", s(&project), "--out", s(&export)]);
     let srv = Served::start(&project, &["--export", s(&export)]);
@@ -756,8 +688,8 @@ fn review_page_threshold_change_gives_select_count() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let project = pan_project(&dir.path().join("a"));
-    let other = pan_project(&dir.path().join("b"));
+    let project = pan_copy(&dir.path().join("a"));
+    let other = pan_copy(&dir.path().join("b"));
     select_pan(&other, &["--spacing", "40", "--blur", "--add", "60,61"]);
     let want = keyframes(&other).len();
     let srv = Served::start(&project, &[]);
@@ -784,8 +716,8 @@ fn review_page_click_adds_keyframe_and_save_finds_it() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let project = pan_project(&dir.path().join("a"));
-    let other = pan_project(&dir.path().join("b"));
+    let project = pan_copy(&dir.path().join("a"));
+    let other = pan_copy(&dir.path().join("b"));
     let srv = Served::start(&project, &[]);
     let tab = open_page(&browser, &srv);
     let second = open_page(&browser, &srv);
@@ -866,7 +798,7 @@ fn review_page_screenshot_shows_timeline() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let project = pan_project(dir.path());
+    let project = pan_copy(dir.path());
     let srv = Served::start(&project, &[]);
     let tab = open_page(&browser, &srv);
     // The preview of the cursor's frame, decoded on demand, and the strip.
@@ -922,7 +854,7 @@ fn review_page_disables_steps_the_cache_lacks() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let pan = pan_project(dir.path());
+    let pan = pan_copy(dir.path());
     let project = dir.path().join("blur.json");
     let clip = pan.with_file_name("pan.mp4");
     let mut args = vec!["select", s(&clip), "-o", s(&project), "--blur"];
