@@ -17,7 +17,7 @@ use tiny_http::{Header, Method, Request, Response, Server};
 /// Request bodies above this are refused.
 const MAX_BODY: u64 = 1 << 20;
 
-/// Worker threads answering requests.
+/// Worker threads answering requests (frame requests go on to the one decode thread).
 const WORKERS: usize = 2;
 
 /// The page and its assets, embedded in the binary.
@@ -104,15 +104,27 @@ impl Served {
         }
     }
 
-    /// Answers requests until stopped; each worker finishes the request it is answering.
+    /// Answers requests until stopped; each worker finishes the request it is answering. Frame
+    /// requests queue for one decode thread (a seek far into a long video can take seconds), so
+    /// step edits keep answering while frames decode.
     pub fn run(self) {
         let this = Arc::new(self);
+        let (frames, queued) = std::sync::mpsc::channel::<Request>();
+        let decoder = {
+            let this = this.clone();
+            std::thread::spawn(move || queued.iter().for_each(|rq| this.answer(rq)))
+        };
         let workers: Vec<_> = (0..WORKERS)
             .map(|_| {
-                let this = this.clone();
+                let (this, frames) = (this.clone(), frames.clone());
                 std::thread::spawn(move || {
                     while !this.stop.load(Ordering::SeqCst) {
                         match this.server.recv() {
+                            Ok(rq) if rq.url().starts_with("/api/frame/") => {
+                                if let Err(e) = frames.send(rq) {
+                                    this.answer(e.0);
+                                }
+                            }
                             Ok(rq) => this.answer(rq),
                             Err(_) if this.stop.load(Ordering::SeqCst) => break,
                             Err(e) => log::warn!("review: {e}"),
@@ -121,7 +133,8 @@ impl Served {
                 })
             })
             .collect();
-        for w in workers {
+        drop(frames);
+        for w in workers.into_iter().chain([decoder]) {
             if w.join().is_err() {
                 log::warn!("review: a worker thread panicked");
             }
