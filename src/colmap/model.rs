@@ -42,8 +42,7 @@ pub struct Image {
 impl Image {
     /// Camera centre in world coordinates, `C = -Rᵀ t`.
     pub fn centre(&self) -> Vec3 {
-        let rt = align::transpose(&align::quat_to_mat(self.qvec));
-        align::mul_vec(&rt, &self.tvec).map(|v| -v)
+        align::mul_vec(&self.cam_to_world(), &self.tvec).map(|v| -v)
     }
 
     /// Camera-to-world rotation `Rᵀ`.
@@ -243,59 +242,43 @@ fn bin_camera(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Camera> {
         .iter()
         .find(|m| m.0 == model_id)
         .ok_or_else(|| bad(b.path, f(), format!("unknown camera model id {model_id}")))?;
-    let width = b.u64(f)?;
-    let height = b.u64(f)?;
-    let params = (0..*np).map(|_| b.f64(f)).collect::<Result<Vec<_>>>()?;
     Ok(Camera {
         id,
         model: (*name).to_string(),
-        width,
-        height,
-        params,
+        width: b.u64(f)?,
+        height: b.u64(f)?,
+        params: (0..*np).map(|_| b.f64(f)).collect::<Result<Vec<_>>>()?,
     })
 }
 
 /// One `images.bin` record.
 fn bin_image(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Image> {
-    let id = b.u32(f)?;
-    let qvec = [b.f64(f)?, b.f64(f)?, b.f64(f)?, b.f64(f)?];
-    let tvec = [b.f64(f)?, b.f64(f)?, b.f64(f)?];
-    let camera_id = b.u32(f)?;
-    let name = b.cstr(f)?;
-    let np = b.count(24, f)?;
-    let points2d = (0..np)
-        .map(|_| {
-            let (x, y, p) = (b.f64(f)?, b.f64(f)?, b.u64(f)?);
-            // COLMAP writes an invalid id (-1) as u64::MAX.
-            Ok((x, y, (p != u64::MAX).then_some(p)))
-        })
-        .collect::<Result<Vec<_>>>()?;
     Ok(Image {
-        id,
-        qvec,
-        tvec,
-        camera_id,
-        name,
-        points2d,
+        id: b.u32(f)?,
+        qvec: [b.f64(f)?, b.f64(f)?, b.f64(f)?, b.f64(f)?],
+        tvec: [b.f64(f)?, b.f64(f)?, b.f64(f)?],
+        camera_id: b.u32(f)?,
+        name: b.cstr(f)?,
+        points2d: (0..b.count(24, f)?)
+            .map(|_| {
+                let (x, y, p) = (b.f64(f)?, b.f64(f)?, b.u64(f)?);
+                // COLMAP writes an invalid id (-1) as u64::MAX.
+                Ok((x, y, (p != u64::MAX).then_some(p)))
+            })
+            .collect::<Result<Vec<_>>>()?,
     })
 }
 
 /// One `points3D.bin` record.
 fn bin_point(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Point3D> {
-    let id = b.u64(f)?;
-    let xyz = [b.f64(f)?, b.f64(f)?, b.f64(f)?];
-    let rgb = [b.u8(f)?, b.u8(f)?, b.u8(f)?];
-    let error = b.f64(f)?;
-    let nt = b.count(8, f)?;
-    let track = (0..nt)
-        .map(|_| Ok((b.u32(f)?, b.u32(f)?)))
-        .collect::<Result<Vec<_>>>()?;
     Ok(Point3D {
-        id,
-        xyz,
-        rgb,
-        error,
-        track,
+        id: b.u64(f)?,
+        xyz: [b.f64(f)?, b.f64(f)?, b.f64(f)?],
+        rgb: [b.u8(f)?, b.u8(f)?, b.u8(f)?],
+        error: b.f64(f)?,
+        track: (0..b.count(8, f)?)
+            .map(|_| Ok((b.u32(f)?, b.u32(f)?)))
+            .collect::<Result<Vec<_>>>()?,
     })
 }
 

@@ -46,7 +46,7 @@ impl CameraPath {
     pub fn spacings(&self) -> Vec<f64> {
         self.sorted()
             .windows(2)
-            .map(|w| dist(&w[0].centre, &w[1].centre))
+            .map(|w| crate::colmap::align::dist(&w[0].centre, &w[1].centre))
             .collect()
     }
 
@@ -196,10 +196,6 @@ fn write_legend(s: &mut String, d: &[f64]) -> fmt::Result {
         50 + steps * 10 + 30,
         50 + steps * 10 + 44
     )
-}
-
-fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    (Vector3::from(*a) - Vector3::from(*b)).norm()
 }
 
 /// The eigenvectors of the two largest eigenvalues of a symmetric matrix (nalgebra's symmetric
