@@ -67,7 +67,7 @@ impl From<&Fix> for Position {
 }
 
 /// One telemetry entry.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Fix {
     /// Seconds from the start of the video (the entry's start time).
     pub t_s: f64,
@@ -93,7 +93,7 @@ pub struct Fix {
 }
 
 /// The fixes of one telemetry file, in time order, and what was wrong with it.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Track {
     pub path: PathBuf,
     pub fixes: Vec<Fix>,
@@ -131,8 +131,7 @@ pub fn parse_dji_srt(path: &Path, text: &str) -> Track {
     let lines: Vec<&str> = text.lines().map(|l| l.trim_end_matches('\r')).collect();
     let mut track = Track {
         path: path.into(),
-        fixes: Vec::new(),
-        warnings: Vec::new(),
+        ..Track::default()
     };
     let name = path.display().to_string();
     let mut i = 0;
@@ -193,8 +192,7 @@ pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Tra
         .map_err(|e| Error::input(path, format!("not a readable GPX file: {e}")))?;
     let mut track = Track {
         path: path.into(),
-        fixes: Vec::new(),
-        warnings: Vec::new(),
+        ..Track::default()
     };
     let points = gpx
         .tracks
@@ -213,15 +211,9 @@ pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Tra
             t_s: t.as_seconds_f64() - offset_s,
             lat_deg: pos.y(),
             lon_deg: pos.x(),
-            rel_alt_m: None,
             abs_alt_m: p.elevation,
-            focal_35mm: None,
-            gimbal_pitch_deg: None,
-            gimbal_yaw_deg: None,
-            iso: None,
-            shutter_s: None,
-            fnum: None,
             line: k + 1,
+            ..Fix::default()
         });
     }
     if track.fixes.is_empty() {
@@ -297,18 +289,11 @@ pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
         .map(f64::from)
         .filter(|f| *f > 0.0);
     Ok(Some(Fix {
-        t_s: 0.0,
         lat_deg: lat,
         lon_deg: lon,
-        rel_alt_m: None,
         abs_alt_m: altitude,
         focal_35mm: focal,
-        gimbal_pitch_deg: None,
-        gimbal_yaw_deg: None,
-        iso: None,
-        shutter_s: None,
-        fnum: None,
-        line: 0,
+        ..Fix::default()
     }))
 }
 
