@@ -50,27 +50,18 @@ pub fn parse_packets(path: &Path, text: &str) -> Result<CodecKeyframeIndex> {
         if line.is_empty() {
             continue;
         }
+        let bad =
+            |what: String| Error::input(path, format!("ffprobe packet line {}: {what}", n + 1));
         let mut parts = line.split(',');
         let (Some(pts), Some(dts), Some(flags)) = (parts.next(), parts.next(), parts.next()) else {
-            return Err(Error::input(
-                path,
-                format!(
-                    "ffprobe packet line {}: `{line}` is not `pts,dts,flags`",
-                    n + 1
-                ),
-            ));
+            return Err(bad(format!("`{line}` is not `pts,dts,flags`")));
         };
         let t = if pts != "N/A" { pts } else { dts };
         if t == "N/A" {
             untimed += 1;
             continue;
         }
-        let t: f64 = t.parse().map_err(|_| {
-            Error::input(
-                path,
-                format!("ffprobe packet line {}: bad time `{t}`", n + 1),
-            )
-        })?;
+        let t: f64 = t.parse().map_err(|_| bad(format!("bad time `{t}`")))?;
         packets.push((t, flags.starts_with('K')));
     }
     if untimed > 0 {
@@ -97,16 +88,9 @@ pub fn parse_packets(path: &Path, text: &str) -> Result<CodecKeyframeIndex> {
 /// Lists the packets of `path`'s first video stream with `ffprobe` (demuxing only, no decode).
 pub fn probe(path: &Path) -> Result<CodecKeyframeIndex> {
     let out = Command::new("ffprobe")
-        .args([
-            "-v",
-            "error",
-            "-select_streams",
-            "v:0",
-            "-show_entries",
-            "packet=pts_time,dts_time,flags",
-            "-of",
-            "csv=p=0",
-        ])
+        .args(["-v", "error", "-select_streams", "v:0"])
+        .args(["-show_entries", "packet=pts_time,dts_time,flags"])
+        .args(["-of", "csv=p=0"])
         .arg(path)
         .output()
         .map_err(|e| missing_tool("ffprobe", e))?;
@@ -149,17 +133,8 @@ impl CodecKeyframeSource {
         let mut child = Command::new("ffmpeg")
             .args(["-nostdin", "-v", "error", "-skip_frame", "nokey", "-i"])
             .arg(path)
-            .args([
-                "-map",
-                "0:v:0",
-                "-fps_mode",
-                "passthrough",
-                "-f",
-                "rawvideo",
-                "-pix_fmt",
-                "bgr24",
-                "-",
-            ])
+            .args(["-map", "0:v:0", "-fps_mode", "passthrough"])
+            .args(["-f", "rawvideo", "-pix_fmt", "bgr24", "-"])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

@@ -162,26 +162,20 @@ pub fn read_indices(
     let mut pos = 0usize;
     let mut damaged = Vec::new();
     for (k, &want) in indices.iter().enumerate() {
-        while pos < want {
-            if source.skip_frame()?.is_none() {
-                damaged.extend_from_slice(&indices[k..]);
-                return Ok(damaged);
-            }
+        while pos < want && source.skip_frame()?.is_some() {
             pos += 1;
         }
-        match source.next_frame()? {
-            Some(frame) => {
-                pos += 1;
-                if source.damage_of(frame.index).is_some() {
-                    damaged.push(frame.index);
-                } else {
-                    f(frame)?;
-                }
-            }
-            None => {
-                damaged.extend_from_slice(&indices[k..]);
-                return Ok(damaged);
-            }
+        // Short of `want`, the stream ended while skipping.
+        let next = (pos == want).then(|| source.next_frame());
+        let Some(frame) = next.transpose()?.flatten() else {
+            damaged.extend_from_slice(&indices[k..]);
+            return Ok(damaged);
+        };
+        pos += 1;
+        if source.damage_of(frame.index).is_some() {
+            damaged.push(frame.index);
+        } else {
+            f(frame)?;
         }
     }
     Ok(damaged)
