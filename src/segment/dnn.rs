@@ -1,7 +1,7 @@
 //! Runs a network through OpenCV DNN (any format `cv::dnn::readNet` reads) on the CPU.
 
 use super::desc::ModelDesc;
-use super::tensor::mismatch;
+use super::tensor::{mismatch, Output};
 use crate::error::{CvContext, Error, Result};
 use opencv::core::{Mat, Scalar};
 use opencv::dnn;
@@ -60,12 +60,7 @@ impl DnnRunner {
     }
 
     /// Runs the network on an input tensor of `shape`; returns the output's shape and values.
-    pub fn run(
-        &mut self,
-        desc: &ModelDesc,
-        shape: &[usize; 4],
-        data: &[f32],
-    ) -> Result<(Vec<usize>, Vec<f32>)> {
+    pub fn run(&mut self, desc: &ModelDesc, shape: &[usize; 4], data: &[f32]) -> Result<Output> {
         let dims: Vec<i32> = shape.iter().map(|&d| d as i32).collect();
         let blob = Mat::new_nd_with_data(&dims, data).cv(|| "input tensor".into())?;
         self.net

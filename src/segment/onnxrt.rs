@@ -2,7 +2,7 @@
 //! time from `ORT_DYLIB_PATH`; a missing or unloadable library is an error, never a panic.
 
 use super::desc::ModelDesc;
-use super::tensor::mismatch;
+use super::tensor::{mismatch, Output};
 use crate::error::{Error, Result};
 use ort::session::Session;
 use ort::value::Tensor;
@@ -73,36 +73,22 @@ impl OrtRunner {
             .map_err(|e| fail(e.to_string()))?
             .commit_from_file(&desc.model)
             .map_err(|e| fail(e.to_string()))?;
-        let input = match &desc.input.name {
-            Some(n) => n.clone(),
-            None => session
-                .inputs()
-                .first()
-                .map(|o| o.name().to_string())
-                .ok_or_else(|| fail("the model has no inputs".into()))?,
-        };
-        let output = match &desc.output.name {
-            Some(n) => n.clone(),
-            None => session
-                .outputs()
-                .first()
-                .map(|o| o.name().to_string())
-                .ok_or_else(|| fail("the model has no outputs".into()))?,
+        // The name the description gives, else the model's first of `outlets`.
+        let name = |given: &Option<String>, outlets: &[ort::value::Outlet], what: &str| match given
+        {
+            Some(n) => Ok(n.clone()),
+            None => (outlets.first().map(|o| o.name().to_string()))
+                .ok_or_else(|| fail(format!("the model has no {what}"))),
         };
         Ok(OrtRunner {
+            input: name(&desc.input.name, session.inputs(), "inputs")?,
+            output: name(&desc.output.name, session.outputs(), "outputs")?,
             session,
-            input,
-            output,
         })
     }
 
     /// Runs the network on an input tensor of `shape`; returns the output's shape and values.
-    pub fn run(
-        &mut self,
-        desc: &ModelDesc,
-        shape: &[usize; 4],
-        data: &[f32],
-    ) -> Result<(Vec<usize>, Vec<f32>)> {
+    pub fn run(&mut self, desc: &ModelDesc, shape: &[usize; 4], data: &[f32]) -> Result<Output> {
         let dims: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
         let tensor = Tensor::from_array((dims, data.to_vec()))
             .map_err(|e| mismatch(desc, format!("input tensor: {e}")))?;

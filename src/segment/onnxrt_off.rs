@@ -2,6 +2,7 @@
 //! the `ort` mask backend is an error that says so; nothing else changes.
 
 use super::desc::ModelDesc;
+use super::tensor::Output;
 use crate::error::{Error, Result};
 
 /// Never constructed: [`OrtRunner::load`] always fails in this build.
@@ -21,12 +22,7 @@ impl OrtRunner {
     }
 
     /// Unreachable: no runner exists.
-    pub fn run(
-        &mut self,
-        _desc: &ModelDesc,
-        _shape: &[usize; 4],
-        _data: &[f32],
-    ) -> Result<(Vec<usize>, Vec<f32>)> {
+    pub fn run(&mut self, _: &ModelDesc, _: &[usize; 4], _: &[f32]) -> Result<Output> {
         match *self {}
     }
 }

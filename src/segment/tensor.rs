@@ -68,6 +68,9 @@ pub fn push_image(desc: &ModelDesc, image: &Mat, out: &mut Vec<f32>) -> Result<(
     Ok(())
 }
 
+/// An output tensor as a runtime returns it: its shape and its values.
+pub type Output = (Vec<usize>, Vec<f32>);
+
 /// Class index maps (one `u16` per pixel, row-major) decoded from an output tensor.
 pub struct ClassMaps {
     /// Width of each map.
