@@ -4,7 +4,7 @@
 //! files come from the manifest). Every refusal is logged without the token. The HTTP crate
 //! (tiny_http) is used only in this file.
 
-use super::{parse_steps, ApiError, Review};
+use super::{parse_steps, ApiError, ApiResult, Review};
 use crate::error::{Error, Result};
 use crate::source::FrameSize;
 use serde_json::{json, Value};
@@ -13,6 +13,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 use tiny_http::{Header, Method, Request, Response, Server};
+
+/// A response with its whole body in memory.
+type Reply = Response<std::io::Cursor<Vec<u8>>>;
 
 /// Request bodies above this are refused.
 const MAX_BODY: u64 = 1 << 20;
@@ -168,7 +171,7 @@ impl Served {
     }
 
     /// Host, Origin and token checks, and the path's form.
-    fn admit(&self, rq: &Request, url: &str) -> std::result::Result<(), ApiError> {
+    fn admit(&self, rq: &Request, url: &str) -> ApiResult<()> {
         let own = [
             format!("127.0.0.1:{}", self.port),
             format!("localhost:{}", self.port),
@@ -213,12 +216,7 @@ impl Served {
         }
     }
 
-    fn route(
-        &self,
-        rq: &mut Request,
-        method: &Method,
-        path: &str,
-    ) -> std::result::Result<Response<std::io::Cursor<Vec<u8>>>, ApiError> {
+    fn route(&self, rq: &mut Request, method: &Method, path: &str) -> ApiResult<Reply> {
         let review = &self.review;
         let parts: Vec<&str> = path.trim_start_matches('/').split('/').collect();
         match (method, parts.as_slice()) {
@@ -291,10 +289,7 @@ impl Served {
 /// strip images of the page that never load). A connection per request ends each pool task as
 /// soon as its answer is written. tiny_http refuses a `Connection` header in a `Response`, hence
 /// the status line and headers written here.
-fn respond_and_close(
-    rq: Request,
-    response: Response<std::io::Cursor<Vec<u8>>>,
-) -> std::io::Result<()> {
+fn respond_and_close(rq: Request, response: Reply) -> std::io::Result<()> {
     use std::io::Write;
     let status = response.status_code();
     let mut head = format!(
@@ -317,7 +312,7 @@ fn respond_and_close(
 }
 
 /// The frames to show, `{"from": F, "to": T}` (absent or null: all of them).
-fn view_of(v: &Value) -> std::result::Result<Option<(usize, usize)>, ApiError> {
+fn view_of(v: &Value) -> ApiResult<Option<(usize, usize)>> {
     if v.is_null() {
         return Ok(None);
     }
@@ -331,7 +326,7 @@ fn view_of(v: &Value) -> std::result::Result<Option<(usize, usize)>, ApiError> {
 }
 
 /// A frame index in a path segment (`12` or `12.jpg`).
-fn index_of(s: &str) -> std::result::Result<usize, ApiError> {
+fn index_of(s: &str) -> ApiResult<usize> {
     let digits = s.strip_suffix(".jpg").unwrap_or(s);
     digits
         .parse()
@@ -339,7 +334,7 @@ fn index_of(s: &str) -> std::result::Result<usize, ApiError> {
 }
 
 /// The request's JSON body (at most [`MAX_BODY`] bytes).
-fn body(rq: &mut Request) -> std::result::Result<Value, ApiError> {
+fn body(rq: &mut Request) -> ApiResult<Value> {
     let mut text = Vec::new();
     let read = rq.as_reader().take(MAX_BODY + 1).read_to_end(&mut text);
     if read.is_err() || text.len() as u64 > MAX_BODY {
@@ -366,7 +361,7 @@ fn header(name: &str, value: &str) -> Option<Header> {
     Header::from_bytes(name.as_bytes(), value.as_bytes()).ok()
 }
 
-fn reply(status: u16, mime: &str, body: Vec<u8>) -> Response<std::io::Cursor<Vec<u8>>> {
+fn reply(status: u16, mime: &str, body: Vec<u8>) -> Reply {
     let headers = [
         ("Content-Type", mime),
         (
@@ -386,6 +381,6 @@ fn reply(status: u16, mime: &str, body: Vec<u8>) -> Response<std::io::Cursor<Vec
     r
 }
 
-fn json_reply(status: u16, v: &Value) -> Response<std::io::Cursor<Vec<u8>>> {
+fn json_reply(status: u16, v: &Value) -> Reply {
     reply(status, "application/json", v.to_string().into_bytes())
 }

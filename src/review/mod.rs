@@ -44,6 +44,9 @@ pub struct ApiError {
     pub key: Option<String>,
 }
 
+/// A review answer: the value, or the HTTP error.
+pub type ApiResult<T> = std::result::Result<T, ApiError>;
+
 impl ApiError {
     pub fn new(status: u16, error: impl Into<String>) -> ApiError {
         ApiError {
@@ -237,7 +240,7 @@ impl Review {
     /// Runs `steps` on the cached series of the loaded project. Steps of analysis the cache
     /// lacks are left out (each named with the command that computes it); any other refusal is
     /// the error.
-    pub fn select(&self, steps: &[Step]) -> std::result::Result<Selection, ApiError> {
+    pub fn select(&self, steps: &[Step]) -> ApiResult<Selection> {
         check(steps)?;
         let project = self.project();
         let mut active: Vec<Step> = steps.to_vec();
@@ -317,11 +320,7 @@ impl Review {
 
     /// `/api/apply`: the selection of `steps` and its timeline showing frames `view` (all when
     /// None), with the time the server took.
-    pub fn apply(
-        &self,
-        steps: &[Step],
-        view: Option<(usize, usize)>,
-    ) -> std::result::Result<Value, ApiError> {
+    pub fn apply(&self, steps: &[Step], view: Option<(usize, usize)>) -> ApiResult<Value> {
         let started = Instant::now();
         let selection = self.select(steps)?;
         let project = self.project();
@@ -339,7 +338,7 @@ impl Review {
     }
 
     /// The project `select` with `steps` would write over the loaded one's cache.
-    pub fn reselect(&self, steps: &[Step]) -> std::result::Result<Project, ApiError> {
+    pub fn reselect(&self, steps: &[Step]) -> ApiResult<Project> {
         let selection = self.select(steps)?;
         if let Some(s) = selection.steps_state.iter().find(|s| !s.enabled) {
             return Err(ApiError::new(
@@ -362,7 +361,7 @@ impl Review {
 
     /// Saves the project `select` with `steps` would write, if the file is still the one loaded
     /// (or last saved) and `revision` is the session's; returns the new revision.
-    pub fn save(&self, steps: &[Step], revision: u64) -> std::result::Result<u64, ApiError> {
+    pub fn save(&self, steps: &[Step], revision: u64) -> ApiResult<u64> {
         let project = self.reselect(steps)?;
         if self.project().preview {
             return Err(ApiError::new(
@@ -406,11 +405,7 @@ impl Review {
 
     /// Writes the workflow of `steps` beside the project (`<stem>.workflow.toml`), refusing to
     /// replace one unless `force`.
-    pub fn save_workflow(
-        &self,
-        steps: &[Step],
-        force: bool,
-    ) -> std::result::Result<PathBuf, ApiError> {
+    pub fn save_workflow(&self, steps: &[Step], force: bool) -> ApiResult<PathBuf> {
         let project = self.reselect(steps)?;
         let stem = self.path.file_stem().unwrap_or_default().to_string_lossy();
         let out = self.path.with_file_name(format!("{stem}.workflow.toml"));
@@ -424,11 +419,7 @@ impl Review {
     }
 
     /// Frame `index` as a JPEG of `size`, decoded on demand (a bounded cache keeps recent ones).
-    pub fn frame(
-        &self,
-        index: usize,
-        size: FrameSize,
-    ) -> std::result::Result<Arc<Vec<u8>>, ApiError> {
+    pub fn frame(&self, index: usize, size: FrameSize) -> ApiResult<Arc<Vec<u8>>> {
         let project = self.project();
         if index >= project.metadata.frame_count {
             return Err(ApiError::new(404, format!("no frame {index}")));
@@ -475,7 +466,7 @@ impl Review {
 
     /// The export's file of `kind` (`image`, `mask`, `overlay`) for frame `index`: a regular file
     /// inside the export folder, as its manifest lists it.
-    pub fn export_file(&self, kind: &str, index: usize) -> std::result::Result<PathBuf, ApiError> {
+    pub fn export_file(&self, kind: &str, index: usize) -> ApiResult<PathBuf> {
         let (dir, manifest) = (self.export.as_ref())
             .ok_or_else(|| ApiError::new(404, "review was started without --export"))?;
         let f = (manifest.frames.iter().find(|f| f.index == index))
@@ -507,7 +498,7 @@ impl Review {
 
     /// `/api/state`: the project, its steps, the parameters each step takes, the series that do
     /// not depend on the keyframes, the export and the current selection.
-    pub fn state(&self) -> std::result::Result<Value, ApiError> {
+    pub fn state(&self) -> ApiResult<Value> {
         let project = self.project();
         let steps = Review::steps_of(&project);
         let started = Instant::now();
@@ -541,7 +532,7 @@ fn needs_analysis(plugin: &str) -> bool {
 }
 
 /// The step list's order and each step's parameters, as `select` checks them.
-pub fn check(steps: &[Step]) -> std::result::Result<(), ApiError> {
+pub fn check(steps: &[Step]) -> ApiResult<()> {
     steps::check_order(steps).map_err(|(i, msg)| ApiError::step(i, None, msg))?;
     for (i, s) in steps.iter().enumerate() {
         s.validate()
@@ -551,7 +542,7 @@ pub fn check(steps: &[Step]) -> std::result::Result<(), ApiError> {
 }
 
 /// Parses a JSON step list, errors naming the step and parameter.
-pub fn parse_steps(v: &Value) -> std::result::Result<Vec<Step>, ApiError> {
+pub fn parse_steps(v: &Value) -> ApiResult<Vec<Step>> {
     serde_path_to_error::deserialize::<_, Vec<Step>>(v.clone()).map_err(|e| {
         let path = e.path().to_string();
         let step = path
