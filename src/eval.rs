@@ -276,17 +276,17 @@ pub fn camera_centres(model: &Path, export: Option<&Path>) -> Result<Vec<(usize,
     let export = export.map(Path::to_path_buf).or(r.export);
     let manifest = export.as_deref().map(read_manifest).transpose()?;
     let ordered = order_images(&m, manifest.as_ref(), export.as_deref())?;
-    let mut out = Vec::with_capacity(ordered.len());
-    for o in ordered {
-        let Some(i) = o.index else {
-            return Err(Error::input(
-                model,
-                "the model's images need the export's manifest for their frame numbers (--export)",
-            ));
-        };
-        out.push((i, o.centre));
-    }
-    Ok(out)
+    ordered
+        .iter()
+        .map(|o| {
+            o.index.map(|i| (i, o.centre)).ok_or_else(|| {
+                Error::input(
+                    model,
+                    "the model's images need the export's manifest for their frame numbers (--export)",
+                )
+            })
+        })
+        .collect()
 }
 
 /// A registered image with what the manifest knows about it.
@@ -306,21 +306,20 @@ fn order_images(
 ) -> Result<Vec<Ordered>> {
     let mut out = Vec::with_capacity(m.images.len());
     for im in m.images.values() {
-        let frame =
-            match manifest {
-                Some(man) => Some(man.frames.iter().find(|f| f.file == im.name).ok_or_else(
-                    || {
-                        Error::input(
-                            export.unwrap_or(Path::new(".")),
-                            format!(
-                                "image {} of the model is not in the export's manifest",
-                                im.name
-                            ),
-                        )
-                    },
-                )?),
-                None => None,
-            };
+        let frame = manifest
+            .map(|man| {
+                man.frames
+                    .iter()
+                    .find(|f| f.file == im.name)
+                    .ok_or_else(|| {
+                        let msg = format!(
+                            "image {} of the model is not in the export's manifest",
+                            im.name
+                        );
+                        Error::input(export.unwrap_or(Path::new(".")), msg)
+                    })
+            })
+            .transpose()?;
         out.push(Ordered {
             name: im.name.clone(),
             index: frame.map(|f| f.index),

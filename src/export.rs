@@ -151,10 +151,9 @@ pub fn export(
     let is_video = meta.kind == SourceKind::Video;
     let names = output_names(&project, src.as_ref(), settings, is_video)?;
     let geo = geo_of(&project, &input, src.as_ref(), settings, &names);
-    let network = match &settings.masks {
-        Some(m) => Some(crate::model_desc::ModelDesc::load(&m.model)?.model),
-        None => None,
-    };
+    let network = (settings.masks.as_ref())
+        .map(|m| Ok(crate::model_desc::ModelDesc::load(&m.model)?.model))
+        .transpose()?;
     let mut inputs: Vec<&Path> = vec![project_path, &input];
     if let (Some(m), Some(n)) = (&settings.masks, &network) {
         inputs.push(&m.model);
