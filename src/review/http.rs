@@ -222,9 +222,8 @@ impl Served {
         match (method, parts.as_slice()) {
             (Method::Get, _) if ASSETS.iter().any(|a| a.0 == path) => {
                 let (_, mime, body) = ASSETS
-                    .iter()
+                    .into_iter()
                     .find(|a| a.0 == path)
-                    .copied()
                     .unwrap_or(ASSETS[0]);
                 let body = body.replace("{{TOKEN}}", &self.token);
                 Ok(reply(200, mime, body.into_bytes()))

@@ -138,13 +138,10 @@ impl Review {
     pub fn open(s: &ReviewSettings) -> Result<Review> {
         let project = Project::load(&s.project)?;
         let fingerprint = fsutil::fingerprint_file(&s.project)?;
-        let export = match &s.export {
-            Some(dir) => Some((
-                dir.clone(),
-                Manifest::load(&dir.join(crate::manifest::MANIFEST))?,
-            )),
-            None => None,
-        };
+        let manifest = |dir: &PathBuf| Manifest::load(&dir.join(crate::manifest::MANIFEST));
+        let export = (s.export.as_ref())
+            .map(|dir| Ok((dir.clone(), manifest(dir)?)))
+            .transpose()?;
         Ok(Review {
             input: project.input_path(&s.project),
             path: s.project.clone(),
@@ -163,11 +160,6 @@ impl Review {
     /// The project file.
     pub fn path(&self) -> &Path {
         &self.path
-    }
-
-    /// The input the project refers to.
-    pub fn input(&self) -> &Path {
-        &self.input
     }
 
     /// The project as last loaded or saved.
@@ -196,13 +188,10 @@ impl Review {
         (project.history.iter())
             .filter_map(|e| Applied::from_entry(e).ok()?.step())
             .filter(|s| {
-                !matches!(
-                    s,
-                    Step::Boundaries {
-                        start: None,
-                        end: None
-                    }
-                )
+                *s != Step::Boundaries {
+                    start: None,
+                    end: None,
+                }
             })
             .collect()
     }

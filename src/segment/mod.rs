@@ -91,11 +91,6 @@ impl Segmenter {
         Ok(s)
     }
 
-    /// The description in use.
-    pub fn desc(&self) -> &ModelDesc {
-        &self.desc
-    }
-
     /// Most images per inference call.
     pub fn batch(&self) -> usize {
         self.batch
