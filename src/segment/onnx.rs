@@ -39,13 +39,7 @@ pub fn signature(path: &Path) -> Result<Signature> {
 }
 
 fn parse(bytes: &[u8]) -> std::result::Result<Signature, String> {
-    let mut graph = None;
-    for f in fields(bytes)? {
-        if let (7, Value::Bytes(b)) = f {
-            graph = Some(b);
-        }
-    }
-    let graph = graph.ok_or("no graph")?;
+    let graph = messages(bytes, 7)?.pop().ok_or("no graph")?;
     let mut inputs = Vec::new();
     let mut outputs = Vec::new();
     let mut initializers = Vec::new();
@@ -53,13 +47,8 @@ fn parse(bytes: &[u8]) -> std::result::Result<Signature, String> {
         match f {
             (11, Value::Bytes(b)) => inputs.push(value_info(b)?),
             (12, Value::Bytes(b)) => outputs.push(value_info(b)?),
-            (5, Value::Bytes(b)) => {
-                for g in fields(b)? {
-                    if let (8, Value::Bytes(n)) = g {
-                        initializers.push(String::from_utf8_lossy(n).into_owned());
-                    }
-                }
-            }
+            (5, Value::Bytes(b)) => initializers
+                .extend((messages(b, 8)?.iter()).map(|n| String::from_utf8_lossy(n).into_owned())),
             _ => {}
         }
     }
@@ -78,25 +67,19 @@ fn value_info(b: &[u8]) -> std::result::Result<TensorDecl, String> {
             (1, Value::Bytes(n)) => name = String::from_utf8_lossy(n).into_owned(),
             (2, Value::Bytes(t)) => {
                 // TypeProto.tensor_type (1) -> Tensor.shape (2) -> dim (1)
-                for tt in fields(t)? {
-                    if let (1, Value::Bytes(tensor)) = tt {
-                        for s in fields(tensor)? {
-                            if let (2, Value::Bytes(sh)) = s {
-                                let mut dims = Vec::new();
-                                for d in fields(sh)? {
-                                    if let (1, Value::Bytes(dim)) = d {
-                                        let mut v = Dim::Dynamic;
-                                        for x in fields(dim)? {
-                                            if let (1, Value::Varint(n)) = x {
-                                                v = Dim::Fixed(n as i64);
-                                            }
-                                        }
-                                        dims.push(v);
-                                    }
+                for tensor in messages(t, 1)? {
+                    for sh in messages(tensor, 2)? {
+                        let mut dims = Vec::new();
+                        for dim in messages(sh, 1)? {
+                            let mut v = Dim::Dynamic;
+                            for x in fields(dim)? {
+                                if let (1, Value::Varint(n)) = x {
+                                    v = Dim::Fixed(n as i64);
                                 }
-                                shape = Some(dims);
                             }
+                            dims.push(v);
                         }
+                        shape = Some(dims);
                     }
                 }
             }
@@ -104,6 +87,15 @@ fn value_info(b: &[u8]) -> std::result::Result<TensorDecl, String> {
         }
     }
     Ok(TensorDecl { name, shape })
+}
+
+/// The length-delimited values of field `n` of message `b`, in order.
+fn messages(b: &[u8], n: u64) -> std::result::Result<Vec<&[u8]>, String> {
+    let bytes = fields(b)?.into_iter().filter_map(|f| match f {
+        (k, Value::Bytes(v)) if k == n => Some(v),
+        _ => None,
+    });
+    Ok(bytes.collect())
 }
 
 enum Value<'a> {
