@@ -158,7 +158,7 @@ pub struct ModelSummary {
 }
 
 /// `colmap.json`: what was run, how long it took, and what came out.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct Record {
     /// Always "keyframer".
     pub tool: String,
@@ -244,17 +244,13 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         images: manifest.frames.len(),
         masks,
         camera_model: a.camera_model.clone(),
-        matcher: None,
-        overlap: None,
-        stages: Vec::new(),
-        models: Vec::new(),
-        error: None,
         files: ours_now(&ws),
         started_unix_s: fsutil::now_unix_s(),
         // The record comes first, marked unfinished: a kill during a stage leaves a workspace
         // that a later `--force` knows as keyframer's (files appearing after `started_unix_s`
         // are COLMAP's).
         finished: false,
+        ..Record::default()
     };
     write_record(&ws, &rec)?;
     rec.finished = true;
@@ -300,10 +296,9 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
         return Err(Error::input(&export, "the export holds no images"));
     }
     let ws = fsutil::absolute(&a.output.clone().unwrap_or_else(|| export.join("colmap")));
-    let export_images = export.join(crate::export::IMAGE_DIR);
-    let export_masks = export.join(crate::export::MASK_DIR);
-    let manifest_path = export.join(MANIFEST);
-    crate::output::check_not_input(&ws, &[&export_images, &export_masks, &manifest_path])?;
+    let read =
+        [crate::export::IMAGE_DIR, crate::export::MASK_DIR, MANIFEST].map(|p| export.join(p));
+    crate::output::check_not_input(&ws, &read.each_ref().map(PathBuf::as_path))?;
     if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
         return Err(Error::param(
             "output",
@@ -366,7 +361,7 @@ fn fill_workspace(ws: &Path, export: &Path, manifest: &Manifest, force: bool) ->
 /// `project.ini`, then the database alone, or the sparse stages (and the dense ones).
 fn run_stages(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
     let ws = runner.ws;
-    write_project_ini(runner, rec, a, rec.masks > 0)?;
+    write_project_ini(runner, rec, a)?;
     let db = ws.join("database.db");
     if !(a.sparse || a.dense) {
         rec.stages
@@ -580,12 +575,10 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
         )
     })?;
     let rec_path = ws.join(RECORD);
-    let mut listed = Vec::new();
-    for (i, f) in record.files.iter().enumerate() {
-        listed.push(crate::output::inside(f, &format!("files[{i}]"), &rec_path)?);
-    }
+    let listed = (record.files.iter().enumerate())
+        .map(|(i, f)| crate::output::inside(f, &format!("files[{i}]"), &rec_path))
+        .collect::<Result<std::collections::HashSet<PathBuf>>>()?;
     let present = ours_now(ws);
-    let listed: std::collections::HashSet<PathBuf> = listed.into_iter().collect();
     // After an interrupted run, what appeared in keyframer's places since it started is COLMAP's.
     let since_start = |f: &str| {
         !record.finished
@@ -770,12 +763,7 @@ impl Runner<'_> {
 
 /// Writes `project.ini` from `colmap project_generator`'s defaults with this workspace's paths
 /// (absolute) and settings filled in.
-fn write_project_ini(
-    runner: &Runner,
-    rec: &mut Record,
-    a: &ColmapSettings,
-    masks: bool,
-) -> Result<()> {
+fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
     let ws = runner.ws;
     let tmp = ws.join(format!(
         ".project.ini.tmp-{}",
@@ -800,7 +788,7 @@ fn write_project_ini(
         ("ImageReader", "camera_model", a.camera_model.clone()),
         ("SequentialMatching", "overlap", a.overlap.to_string()),
     ];
-    if masks {
+    if rec.masks > 0 {
         set.push(("ImageReader", "mask_path", p("masks")));
     }
     if let Some(params) = &a.camera_params {
