@@ -244,10 +244,7 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
     let centres: Vec<Vec3> = ordered.iter().map(|o| o.centre).collect();
     let np = m.points.len();
     let registered = m.images.len();
-    let gt = match &a.gt {
-        Some(p) => Some(compare_gt(p, &ordered)?),
-        None => None,
-    };
+    let gt = a.gt.as_deref().map(|p| compare_gt(p, &ordered));
     Ok(Report {
         model: r.model_dir,
         format,
@@ -264,7 +261,7 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
             .then(|| m.points.values().map(|p| p.track.len()).sum::<usize>() as f64 / np as f64),
         spacing: stats(&spacings(&centres)),
         order: ordered.iter().map(|o| (o.name.clone(), o.index)).collect(),
-        gt,
+        gt: gt.transpose()?,
     })
 }
 

@@ -249,23 +249,20 @@ impl<'a> Geo<'a> {
         src: &dyn source::FrameSource,
         is_video: bool,
     ) -> Geo<'a> {
-        let created = if is_video {
-            match telemetry::creation_time(input) {
-                Ok(Some(t)) => Some(t),
-                Ok(None) => {
-                    log::warn!(
-                        "{}: the container records no creation time, so the geotags carry no DateTimeOriginal",
-                        input.display()
-                    );
-                    None
-                }
-                Err(e) => {
-                    log::warn!("{e}: the geotags carry no DateTimeOriginal");
-                    None
-                }
+        let created = match is_video.then(|| telemetry::creation_time(input)) {
+            Some(Ok(Some(t))) => Some(t),
+            Some(Ok(None)) => {
+                log::warn!(
+                    "{}: the container records no creation time, so the geotags carry no DateTimeOriginal",
+                    input.display()
+                );
+                None
             }
-        } else {
-            None
+            Some(Err(e)) => {
+                log::warn!("{e}: the geotags carry no DateTimeOriginal");
+                None
+            }
+            None => None,
         };
         let file_name = |p: &Path| {
             p.file_name()
@@ -422,17 +419,13 @@ fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
         files = listed_files(&Manifest::load(&path).map_err(refuse)?.frames);
     }
     let journal = out.join(PENDING);
+    let bad = |line, field: String, msg: String| {
+        refuse(Error::file(&journal, line, "export journal", field, msg))
+    };
     if journal.exists() {
         let text = crate::output::read_text(&journal).map_err(refuse)?;
-        let listed: Vec<String> = serde_json::from_str(&text).map_err(|e| {
-            refuse(Error::file(
-                &journal,
-                Some(e.line()),
-                "export journal",
-                "",
-                e.to_string(),
-            ))
-        })?;
+        let listed: Vec<String> = serde_json::from_str(&text)
+            .map_err(|e| bad(Some(e.line()), String::new(), e.to_string()))?;
         for (i, f) in listed.iter().enumerate() {
             let rel = crate::output::inside(f, &format!("[{i}]"), &journal).map_err(refuse)?;
             let top = rel.components().count() == 2
@@ -440,13 +433,8 @@ fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
                     .iter()
                     .any(|d| rel.starts_with(d));
             if !top {
-                return Err(refuse(Error::file(
-                    &journal,
-                    None,
-                    "export journal",
-                    format!("[{i}]"),
-                    "not a file of images/, masks/ or overlays/",
-                )));
+                let msg = "not a file of images/, masks/ or overlays/";
+                return Err(bad(None, format!("[{i}]"), msg.into()));
             }
             files.push(rel);
         }
@@ -800,11 +788,11 @@ impl Masker {
 
     fn create_dirs(&mut self, staging: &Path) -> Result<()> {
         self.out = staging.to_path_buf();
-        let mut dirs = vec![self.out.join(MASK_DIR)];
-        if self.overlay {
-            dirs.push(self.out.join(OVERLAY_DIR));
-        }
-        for d in dirs {
+        for d in [Some(MASK_DIR), self.overlay.then_some(OVERLAY_DIR)]
+            .iter()
+            .flatten()
+        {
+            let d = self.out.join(d);
             std::fs::create_dir_all(&d).map_err(|e| Error::io(&d, e))?;
         }
         Ok(())

@@ -112,28 +112,18 @@ impl FlightMap {
             s,
             r##"<svg id="flight-map" width="{SIZE}" height="{SIZE}" font-family="sans-serif" font-size="11" data-keyframes="{keys}"><rect width="{SIZE}" height="{SIZE}" fill="#fafafa" stroke="#999"/>"##
         )?;
-        let line: Vec<String> = self
-            .path
-            .iter()
-            .map(|&(_, e, n)| {
-                let (x, y) = to(e, n);
-                format!("{x:.1},{y:.1}")
-            })
-            .collect();
+        let point = |&(e, n): &(f64, f64)| {
+            let (x, y) = to(e, n);
+            format!("{x:.1},{y:.1}")
+        };
+        let line: Vec<String> = self.path.iter().map(|&(_, e, n)| point(&(e, n))).collect();
         writeln!(
             s,
             r##"<polyline points="{}" fill="none" stroke="#888" stroke-width="1.5"/>"##,
             line.join(" ")
         )?;
         for k in &self.keys {
-            let corners: Vec<String> = k
-                .footprint
-                .iter()
-                .map(|&(e, n)| {
-                    let (x, y) = to(e, n);
-                    format!("{x:.1},{y:.1}")
-                })
-                .collect();
+            let corners: Vec<String> = k.footprint.iter().map(point).collect();
             let (x, y) = to(k.at.0, k.at.1);
             writeln!(
                 s,

@@ -28,16 +28,14 @@ pub fn natural_cmp(a: &str, b: &str) -> Ordering {
                 if ord != Ordering::Equal {
                     return ord;
                 }
-                x = rx;
-                y = ry;
+                (x, y) = (rx, ry);
             }
             (Some(c), Some(d)) => {
                 let ord = c.to_ascii_lowercase().cmp(&d.to_ascii_lowercase());
                 if ord != Ordering::Equal {
                     return ord;
                 }
-                x = &x[1..];
-                y = &y[1..];
+                (x, y) = (&x[1..], &y[1..]);
             }
         }
     }

@@ -283,9 +283,8 @@ pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
         }),
         _ => None,
     };
-    let focal = exif
-        .get_field(Tag::FocalLengthIn35mmFilm, In::PRIMARY)
-        .and_then(|f| f.value.get_uint(0))
+    let focal = field(Tag::FocalLengthIn35mmFilm)
+        .and_then(|v| v.get_uint(0))
         .map(f64::from)
         .filter(|f| *f > 0.0);
     Ok(Some(Fix {
