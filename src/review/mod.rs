@@ -57,10 +57,10 @@ impl ApiError {
         }
     }
 
-    /// A 400 about step `step` (and its parameter `key`).
-    fn step(step: usize, key: Option<String>, error: impl Into<String>) -> ApiError {
+    /// A 400 about step `step` (and its parameter `key`), when known.
+    fn step(step: Option<usize>, key: Option<String>, error: impl Into<String>) -> ApiError {
         ApiError {
-            step: Some(step),
+            step,
             key,
             ..ApiError::new(400, error)
         }
@@ -251,10 +251,7 @@ impl Review {
                         }
                         _ => None,
                     };
-                    return Err(ApiError {
-                        step,
-                        ..ApiError::new(400, e.to_string())
-                    });
+                    return Err(ApiError::step(step, None, e.to_string()));
                 }
             }
         };
@@ -522,10 +519,10 @@ fn needs_analysis(plugin: &str) -> bool {
 
 /// The step list's order and each step's parameters, as `select` checks them.
 pub fn check(steps: &[Step]) -> ApiResult<()> {
-    steps::check_order(steps).map_err(|(i, msg)| ApiError::step(i, None, msg))?;
+    steps::check_order(steps).map_err(|(i, msg)| ApiError::step(Some(i), None, msg))?;
     for (i, s) in steps.iter().enumerate() {
         s.validate()
-            .map_err(|e| ApiError::step(i, Some(e.key.into()), e.msg))?;
+            .map_err(|e| ApiError::step(Some(i), Some(e.key.into()), e.msg))?;
     }
     Ok(())
 }
@@ -539,14 +536,8 @@ pub fn parse_steps(v: &Value) -> ApiResult<Vec<Step>> {
             .and_then(|p| p.split(']').next())
             .and_then(|i| i.parse().ok());
         let key = path.rsplit('.').next().map(str::to_string);
-        ApiError {
-            step,
-            key,
-            ..ApiError::new(
-                400,
-                format!("steps{}: {}", path.trim_start_matches('.'), e.inner()),
-            )
-        }
+        let msg = format!("steps{}: {}", path.trim_start_matches('.'), e.inner());
+        ApiError::step(step, key, msg)
     })
 }
 
