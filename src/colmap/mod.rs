@@ -442,9 +442,7 @@ fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> 
             }
         }
     }
-    for (k, v) in &keys {
-        margs.push((k.as_str(), v.clone()));
-    }
+    margs.extend(keys.iter().map(|(k, v)| (k.as_str(), v.clone())));
     rec.stages.push(runner.stage("mapper", &margs)?);
     for dir in model::model_dirs(&sparse)? {
         let (m, _) = model::read(&dir)?;
@@ -727,10 +725,7 @@ impl Runner<'_> {
         let file = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
         let err = file.try_clone().map_err(|e| Error::io(&log, e))?;
         let mut command = vec![self.colmap.bin.display().to_string(), name.to_string()];
-        for (k, v) in args {
-            command.push((*k).to_string());
-            command.push(v.clone());
-        }
+        command.extend(args.iter().flat_map(|(k, v)| [(*k).to_string(), v.clone()]));
         let start = Instant::now();
         let mut cmd = Command::new(&self.colmap.bin);
         cmd.args(&command[1..])

@@ -109,13 +109,9 @@ pub fn detect(dir: &Path) -> Option<Format> {
             .iter()
             .all(|n| dir.join(format!("{n}.{ext}")).is_file())
     };
-    if has("bin") {
-        Some(Format::Binary)
-    } else if has("txt") {
-        Some(Format::Text)
-    } else {
-        None
-    }
+    [("bin", Format::Binary), ("txt", Format::Text)]
+        .into_iter()
+        .find_map(|(ext, format)| has(ext).then_some(format))
 }
 
 /// Reads the model in `dir` (binary if present, else text).
@@ -148,14 +144,11 @@ impl<'a> Bin<'a> {
     }
     fn take<const N: usize>(&mut self, field: &dyn Fn() -> String) -> Result<[u8; N]> {
         let end = self.pos + N;
-        let bytes = self
-            .data
-            .get(self.pos..end)
+        let bytes: [u8; N] = (self.data.get(self.pos..end))
+            .and_then(|b| b.try_into().ok())
             .ok_or_else(|| bad(self.path, field(), "file ends early"))?;
         self.pos = end;
-        let mut out = [0u8; N];
-        out.copy_from_slice(bytes);
-        Ok(out)
+        Ok(bytes)
     }
     fn u64(&mut self, f: &dyn Fn() -> String) -> Result<u64> {
         Ok(u64::from_le_bytes(self.take(f)?))
@@ -192,15 +185,10 @@ impl<'a> Bin<'a> {
         Ok(n as usize)
     }
     fn end(&self) -> Result<()> {
-        if self.pos != self.data.len() {
-            return Err(bad(
-                self.path,
-                "end",
-                format!(
-                    "{} unexpected bytes after the last record",
-                    self.data.len() - self.pos
-                ),
-            ));
+        let left = self.data.len() - self.pos;
+        if left != 0 {
+            let msg = format!("{left} unexpected bytes after the last record");
+            return Err(bad(self.path, "end", msg));
         }
         Ok(())
     }
