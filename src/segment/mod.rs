@@ -129,19 +129,18 @@ impl Segmenter {
         Ok(out)
     }
 
+    /// Whether class `c` is one to hide (an id beyond the description's classes is kept).
+    fn hidden(&self, c: usize) -> bool {
+        self.hide.get(c).copied().unwrap_or(false)
+    }
+
     /// The COLMAP mask for a class map at `size` (width, height): hidden classes 0, the rest 255,
     /// resized with nearest neighbour, the hidden area grown by the dilation radius.
     pub fn mask(&self, classes: &ClassMap, size: (u32, u32)) -> Result<Mat> {
         let small = classes.0.data_typed::<u16>().cv(|| "class map".into())?;
         let bytes: Vec<u8> = small
             .iter()
-            .map(|&c| {
-                if self.hide.get(usize::from(c)).copied().unwrap_or(false) {
-                    0
-                } else {
-                    255
-                }
-            })
+            .map(|&c| if self.hidden(usize::from(c)) { 0 } else { 255 })
             .collect();
         let m = Mat::new_rows_cols_with_data(classes.0.rows(), classes.0.cols(), &bytes)
             .cv(|| "mask".into())?
@@ -184,11 +183,7 @@ impl Segmenter {
         for (p, &c) in px.iter_mut().zip(ids) {
             let c = usize::from(c);
             let [r, g, b] = self.desc.colors.get(c).copied().unwrap_or([0, 0, 0]);
-            let a = if self.hide.get(c).copied().unwrap_or(false) {
-                0.7
-            } else {
-                0.4
-            };
+            let a = if self.hidden(c) { 0.7 } else { 0.4 };
             for (k, col) in [b, g, r].into_iter().enumerate() {
                 p[k] = (f32::from(p[k]) * (1.0 - a) + f32::from(col) * a).round() as u8;
             }
