@@ -452,34 +452,31 @@ fn fields(body: &str) -> Vec<(String, String)> {
     let mut out = Vec::new();
     let mut k = 0;
     while k < words.len() {
-        let w = words[k];
-        if let Some(f) = w.strip_prefix("F/").filter(|f| number(f).is_some()) {
+        let (w, after) = (words[k], |j: usize| words.get(k + j).copied());
+        // The key and value at word `k`, and how many words they take.
+        let pair = if let Some(f) = w.strip_prefix("F/").filter(|f| number(f).is_some()) {
             // The older family's `F/2.8`.
-            out.push(("fnum".into(), f.to_string()));
+            Some(("fnum", f, 1))
         } else if let Some((key, value)) = w.split_once(':') {
-            if value.is_empty() {
-                // `key: value` or `key : value`.
-                if let Some(v) = words.get(k + 1) {
-                    out.push((key.to_lowercase(), v.to_string()));
-                    k += 2;
-                    continue;
-                }
-            } else {
-                out.push((key.to_lowercase(), value.to_string()));
+            // `key: value`, or `key:value` in one word.
+            match value {
+                "" => after(1).map(|v| (key, v, 2)),
+                _ => Some((key, value, 1)),
             }
-        } else if words.get(k + 1) == Some(&":") {
-            if let Some(v) = words.get(k + 2) {
-                out.push((w.to_lowercase(), v.to_string()));
-                k += 3;
-                continue;
-            }
-        } else if let Some(v) = words.get(k + 1).filter(|v| number(v).is_some()) {
+        } else if after(1) == Some(":") {
+            // `key : value`.
+            after(2).map(|v| (w, v, 3))
+        } else {
             // The older family's `SS 320`, `H 40.50m`, `ISO 100`.
-            out.push((w.to_lowercase(), v.to_string()));
-            k += 2;
-            continue;
+            (after(1).filter(|v| number(v).is_some())).map(|v| (w, v, 2))
+        };
+        match pair {
+            Some((key, value, used)) => {
+                out.push((key.to_lowercase(), value.to_string()));
+                k += used;
+            }
+            None => k += 1,
         }
-        k += 1;
     }
     out
 }
