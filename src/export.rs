@@ -391,13 +391,10 @@ fn byte_copy(src: &dyn source::FrameSource, settings: &ExportSettings, is_video:
         && settings.crop.is_none()
         && settings.resize.is_none()
         && settings.format.is_none_or(|f| {
-            src.file_of(0)
-                .and_then(|p| p.extension())
-                .map(|e| {
-                    let e = e.to_string_lossy().to_ascii_lowercase();
-                    e == f.ext() || (f == Format::Jpg && e == "jpeg")
-                })
-                .unwrap_or(false)
+            src.file_of(0).and_then(|p| p.extension()).is_some_and(|e| {
+                let e = e.to_string_lossy().to_ascii_lowercase();
+                e == f.ext() || (f == Format::Jpg && e == "jpeg")
+            })
         })
 }
 

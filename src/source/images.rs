@@ -20,8 +20,7 @@ const EXTENSIONS: [&str; 6] = ["png", "jpg", "jpeg", "tif", "tiff", "bmp"];
 pub fn is_image_name(path: &Path) -> bool {
     path.extension()
         .and_then(|e| e.to_str())
-        .map(|e| EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
-        .unwrap_or(false)
+        .is_some_and(|e| EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
 }
 
 /// A file name for messages: valid UTF-8 as it is, other bytes as `\xNN` escapes.
@@ -30,9 +29,7 @@ pub fn escaped_name(name: &OsStr) -> String {
     let mut out = String::new();
     for chunk in name.as_bytes().utf8_chunks() {
         out.push_str(chunk.valid());
-        for b in chunk.invalid() {
-            out.push_str(&format!("\\x{b:02x}"));
-        }
+        out.extend(chunk.invalid().iter().map(|b| format!("\\x{b:02x}")));
     }
     out
 }
@@ -47,8 +44,7 @@ pub fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {
         let p = entry.path();
         let hidden = p
             .file_name()
-            .map(|n| n.to_string_lossy().starts_with('.'))
-            .unwrap_or(true);
+            .is_none_or(|n| n.to_string_lossy().starts_with('.'));
         if !hidden && p.is_file() && is_image_name(&p) {
             let name = entry.file_name();
             if name.to_str().is_none() {

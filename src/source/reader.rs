@@ -46,10 +46,8 @@ impl FrameSize {
 pub fn shrink(image: &Mat, width: i32, what: &dyn Fn() -> String) -> Result<Vec<u8>> {
     let (w, h) = (image.cols(), image.rows());
     if w <= 0 || h <= 0 {
-        return Err(Error::param(
-            "thumbnail",
-            format!("{}: empty image", what()),
-        ));
+        let msg = format!("{}: empty image", what());
+        return Err(Error::param("thumbnail", msg));
     }
     let tw = width.min(w);
     let th = ((f64::from(h) * f64::from(tw) / f64::from(w)).round() as i32).max(1);
@@ -172,12 +170,8 @@ impl FrameReader {
     }
 
     fn beyond_end(&self, index: usize) -> Error {
-        let n = self.frame_count;
-        Error::frame(
-            &self.path,
-            index,
-            format!("beyond the end of the input ({n} frames)"),
-        )
+        let msg = format!("beyond the end of the input ({} frames)", self.frame_count);
+        Error::frame(&self.path, index, msg)
     }
 
     /// Positions the source so that its next frame is `index`.
