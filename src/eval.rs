@@ -98,11 +98,8 @@ pub fn read_tum(path: &Path) -> Result<Vec<GtPose>> {
             .collect::<std::result::Result<_, _>>()
             .map_err(|_| tum_err(path, i + 1, "not a number"))?;
         if v.len() != 8 {
-            return Err(tum_err(
-                path,
-                i + 1,
-                &format!("{} values; TUM lines have 8", v.len()),
-            ));
+            let msg = format!("{} values; TUM lines have 8", v.len());
+            return Err(tum_err(path, i + 1, &msg));
         }
         poses.push(GtPose {
             t: v[0],

@@ -77,10 +77,8 @@ pub fn tag_jpeg(path: &Path, jpeg: &mut Vec<u8>, tag: &GeoTag) -> Result<()> {
             t.minute(),
             t.second()
         )));
-        m.set_tag(ExifTag::SubSecTimeOriginal(format!(
-            "{:03}",
-            t.millisecond()
-        )));
+        let milliseconds = format!("{:03}", t.millisecond());
+        m.set_tag(ExifTag::SubSecTimeOriginal(milliseconds));
         let minutes = offset.whole_minutes();
         let sign = if minutes < 0 { '-' } else { '+' };
         m.set_tag(ExifTag::OffsetTimeOriginal(format!(

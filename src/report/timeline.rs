@@ -350,13 +350,10 @@ impl Timeline {
         );
         s.push('\n');
         s.push_str(&svg_layer(h, |root| self.draw(root))?);
-        let (mut last, layout) = (None, self.layout());
+        let (mut last, layout, fill) = (None, self.layout(), hex(KEYFRAME_RGB));
         for k in self.keyframes_shown() {
             let x = layout.x(k);
-            s.push_str(&format!(
-                r#"<g class="kf" data-frame="{k}" fill="{}">"#,
-                hex(KEYFRAME_RGB)
-            ));
+            s.push_str(&format!(r#"<g class="kf" data-frame="{k}" fill="{fill}">"#));
             s.push('\n');
             // Keyframes closer than a pixel share one column: drawn once, each still has its group.
             if last != Some(x) {
