@@ -117,12 +117,8 @@ pub fn listed_files(frames: &[ExportedFrame]) -> Vec<PathBuf> {
     let mut v = Vec::new();
     for f in frames {
         v.push(Path::new(IMAGE_DIR).join(&f.file));
-        if let Some(m) = &f.mask {
-            v.push(Path::new(MASK_DIR).join(m));
-        }
-        if let Some(o) = &f.overlay {
-            v.push(Path::new(OVERLAY_DIR).join(o));
-        }
+        v.extend(f.mask.iter().map(|m| Path::new(MASK_DIR).join(m)));
+        v.extend(f.overlay.iter().map(|o| Path::new(OVERLAY_DIR).join(o)));
     }
     v
 }

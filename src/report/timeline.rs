@@ -211,12 +211,8 @@ impl Timeline {
             )),
         }
         if let Some(t) = &cache.telemetry {
-            panels.push(telemetry_panel(
-                &t.positions,
-                keyframes,
-                &recorded,
-                (n, range),
-            ));
+            let panel = telemetry_panel(&t.positions, keyframes, &recorded, (n, range));
+            panels.push(panel);
         }
         if cache.timestamps_s.is_none() {
             missing.push("timestamps (an image folder without --images-fps)".to_string());
@@ -629,13 +625,8 @@ fn movement_panels(
         ("spacing", r.spacing, THRESHOLD_RGB[1]),
         ("stationary", r.stationary, THRESHOLD_RGB[2]),
     ] {
-        curves.extend(threshold_curve(
-            id,
-            threshold.flatten(),
-            "px",
-            rgb,
-            (n, range),
-        ));
+        let curve = threshold_curve(id, threshold.flatten(), "px", rgb, (n, range));
+        curves.extend(curve);
     }
     let accumulated = Panel {
         title: "Movement accumulated since the previous keyframe (spacing keeps a frame when it reaches its threshold)".into(),
