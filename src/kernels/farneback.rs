@@ -115,10 +115,7 @@ pub fn levels(width: u32, height: u32, p: &FarnebackParams) -> Vec<Level> {
     }
     (0..=n)
         .map(|k| {
-            let mut scale = 1.0;
-            for _ in 0..k {
-                scale *= p.pyr_scale;
-            }
+            let scale = (0..k).fold(1.0, |s, _| s * p.pyr_scale);
             let sigma = (1.0 / scale - 1.0) * 0.5;
             let size = ((cv_round(sigma * 5.0) | 1).max(3)) as usize;
             Level {
@@ -335,6 +332,19 @@ fn texture(
     })
 }
 
+/// A uniform of [`MAX_TAPS`] taps (`Taps` in the shaders, the tap in x) starting with `values`.
+fn taps_uniform(ctx: &GpuContext, label: &str, values: &[f32]) -> wgpu::Buffer {
+    let mut taps = vec![[0f32; 4]; MAX_TAPS];
+    for (t, v) in taps.iter_mut().zip(values) {
+        t[0] = *v;
+    }
+    ctx.buffer_init(
+        label,
+        wgpu::BufferUsages::UNIFORM,
+        bytemuck::cast_slice(&taps),
+    )
+}
+
 fn view(t: &wgpu::Texture) -> wgpu::TextureView {
     t.create_view(&Default::default())
 }
@@ -447,15 +457,7 @@ impl PyramidScratch {
                 Rgba32Float,
             ));
             if k > 0 {
-                let mut taps = vec![[0f32; 4]; MAX_TAPS];
-                for (t, v) in taps.iter_mut().zip(&l.smooth[radius..]) {
-                    t[0] = *v;
-                }
-                let taps = ctx.buffer_init(
-                    "smoothing taps",
-                    wgpu::BufferUsages::UNIFORM,
-                    bytemuck::cast_slice(&taps),
-                );
+                let taps = taps_uniform(ctx, "smoothing taps", &l.smooth[radius..]);
                 let vert = view(&texture(
                     ctx,
                     "vertical smoothing",
@@ -573,14 +575,6 @@ struct LevelScratch {
     vwin: wgpu::BindGroup,
 }
 
-/// Window shape of the flow passes: rows per invocation of the vertical window, texels per
-/// invocation of the horizontal one.
-#[derive(Debug, Clone, Copy)]
-struct FlowShape {
-    strip_rows: u32,
-    run: u32,
-}
-
 impl LevelScratch {
     fn new(
         ctx: &GpuContext,
@@ -588,7 +582,7 @@ impl LevelScratch {
         levels: &[Level],
         k: usize,
         p: &FarnebackParams,
-        shape: FlowShape,
+        strip_rows: u32,
         taps: &wgpu::Buffer,
     ) -> LevelScratch {
         use wgpu::TextureFormat::Rgba32Float;
@@ -608,8 +602,8 @@ impl LevelScratch {
             height: l.height,
             radius,
             halo,
-            strip_rows: shape.strip_rows,
-            run: shape.run,
+            strip_rows,
+            run: FLOW_RUN,
             scale: window_weights(p.winsize, p.gaussian).1,
             ..Default::default()
         };
@@ -737,7 +731,6 @@ pub struct FarnebackGpu {
     levels: Vec<Level>,
     pipes: Pipes,
     strip_rows: u32,
-    flow_shape: FlowShape,
     scratch: PyramidScratch,
     slots: Vec<FrameSlot>,
     level_scratch: Vec<LevelScratch>,
@@ -752,12 +745,12 @@ pub struct FarnebackGpu {
 
 /// One dispatch: its kind (for profiles), pipeline, bind group and workgroups.
 #[derive(Clone, Copy)]
-struct Step<'a> {
-    kind: &'static str,
-    pipe: &'a wgpu::ComputePipeline,
-    bg: &'a wgpu::BindGroup,
-    groups: (u32, u32),
-}
+struct Step<'a>(
+    &'static str,
+    &'a wgpu::ComputePipeline,
+    &'a wgpu::BindGroup,
+    (u32, u32),
+);
 
 impl FarnebackGpu {
     /// Allocates everything for `width` x `height` 8-bit gray frames.
@@ -798,10 +791,6 @@ impl FarnebackGpu {
             )));
         }
         let strip_rows = strip_rows.max(1);
-        let flow_shape = FlowShape {
-            strip_rows,
-            run: FLOW_RUN,
-        };
         let n = texels(width);
         let halo = window_halo(params.winsize);
         if 5 * (n + 2 * halo) > max || 7 * n > max {
@@ -816,20 +805,10 @@ impl FarnebackGpu {
         let slots: Vec<FrameSlot> = (0..SLOTS)
             .map(|_| FrameSlot::new(&ctx, &pipes, &levels, &scratch))
             .collect();
-        let mut taps = vec![[0f32; 4]; MAX_TAPS];
-        for (t, v) in taps
-            .iter_mut()
-            .zip(window_weights(params.winsize, params.gaussian).0)
-        {
-            t[0] = v;
-        }
-        let taps = ctx.buffer_init(
-            "window taps",
-            wgpu::BufferUsages::UNIFORM,
-            bytemuck::cast_slice(&taps),
-        );
+        let weights = window_weights(params.winsize, params.gaussian).0;
+        let taps = taps_uniform(&ctx, "window taps", &weights);
         let level_scratch = (0..levels.len())
-            .map(|k| LevelScratch::new(&ctx, &pipes, &levels, k, &params, flow_shape, &taps))
+            .map(|k| LevelScratch::new(&ctx, &pipes, &levels, k, &params, strip_rows, &taps))
             .collect();
         let flow_out = ctx.storage_buffer("flow", (full * 8).next_multiple_of(16));
         let mut fb = FarnebackGpu {
@@ -838,7 +817,6 @@ impl FarnebackGpu {
             levels,
             pipes,
             strip_rows,
-            flow_shape,
             scratch,
             slots,
             level_scratch,
@@ -866,37 +844,37 @@ impl FarnebackGpu {
         let s = &self.slots[slot];
         let (w, h) = (self.levels[0].width, self.levels[0].height);
         let by8 = |n: u32| n.div_ceil(8);
-        let mut steps = vec![Step {
-            kind: "level0",
-            pipe: &self.pipes.level0,
-            bg: &s.level0,
-            groups: (by8(w.div_ceil(16)), h.div_ceil(self.strip_rows)),
-        }];
+        let mut steps = vec![Step(
+            "level0",
+            &self.pipes.level0,
+            &s.level0,
+            (by8(w.div_ceil(16)), h.div_ceil(self.strip_rows)),
+        )];
         for (k, l) in self.levels.iter().enumerate() {
             if k > 0 {
                 let [v, hz] = &self.scratch.smooth[k - 1];
-                steps.push(Step {
-                    kind: "vsmooth",
-                    pipe: &self.pipes.vsmooth,
-                    bg: v,
-                    groups: (by8(texels(w)), l.height),
-                });
-                steps.push(Step {
-                    kind: "hsmooth",
-                    pipe: &self.pipes.hsmooth,
-                    bg: hz,
-                    groups: (by8(texels(l.width) + 2 * HALO), l.height),
-                });
+                steps.push(Step(
+                    "vsmooth",
+                    &self.pipes.vsmooth,
+                    v,
+                    (by8(texels(w)), l.height),
+                ));
+                steps.push(Step(
+                    "hsmooth",
+                    &self.pipes.hsmooth,
+                    hz,
+                    (by8(texels(l.width) + 2 * HALO), l.height),
+                ));
             }
-            steps.push(Step {
-                kind: "polyexp",
-                pipe: &self.pipes.polyexp,
-                bg: &s.polyexp[k],
-                groups: (
+            steps.push(Step(
+                "polyexp",
+                &self.pipes.polyexp,
+                &s.polyexp[k],
+                (
                     by8(l.width.div_ceil(16)),
                     l.height.div_ceil(self.strip_rows),
                 ),
-            });
+            ));
         }
         steps
     }
@@ -915,7 +893,6 @@ impl FarnebackGpu {
     fn flow_steps(&self, from: usize, to: usize, initial: bool) -> Result<Vec<Step<'_>>> {
         let per_level = self.pair(from, to)?;
         let by8 = |n: u32| n.div_ceil(8);
-        let shape = self.flow_shape;
         let mut steps = Vec::new();
         for ((l, lf), s) in self
             .levels
@@ -930,26 +907,21 @@ impl FarnebackGpu {
                 (Some(bg), true) => bg,
                 _ => &lf.start,
             };
-            steps.push(Step {
-                kind: "start",
-                pipe: &self.pipes.start,
-                bg: start,
-                groups: (by8(n), l.height),
-            });
+            steps.push(Step("start", &self.pipes.start, start, (by8(n), l.height)));
             for i in 0..self.params.iterations {
-                steps.push(Step {
-                    kind: "vwindow",
-                    pipe: &self.pipes.vwin,
-                    bg: &s.vwin,
-                    groups: (by8(n + 2 * halo), l.height.div_ceil(shape.strip_rows)),
-                });
+                steps.push(Step(
+                    "vwindow",
+                    &self.pipes.vwin,
+                    &s.vwin,
+                    (by8(n + 2 * halo), l.height.div_ceil(self.strip_rows)),
+                ));
                 let last = i + 1 == self.params.iterations;
-                steps.push(Step {
-                    kind: "hwindow",
-                    pipe: &self.pipes.hwin,
-                    bg: if last { &lf.hlast } else { &lf.hmid },
-                    groups: (by8(n.div_ceil(shape.run)), l.height),
-                });
+                steps.push(Step(
+                    "hwindow",
+                    &self.pipes.hwin,
+                    if last { &lf.hlast } else { &lf.hmid },
+                    (by8(n.div_ceil(FLOW_RUN)), l.height),
+                ));
             }
         }
         Ok(steps)
@@ -959,11 +931,13 @@ impl FarnebackGpu {
     fn copy_steps(&self, from: usize, to: usize) -> Result<Vec<Step<'_>>> {
         let per_level = self.pair(from, to)?;
         let steps = (self.levels.iter().zip(per_level))
-            .map(|(l, lf)| Step {
-                kind: "copy",
-                pipe: &self.pipes.copy,
-                bg: &lf.copy,
-                groups: ((2 * l.width).div_ceil(8), l.height.div_ceil(8)),
+            .map(|(l, lf)| {
+                Step(
+                    "copy",
+                    &self.pipes.copy,
+                    &lf.copy,
+                    ((2 * l.width).div_ceil(8), l.height.div_ceil(8)),
+                )
             })
             .collect();
         Ok(steps)
@@ -980,8 +954,7 @@ impl FarnebackGpu {
     ) {
         let mut pass = compute_pass(enc, label);
         for (k, s) in steps.iter().enumerate() {
-            self.ctx
-                .dispatch_gated(&mut pass, (s.pipe, s.bg), s.groups, gate, k);
+            self.ctx.dispatch_gated(&mut pass, (s.1, s.2), s.3, gate, k);
         }
     }
 
@@ -989,13 +962,13 @@ impl FarnebackGpu {
     /// entries (one per dispatch).
     pub fn flow_shapes(&self) -> Vec<(u32, u32)> {
         let steps = self.flow_steps(0, 1, false).unwrap_or_default();
-        steps.iter().map(|s| s.groups).collect()
+        steps.iter().map(|s| s.3).collect()
     }
 
     /// The workgroups of [`FarnebackGpu::encode_copy`]'s dispatches (one per level).
     pub fn copy_shapes(&self) -> Vec<(u32, u32)> {
         let steps = self.copy_steps(0, 1).unwrap_or_default();
-        steps.iter().map(|s| s.groups).collect()
+        steps.iter().map(|s| s.3).collect()
     }
 
     /// Records the flow from slot `from` to slot `to` into [`FarnebackGpu::flow_buffer`], gated
@@ -1050,12 +1023,12 @@ impl FarnebackGpu {
         }
         let mut out: Vec<(&'static str, usize, f64)> = Vec::new();
         for (s, ms) in steps.iter().zip(best) {
-            match out.iter_mut().find(|(k, _, _)| *k == s.kind) {
+            match out.iter_mut().find(|(k, _, _)| *k == s.0) {
                 Some(e) => {
                     e.1 += 1;
                     e.2 += ms;
                 }
-                None => out.push((s.kind, 1, ms)),
+                None => out.push((s.0, 1, ms)),
             }
         }
         Ok(out)
@@ -1214,11 +1187,4 @@ fn planar_flow(values: &[opencv::core::Vec2f], width: usize) -> Vec<u8> {
         out[o + 4] = v[1];
     }
     bytemuck::cast_slice(&out).to_vec()
-}
-
-/// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).
-/// The twin is `resize_area::opencv`; the gpu backend runs `resize_area` on the device for
-/// integer factors.
-pub fn resize_area(m: &Mat, size: Size) -> Result<Mat> {
-    super::resize_area::opencv(m, size)
 }
