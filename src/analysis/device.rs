@@ -181,7 +181,7 @@ impl DeviceMovement {
         if let Some(from) = w.from {
             self.flow.encode_flow(&mut enc, (from, w.slot), None)?;
             self.stat
-                .encode(&mut enc, self.statistic, &self.dest[0], None);
+                .encode(&mut enc, self.statistic, Some(&self.dest[0]), None);
         }
         if let (true, Some(st)) = (w.candidate, &self.stationary) {
             let gate = |first| {
@@ -194,8 +194,12 @@ impl DeviceMovement {
             st.encode_plan(&mut enc);
             let pair = (REFERENCE, w.slot);
             self.flow.encode_flow(&mut enc, pair, gate(0))?;
-            self.stat
-                .encode(&mut enc, self.statistic, &self.dest[1], gate(statistic));
+            self.stat.encode(
+                &mut enc,
+                self.statistic,
+                Some(&self.dest[1]),
+                gate(statistic),
+            );
             st.encode_decide(&mut enc);
             self.flow
                 .encode_copy(&mut enc, w.slot, REFERENCE, gate(keep))?;
