@@ -112,9 +112,7 @@ impl PerFrame {
             self.waits
         )
     }
-}
 
-impl PerFrame {
     /// Reads what [`PerFrame`]'s `Display` wrote (the end of `select`'s log line).
     pub fn parse(text: &str) -> Option<PerFrame> {
         let mut v = text
@@ -365,19 +363,7 @@ impl GpuContext {
         bg: &wgpu::BindGroup,
         groups: (u32, u32),
     ) {
-        self.counters.dispatches.fetch_add(1, Relaxed);
-        pass.set_pipeline(pipe);
-        pass.set_bind_group(0, bg, &[]);
-        let groups = match TEST_FAULT.swap(false, Relaxed) {
-            true => (
-                self.limits
-                    .max_compute_workgroups_per_dimension
-                    .saturating_add(1),
-                1,
-            ),
-            false => groups,
-        };
-        pass.dispatch_workgroups(groups.0, groups.1, 1);
+        self.dispatch_gated(pass, (pipe, bg), groups, None, 0);
     }
 
     /// As [`GpuContext::dispatch`], or, with a `gate`, over the workgroups in its entry `shape`
@@ -390,13 +376,22 @@ impl GpuContext {
         gate: Option<Gate<'_>>,
         shape: usize,
     ) {
-        let Some(g) = gate else {
-            return self.dispatch(pass, pipe, bg, groups);
-        };
         self.counters.dispatches.fetch_add(1, Relaxed);
         pass.set_pipeline(pipe);
         pass.set_bind_group(0, bg, &[]);
-        pass.dispatch_workgroups_indirect(g.args, 12 * (g.first + shape) as u64);
+        if let Some(g) = gate {
+            return pass.dispatch_workgroups_indirect(g.args, 12 * (g.first + shape) as u64);
+        }
+        let groups = match TEST_FAULT.swap(false, Relaxed) {
+            true => (
+                self.limits
+                    .max_compute_workgroups_per_dimension
+                    .saturating_add(1),
+                1,
+            ),
+            false => groups,
+        };
+        pass.dispatch_workgroups(groups.0, groups.1, 1);
     }
 
     /// Summary of the adapter and the device limits.
@@ -565,19 +560,27 @@ impl GpuContext {
         );
     }
 
-    /// Copies the first `size` bytes of `buffer` to the host (submits and waits).
+    /// Copies the first `size` bytes of `buffer` to the host (submits and waits; the copy, and
+    /// the bytes counted as read back, are rounded up to 4).
     pub fn read_back(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
-        let size = size.next_multiple_of(4);
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
+        let rounded = size.next_multiple_of(4);
+        let staging = self.staging_buffer("readback", rounded);
+        let mut enc = self.encoder("readback");
+        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, rounded);
+        self.queue.submit([enc.finish()]);
+        let mut bytes = self.map_and_copy(&staging)?;
+        bytes.truncate(size as usize);
+        Ok(bytes)
+    }
+
+    /// A MAP_READ buffer of `size` bytes that copies can land in.
+    pub fn staging_buffer(&self, label: &str, size: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
             size,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
-        });
-        let mut enc = self.encoder("readback");
-        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-        self.queue.submit([enc.finish()]);
-        self.map_and_copy(&staging)
+        })
     }
 
     /// Maps a MAP_READ buffer whose copies were already submitted, and copies it out.

@@ -98,14 +98,8 @@ impl Readback {
                 "no staging buffer free for this readback".into(),
             ));
         }
-        let buffer = self.free.pop().unwrap_or_else(|| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback pool"),
-                size: self.size,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        });
+        let buffer =
+            (self.free.pop()).unwrap_or_else(|| ctx.staging_buffer("readback pool", self.size));
         enc.copy_buffer_to_buffer(src, 0, &buffer, 0, bytes);
         self.recorded = Some((buffer, bytes));
         Ok(())

@@ -207,10 +207,7 @@ impl SharpnessGpu {
         let Some(r) = &self.resize else {
             return Err(Error::param("resize", "no resize attached"));
         };
-        let n = r.gpu.dst_bytes();
-        let mut bytes = self.ctx.read_back(&r.small[0], n)?;
-        bytes.truncate(n as usize);
-        Ok(bytes)
+        self.ctx.read_back(&r.small[0], r.gpu.dst_bytes())
     }
 
     /// Frames per submission.
