@@ -177,15 +177,12 @@ fn rank(t: wgpu::DeviceType) -> u8 {
     }
 }
 
-fn instance() -> wgpu::Instance {
-    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-    desc.backends = wgpu::Backends::PRIMARY;
-    wgpu::Instance::new(desc)
-}
-
 /// All adapters wgpu finds, best first (hardware before software).
 pub fn adapters() -> Vec<wgpu::Adapter> {
-    let mut list = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::PRIMARY;
+    let instance = wgpu::Instance::new(desc);
+    let mut list = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
     list.sort_by_key(|a| rank(a.get_info().device_type));
     list
 }
@@ -294,10 +291,7 @@ impl GpuContext {
     /// validation error or the device's loss), if any: results read after a fault cannot be
     /// trusted. Called after every wait for the device.
     pub fn check(&self) -> Result<()> {
-        let faults = self
-            .faults
-            .lock()
-            .map_err(|_| Error::Gpu("fault list lock poisoned".into()))?;
+        let faults = lock(&self.faults, "fault list")?;
         match faults.first() {
             None => Ok(()),
             Some(first) => Err(Error::Gpu(format!(
@@ -407,10 +401,7 @@ impl GpuContext {
         entry: &str,
     ) -> Result<Arc<wgpu::ComputePipeline>> {
         let key = format!("{name}:{entry}");
-        let mut map = self
-            .pipelines
-            .lock()
-            .map_err(|_| Error::Gpu("pipeline cache lock poisoned".into()))?;
+        let mut map = lock(&self.pipelines, "pipeline cache")?;
         if let Some(p) = map.get(&key) {
             return Ok(p.clone());
         }
@@ -515,31 +506,6 @@ impl GpuContext {
     pub fn encoder(&self, label: &str) -> wgpu::CommandEncoder {
         self.device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
-    }
-
-    /// Uploads the pixels of `mat` (checked to be `typ` and `width` x `height`; `what` names the
-    /// runner in errors) into `buffer`, padded with zeros to a multiple of 4 bytes in `scratch`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn upload_mat(
-        &self,
-        buffer: &wgpu::Buffer,
-        mat: &opencv::core::Mat,
-        typ: i32,
-        width: u32,
-        height: u32,
-        what: &str,
-        scratch: &mut Vec<u8>,
-    ) -> Result<()> {
-        let bytes = mat_bytes(mat, typ, (width, height), what)?;
-        if bytes.len() % 4 == 0 {
-            self.write(buffer, 0, &bytes);
-        } else {
-            scratch.clear();
-            scratch.extend_from_slice(&bytes);
-            scratch.resize(bytes.len().next_multiple_of(4), 0);
-            self.write(buffer, 0, scratch);
-        }
-        Ok(())
     }
 
     /// Writes `bytes` (rows of `bytes_per_row`, whole texels) into all of `texture` (counted as
@@ -665,13 +631,17 @@ fn record(faults: &Mutex<Vec<String>>, msg: String) {
     }
 }
 
+/// `m` locked; an error naming it (`what`) when a thread panicked holding it.
+fn lock<'a, T>(m: &'a Mutex<T>, what: &str) -> Result<std::sync::MutexGuard<'a, T>> {
+    m.lock()
+        .map_err(|_| Error::Gpu(format!("{what} lock poisoned")))
+}
+
 /// The process's context for `adapter` (see [`resolve_backend`]).
 fn shared(adapter: Option<&str>) -> Result<Arc<GpuContext>> {
     static SHARED: Mutex<Vec<(Option<String>, Arc<GpuContext>)>> = Mutex::new(Vec::new());
     let key = adapter.map(str::to_string);
-    let mut list = SHARED
-        .lock()
-        .map_err(|_| Error::Gpu("context list lock poisoned".into()))?;
+    let mut list = lock(&SHARED, "context list")?;
     list.retain(|(_, c)| c.check().is_ok());
     if let Some((_, c)) = list.iter().find(|(k, _)| *k == key) {
         return Ok(c.clone());

@@ -5,7 +5,7 @@
 //! OpenCV twin is `opencv` (the OpenCV call itself).
 
 use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, Gate, GpuContext};
+use crate::gpu::{compute_pass, mat_bytes, Gate, GpuContext};
 pub use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
@@ -25,15 +25,6 @@ pub const FLOW_WGSL: &str = concat!(
 /// Texture copy (a slot's expansion pyramid into another).
 pub const COPY_WGSL: &str = include_str!("../../shaders/copy.wgsl");
 
-/// OpenCV's flags for the window type.
-fn flags(p: &FarnebackParams) -> i32 {
-    if p.gaussian {
-        opencv::video::OPTFLOW_FARNEBACK_GAUSSIAN
-    } else {
-        0
-    }
-}
-
 /// OpenCV twin: the flow from `prev` to `next` (8-bit gray), CV_32FC2. With `initial`, the flow
 /// starts from it (OPTFLOW_USE_INITIAL_FLOW).
 pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>) -> Result<Mat> {
@@ -42,12 +33,10 @@ pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>
         Some(f) => f.try_clone().cv(|| "copy initial flow".into())?,
         None => Mat::default(),
     };
-    let flags = flags(p)
-        | if initial.is_some() {
-            opencv::video::OPTFLOW_USE_INITIAL_FLOW
-        } else {
-            0
-        };
+    let mut flags = initial.map_or(0, |_| opencv::video::OPTFLOW_USE_INITIAL_FLOW);
+    if p.gaussian {
+        flags |= opencv::video::OPTFLOW_FARNEBACK_GAUSSIAN;
+    }
     opencv::video::calc_optical_flow_farneback(
         prev,
         next,
@@ -349,6 +338,11 @@ fn view(t: &wgpu::Texture) -> wgpu::TextureView {
     t.create_view(&Default::default())
 }
 
+/// A view of a new Rgba32Float [`texture`].
+fn float_view(ctx: &GpuContext, label: &str, size: (u32, u32)) -> wgpu::TextureView {
+    view(&texture(ctx, label, size, wgpu::TextureFormat::Rgba32Float))
+}
+
 /// A binding of a texture view.
 fn tv(v: &wgpu::TextureView) -> wgpu::BindingResource<'_> {
     wgpu::BindingResource::TextureView(v)
@@ -368,7 +362,9 @@ struct Pipes {
 
 impl Pipes {
     fn new(ctx: &GpuContext, params: &FarnebackParams) -> Result<Pipes> {
-        let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
+        let pyramid = |entry: &str| ctx.pipeline("farneback_pyramid", PYRAMID_WGSL, entry);
+        let flow = |entry: &str| ctx.pipeline("farneback_flow", FLOW_WGSL, entry);
+        let polyexp = ["polyexp5", "polyexp7"][usize::from(params.poly_n == 7)];
         let hbox = ["hbox0", "hbox1", "hbox2", "hbox3"][(params.winsize / 2 % 4) as usize];
         let (cols, rows) = if params.gaussian {
             ("vgauss", "hgauss")
@@ -376,22 +372,14 @@ impl Pipes {
             ("vbox", hbox)
         };
         Ok(Pipes {
-            level0: p("farneback_pyramid", PYRAMID_WGSL, "level0")?,
-            vsmooth: p("farneback_pyramid", PYRAMID_WGSL, "vsmooth")?,
-            hsmooth: p("farneback_pyramid", PYRAMID_WGSL, "hsmooth")?,
-            polyexp: p(
-                "farneback_pyramid",
-                PYRAMID_WGSL,
-                if params.poly_n == 7 {
-                    "polyexp7"
-                } else {
-                    "polyexp5"
-                },
-            )?,
-            start: p("farneback_flow", FLOW_WGSL, "start")?,
-            vwin: p("farneback_flow", FLOW_WGSL, cols)?,
-            hwin: p("farneback_flow", FLOW_WGSL, rows)?,
-            copy: p("copy", COPY_WGSL, "main")?,
+            level0: pyramid("level0")?,
+            vsmooth: pyramid("vsmooth")?,
+            hsmooth: pyramid("hsmooth")?,
+            polyexp: pyramid(polyexp)?,
+            start: flow("start")?,
+            vwin: flow(cols)?,
+            hwin: flow(rows)?,
+            copy: ctx.pipeline("copy", COPY_WGSL, "main")?,
         })
     }
 }
@@ -414,9 +402,13 @@ impl PyramidScratch {
         p: &FarnebackParams,
         strip_rows: u32,
     ) -> Result<PyramidScratch> {
-        use wgpu::TextureFormat::{Rgba32Float, Rgba8Uint};
         let (w, h) = (levels[0].width, levels[0].height);
-        let gray = view(&texture(ctx, "gray", (texels(w), h), Rgba8Uint));
+        let gray = view(&texture(
+            ctx,
+            "gray",
+            (texels(w), h),
+            wgpu::TextureFormat::Rgba8Uint,
+        ));
         let (kern, ig) = poly_weights(p.poly_n, p.poly_sigma);
         let n = p.poly_n as usize;
         let mut poly = [[0f32; 4]; 8];
@@ -450,20 +442,10 @@ impl PyramidScratch {
                     poly,
                 },
             );
-            let image = view(&texture(
-                ctx,
-                "level image",
-                (texels(l.width) + 2 * HALO, l.height),
-                Rgba32Float,
-            ));
+            let image = float_view(ctx, "level image", (texels(l.width) + 2 * HALO, l.height));
             if k > 0 {
                 let taps = taps_uniform(ctx, "smoothing taps", &l.smooth[radius..]);
-                let vert = view(&texture(
-                    ctx,
-                    "vertical smoothing",
-                    (texels(w), 2 * l.height),
-                    Rgba32Float,
-                ));
+                let vert = float_view(ctx, "vertical smoothing", (texels(w), 2 * l.height));
                 let b = |pipe: &wgpu::ComputePipeline,
                          input: &wgpu::TextureView,
                          output: &wgpu::TextureView,
@@ -527,15 +509,7 @@ impl FrameSlot {
         );
         let r: Vec<_> = levels
             .iter()
-            .map(|l| {
-                let size = (2 * l.width, l.height);
-                view(&texture(
-                    ctx,
-                    "expansion",
-                    size,
-                    wgpu::TextureFormat::Rgba32Float,
-                ))
-            })
+            .map(|l| float_view(ctx, "expansion", (2 * l.width, l.height)))
             .collect();
         let polyexp = (0..levels.len())
             .map(|k| {
@@ -585,18 +559,12 @@ impl LevelScratch {
         strip_rows: u32,
         taps: &wgpu::Buffer,
     ) -> LevelScratch {
-        use wgpu::TextureFormat::Rgba32Float;
         let l = &levels[k];
         let (n, h) = (texels(l.width), l.height);
         let radius = p.winsize / 2;
         let halo = window_halo(p.winsize);
-        let m = view(&texture(ctx, "matrices and flow", (7 * n, h), Rgba32Float));
-        let vs = view(&texture(
-            ctx,
-            "window sums",
-            (5 * (n + 2 * halo), h),
-            Rgba32Float,
-        ));
+        let m = float_view(ctx, "matrices and flow", (7 * n, h));
+        let vs = float_view(ctx, "window sums", (5 * (n + 2 * halo), h));
         let base = FlowParams {
             width: l.width,
             height: l.height,
@@ -629,7 +597,12 @@ impl LevelScratch {
             None => (uniform(base), Some(resize_from(l, 1.0, 2, 0))),
         };
         let initial = start_initial.as_ref().map(|_| {
-            let t = texture(ctx, "initial flow", (2 * n, h), Rgba32Float);
+            let t = texture(
+                ctx,
+                "initial flow",
+                (2 * n, h),
+                wgpu::TextureFormat::Rgba32Float,
+            );
             let v = view(&t);
             (t, v)
         });
@@ -1039,11 +1012,17 @@ impl FarnebackGpu {
         if slot >= SLOTS {
             return Err(Error::param("slot", format!("must be below {SLOTS}")));
         }
-        let (w, h) = (self.levels[0].width, self.levels[0].height);
+        let size = (self.levels[0].width, self.levels[0].height);
+        let bytes = mat_bytes(gray, opencv::core::CV_8UC1, size, "Farneback (8-bit gray)")?;
         let buf = &self.slots[slot].gray;
-        let what = "Farneback (8-bit gray)";
-        self.ctx
-            .upload_mat(buf, gray, opencv::core::CV_8UC1, w, h, what, &mut self.pad)?;
+        if bytes.len() % 4 == 0 {
+            self.ctx.write(buf, 0, &bytes);
+        } else {
+            self.pad.clear();
+            self.pad.extend_from_slice(&bytes);
+            self.pad.resize(bytes.len().next_multiple_of(4), 0);
+            self.ctx.write(buf, 0, &self.pad);
+        }
         self.submit_pyramid(self.ctx.encoder("farneback pyramid"), slot);
         Ok(())
     }
