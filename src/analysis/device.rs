@@ -48,11 +48,7 @@ pub(crate) struct Record {
 
 impl Record {
     fn parse(b: &[u8]) -> Record {
-        let f = |k: usize| {
-            let mut w = [0u8; 8];
-            w.copy_from_slice(&b[k..k + 8]);
-            f64::from_le_bytes(w)
-        };
+        let f = |k: usize| f64::from_le_bytes(std::array::from_fn(|i| b[k + i]));
         Record {
             consecutive: f(0),
             reference: f(8),

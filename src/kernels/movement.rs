@@ -81,11 +81,6 @@ impl RotationField {
         Ok(field)
     }
 
-    /// (f, cx, cy) in grid pixels.
-    pub fn intrinsics(&self) -> (f32, f32, f32) {
-        (self.f, self.cx, self.cy)
-    }
-
     /// Normalised coordinates of pixel (i, j).
     fn normalised(&self, i: u32, j: u32) -> (f32, f32) {
         ((i as f32 - self.cx) / self.f, (j as f32 - self.cy) / self.f)
@@ -446,7 +441,7 @@ impl MovementGpu {
         let (f, cx, cy) = self
             .field
             .as_ref()
-            .map_or((1.0, 0.0, 0.0), |r| r.intrinsics());
+            .map_or((1.0, 0.0, 0.0), |r| (r.f, r.cx, r.cy));
         let inverse = self.field.as_ref().map_or([[0.0; 4]; 3], |r| {
             r.inverse
                 .map(|row| [row[0] as f32, row[1] as f32, row[2] as f32, 0.0])
