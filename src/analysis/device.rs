@@ -215,8 +215,7 @@ impl DeviceMovement {
                 .copy(&self.ctx, &mut enc, &self.results, bytes)?;
             self.filled = 0;
         }
-        let index = self.ctx.queue.submit([enc.finish()]);
-        self.readback.submitted(index);
+        self.readback.submit(&self.ctx, enc);
         Ok(())
     }
 

@@ -92,10 +92,8 @@ impl SharpnessEngine for Gpu {
     }
 
     fn stage(&mut self, image: &Mat) -> Result<()> {
-        if let Some(r) = self.0.first_mut() {
-            r.scores(&[image])?;
-        }
-        Ok(())
+        let first = self.0.first_mut();
+        first.map_or(Ok(()), |r| r.scores(&[image]).map(drop))
     }
 }
 

@@ -29,10 +29,10 @@ pub const COPY_WGSL: &str = include_str!("../../shaders/copy.wgsl");
 /// starts from it (OPTFLOW_USE_INITIAL_FLOW).
 pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>) -> Result<Mat> {
     p.validate()?;
-    let mut flow = match initial {
-        Some(f) => f.try_clone().cv(|| "copy initial flow".into())?,
-        None => Mat::default(),
-    };
+    let initial_copy = initial.map(Mat::try_clone).transpose();
+    let mut flow = initial_copy
+        .cv(|| "copy initial flow".into())?
+        .unwrap_or_default();
     let mut flags = initial.map_or(0, |_| opencv::video::OPTFLOW_USE_INITIAL_FLOW);
     if p.gaussian {
         flags |= opencv::video::OPTFLOW_FARNEBACK_GAUSSIAN;
@@ -434,12 +434,11 @@ impl PyramidScratch {
                     radius: radius as u32,
                     strip_rows,
                     poly_n: p.poly_n,
-                    pad0: 0,
                     scale_x,
                     scale_y,
-                    pad1: [0.0; 2],
                     ig: ig.map(|v| v as f32),
                     poly,
+                    ..PyrParams::zeroed()
                 },
             );
             let image = float_view(ctx, "level image", (texels(l.width) + 2 * HALO, l.height));
@@ -1125,19 +1124,8 @@ impl FarnebackGpu {
             .ctx
             .read_back(&self.flow_out, u64::from(w) * u64::from(h) * 8)?;
         let floats: &[f32] = bytemuck::cast_slice(&bytes);
-        let mut m = Mat::new_rows_cols_with_default(
-            h as i32,
-            w as i32,
-            opencv::core::CV_32FC2,
-            opencv::core::Scalar::all(0.0),
-        )
-        .cv(|| "allocate flow".into())?;
-        m.data_typed_mut::<opencv::core::Vec2f>()
-            .cv(|| "flow data".into())?
-            .iter_mut()
-            .zip(floats.chunks_exact(2))
-            .for_each(|(d, s)| *d = opencv::core::Vec2f::from([s[0], s[1]]));
-        Ok(m)
+        let flat = Mat::new_rows_cols_with_data(h as i32, 2 * w as i32, floats);
+        (flat.and_then(|m| m.reshape(2, h as i32)?.try_clone())).cv(|| "flow data".into())
     }
 
     /// The flow from `prev` to `next` (8-bit gray), read back as CV_32FC2.

@@ -267,8 +267,7 @@ impl SharpnessGpu {
             let used = TOTALS_SLOT * chunk.len() as u64;
             self.readback
                 .copy(&self.ctx, &mut enc, &self.totals, used)?;
-            let index = self.ctx.queue.submit([enc.finish()]);
-            self.readback.submitted(index);
+            self.readback.submit(&self.ctx, enc);
             self.in_flight.push_back(chunk.len());
         }
         Ok(())
