@@ -640,7 +640,8 @@ struct LevelFlow {
 }
 
 impl LevelFlow {
-    fn new(fb: &FarnebackGpu, k: usize, prev: &FrameSlot, next: &FrameSlot) -> LevelFlow {
+    fn new(fb: &FarnebackGpu, k: usize, (from, to): (usize, usize)) -> LevelFlow {
+        let (prev, next) = (&fb.slots[from], &fb.slots[to]);
         let s = &fb.level_scratch[k];
         let r = [(0, tv(&prev.r[k])), (1, tv(&next.r[k])), (5, tv(&s.m))];
         // The flow the start reads: the coarser level's (in its M texture) or the initial one.
@@ -800,11 +801,8 @@ impl FarnebackGpu {
         let mut flows = Vec::new();
         for from in 0..SLOTS {
             for to in (0..SLOTS).filter(|&t| t != from) {
-                let (prev, next) = (&fb.slots[from], &fb.slots[to]);
-                let per_level = (0..fb.levels.len())
-                    .map(|k| LevelFlow::new(&fb, k, prev, next))
-                    .collect();
-                flows.push(((from, to), per_level));
+                let per_level = (0..fb.levels.len()).map(|k| LevelFlow::new(&fb, k, (from, to)));
+                flows.push(((from, to), per_level.collect()));
             }
         }
         fb.flows = flows;

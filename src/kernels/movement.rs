@@ -122,7 +122,18 @@ impl RotationField {
         flow: &'a [f32],
         r: &'a Rotation,
     ) -> Result<impl Iterator<Item = (u32, u32, [f32; 2])> + 'a> {
-        self.check(flow)?;
+        if flow.len() != 2 * (self.width * self.height) as usize {
+            return Err(Error::param(
+                "derotate",
+                format!(
+                    "flow has {} values, the grid {}x{} needs {}",
+                    flow.len(),
+                    self.width,
+                    self.height,
+                    2 * self.width * self.height
+                ),
+            ));
+        }
         let pixels = (0..self.height).flat_map(move |j| (0..self.width).map(move |i| (i, j)));
         Ok(pixels.zip(flow.chunks_exact(2)).map(|((i, j), d)| {
             let [rx, ry] = self.rotation_flow(i, j, r);
@@ -154,22 +165,6 @@ impl RotationField {
         Ok(residuals
             .map(|(_, _, [dx, dy])| (dx * dx + dy * dy).sqrt())
             .collect())
-    }
-
-    fn check(&self, flow: &[f32]) -> Result<()> {
-        if flow.len() != 2 * (self.width * self.height) as usize {
-            return Err(Error::param(
-                "derotate",
-                format!(
-                    "flow has {} values, the grid {}x{} needs {}",
-                    flow.len(),
-                    self.width,
-                    self.height,
-                    2 * self.width * self.height
-                ),
-            ));
-        }
-        Ok(())
     }
 }
 
