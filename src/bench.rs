@@ -95,13 +95,8 @@ pub fn render_sharpness(adapter: &str, frames: usize, rows: &[Row]) -> String {
     let title = format!(
         "sharpness, {frames} frames per cell, gpu = {adapter} (upload + kernels + readback, after a warm-up batch)\n"
     );
-    render(
-        title,
-        ["metric", "opencv ms/f", "gpu ms/f"],
-        [13, 5, 14],
-        2,
-        rows,
-    )
+    let heads = ["metric", "opencv ms/f", "gpu ms/f"];
+    render(title, heads, [13, 5, 14], 2, rows)
 }
 
 /// `rows` under `title`: columns headed `heads` (case, opencv, gpu), the case, strip rows and
@@ -199,11 +194,6 @@ pub fn render_flow(adapter: &str, pairs: usize, rows: &[Row]) -> String {
     let title = format!(
         "farneback, {pairs} pairs per cell, gpu = {adapter} (streaming: one pyramid per frame + flow)\n"
     );
-    render(
-        title,
-        ["params", "opencv ms", "gpu ms"],
-        [20, 6, 12],
-        1,
-        rows,
-    )
+    let heads = ["params", "opencv ms", "gpu ms"];
+    render(title, heads, [20, 6, 12], 1, rows)
 }
