@@ -43,7 +43,7 @@ fn main() -> anyhow::Result<()> {
                 if sw == w {
                     Ok(g.clone())
                 } else {
-                    farneback::resize_area(g, Size::new(sw as i32, sh as i32))
+                    keyframer::kernels::resize_area::opencv(g, Size::new(sw as i32, sh as i32))
                 }
             })
             .collect::<keyframer::Result<_>>()?;

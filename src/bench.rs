@@ -7,20 +7,46 @@ use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
 use std::sync::Arc;
 use std::time::Instant;
 
-/// One row of the sharpness table.
+/// One row of a table: a case (sharpness metric, Farneback parameter set) at one size, timed per
+/// item (a frame for sharpness, a frame pair for Farneback).
 #[derive(Debug, Clone, serde::Serialize)]
-pub struct SharpnessRow {
+pub struct Row {
     pub width: u32,
     pub height: u32,
-    pub metric: String,
-    /// OpenCV CPU, ms per frame.
+    /// Metric, or Farneback parameter set label.
+    pub case: String,
+    /// OpenCV CPU (cv::calcOpticalFlowFarneback for flow), ms per item.
     pub opencv_ms: f64,
-    /// Rows per invocation of the gpu kernel (its strip shape).
+    /// Rows per invocation of the gpu kernel's strip passes (its strip shape).
     pub strip_rows: u32,
-    /// gpu backend (upload, kernels, readback), ms per frame.
+    /// gpu backend, ms per item: sharpness uploads, runs its kernels and reads back; Farneback
+    /// streams a video (one pyramid per new frame, flow, no readback).
     pub gpu_ms: f64,
-    /// What the gpu backend asked of the device, per frame.
+    /// What the gpu backend asked of the device, per item.
     pub per_frame: PerFrame,
+}
+
+impl Row {
+    /// The row of `case` at `size` whose gpu work `gpu` (`n` items) is timed and counted here.
+    fn timed(
+        ctx: &GpuContext,
+        n: usize,
+        (width, height): (u32, u32),
+        (case, opencv_ms, strip_rows): (String, f64, u32),
+        gpu: impl FnOnce() -> Result<()>,
+    ) -> Result<Row> {
+        let (t, before) = (Instant::now(), ctx.counts());
+        gpu()?;
+        Ok(Row {
+            width,
+            height,
+            case,
+            opencv_ms,
+            strip_rows,
+            gpu_ms: t.elapsed().as_secs_f64() * 1e3 / n as f64,
+            per_frame: PerFrame::of(ctx.counts() - before, n),
+        })
+    }
 }
 
 /// Sizes the sharpness benchmark runs at.
@@ -30,11 +56,7 @@ pub const SHARPNESS_SIZES: [(u32, u32); 3] = [(640, 360), (1920, 1080), (3840, 2
 /// the gpu kernels once per strip height in `shapes` (empty: the adapter's choice), each after
 /// one warm-up batch (first touches of its textures), so the times are the steady state of a
 /// long video.
-pub fn sharpness(
-    ctx: &Arc<GpuContext>,
-    frames: usize,
-    shapes: &[u32],
-) -> Result<Vec<SharpnessRow>> {
+pub fn sharpness(ctx: &Arc<GpuContext>, frames: usize, shapes: &[u32]) -> Result<Vec<Row>> {
     let metrics = [
         Metric::Tenengrad,
         Metric::Laplacian { ksize: 1 },
@@ -59,18 +81,9 @@ pub fn sharpness(
                 let mut gpu =
                     SharpnessGpu::with_strip_rows(ctx.clone(), metric, (w, h), strip_rows)?;
                 gpu.scores(&list[..gpu.batch_size().min(frames)])?; // warm-up
-                let (t, before) = (Instant::now(), ctx.counts());
-                gpu.scores(&list)?;
-                let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
-                rows.push(SharpnessRow {
-                    width: w,
-                    height: h,
-                    metric: metric.to_string(),
-                    opencv_ms,
-                    strip_rows,
-                    gpu_ms,
-                    per_frame: PerFrame::of(ctx.counts() - before, frames),
-                });
+                let case = (metric.to_string(), opencv_ms, strip_rows);
+                let run = || gpu.scores(&list).map(drop);
+                rows.push(Row::timed(ctx, frames, (w, h), case, run)?);
             }
         }
     }
@@ -78,50 +91,47 @@ pub fn sharpness(
 }
 
 /// The table as text.
-pub fn render_sharpness(adapter: &str, frames: usize, rows: &[SharpnessRow]) -> String {
-    let mut s = format!(
+pub fn render_sharpness(adapter: &str, frames: usize, rows: &[Row]) -> String {
+    let title = format!(
         "sharpness, {frames} frames per cell, gpu = {adapter} (upload + kernels + readback, after a warm-up batch)\n"
     );
+    let heads = ["metric", "opencv ms/f", "gpu ms/f"];
+    render(title, heads, [13, 5, 14], 2, rows)
+}
+
+/// `rows` under `title`: columns headed `heads` (case, opencv, gpu), the case, strip rows and
+/// ratio columns `widths` wide, times with `precision` decimals.
+fn render(
+    title: String,
+    heads: [&str; 3],
+    [c, r, q]: [usize; 3],
+    precision: usize,
+    rows: &[Row],
+) -> String {
+    let mut s = title;
     s += &format!(
-        "{:>10} {:>13} {:>12} {:>5} {:>12} {:>14}{}\n",
+        "{:>10} {:>c$} {:>12} {:>r$} {:>12} {:>q$}{}\n",
         "size",
-        "metric",
-        "opencv ms/f",
+        heads[0],
+        heads[1],
         "rows",
-        "gpu ms/f",
+        heads[2],
         "opencv/gpu",
         PerFrame::HEADER
     );
-    for r in rows {
+    for x in rows {
         s += &format!(
-            "{:>10} {:>13} {:>12.2} {:>5} {:>12.2} {:>14.2}{}\n",
-            format!("{}x{}", r.width, r.height),
-            r.metric,
-            r.opencv_ms,
-            r.strip_rows,
-            r.gpu_ms,
-            r.opencv_ms / r.gpu_ms,
-            r.per_frame.columns()
+            "{:>10} {:>c$} {:>12.precision$} {:>r$} {:>12.precision$} {:>q$.2}{}\n",
+            format!("{}x{}", x.width, x.height),
+            x.case,
+            x.opencv_ms,
+            x.strip_rows,
+            x.gpu_ms,
+            x.opencv_ms / x.gpu_ms,
+            x.per_frame.columns()
         );
     }
     s
-}
-
-/// One row of the Farneback table.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct FlowRow {
-    pub width: u32,
-    pub height: u32,
-    /// Parameter set label.
-    pub params: String,
-    /// cv::calcOpticalFlowFarneback, ms per frame pair.
-    pub opencv_ms: f64,
-    /// Rows per invocation of the pyramid's strip passes.
-    pub strip_rows: u32,
-    /// gpu backend streaming a video (one pyramid per new frame, flow, no readback), ms per pair.
-    pub gpu_ms: f64,
-    /// What the gpu backend asked of the device, per pair.
-    pub per_frame: PerFrame,
 }
 
 /// Sizes the Farneback benchmark runs at.
@@ -130,7 +140,7 @@ pub const FLOW_SIZES: [(u32, u32); 3] = [(320, 180), (640, 360), (1280, 720)];
 /// Times Farneback with OpenCV's tutorial parameters and with (levels 5, winsize 13,
 /// iterations 10, poly_n 5, poly_sigma 1.1) at every size over `pairs` frame pairs; the gpu once
 /// per strip height in `shapes` (empty: the adapter's choice).
-pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<FlowRow>> {
+pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<Row>> {
     use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams};
     let pairs = pairs.max(1);
     let own = [farneback::strip_rows_for(ctx)];
@@ -164,23 +174,15 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<F
                 gpu.load(1, &frames[1])?;
                 gpu.flow_between(0, 1)?;
                 gpu.read_flow()?; // warm-up
-                let (t, before) = (Instant::now(), ctx.counts());
-                for i in 0..pairs {
-                    let (from, to) = (i % 2, (i + 1) % 2);
-                    gpu.load(to, &frames[to])?;
-                    gpu.flow_between(from, to)?;
-                }
-                ctx.wait()?;
-                let gpu_ms = t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
-                rows.push(FlowRow {
-                    width: w,
-                    height: h,
-                    params: label.into(),
-                    opencv_ms,
-                    strip_rows,
-                    gpu_ms,
-                    per_frame: PerFrame::of(ctx.counts() - before, pairs),
-                });
+                let case = (label.into(), opencv_ms, strip_rows);
+                rows.push(Row::timed(ctx, pairs, (w, h), case, || {
+                    for i in 0..pairs {
+                        let (from, to) = (i % 2, (i + 1) % 2);
+                        gpu.load(to, &frames[to])?;
+                        gpu.flow_between(from, to)?;
+                    }
+                    ctx.wait()
+                })?);
             }
         }
     }
@@ -188,31 +190,10 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<F
 }
 
 /// The Farneback table as text.
-pub fn render_flow(adapter: &str, pairs: usize, rows: &[FlowRow]) -> String {
-    let mut s = format!(
+pub fn render_flow(adapter: &str, pairs: usize, rows: &[Row]) -> String {
+    let title = format!(
         "farneback, {pairs} pairs per cell, gpu = {adapter} (streaming: one pyramid per frame + flow)\n"
     );
-    s += &format!(
-        "{:>10} {:>20} {:>12} {:>6} {:>12} {:>12}{}\n",
-        "size",
-        "params",
-        "opencv ms",
-        "rows",
-        "gpu ms",
-        "opencv/gpu",
-        PerFrame::HEADER
-    );
-    for r in rows {
-        s += &format!(
-            "{:>10} {:>20} {:>12.1} {:>6} {:>12.1} {:>12.2}{}\n",
-            format!("{}x{}", r.width, r.height),
-            r.params,
-            r.opencv_ms,
-            r.strip_rows,
-            r.gpu_ms,
-            r.opencv_ms / r.gpu_ms,
-            r.per_frame.columns()
-        );
-    }
-    s
+    let heads = ["params", "opencv ms", "gpu ms"];
+    render(title, heads, [20, 6, 12], 1, rows)
 }

@@ -159,18 +159,14 @@ fn analysis(
     Ok((secs, peak, work))
 }
 
-fn fmt_ratio(a: f64, b: Option<f64>) -> String {
-    b.map_or("-".into(), |b| format!("{:.2}", a / b))
-}
-
 /// Runs the benchmark; progress on stderr, the report returned.
 pub fn run(s: &Settings) -> Result<String> {
     std::fs::create_dir_all(&s.dir).map_err(|e| Error::io(&s.dir, e))?;
     let name = format!("1080p30-{}s.mp4", s.seconds);
-    let mut clips = vec![(clip(&s.dir, &name, 1920, 1080, 30, s.seconds)?, true)];
+    let mut clips = vec![clip(&s.dir, &name, 1920, 1080, 30, s.seconds)?];
     for &m in &s.k4_minutes {
         let name = format!("2160p{}-{m}min.mp4", s.k4_fps);
-        clips.push((clip(&s.dir, &name, 3840, 2160, s.k4_fps, m * 60)?, false));
+        clips.push(clip(&s.dir, &name, 3840, 2160, s.k4_fps, m * 60)?);
     }
     let flags = match s.select_args.is_empty() {
         true => DEFAULT_ANALYSIS.iter().map(|f| f.to_string()).collect(),
@@ -195,7 +191,7 @@ pub fn run(s: &Settings) -> Result<String> {
         "peak MiB",
         PerFrame::HEADER
     );
-    for (path, _) in &clips {
+    for path in &clips {
         let name = path.file_name().unwrap_or_default().to_string_lossy();
         eprintln!("bench: decoding {name}");
         let ff = ffmpeg_decode(path);
@@ -218,7 +214,7 @@ pub fn run(s: &Settings) -> Result<String> {
                 b,
                 secs,
                 secs / cv,
-                fmt_ratio(secs, ff),
+                ff.map_or("-".into(), |f| format!("{:.2}", secs / f)),
                 peak,
                 work.map_or(
                     format!(" {:>7} {:>9} {:>9} {:>8}", "-", "-", "-", "-"),

@@ -48,11 +48,7 @@ pub(crate) struct Record {
 
 impl Record {
     fn parse(b: &[u8]) -> Record {
-        let f = |k: usize| {
-            let mut w = [0u8; 8];
-            w.copy_from_slice(&b[k..k + 8]);
-            f64::from_le_bytes(w)
-        };
+        let f = |k: usize| f64::from_le_bytes(std::array::from_fn(|i| b[k + i]));
         Record {
             consecutive: f(0),
             reference: f(8),
@@ -181,7 +177,7 @@ impl DeviceMovement {
         if let Some(from) = w.from {
             self.flow.encode_flow(&mut enc, (from, w.slot), None)?;
             self.stat
-                .encode(&mut enc, self.statistic, &self.dest[0], None);
+                .encode(&mut enc, self.statistic, Some(&self.dest[0]), None);
         }
         if let (true, Some(st)) = (w.candidate, &self.stationary) {
             let gate = |first| {
@@ -194,8 +190,12 @@ impl DeviceMovement {
             st.encode_plan(&mut enc);
             let pair = (REFERENCE, w.slot);
             self.flow.encode_flow(&mut enc, pair, gate(0))?;
-            self.stat
-                .encode(&mut enc, self.statistic, &self.dest[1], gate(statistic));
+            self.stat.encode(
+                &mut enc,
+                self.statistic,
+                Some(&self.dest[1]),
+                gate(statistic),
+            );
             st.encode_decide(&mut enc);
             self.flow
                 .encode_copy(&mut enc, w.slot, REFERENCE, gate(keep))?;
@@ -215,8 +215,7 @@ impl DeviceMovement {
                 .copy(&self.ctx, &mut enc, &self.results, bytes)?;
             self.filled = 0;
         }
-        let index = self.ctx.queue.submit([enc.finish()]);
-        self.readback.submitted(index);
+        self.readback.submit(&self.ctx, enc);
         Ok(())
     }
 

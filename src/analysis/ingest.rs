@@ -5,7 +5,7 @@
 
 use super::sharpness::SharpnessEngine;
 use crate::error::Result;
-use crate::kernels::farneback;
+use crate::kernels::resize_area;
 use crate::source::{Frame, FrameSource};
 use opencv::core::Mat;
 use opencv::prelude::*;
@@ -38,7 +38,7 @@ pub(crate) fn prepare(size: (i32, i32), image: &Mat) -> Result<Mat> {
     if (gray.cols(), gray.rows()) == size {
         Ok(gray)
     } else {
-        farneback::resize_area(&gray, opencv::core::Size::new(size.0, size.1))
+        resize_area::opencv(&gray, opencv::core::Size::new(size.0, size.1))
     }
 }
 

@@ -114,15 +114,11 @@ impl Engines {
         ctx: Option<&Arc<GpuContext>>,
         meta: &Metadata,
     ) -> Result<Engines> {
-        let mut used = Backend::Opencv;
-        let movement = match req.movement {
-            Some(m) => {
-                let (pass, b) = MovementPass::open(m, req.stationary, backend, ctx, meta)?;
-                used = b;
-                Some(pass)
-            }
-            None => None,
-        };
+        let opened = (req.movement)
+            .map(|m| MovementPass::open(m, req.stationary, backend, ctx, meta))
+            .transpose()?;
+        let mut used = opened.as_ref().map_or(Backend::Opencv, |(_, b)| *b);
+        let movement = opened.map(|(pass, _)| pass);
         let sharpness = (!req.sharpness.is_empty()).then(|| {
             let (s, b) = sharpness::engine(backend, ctx, &req.sharpness, meta);
             if movement.is_none() || b == Backend::Opencv {

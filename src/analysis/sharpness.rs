@@ -85,17 +85,15 @@ impl SharpnessEngine for Gpu {
     }
 
     fn attach_resize(&mut self, size: (u32, u32)) -> Result<Option<Vec<wgpu::Buffer>>> {
-        match self.0.first_mut() {
-            Some(r) => r.attach_resize(size).map(Some),
-            None => Ok(None),
-        }
+        self.0
+            .first_mut()
+            .map(|r| r.attach_resize(size))
+            .transpose()
     }
 
     fn stage(&mut self, image: &Mat) -> Result<()> {
-        if let Some(r) = self.0.first_mut() {
-            r.scores(&[image])?;
-        }
-        Ok(())
+        let first = self.0.first_mut();
+        first.map_or(Ok(()), |r| r.scores(&[image]).map(drop))
     }
 }
 

@@ -67,19 +67,23 @@ impl std::fmt::Display for AutoDecision {
     }
 }
 
+/// The text of `e` (a GPU error's without its "GPU: ").
+fn message(e: Error) -> String {
+    match e {
+        Error::Gpu(msg) => msg,
+        other => other.to_string(),
+    }
+}
+
 /// What `auto` resolves to with adapter choice `adapter` (see [`AdapterClass::auto_backend`]).
 pub fn auto_backend(adapter: Option<&str>) -> AutoDecision {
     let info = match pick_adapter(adapter) {
         Ok(a) => a.get_info(),
         Err(e) => {
-            let reason = match e {
-                Error::Gpu(msg) => msg,
-                other => other.to_string(),
-            };
             return AutoDecision {
                 backend: Backend::Opencv,
-                reason,
-            };
+                reason: message(e),
+            }
         }
     };
     let class = AdapterClass::of(&info);
@@ -162,10 +166,7 @@ pub fn or_opencv<T>(
                 (Ok(()), other) => return Err(other),
             },
         };
-        let fault = match fault {
-            Error::Gpu(msg) => msg,
-            other => other.to_string(),
-        };
+        let fault = message(fault);
         log::warn!("{what} failed on the gpu backend ({fault}); redoing it on the opencv backend");
     }
     work(Backend::Opencv, None)

@@ -112,9 +112,7 @@ impl PerFrame {
             self.waits
         )
     }
-}
 
-impl PerFrame {
     /// Reads what [`PerFrame`]'s `Display` wrote (the end of `select`'s log line).
     pub fn parse(text: &str) -> Option<PerFrame> {
         let mut v = text
@@ -179,15 +177,12 @@ fn rank(t: wgpu::DeviceType) -> u8 {
     }
 }
 
-fn instance() -> wgpu::Instance {
-    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-    desc.backends = wgpu::Backends::PRIMARY;
-    wgpu::Instance::new(desc)
-}
-
 /// All adapters wgpu finds, best first (hardware before software).
 pub fn adapters() -> Vec<wgpu::Adapter> {
-    let mut list = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = wgpu::Backends::PRIMARY;
+    let instance = wgpu::Instance::new(desc);
+    let mut list = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
     list.sort_by_key(|a| rank(a.get_info().device_type));
     list
 }
@@ -296,10 +291,7 @@ impl GpuContext {
     /// validation error or the device's loss), if any: results read after a fault cannot be
     /// trusted. Called after every wait for the device.
     pub fn check(&self) -> Result<()> {
-        let faults = self
-            .faults
-            .lock()
-            .map_err(|_| Error::Gpu("fault list lock poisoned".into()))?;
+        let faults = lock(&self.faults, "fault list")?;
         match faults.first() {
             None => Ok(()),
             Some(first) => Err(Error::Gpu(format!(
@@ -365,19 +357,7 @@ impl GpuContext {
         bg: &wgpu::BindGroup,
         groups: (u32, u32),
     ) {
-        self.counters.dispatches.fetch_add(1, Relaxed);
-        pass.set_pipeline(pipe);
-        pass.set_bind_group(0, bg, &[]);
-        let groups = match TEST_FAULT.swap(false, Relaxed) {
-            true => (
-                self.limits
-                    .max_compute_workgroups_per_dimension
-                    .saturating_add(1),
-                1,
-            ),
-            false => groups,
-        };
-        pass.dispatch_workgroups(groups.0, groups.1, 1);
+        self.dispatch_gated(pass, (pipe, bg), groups, None, 0);
     }
 
     /// As [`GpuContext::dispatch`], or, with a `gate`, over the workgroups in its entry `shape`
@@ -390,13 +370,22 @@ impl GpuContext {
         gate: Option<Gate<'_>>,
         shape: usize,
     ) {
-        let Some(g) = gate else {
-            return self.dispatch(pass, pipe, bg, groups);
-        };
         self.counters.dispatches.fetch_add(1, Relaxed);
         pass.set_pipeline(pipe);
         pass.set_bind_group(0, bg, &[]);
-        pass.dispatch_workgroups_indirect(g.args, 12 * (g.first + shape) as u64);
+        if let Some(g) = gate {
+            return pass.dispatch_workgroups_indirect(g.args, 12 * (g.first + shape) as u64);
+        }
+        let groups = match TEST_FAULT.swap(false, Relaxed) {
+            true => (
+                self.limits
+                    .max_compute_workgroups_per_dimension
+                    .saturating_add(1),
+                1,
+            ),
+            false => groups,
+        };
+        pass.dispatch_workgroups(groups.0, groups.1, 1);
     }
 
     /// Summary of the adapter and the device limits.
@@ -412,10 +401,7 @@ impl GpuContext {
         entry: &str,
     ) -> Result<Arc<wgpu::ComputePipeline>> {
         let key = format!("{name}:{entry}");
-        let mut map = self
-            .pipelines
-            .lock()
-            .map_err(|_| Error::Gpu("pipeline cache lock poisoned".into()))?;
+        let mut map = lock(&self.pipelines, "pipeline cache")?;
         if let Some(p) = map.get(&key) {
             return Ok(p.clone());
         }
@@ -522,31 +508,6 @@ impl GpuContext {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
     }
 
-    /// Uploads the pixels of `mat` (checked to be `typ` and `width` x `height`; `what` names the
-    /// runner in errors) into `buffer`, padded with zeros to a multiple of 4 bytes in `scratch`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn upload_mat(
-        &self,
-        buffer: &wgpu::Buffer,
-        mat: &opencv::core::Mat,
-        typ: i32,
-        width: u32,
-        height: u32,
-        what: &str,
-        scratch: &mut Vec<u8>,
-    ) -> Result<()> {
-        let bytes = mat_bytes(mat, typ, (width, height), what)?;
-        if bytes.len() % 4 == 0 {
-            self.write(buffer, 0, &bytes);
-        } else {
-            scratch.clear();
-            scratch.extend_from_slice(&bytes);
-            scratch.resize(bytes.len().next_multiple_of(4), 0);
-            self.write(buffer, 0, scratch);
-        }
-        Ok(())
-    }
-
     /// Writes `bytes` (rows of `bytes_per_row`, whole texels) into all of `texture` (counted as
     /// uploaded).
     pub fn write_texture(&self, texture: &wgpu::Texture, bytes: &[u8], bytes_per_row: u32) {
@@ -565,19 +526,27 @@ impl GpuContext {
         );
     }
 
-    /// Copies the first `size` bytes of `buffer` to the host (submits and waits).
+    /// Copies the first `size` bytes of `buffer` to the host (submits and waits; the copy, and
+    /// the bytes counted as read back, are rounded up to 4).
     pub fn read_back(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>> {
-        let size = size.next_multiple_of(4);
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
+        let rounded = size.next_multiple_of(4);
+        let staging = self.staging_buffer("readback", rounded);
+        let mut enc = self.encoder("readback");
+        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, rounded);
+        self.queue.submit([enc.finish()]);
+        let mut bytes = self.map_and_copy(&staging)?;
+        bytes.truncate(size as usize);
+        Ok(bytes)
+    }
+
+    /// A MAP_READ buffer of `size` bytes that copies can land in.
+    pub fn staging_buffer(&self, label: &str, size: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
             size,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
-        });
-        let mut enc = self.encoder("readback");
-        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
-        self.queue.submit([enc.finish()]);
-        self.map_and_copy(&staging)
+        })
     }
 
     /// Maps a MAP_READ buffer whose copies were already submitted, and copies it out.
@@ -662,13 +631,17 @@ fn record(faults: &Mutex<Vec<String>>, msg: String) {
     }
 }
 
+/// `m` locked; an error naming it (`what`) when a thread panicked holding it.
+fn lock<'a, T>(m: &'a Mutex<T>, what: &str) -> Result<std::sync::MutexGuard<'a, T>> {
+    m.lock()
+        .map_err(|_| Error::Gpu(format!("{what} lock poisoned")))
+}
+
 /// The process's context for `adapter` (see [`resolve_backend`]).
 fn shared(adapter: Option<&str>) -> Result<Arc<GpuContext>> {
     static SHARED: Mutex<Vec<(Option<String>, Arc<GpuContext>)>> = Mutex::new(Vec::new());
     let key = adapter.map(str::to_string);
-    let mut list = SHARED
-        .lock()
-        .map_err(|_| Error::Gpu("context list lock poisoned".into()))?;
+    let mut list = lock(&SHARED, "context list")?;
     list.retain(|(_, c)| c.check().is_ok());
     if let Some((_, c)) = list.iter().find(|(k, _)| *k == key) {
         return Ok(c.clone());

@@ -84,7 +84,7 @@ impl Readback {
     }
 
     /// Records in `enc` a copy of the first `bytes` of `src` into a staging buffer;
-    /// [`Readback::submitted`] must follow once `enc` is submitted.
+    /// `enc` must then go in through [`Readback::submit`].
     pub fn copy(
         &mut self,
         ctx: &GpuContext,
@@ -98,21 +98,16 @@ impl Readback {
                 "no staging buffer free for this readback".into(),
             ));
         }
-        let buffer = self.free.pop().unwrap_or_else(|| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback pool"),
-                size: self.size,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        });
+        let buffer =
+            (self.free.pop()).unwrap_or_else(|| ctx.staging_buffer("readback pool", self.size));
         enc.copy_buffer_to_buffer(src, 0, &buffer, 0, bytes);
         self.recorded = Some((buffer, bytes));
         Ok(())
     }
 
-    /// The encoder holding the recorded copy went in as `submission`: starts mapping.
-    pub fn submitted(&mut self, submission: wgpu::SubmissionIndex) {
+    /// Submits `enc`, which holds the recorded copy (if any), and starts mapping that.
+    pub fn submit(&mut self, ctx: &GpuContext, enc: wgpu::CommandEncoder) {
+        let submission = ctx.queue.submit([enc.finish()]);
         if let Some((buffer, bytes)) = self.recorded.take() {
             let mapping = map(&buffer, bytes);
             self.flights.push_back(Flight {

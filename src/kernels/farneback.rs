@@ -5,7 +5,7 @@
 //! OpenCV twin is `opencv` (the OpenCV call itself).
 
 use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, Gate, GpuContext};
+use crate::gpu::{compute_pass, mat_bytes, Gate, GpuContext};
 pub use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
@@ -25,29 +25,18 @@ pub const FLOW_WGSL: &str = concat!(
 /// Texture copy (a slot's expansion pyramid into another).
 pub const COPY_WGSL: &str = include_str!("../../shaders/copy.wgsl");
 
-/// OpenCV's flags for the window type.
-fn flags(p: &FarnebackParams) -> i32 {
-    if p.gaussian {
-        opencv::video::OPTFLOW_FARNEBACK_GAUSSIAN
-    } else {
-        0
-    }
-}
-
 /// OpenCV twin: the flow from `prev` to `next` (8-bit gray), CV_32FC2. With `initial`, the flow
 /// starts from it (OPTFLOW_USE_INITIAL_FLOW).
 pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>) -> Result<Mat> {
     p.validate()?;
-    let mut flow = match initial {
-        Some(f) => f.try_clone().cv(|| "copy initial flow".into())?,
-        None => Mat::default(),
-    };
-    let flags = flags(p)
-        | if initial.is_some() {
-            opencv::video::OPTFLOW_USE_INITIAL_FLOW
-        } else {
-            0
-        };
+    let initial_copy = initial.map(Mat::try_clone).transpose();
+    let mut flow = initial_copy
+        .cv(|| "copy initial flow".into())?
+        .unwrap_or_default();
+    let mut flags = initial.map_or(0, |_| opencv::video::OPTFLOW_USE_INITIAL_FLOW);
+    if p.gaussian {
+        flags |= opencv::video::OPTFLOW_FARNEBACK_GAUSSIAN;
+    }
     opencv::video::calc_optical_flow_farneback(
         prev,
         next,
@@ -115,10 +104,7 @@ pub fn levels(width: u32, height: u32, p: &FarnebackParams) -> Vec<Level> {
     }
     (0..=n)
         .map(|k| {
-            let mut scale = 1.0;
-            for _ in 0..k {
-                scale *= p.pyr_scale;
-            }
+            let scale = (0..k).fold(1.0, |s, _| s * p.pyr_scale);
             let sigma = (1.0 / scale - 1.0) * 0.5;
             let size = ((cv_round(sigma * 5.0) | 1).max(3)) as usize;
             Level {
@@ -335,8 +321,26 @@ fn texture(
     })
 }
 
+/// A uniform of [`MAX_TAPS`] taps (`Taps` in the shaders, the tap in x) starting with `values`.
+fn taps_uniform(ctx: &GpuContext, label: &str, values: &[f32]) -> wgpu::Buffer {
+    let mut taps = vec![[0f32; 4]; MAX_TAPS];
+    for (t, v) in taps.iter_mut().zip(values) {
+        t[0] = *v;
+    }
+    ctx.buffer_init(
+        label,
+        wgpu::BufferUsages::UNIFORM,
+        bytemuck::cast_slice(&taps),
+    )
+}
+
 fn view(t: &wgpu::Texture) -> wgpu::TextureView {
     t.create_view(&Default::default())
+}
+
+/// A view of a new Rgba32Float [`texture`].
+fn float_view(ctx: &GpuContext, label: &str, size: (u32, u32)) -> wgpu::TextureView {
+    view(&texture(ctx, label, size, wgpu::TextureFormat::Rgba32Float))
 }
 
 /// A binding of a texture view.
@@ -358,7 +362,9 @@ struct Pipes {
 
 impl Pipes {
     fn new(ctx: &GpuContext, params: &FarnebackParams) -> Result<Pipes> {
-        let p = |name: &str, src: &str, entry: &str| ctx.pipeline(name, src, entry);
+        let pyramid = |entry: &str| ctx.pipeline("farneback_pyramid", PYRAMID_WGSL, entry);
+        let flow = |entry: &str| ctx.pipeline("farneback_flow", FLOW_WGSL, entry);
+        let polyexp = ["polyexp5", "polyexp7"][usize::from(params.poly_n == 7)];
         let hbox = ["hbox0", "hbox1", "hbox2", "hbox3"][(params.winsize / 2 % 4) as usize];
         let (cols, rows) = if params.gaussian {
             ("vgauss", "hgauss")
@@ -366,22 +372,14 @@ impl Pipes {
             ("vbox", hbox)
         };
         Ok(Pipes {
-            level0: p("farneback_pyramid", PYRAMID_WGSL, "level0")?,
-            vsmooth: p("farneback_pyramid", PYRAMID_WGSL, "vsmooth")?,
-            hsmooth: p("farneback_pyramid", PYRAMID_WGSL, "hsmooth")?,
-            polyexp: p(
-                "farneback_pyramid",
-                PYRAMID_WGSL,
-                if params.poly_n == 7 {
-                    "polyexp7"
-                } else {
-                    "polyexp5"
-                },
-            )?,
-            start: p("farneback_flow", FLOW_WGSL, "start")?,
-            vwin: p("farneback_flow", FLOW_WGSL, cols)?,
-            hwin: p("farneback_flow", FLOW_WGSL, rows)?,
-            copy: p("copy", COPY_WGSL, "main")?,
+            level0: pyramid("level0")?,
+            vsmooth: pyramid("vsmooth")?,
+            hsmooth: pyramid("hsmooth")?,
+            polyexp: pyramid(polyexp)?,
+            start: flow("start")?,
+            vwin: flow(cols)?,
+            hwin: flow(rows)?,
+            copy: ctx.pipeline("copy", COPY_WGSL, "main")?,
         })
     }
 }
@@ -404,9 +402,13 @@ impl PyramidScratch {
         p: &FarnebackParams,
         strip_rows: u32,
     ) -> Result<PyramidScratch> {
-        use wgpu::TextureFormat::{Rgba32Float, Rgba8Uint};
         let (w, h) = (levels[0].width, levels[0].height);
-        let gray = view(&texture(ctx, "gray", (texels(w), h), Rgba8Uint));
+        let gray = view(&texture(
+            ctx,
+            "gray",
+            (texels(w), h),
+            wgpu::TextureFormat::Rgba8Uint,
+        ));
         let (kern, ig) = poly_weights(p.poly_n, p.poly_sigma);
         let n = p.poly_n as usize;
         let mut poly = [[0f32; 4]; 8];
@@ -432,36 +434,17 @@ impl PyramidScratch {
                     radius: radius as u32,
                     strip_rows,
                     poly_n: p.poly_n,
-                    pad0: 0,
                     scale_x,
                     scale_y,
-                    pad1: [0.0; 2],
                     ig: ig.map(|v| v as f32),
                     poly,
+                    ..PyrParams::zeroed()
                 },
             );
-            let image = view(&texture(
-                ctx,
-                "level image",
-                (texels(l.width) + 2 * HALO, l.height),
-                Rgba32Float,
-            ));
+            let image = float_view(ctx, "level image", (texels(l.width) + 2 * HALO, l.height));
             if k > 0 {
-                let mut taps = vec![[0f32; 4]; MAX_TAPS];
-                for (t, v) in taps.iter_mut().zip(&l.smooth[radius..]) {
-                    t[0] = *v;
-                }
-                let taps = ctx.buffer_init(
-                    "smoothing taps",
-                    wgpu::BufferUsages::UNIFORM,
-                    bytemuck::cast_slice(&taps),
-                );
-                let vert = view(&texture(
-                    ctx,
-                    "vertical smoothing",
-                    (texels(w), 2 * l.height),
-                    Rgba32Float,
-                ));
+                let taps = taps_uniform(ctx, "smoothing taps", &l.smooth[radius..]);
+                let vert = float_view(ctx, "vertical smoothing", (texels(w), 2 * l.height));
                 let b = |pipe: &wgpu::ComputePipeline,
                          input: &wgpu::TextureView,
                          output: &wgpu::TextureView,
@@ -525,15 +508,7 @@ impl FrameSlot {
         );
         let r: Vec<_> = levels
             .iter()
-            .map(|l| {
-                let size = (2 * l.width, l.height);
-                view(&texture(
-                    ctx,
-                    "expansion",
-                    size,
-                    wgpu::TextureFormat::Rgba32Float,
-                ))
-            })
+            .map(|l| float_view(ctx, "expansion", (2 * l.width, l.height)))
             .collect();
         let polyexp = (0..levels.len())
             .map(|k| {
@@ -573,14 +548,6 @@ struct LevelScratch {
     vwin: wgpu::BindGroup,
 }
 
-/// Window shape of the flow passes: rows per invocation of the vertical window, texels per
-/// invocation of the horizontal one.
-#[derive(Debug, Clone, Copy)]
-struct FlowShape {
-    strip_rows: u32,
-    run: u32,
-}
-
 impl LevelScratch {
     fn new(
         ctx: &GpuContext,
@@ -588,28 +555,22 @@ impl LevelScratch {
         levels: &[Level],
         k: usize,
         p: &FarnebackParams,
-        shape: FlowShape,
+        strip_rows: u32,
         taps: &wgpu::Buffer,
     ) -> LevelScratch {
-        use wgpu::TextureFormat::Rgba32Float;
         let l = &levels[k];
         let (n, h) = (texels(l.width), l.height);
         let radius = p.winsize / 2;
         let halo = window_halo(p.winsize);
-        let m = view(&texture(ctx, "matrices and flow", (7 * n, h), Rgba32Float));
-        let vs = view(&texture(
-            ctx,
-            "window sums",
-            (5 * (n + 2 * halo), h),
-            Rgba32Float,
-        ));
+        let m = float_view(ctx, "matrices and flow", (7 * n, h));
+        let vs = float_view(ctx, "window sums", (5 * (n + 2 * halo), h));
         let base = FlowParams {
             width: l.width,
             height: l.height,
             radius,
             halo,
-            strip_rows: shape.strip_rows,
-            run: shape.run,
+            strip_rows,
+            run: FLOW_RUN,
             scale: window_weights(p.winsize, p.gaussian).1,
             ..Default::default()
         };
@@ -635,7 +596,12 @@ impl LevelScratch {
             None => (uniform(base), Some(resize_from(l, 1.0, 2, 0))),
         };
         let initial = start_initial.as_ref().map(|_| {
-            let t = texture(ctx, "initial flow", (2 * n, h), Rgba32Float);
+            let t = texture(
+                ctx,
+                "initial flow",
+                (2 * n, h),
+                wgpu::TextureFormat::Rgba32Float,
+            );
             let v = view(&t);
             (t, v)
         });
@@ -674,7 +640,8 @@ struct LevelFlow {
 }
 
 impl LevelFlow {
-    fn new(fb: &FarnebackGpu, k: usize, prev: &FrameSlot, next: &FrameSlot) -> LevelFlow {
+    fn new(fb: &FarnebackGpu, k: usize, (from, to): (usize, usize)) -> LevelFlow {
+        let (prev, next) = (&fb.slots[from], &fb.slots[to]);
         let s = &fb.level_scratch[k];
         let r = [(0, tv(&prev.r[k])), (1, tv(&next.r[k])), (5, tv(&s.m))];
         // The flow the start reads: the coarser level's (in its M texture) or the initial one.
@@ -737,7 +704,6 @@ pub struct FarnebackGpu {
     levels: Vec<Level>,
     pipes: Pipes,
     strip_rows: u32,
-    flow_shape: FlowShape,
     scratch: PyramidScratch,
     slots: Vec<FrameSlot>,
     level_scratch: Vec<LevelScratch>,
@@ -752,12 +718,12 @@ pub struct FarnebackGpu {
 
 /// One dispatch: its kind (for profiles), pipeline, bind group and workgroups.
 #[derive(Clone, Copy)]
-struct Step<'a> {
-    kind: &'static str,
-    pipe: &'a wgpu::ComputePipeline,
-    bg: &'a wgpu::BindGroup,
-    groups: (u32, u32),
-}
+struct Step<'a>(
+    &'static str,
+    &'a wgpu::ComputePipeline,
+    &'a wgpu::BindGroup,
+    (u32, u32),
+);
 
 impl FarnebackGpu {
     /// Allocates everything for `width` x `height` 8-bit gray frames.
@@ -798,10 +764,6 @@ impl FarnebackGpu {
             )));
         }
         let strip_rows = strip_rows.max(1);
-        let flow_shape = FlowShape {
-            strip_rows,
-            run: FLOW_RUN,
-        };
         let n = texels(width);
         let halo = window_halo(params.winsize);
         if 5 * (n + 2 * halo) > max || 7 * n > max {
@@ -816,20 +778,10 @@ impl FarnebackGpu {
         let slots: Vec<FrameSlot> = (0..SLOTS)
             .map(|_| FrameSlot::new(&ctx, &pipes, &levels, &scratch))
             .collect();
-        let mut taps = vec![[0f32; 4]; MAX_TAPS];
-        for (t, v) in taps
-            .iter_mut()
-            .zip(window_weights(params.winsize, params.gaussian).0)
-        {
-            t[0] = v;
-        }
-        let taps = ctx.buffer_init(
-            "window taps",
-            wgpu::BufferUsages::UNIFORM,
-            bytemuck::cast_slice(&taps),
-        );
+        let weights = window_weights(params.winsize, params.gaussian).0;
+        let taps = taps_uniform(&ctx, "window taps", &weights);
         let level_scratch = (0..levels.len())
-            .map(|k| LevelScratch::new(&ctx, &pipes, &levels, k, &params, flow_shape, &taps))
+            .map(|k| LevelScratch::new(&ctx, &pipes, &levels, k, &params, strip_rows, &taps))
             .collect();
         let flow_out = ctx.storage_buffer("flow", (full * 8).next_multiple_of(16));
         let mut fb = FarnebackGpu {
@@ -838,7 +790,6 @@ impl FarnebackGpu {
             levels,
             pipes,
             strip_rows,
-            flow_shape,
             scratch,
             slots,
             level_scratch,
@@ -850,11 +801,8 @@ impl FarnebackGpu {
         let mut flows = Vec::new();
         for from in 0..SLOTS {
             for to in (0..SLOTS).filter(|&t| t != from) {
-                let (prev, next) = (&fb.slots[from], &fb.slots[to]);
-                let per_level = (0..fb.levels.len())
-                    .map(|k| LevelFlow::new(&fb, k, prev, next))
-                    .collect();
-                flows.push(((from, to), per_level));
+                let per_level = (0..fb.levels.len()).map(|k| LevelFlow::new(&fb, k, (from, to)));
+                flows.push(((from, to), per_level.collect()));
             }
         }
         fb.flows = flows;
@@ -866,37 +814,37 @@ impl FarnebackGpu {
         let s = &self.slots[slot];
         let (w, h) = (self.levels[0].width, self.levels[0].height);
         let by8 = |n: u32| n.div_ceil(8);
-        let mut steps = vec![Step {
-            kind: "level0",
-            pipe: &self.pipes.level0,
-            bg: &s.level0,
-            groups: (by8(w.div_ceil(16)), h.div_ceil(self.strip_rows)),
-        }];
+        let mut steps = vec![Step(
+            "level0",
+            &self.pipes.level0,
+            &s.level0,
+            (by8(w.div_ceil(16)), h.div_ceil(self.strip_rows)),
+        )];
         for (k, l) in self.levels.iter().enumerate() {
             if k > 0 {
                 let [v, hz] = &self.scratch.smooth[k - 1];
-                steps.push(Step {
-                    kind: "vsmooth",
-                    pipe: &self.pipes.vsmooth,
-                    bg: v,
-                    groups: (by8(texels(w)), l.height),
-                });
-                steps.push(Step {
-                    kind: "hsmooth",
-                    pipe: &self.pipes.hsmooth,
-                    bg: hz,
-                    groups: (by8(texels(l.width) + 2 * HALO), l.height),
-                });
+                steps.push(Step(
+                    "vsmooth",
+                    &self.pipes.vsmooth,
+                    v,
+                    (by8(texels(w)), l.height),
+                ));
+                steps.push(Step(
+                    "hsmooth",
+                    &self.pipes.hsmooth,
+                    hz,
+                    (by8(texels(l.width) + 2 * HALO), l.height),
+                ));
             }
-            steps.push(Step {
-                kind: "polyexp",
-                pipe: &self.pipes.polyexp,
-                bg: &s.polyexp[k],
-                groups: (
+            steps.push(Step(
+                "polyexp",
+                &self.pipes.polyexp,
+                &s.polyexp[k],
+                (
                     by8(l.width.div_ceil(16)),
                     l.height.div_ceil(self.strip_rows),
                 ),
-            });
+            ));
         }
         steps
     }
@@ -915,7 +863,6 @@ impl FarnebackGpu {
     fn flow_steps(&self, from: usize, to: usize, initial: bool) -> Result<Vec<Step<'_>>> {
         let per_level = self.pair(from, to)?;
         let by8 = |n: u32| n.div_ceil(8);
-        let shape = self.flow_shape;
         let mut steps = Vec::new();
         for ((l, lf), s) in self
             .levels
@@ -930,26 +877,21 @@ impl FarnebackGpu {
                 (Some(bg), true) => bg,
                 _ => &lf.start,
             };
-            steps.push(Step {
-                kind: "start",
-                pipe: &self.pipes.start,
-                bg: start,
-                groups: (by8(n), l.height),
-            });
+            steps.push(Step("start", &self.pipes.start, start, (by8(n), l.height)));
             for i in 0..self.params.iterations {
-                steps.push(Step {
-                    kind: "vwindow",
-                    pipe: &self.pipes.vwin,
-                    bg: &s.vwin,
-                    groups: (by8(n + 2 * halo), l.height.div_ceil(shape.strip_rows)),
-                });
+                steps.push(Step(
+                    "vwindow",
+                    &self.pipes.vwin,
+                    &s.vwin,
+                    (by8(n + 2 * halo), l.height.div_ceil(self.strip_rows)),
+                ));
                 let last = i + 1 == self.params.iterations;
-                steps.push(Step {
-                    kind: "hwindow",
-                    pipe: &self.pipes.hwin,
-                    bg: if last { &lf.hlast } else { &lf.hmid },
-                    groups: (by8(n.div_ceil(shape.run)), l.height),
-                });
+                steps.push(Step(
+                    "hwindow",
+                    &self.pipes.hwin,
+                    if last { &lf.hlast } else { &lf.hmid },
+                    (by8(n.div_ceil(FLOW_RUN)), l.height),
+                ));
             }
         }
         Ok(steps)
@@ -959,11 +901,13 @@ impl FarnebackGpu {
     fn copy_steps(&self, from: usize, to: usize) -> Result<Vec<Step<'_>>> {
         let per_level = self.pair(from, to)?;
         let steps = (self.levels.iter().zip(per_level))
-            .map(|(l, lf)| Step {
-                kind: "copy",
-                pipe: &self.pipes.copy,
-                bg: &lf.copy,
-                groups: ((2 * l.width).div_ceil(8), l.height.div_ceil(8)),
+            .map(|(l, lf)| {
+                Step(
+                    "copy",
+                    &self.pipes.copy,
+                    &lf.copy,
+                    ((2 * l.width).div_ceil(8), l.height.div_ceil(8)),
+                )
             })
             .collect();
         Ok(steps)
@@ -980,8 +924,7 @@ impl FarnebackGpu {
     ) {
         let mut pass = compute_pass(enc, label);
         for (k, s) in steps.iter().enumerate() {
-            self.ctx
-                .dispatch_gated(&mut pass, (s.pipe, s.bg), s.groups, gate, k);
+            self.ctx.dispatch_gated(&mut pass, (s.1, s.2), s.3, gate, k);
         }
     }
 
@@ -989,13 +932,13 @@ impl FarnebackGpu {
     /// entries (one per dispatch).
     pub fn flow_shapes(&self) -> Vec<(u32, u32)> {
         let steps = self.flow_steps(0, 1, false).unwrap_or_default();
-        steps.iter().map(|s| s.groups).collect()
+        steps.iter().map(|s| s.3).collect()
     }
 
     /// The workgroups of [`FarnebackGpu::encode_copy`]'s dispatches (one per level).
     pub fn copy_shapes(&self) -> Vec<(u32, u32)> {
         let steps = self.copy_steps(0, 1).unwrap_or_default();
-        steps.iter().map(|s| s.groups).collect()
+        steps.iter().map(|s| s.3).collect()
     }
 
     /// Records the flow from slot `from` to slot `to` into [`FarnebackGpu::flow_buffer`], gated
@@ -1050,12 +993,12 @@ impl FarnebackGpu {
         }
         let mut out: Vec<(&'static str, usize, f64)> = Vec::new();
         for (s, ms) in steps.iter().zip(best) {
-            match out.iter_mut().find(|(k, _, _)| *k == s.kind) {
+            match out.iter_mut().find(|(k, _, _)| *k == s.0) {
                 Some(e) => {
                     e.1 += 1;
                     e.2 += ms;
                 }
-                None => out.push((s.kind, 1, ms)),
+                None => out.push((s.0, 1, ms)),
             }
         }
         Ok(out)
@@ -1066,11 +1009,17 @@ impl FarnebackGpu {
         if slot >= SLOTS {
             return Err(Error::param("slot", format!("must be below {SLOTS}")));
         }
-        let (w, h) = (self.levels[0].width, self.levels[0].height);
+        let size = (self.levels[0].width, self.levels[0].height);
+        let bytes = mat_bytes(gray, opencv::core::CV_8UC1, size, "Farneback (8-bit gray)")?;
         let buf = &self.slots[slot].gray;
-        let what = "Farneback (8-bit gray)";
-        self.ctx
-            .upload_mat(buf, gray, opencv::core::CV_8UC1, w, h, what, &mut self.pad)?;
+        if bytes.len() % 4 == 0 {
+            self.ctx.write(buf, 0, &bytes);
+        } else {
+            self.pad.clear();
+            self.pad.extend_from_slice(&bytes);
+            self.pad.resize(bytes.len().next_multiple_of(4), 0);
+            self.ctx.write(buf, 0, &self.pad);
+        }
         self.submit_pyramid(self.ctx.encoder("farneback pyramid"), slot);
         Ok(())
     }
@@ -1173,19 +1122,8 @@ impl FarnebackGpu {
             .ctx
             .read_back(&self.flow_out, u64::from(w) * u64::from(h) * 8)?;
         let floats: &[f32] = bytemuck::cast_slice(&bytes);
-        let mut m = Mat::new_rows_cols_with_default(
-            h as i32,
-            w as i32,
-            opencv::core::CV_32FC2,
-            opencv::core::Scalar::all(0.0),
-        )
-        .cv(|| "allocate flow".into())?;
-        m.data_typed_mut::<opencv::core::Vec2f>()
-            .cv(|| "flow data".into())?
-            .iter_mut()
-            .zip(floats.chunks_exact(2))
-            .for_each(|(d, s)| *d = opencv::core::Vec2f::from([s[0], s[1]]));
-        Ok(m)
+        let flat = Mat::new_rows_cols_with_data(h as i32, 2 * w as i32, floats);
+        (flat.and_then(|m| m.reshape(2, h as i32)?.try_clone())).cv(|| "flow data".into())
     }
 
     /// The flow from `prev` to `next` (8-bit gray), read back as CV_32FC2.
@@ -1214,11 +1152,4 @@ fn planar_flow(values: &[opencv::core::Vec2f], width: usize) -> Vec<u8> {
         out[o + 4] = v[1];
     }
     bytemuck::cast_slice(&out).to_vec()
-}
-
-/// Resizes `m` to `size` with INTER_AREA (for analysis resolution on the opencv side).
-/// The twin is `resize_area::opencv`; the gpu backend runs `resize_area` on the device for
-/// integer factors.
-pub fn resize_area(m: &Mat, size: Size) -> Result<Mat> {
-    super::resize_area::opencv(m, size)
 }

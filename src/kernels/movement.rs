@@ -81,11 +81,6 @@ impl RotationField {
         Ok(field)
     }
 
-    /// (f, cx, cy) in grid pixels.
-    pub fn intrinsics(&self) -> (f32, f32, f32) {
-        (self.f, self.cx, self.cy)
-    }
-
     /// Normalised coordinates of pixel (i, j).
     fn normalised(&self, i: u32, j: u32) -> (f32, f32) {
         ((i as f32 - self.cx) / self.f, (j as f32 - self.cy) / self.f)
@@ -111,19 +106,39 @@ impl RotationField {
     /// Host twin of the shader's `rotation_sums`: sum over pixels of e_k . (flow - rotation
     /// flow of `r`) / f, from an interleaved (dx, dy) flow in grid pixels.
     pub fn sums(&self, flow: &[f32], r: &Rotation) -> Result<[f64; 3]> {
-        self.check(flow)?;
         let mut b = [0.0f64; 3];
-        for j in 0..self.height {
-            for i in 0..self.width {
-                let p = 2 * (j * self.width + i) as usize;
-                let [rx, ry] = self.rotation_flow(i, j, r);
-                let (u, v) = ((flow[p] - rx) / self.f, (flow[p + 1] - ry) / self.f);
-                for (bk, ek) in b.iter_mut().zip(self.basis(i, j)) {
-                    *bk += f64::from(ek[0] * u + ek[1] * v);
-                }
+        for (i, j, [dx, dy]) in self.residuals(flow, r)? {
+            let (u, v) = (dx / self.f, dy / self.f);
+            for (bk, ek) in b.iter_mut().zip(self.basis(i, j)) {
+                *bk += f64::from(ek[0] * u + ek[1] * v);
             }
         }
         Ok(b)
+    }
+
+    /// Per pixel (i, j) in row order: flow - rotation flow of `r`, from an interleaved flow.
+    fn residuals<'a>(
+        &'a self,
+        flow: &'a [f32],
+        r: &'a Rotation,
+    ) -> Result<impl Iterator<Item = (u32, u32, [f32; 2])> + 'a> {
+        if flow.len() != 2 * (self.width * self.height) as usize {
+            return Err(Error::param(
+                "derotate",
+                format!(
+                    "flow has {} values, the grid {}x{} needs {}",
+                    flow.len(),
+                    self.width,
+                    self.height,
+                    2 * self.width * self.height
+                ),
+            ));
+        }
+        let pixels = (0..self.height).flat_map(move |j| (0..self.width).map(move |i| (i, j)));
+        Ok(pixels.zip(flow.chunks_exact(2)).map(|((i, j), d)| {
+            let [rx, ry] = self.rotation_flow(i, j, r);
+            (i, j, [d[0] - rx, d[1] - ry])
+        }))
     }
 
     /// The first-order rotation vector (radians) of the least-squares fit to sums `b`.
@@ -146,33 +161,10 @@ impl RotationField {
 
     /// |flow - rotation flow of `r`| per pixel, in f32 as the shader computes it.
     pub fn residual_magnitudes(&self, flow: &[f32], r: &Rotation) -> Result<Vec<f32>> {
-        self.check(flow)?;
-        let mut out = Vec::with_capacity(flow.len() / 2);
-        for j in 0..self.height {
-            for i in 0..self.width {
-                let p = 2 * (j * self.width + i) as usize;
-                let [rx, ry] = self.rotation_flow(i, j, r);
-                let (dx, dy) = (flow[p] - rx, flow[p + 1] - ry);
-                out.push((dx * dx + dy * dy).sqrt());
-            }
-        }
-        Ok(out)
-    }
-
-    fn check(&self, flow: &[f32]) -> Result<()> {
-        if flow.len() != 2 * (self.width * self.height) as usize {
-            return Err(Error::param(
-                "derotate",
-                format!(
-                    "flow has {} values, the grid {}x{} needs {}",
-                    flow.len(),
-                    self.width,
-                    self.height,
-                    2 * self.width * self.height
-                ),
-            ));
-        }
-        Ok(())
+        let residuals = self.residuals(flow, r)?;
+        Ok(residuals
+            .map(|(_, _, [dx, dy])| (dx * dx + dy * dy).sqrt())
+            .collect())
     }
 }
 
@@ -444,7 +436,7 @@ impl MovementGpu {
         let (f, cx, cy) = self
             .field
             .as_ref()
-            .map_or((1.0, 0.0, 0.0), |r| r.intrinsics());
+            .map_or((1.0, 0.0, 0.0), |r| (r.f, r.cx, r.cy));
         let inverse = self.field.as_ref().map_or([[0.0; 4]; 3], |r| {
             r.inverse
                 .map(|row| [row[0] as f32, row[1] as f32, row[2] as f32, 0.0])
@@ -473,9 +465,10 @@ impl MovementGpu {
         [self.groups, (1, 1)]
     }
 
-    /// Records the passes of `stat` (set by [`MovementGpu::prepare`]) over the bound flow into
-    /// `dest`, gated by `gate` when given; without `dest`, only the rotation fit.
-    fn encode_passes(
+    /// Records the statistic `stat` (set by [`MovementGpu::prepare`]) of the bound flow into
+    /// `dest`, gated by `gate` when given (entries as [`MovementGpu::shapes`] lists them);
+    /// without `dest`, only the rotation fit.
+    pub fn encode(
         &self,
         enc: &mut wgpu::CommandEncoder,
         stat: Statistic,
@@ -510,18 +503,6 @@ impl MovementGpu {
         run((&self.finish, &dest.0), false);
     }
 
-    /// Records the statistic `stat` (set by [`MovementGpu::prepare`]) of the bound flow into
-    /// `dest`, gated by `gate` when given (entries as [`MovementGpu::shapes`] lists them).
-    pub fn encode(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        stat: Statistic,
-        dest: &Destination,
-        gate: Option<Gate<'_>>,
-    ) {
-        self.encode_passes(enc, stat, Some(dest), gate);
-    }
-
     /// The least-squares rotation of the bound flow (None without derotation); waits for it.
     pub fn rotation(&self) -> Result<Option<Rotation>> {
         if self.field.is_none() {
@@ -529,7 +510,7 @@ impl MovementGpu {
         }
         self.prepare(Statistic::Median)?;
         let mut enc = self.ctx.encoder("movement rotation");
-        self.encode_passes(&mut enc, Statistic::Median, None, None);
+        self.encode(&mut enc, Statistic::Median, None, None);
         self.ctx.queue.submit([enc.finish()]);
         let bytes = self.ctx.read_back(&self.sel, SEL_BYTES)?;
         let rows: &[f32] = bytemuck::cast_slice(&bytes[48..96]);
@@ -551,21 +532,17 @@ impl MovementGpu {
             bytemuck::bytes_of(&FrameParams::default()),
         );
         let mut enc = self.ctx.encoder("movement");
-        self.encode(&mut enc, stat, &self.destination(&results, &frame, 0), None);
+        let dest = self.destination(&results, &frame, 0);
+        self.encode(&mut enc, stat, Some(&dest), None);
         self.ctx.queue.submit([enc.finish()]);
         let bytes = self.ctx.read_back(&results, 8)?;
-        statistic_value(&bytes)
+        let v = bytes
+            .get(..8)
+            .and_then(|b| <[u8; 8]>::try_from(b).ok())
+            .map(f64::from_le_bytes)
+            .ok_or_else(|| Error::Gpu("movement record too short".into()))?;
+        checked(v)
     }
-}
-
-/// The statistic in the first 8 bytes of a record field.
-pub fn statistic_value(bytes: &[u8]) -> Result<f64> {
-    let v = bytes
-        .get(..8)
-        .and_then(|b| <[u8; 8]>::try_from(b).ok())
-        .map(f64::from_le_bytes)
-        .ok_or_else(|| Error::Gpu("movement record too short".into()))?;
-    checked(v)
 }
 
 /// A statistic from the device: an error when the device marked it (NaN: the flow was not

@@ -147,9 +147,7 @@ impl ResizeAreaGpu {
         let mut enc = self.ctx.encoder("resize_area");
         self.encode(&mut compute_pass(&mut enc, "resize_area"), &bg);
         self.ctx.queue.submit([enc.finish()]);
-        let mut bytes = self.ctx.read_back(&dst, self.dst_bytes())?;
-        bytes.truncate(self.dst_bytes() as usize);
-        Ok(bytes)
+        self.ctx.read_back(&dst, self.dst_bytes())
     }
 }
 

@@ -207,10 +207,7 @@ impl SharpnessGpu {
         let Some(r) = &self.resize else {
             return Err(Error::param("resize", "no resize attached"));
         };
-        let n = r.gpu.dst_bytes();
-        let mut bytes = self.ctx.read_back(&r.small[0], n)?;
-        bytes.truncate(n as usize);
-        Ok(bytes)
+        self.ctx.read_back(&r.small[0], r.gpu.dst_bytes())
     }
 
     /// Frames per submission.
@@ -270,8 +267,7 @@ impl SharpnessGpu {
             let used = TOTALS_SLOT * chunk.len() as u64;
             self.readback
                 .copy(&self.ctx, &mut enc, &self.totals, used)?;
-            let index = self.ctx.queue.submit([enc.finish()]);
-            self.readback.submitted(index);
+            self.readback.submit(&self.ctx, enc);
             self.in_flight.push_back(chunk.len());
         }
         Ok(())
@@ -309,14 +305,11 @@ impl SharpnessGpu {
         let mut enc = self.ctx.encoder("gray");
         self.encode(&mut enc, 0);
         self.ctx.queue.submit([enc.finish()]);
-        let stride = gray_stride(self.width) as usize;
-        let bytes = self
-            .ctx
-            .read_back(&self.gray, (stride * self.height as usize * 4) as u64)?;
-        self.set_write_gray(self.resize.is_some());
         let (w, h) = (self.width as usize, self.height as usize);
-        Ok((0..h)
-            .flat_map(|y| bytes[y * stride * 4..y * stride * 4 + w].to_vec())
-            .collect())
+        let row = gray_stride(self.width) as usize * 4;
+        let bytes = self.ctx.read_back(&self.gray, (row * h) as u64)?;
+        self.set_write_gray(self.resize.is_some());
+        let rows = bytes.chunks_exact(row);
+        Ok(rows.flat_map(|r| &r[..w]).copied().collect())
     }
 }

@@ -113,21 +113,16 @@ impl StationaryGpu {
 
     /// Records the pass opening or closing the measurement from the reference.
     pub fn encode_plan(&self, enc: &mut wgpu::CommandEncoder) {
-        self.encode(enc, &self.plan);
+        let (p, bg) = &self.plan;
+        self.ctx
+            .dispatch(&mut compute_pass(enc, "stationary"), p, bg, (1, 1));
     }
 
     /// Records the decision (after the measurements it uses).
     pub fn encode_decide(&self, enc: &mut wgpu::CommandEncoder) {
-        self.encode(enc, &self.decide);
-    }
-
-    fn encode(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        (p, bg): &(Arc<wgpu::ComputePipeline>, wgpu::BindGroup),
-    ) {
-        let mut pass = compute_pass(enc, "stationary");
-        self.ctx.dispatch(&mut pass, p, bg, (1, 1));
+        let (p, bg) = &self.decide;
+        self.ctx
+            .dispatch(&mut compute_pass(enc, "stationary"), p, bg, (1, 1));
     }
 
     /// Sets the step's state: its reference frame (None: none yet) and the movement it
