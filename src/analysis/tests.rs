@@ -34,7 +34,6 @@ fn fake_scores(v: u8, metrics: usize) -> Vec<f64> {
 }
 
 struct FakeSource {
-    path: PathBuf,
     meta: Metadata,
     next: usize,
     damaged: Vec<usize>,
@@ -46,7 +45,6 @@ struct FakeSource {
 impl FakeSource {
     fn new(n: usize, damaged: &[usize], fail_at: Option<usize>) -> FakeSource {
         FakeSource {
-            path: PathBuf::from("fake"),
             meta: Metadata {
                 kind: SourceKind::Images,
                 frame_count: n,
@@ -88,10 +86,6 @@ fn value(i: usize, damaged: &[usize]) -> u8 {
 }
 
 impl FrameSource for FakeSource {
-    fn path(&self) -> &Path {
-        &self.path
-    }
-
     fn metadata(&self) -> &Metadata {
         &self.meta
     }

@@ -191,10 +191,6 @@ impl Drop for CodecKeyframeSource {
 }
 
 impl FrameSource for CodecKeyframeSource {
-    fn path(&self) -> &Path {
-        &self.path
-    }
-
     fn metadata(&self) -> &Metadata {
         &self.meta
     }

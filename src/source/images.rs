@@ -360,10 +360,6 @@ fn check_png(b: &[u8]) -> std::result::Result<(), String> {
 }
 
 impl FrameSource for ImageSource {
-    fn path(&self) -> &Path {
-        &self.path
-    }
-
     fn metadata(&self) -> &Metadata {
         &self.meta
     }

@@ -65,7 +65,6 @@ pub struct Frame {
 
 /// A stream of frames in index order.
 pub trait FrameSource: Send {
-    fn path(&self) -> &Path;
     /// Metadata known so far.
     fn metadata(&self) -> &Metadata;
     /// Decodes the next frame; `Ok(None)` at the end of the stream.

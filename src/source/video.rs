@@ -214,10 +214,6 @@ impl VideoSource {
 }
 
 impl FrameSource for VideoSource {
-    fn path(&self) -> &Path {
-        &self.path
-    }
-
     fn metadata(&self) -> &Metadata {
         &self.meta
     }
