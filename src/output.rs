@@ -236,6 +236,19 @@ pub fn read_text(path: &Path) -> Result<String> {
     fs::read_to_string(path).map_err(|e| Error::io(path, e))
 }
 
+/// Reads the JSON record `path` (a `what`: "project file"), errors naming the offending field
+/// with its line and column.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str) -> Result<T> {
+    let text = read_text(path)?;
+    let de = &mut serde_json::Deserializer::from_str(&text);
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let field = e.path().to_string();
+        let inner = e.into_inner();
+        let msg = format!("{inner} (line {}, column {})", inner.line(), inner.column());
+        Error::file(path, None, what, field, msg)
+    })
+}
+
 /// A name suffix unique to this process and call: `PID-N`, so a temporary is always a new file
 /// (never one planted or left under a predictable name).
 pub fn unique_suffix() -> String {

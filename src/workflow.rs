@@ -250,7 +250,7 @@ impl Workflow {
                 let desc = crate::model_desc::ModelDesc::load(&m.model)
                     .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
                 desc.class_ids(&m.classes)
-                    .map_err(|e| file.error(&format!("export[{i}].masks.classes"), param_msg(e)))?;
+                    .map_err(|e| file.error(&format!("export[{i}].masks.classes"), e.into_msg()))?;
             }
             exports.push((e.name.clone(), settings));
         }
@@ -262,14 +262,6 @@ impl Workflow {
             backend,
             exports,
         })
-    }
-}
-
-/// A parameter error's message without the parameter's name; any other error in full.
-fn param_msg(e: Error) -> String {
-    match e {
-        Error::Param { msg, .. } => msg,
-        other => other.to_string(),
     }
 }
 
@@ -562,7 +554,7 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
             .map(|(k, s)| {
                 sample_to_table(s).map_err(|e| Error::file(project, None, "project file", format!("history[{k}].params"), format!(
                         "cannot be written as a workflow step ({}; TOML integers go up to 2^63 - 1)",
-                        param_msg(e)
+                        e.into_msg()
                     )))
             })
             .collect::<Result<Vec<_>>>()?,

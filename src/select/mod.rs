@@ -144,20 +144,6 @@ impl SelectSettings {
         crate::steps::boundaries(&self.steps)
     }
 
-    /// The stationary step: threshold as given and reset delta.
-    fn stationary(&self) -> Option<(Option<Threshold>, usize)> {
-        self.steps.iter().find_map(|s| match s {
-            Step::Stationary {
-                threshold,
-                reset_delta,
-            } => Some((
-                *threshold,
-                reset_delta.unwrap_or(crate::steps::defaults::RESET_DELTA),
-            )),
-            _ => None,
-        })
-    }
-
     /// The spacing step's threshold as given.
     fn spacing(&self) -> Option<Threshold> {
         self.steps.iter().find_map(|s| match s {
@@ -413,7 +399,11 @@ impl Known {
         let uses_seconds = [boundaries.start, boundaries.end]
             .iter()
             .any(|b| matches!(b, Some(steps::Bound::Seconds(_))));
-        if s.stationary().is_none() || self.metadata.is_some() || !uses_seconds {
+        let stationary = s
+            .steps
+            .iter()
+            .any(|st| matches!(st, Step::Stationary { .. }));
+        if !stationary || self.metadata.is_some() || !uses_seconds {
             return Ok(());
         }
         let a = analysis::analyse(
@@ -534,11 +524,11 @@ struct AutoThresholds {
 
 impl AutoThresholds {
     fn find(s: &SelectSettings, open: &OpenOptions, known: &Known) -> Result<AutoThresholds> {
-        let wants_auto_stationary = matches!(s.stationary(), Some((Some(Threshold::Auto), _)));
         let mut t = AutoThresholds {
             resolved: Resolved::given(&s.steps, s.movement),
             proposals: Vec::new(),
         };
+        let wants_auto_stationary = t.resolved.stationary_auto;
         let auto_spacing = s.spacing() == Some(Threshold::Auto);
         if !(wants_auto_stationary || auto_spacing) {
             return Ok(t);

@@ -421,11 +421,7 @@ impl Step {
                 if let Some(p) = self.blur_params() {
                     if let Err(e) = p.validate() {
                         let key = if p.window == 0 { "window" } else { "ratio" };
-                        let msg = match e {
-                            Error::Plugin { msg, .. } => msg,
-                            other => other.to_string(),
-                        };
-                        return bad(key, msg);
+                        return bad(key, e.into_msg());
                     }
                 }
             }
