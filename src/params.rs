@@ -300,27 +300,18 @@ impl MovementRequest {
             ("flow-stride", Some(self.stride.to_string())),
             ("hfov", self.derotate.map(|r| r.hfov_deg.to_string())),
         ];
-        let farneback = [
-            (
-                "pyr-scale",
-                f.pyr_scale.to_string(),
-                d.pyr_scale.to_string(),
-            ),
-            ("levels", f.levels.to_string(), d.levels.to_string()),
-            ("winsize", f.winsize.to_string(), d.winsize.to_string()),
-            (
-                "iterations",
-                f.iterations.to_string(),
-                d.iterations.to_string(),
-            ),
-            ("poly-n", f.poly_n.to_string(), d.poly_n.to_string()),
-            (
-                "poly-sigma",
-                f.poly_sigma.to_string(),
-                d.poly_sigma.to_string(),
-            ),
-        ];
-        pairs.extend(farneback.map(|(k, v, default)| (k, (v != default).then_some(v))));
+        let unless_default = |k, v: fn(&FarnebackParams) -> String| {
+            let value = v(&f);
+            (k, (value != v(&d)).then_some(value))
+        };
+        pairs.extend([
+            unless_default("pyr-scale", |p| p.pyr_scale.to_string()),
+            unless_default("levels", |p| p.levels.to_string()),
+            unless_default("winsize", |p| p.winsize.to_string()),
+            unless_default("iterations", |p| p.iterations.to_string()),
+            unless_default("poly-n", |p| p.poly_n.to_string()),
+            unless_default("poly-sigma", |p| p.poly_sigma.to_string()),
+        ]);
         let mut out: Vec<String> = (pairs.into_iter())
             .filter_map(|(k, v)| Some([format!("--{k}"), v?]))
             .flatten()

@@ -313,18 +313,13 @@ fn check_steps(file: &TomlFile<RawFile>, steps: &[Step]) -> Result<()> {
 fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
     let d = FarnebackParams::default();
     let fb = an.farneback.clone().unwrap_or_default();
-    let statistic = match an.movement.as_deref() {
-        None | Some("median") => Statistic::Median,
-        Some("trimmed-mean") => Statistic::TrimmedMean {
-            trim: an.trim.unwrap_or(crate::steps::defaults::TRIM),
-        },
-        Some(other) => {
-            return Err(Error::param(
-                "movement",
-                format!("invalid value '{other}' [possible values: median, trimmed-mean]"),
-            ))
-        }
+    let trimmed = Statistic::TrimmedMean {
+        trim: an.trim.unwrap_or(crate::steps::defaults::TRIM),
     };
+    let statistics = [("median", Statistic::Median), ("trimmed-mean", trimmed)];
+    let statistic = choice(an.movement.as_deref(), &statistics)
+        .map_err(|m| Error::param("movement", m))?
+        .unwrap_or(Statistic::Median);
     let request = MovementRequest {
         farneback: FarnebackParams {
             pyr_scale: fb.pyr_scale.unwrap_or(d.pyr_scale),
@@ -348,6 +343,27 @@ fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
     };
     crate::steps::check_movement(&request)?;
     Ok(request)
+}
+
+/// `value` when it is one of `choices` (absent: None), else the message clap gives for a value
+/// not among them.
+fn choice<T: Copy>(
+    value: Option<&str>,
+    choices: &[(&str, T)],
+) -> std::result::Result<Option<T>, String> {
+    let Some(v) = value else {
+        return Ok(None);
+    };
+    match choices.iter().find(|c| c.0 == v) {
+        Some(&(_, t)) => Ok(Some(t)),
+        None => {
+            let names: Vec<&str> = choices.iter().map(|c| c.0).collect();
+            Err(format!(
+                "invalid value '{v}' [possible values: {}]",
+                names.join(", ")
+            ))
+        }
+    }
 }
 
 /// Relations between keys that clap would report without naming the key that caused them.
@@ -400,55 +416,31 @@ fn export_settings(
     e: &Export,
 ) -> Result<ExportSettings> {
     let at = |k: &str| format!("export[{i}].{k}");
-    if !valid_name(&e.name) {
-        return Err(file.error(
-            &at("name"),
-            format!(
-                "`{}` is not a plain folder name (letters, digits, - _ .)",
-                e.name
-            ),
-        ));
-    }
-    if w.export[..i].iter().any(|x| x.name == e.name) {
-        return Err(file.error(
-            &at("name"),
-            format!("`{}` is used by an earlier export", e.name),
-        ));
-    }
-    if RESERVED_NAMES.contains(&e.name.as_str()) || e.name.starts_with('.') {
-        return Err(file.error(
-            &at("name"),
-            format!(
-                "`{}` is reserved: `keyframer run` keeps its own files under these names in each input's folder ({}, or any name starting with `.`)",
-                e.name,
-                RESERVED_NAMES.join(", ")
-            ),
-        ));
-    }
-    let format = match e.format.as_deref() {
-        None => None,
-        Some("jpg") => Some(Format::Jpg),
-        Some("png") => Some(Format::Png),
-        Some(other) => {
-            return Err(file.error(
-                &at("format"),
-                format!("invalid value '{other}' [possible values: jpg, png]"),
-            ))
-        }
+    let name = &e.name;
+    let refusal = if !valid_name(name) {
+        Some("is not a plain folder name (letters, digits, - _ .)".to_string())
+    } else if w.export[..i].iter().any(|x| &x.name == name) {
+        Some("is used by an earlier export".to_string())
+    } else if RESERVED_NAMES.contains(&name.as_str()) || name.starts_with('.') {
+        Some(format!(
+            "is reserved: `keyframer run` keeps its own files under these names in each input's folder ({}, or any name starting with `.`)",
+            RESERVED_NAMES.join(", ")
+        ))
+    } else {
+        None
     };
+    if let Some(why) = refusal {
+        return Err(file.error(&at("name"), format!("`{name}` {why}")));
+    }
+    let formats = [("jpg", Format::Jpg), ("png", Format::Png)];
+    let format = choice(e.format.as_deref(), &formats).map_err(|m| file.error(&at("format"), m))?;
     let masks = match &e.masks {
         None => None,
         Some(m) => {
-            let backend = match m.backend.as_deref() {
-                None | Some("opencv") => SegRuntime::Opencv,
-                Some("ort") => SegRuntime::Ort,
-                Some(other) => {
-                    return Err(file.error(
-                        &at("masks.backend"),
-                        format!("invalid value '{other}' [possible values: opencv, ort]"),
-                    ))
-                }
-            };
+            let runtimes = [("opencv", SegRuntime::Opencv), ("ort", SegRuntime::Ort)];
+            let backend = choice(m.backend.as_deref(), &runtimes)
+                .map_err(|m| file.error(&at("masks.backend"), m))?
+                .unwrap_or_default();
             let dir = file.path().parent().unwrap_or(Path::new("."));
             Some(MaskSettings {
                 model: crate::fsutil::absolute(&dir.join(&m.model)),

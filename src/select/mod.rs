@@ -139,6 +139,14 @@ impl SelectSettings {
         }
     }
 
+    /// `path` relative to the project file's folder when possible, as the project records it.
+    fn relative(&self, path: &Path) -> PathBuf {
+        let project_dir = fsutil::absolute(&self.output)
+            .parent()
+            .map(Path::to_path_buf);
+        fsutil::relative_to(path, &project_dir.unwrap_or_default())
+    }
+
     /// The part of the input to sample.
     pub fn boundaries(&self) -> Boundaries {
         crate::steps::boundaries(&self.steps)
@@ -319,12 +327,8 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
 /// The project's reference to its input: kind, fingerprint and a path relative to the project.
 fn input_ref(s: &SelectSettings) -> Result<InputRef> {
     let (kind, fingerprint) = identify(&s.input)?;
-    let project_dir = fsutil::absolute(&s.output)
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_default();
     Ok(InputRef {
-        path: fsutil::relative_to(&s.input, &project_dir),
+        path: s.relative(&s.input),
         kind,
         fingerprint,
     })

@@ -147,38 +147,29 @@ fn positions<'a>(
     Ok(positions)
 }
 
+/// Each step's flags and the reader of its step from their values, in the chain's order.
+type FlagReader = fn(&FlagValues) -> Result<Option<Step>>;
+static STEPS: [(&[Flag], FlagReader); 9] = [
+    (boundaries::FLAGS, boundaries::from_flags),
+    (stationary::FLAGS, stationary::from_flags),
+    (spacing::FLAGS, spacing::from_flags),
+    (geo_distance::FLAGS, geo_distance::from_flags),
+    (footprint::FLAGS, footprint::from_flags),
+    (every_nth::FLAGS, every_nth::from_flags),
+    (fps::FLAGS, fps::from_flags),
+    (blur::FLAGS, blur::from_flags),
+    (manual::FLAGS, manual::from_flags),
+];
+
 /// The flags of every step, in the chain's order.
 pub fn flags() -> impl Iterator<Item = &'static Flag> {
-    [
-        boundaries::FLAGS,
-        stationary::FLAGS,
-        spacing::FLAGS,
-        geo_distance::FLAGS,
-        footprint::FLAGS,
-        every_nth::FLAGS,
-        fps::FLAGS,
-        blur::FLAGS,
-        manual::FLAGS,
-    ]
-    .into_iter()
-    .flatten()
+    STEPS.iter().flat_map(|s| s.0)
 }
 
 /// The steps the flags give, in keyframer's order, checked (errors name the flag's parameter).
 pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
-    let readers = [
-        boundaries::from_flags,
-        stationary::from_flags,
-        spacing::from_flags,
-        geo_distance::from_flags,
-        footprint::from_flags,
-        every_nth::from_flags,
-        fps::from_flags,
-        blur::from_flags,
-        manual::from_flags,
-    ];
     let mut steps = Vec::new();
-    for read in readers {
+    for (_, read) in &STEPS {
         if let Some(step) = read(v)? {
             step.validate().map_err(flag_error)?;
             steps.push(step);
@@ -238,7 +229,7 @@ impl Step {
 fn flag_error(e: StepError) -> Error {
     match flags().find(|f| f.sets == Some((e.plugin, e.key))) {
         Some(f) => Error::param(f.long, e.msg),
-        None => e.into_error(),
+        None => Error::plugin(e.plugin, e.msg),
     }
 }
 
@@ -296,13 +287,6 @@ pub struct StepError {
     pub key: &'static str,
     /// What is wrong, starting with the parameter's name as a user reads it.
     pub msg: String,
-}
-
-impl StepError {
-    /// As the library's error: the plugin and the message.
-    pub fn into_error(self) -> Error {
-        Error::plugin(self.plugin, self.msg)
-    }
 }
 
 impl Step {
