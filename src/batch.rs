@@ -120,13 +120,10 @@ pub fn folder_names(inputs: &[PathBuf]) -> Result<Vec<String>> {
     let names: Vec<String> = inputs.iter().map(|p| folder_name(p)).collect();
     for (i, n) in names.iter().enumerate() {
         if let Some(j) = names[..i].iter().position(|m| m == n) {
+            let (a, b) = (inputs[j].display(), inputs[i].display());
             return Err(Error::param(
                 "INPUT",
-                format!(
-                    "{} and {} are the same input",
-                    inputs[j].display(),
-                    inputs[i].display()
-                ),
+                format!("{a} and {b} are the same input"),
             ));
         }
     }

@@ -91,13 +91,11 @@ pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
         } else {
             continue;
         };
-        return Err(Error::output(
-            out,
-            format!(
-                "the output {how} {}; keyframer never writes into its inputs: choose another output",
-                input.display()
-            ),
-        ));
+        let msg = format!(
+            "the output {how} {}; keyframer never writes into its inputs: choose another output",
+            input.display()
+        );
+        return Err(Error::output(out, msg));
     }
     Ok(())
 }
@@ -129,12 +127,8 @@ pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
         }
         Some("file") => {}
         Some(kind) => {
-            return Err(Error::output(
-                path,
-                format!(
-                    "is a {kind}, not a regular file; keyframer replaces only regular files: choose another output"
-                ),
-            ))
+            let msg = format!("is a {kind}, not a regular file; keyframer replaces only regular files: choose another output");
+            return Err(Error::output(path, msg));
         }
     }
     if let (Some(dir), Some(name)) = (path.parent(), path.file_name()) {

@@ -193,13 +193,9 @@ impl Workflow {
         let file = tomlfile::parse::<RawFile>(path, "workflow", text)?;
         let raw = &file.value;
         if raw.version != VERSION {
-            return Err(file.error(
-                "version",
-                format!(
-                    "version {} is not supported (this build reads {VERSION})",
-                    raw.version
-                ),
-            ));
+            let v = raw.version;
+            let msg = format!("version {v} is not supported (this build reads {VERSION})");
+            return Err(file.error("version", msg));
         }
         let sample = raw
             .sample

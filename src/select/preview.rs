@@ -18,27 +18,19 @@ use std::sync::Arc;
 /// keyframes carry the video's timestamps).
 pub fn keyframe_bounds(b: &Boundaries, index: &CodecKeyframeIndex) -> Result<Boundaries> {
     let k = &index.keyframes;
+    let none = |msg: String| Err(Error::plugin("preview", msg));
     let start = match b.start {
-        Some(Bound::Frame(i)) => {
-            let pos = k.partition_point(|&f| f < i);
-            if pos == k.len() {
-                return Err(Error::plugin(
-                    "preview",
-                    format!("no codec keyframe at or after --start frame {i}"),
-                ));
+        Some(Bound::Frame(i)) => match k.partition_point(|&f| f < i) {
+            pos if pos == k.len() => {
+                return none(format!("no codec keyframe at or after --start frame {i}"))
             }
-            Some(Bound::Frame(pos))
-        }
+            pos => Some(Bound::Frame(pos)),
+        },
         other => other,
     };
     let end = match b.end {
         Some(Bound::Frame(i)) => match k.partition_point(|&f| f <= i) {
-            0 => {
-                return Err(Error::plugin(
-                    "preview",
-                    format!("no codec keyframe at or before --end frame {i}"),
-                ))
-            }
+            0 => return none(format!("no codec keyframe at or before --end frame {i}")),
             n => Some(Bound::Frame(n - 1)),
         },
         other => other,

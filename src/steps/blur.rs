@@ -121,13 +121,9 @@ pub fn blur(
 ) -> Result<Vec<usize>> {
     p.validate()?;
     if hi >= scores.len() || lo > hi {
-        return Err(Error::plugin(
-            "blur",
-            format!(
-                "range {lo}..={hi} does not fit {} scored frames",
-                scores.len()
-            ),
-        ));
+        let n = scores.len();
+        let msg = format!("range {lo}..={hi} does not fit {n} scored frames");
+        return Err(Error::plugin("blur", msg));
     }
     let window = |k: usize| k.saturating_sub(p.window).max(lo)..=k.saturating_add(p.window).min(hi);
     Ok(match p.mode {

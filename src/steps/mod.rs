@@ -130,13 +130,11 @@ fn positions<'a>(
         .filter(|&&k| positions.get(k).is_none_or(Option::is_none))
         .count();
     if without == keys.len() && !keys.is_empty() {
-        return Err(Error::plugin(
-            plugin,
-            format!(
-                "none of the {without} candidates has a position (they lie outside the \
-                 telemetry's time span; check --telemetry-offset)"
-            ),
-        ));
+        let msg = format!(
+            "none of the {without} candidates has a position (they lie outside the \
+             telemetry's time span; check --telemetry-offset)"
+        );
+        return Err(Error::plugin(plugin, msg));
     }
     if without > 0 {
         log::warn!(
@@ -421,24 +419,17 @@ impl Step {
 pub fn check_order(steps: &[Step]) -> std::result::Result<(), (usize, String)> {
     let mut last: Option<&Step> = None;
     for (i, s) in steps.iter().enumerate() {
+        let id = s.id();
         if steps[..i].iter().any(|p| p.rank() == s.rank()) {
-            return Err((
-                i,
-                format!(
-                    "`{}`: at most one step per sampler (and one of every-nth / fps)",
-                    s.id()
-                ),
-            ));
+            let msg = format!("`{id}`: at most one step per sampler (and one of every-nth / fps)");
+            return Err((i, msg));
         }
         if let Some(p) = last.filter(|p| p.rank() > s.rank()) {
-            return Err((
-                i,
-                format!(
-                    "`{}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual",
-                    s.id(),
-                    p.id()
-                ),
-            ));
+            let msg = format!(
+                "`{id}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual",
+                p.id()
+            );
+            return Err((i, msg));
         }
         last = Some(s);
     }
@@ -611,14 +602,14 @@ impl Applied {
                 count("reset_delta", *reset_delta)
             }
             Applied::Spacing { threshold_px, .. } => positive("threshold_px", Some(*threshold_px)),
-            Applied::GeoDistance { .. } | Applied::FootprintOverlap { .. } => {
-                match self.step().map(|s| s.validate()) {
-                    Some(Err(e)) => bad(e.key, e.msg),
-                    _ => Ok(()),
-                }
-            }
+            // The step's own check says the same for these (`fps`: "must be a positive number").
+            Applied::GeoDistance { .. }
+            | Applied::FootprintOverlap { .. }
+            | Applied::Fps { .. } => match self.step().map(|s| s.validate()) {
+                Some(Err(e)) => bad(e.key, e.msg),
+                _ => Ok(()),
+            },
             Applied::EveryNth { n } => count("n", Some(*n)),
-            Applied::Fps { fps } => positive("fps", Some(*fps)),
             Applied::Blur { ratio, window, .. } => {
                 positive("ratio", *ratio)?;
                 count("window", *window)
