@@ -121,10 +121,8 @@ pub fn folder_names(inputs: &[PathBuf]) -> Result<Vec<String>> {
     for (i, n) in names.iter().enumerate() {
         if let Some(j) = names[..i].iter().position(|m| m == n) {
             let (a, b) = (inputs[j].display(), inputs[i].display());
-            return Err(Error::param(
-                "INPUT",
-                format!("{a} and {b} are the same input"),
-            ));
+            let msg = format!("{a} and {b} are the same input");
+            return Err(Error::param("INPUT", msg));
         }
     }
     Ok(names)

@@ -768,10 +768,8 @@ impl SelectArgs {
             s.validate().map_err(|e| Error::param("--hfov", e.msg))?;
         }
         if !self.telemetry_offset.is_finite() {
-            return Err(Error::param(
-                "--telemetry-offset",
-                format!("must be a number of seconds, got {}", self.telemetry_offset),
-            ));
+            let msg = format!("must be a number of seconds, got {}", self.telemetry_offset);
+            return Err(Error::param("--telemetry-offset", msg));
         }
         Ok(SelectSettings {
             input: self.input.clone(),

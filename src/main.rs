@@ -209,15 +209,14 @@ fn review(a: &cli::ReviewArgs) -> Result<ExitCode> {
 }
 
 fn report(a: &cli::ReportArgs) -> Result<ExitCode> {
-    let camera = match &a.model {
-        Some(m) => Some(keyframer::report::CameraPath {
-            points: keyframer::eval::camera_centres(m, a.export.as_deref())?
-                .into_iter()
-                .map(|(frame, centre)| keyframer::report::PathPoint { frame, centre })
-                .collect(),
-        }),
-        None => None,
-    };
+    let centres = (a.model.as_ref())
+        .map(|m| keyframer::eval::camera_centres(m, a.export.as_deref()))
+        .transpose()?;
+    let camera = centres.map(|c| keyframer::report::CameraPath {
+        points: (c.into_iter())
+            .map(|(frame, centre)| keyframer::report::PathPoint { frame, centre })
+            .collect(),
+    });
     let r = keyframer::report::write_report(&a.project, &a.settings(), camera.as_ref())?;
     eprintln!(
         "report: {} keyframes, {} thumbnails -> {} (timeline {})",

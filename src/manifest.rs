@@ -131,10 +131,8 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     // OpenCV reads no image above 2^30 pixels or 2^20 a side (CV_IO_MAX_IMAGE_PIXELS): an
     // export nothing can read back would only exhaust memory.
     if w > 1 << 20 || h > 1 << 20 || u64::from(w) * u64::from(h) > 1 << 30 {
-        return Err(Error::param(
-            "resize",
-            format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)"),
-        ));
+        let msg = format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)");
+        return Err(Error::param("resize", msg));
     }
     Ok((w, h))
 }

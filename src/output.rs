@@ -298,10 +298,8 @@ pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &[&Path]) 
     clear_stale_temps_of(dir, None);
     if let Err(e) = probe_write(dir) {
         out.abandon();
-        return Err(Error::output(
-            dir,
-            format!("output folder is not writable: {e}"),
-        ));
+        let msg = format!("output folder is not writable: {e}");
+        return Err(Error::output(dir, msg));
     }
     Ok(out)
 }

@@ -422,10 +422,8 @@ fn per_frame(field: String, what: &str, len: usize, n: usize) -> Checked {
 /// An analysis size with both sides positive.
 fn analysis_size(field: String, width: u32, height: u32) -> Checked {
     if width == 0 || height == 0 {
-        return fail(
-            field,
-            format!("the analysis size {width}x{height} must be positive"),
-        );
+        let msg = format!("the analysis size {width}x{height} must be positive");
+        return fail(field, msg);
     }
     Ok(())
 }
@@ -441,10 +439,8 @@ fn positive(field: String, v: f64) -> Checked {
 /// A finite, non-negative number of seconds.
 fn seconds(field: String, s: f64) -> Checked {
     if !(s.is_finite() && s >= 0.0) {
-        return fail(
-            field,
-            format!("must be a non-negative number of seconds, got {s}"),
-        );
+        let msg = format!("must be a non-negative number of seconds, got {s}");
+        return fail(field, msg);
     }
     Ok(())
 }

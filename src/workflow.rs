@@ -221,23 +221,17 @@ impl Workflow {
         if let Some(t) = &an.telemetry {
             let dir = file.path().parent().unwrap_or(Path::new("."));
             if !dir.join(t).is_file() {
-                return Err(file.error(
-                    "analysis.telemetry",
-                    format!("{}: no such telemetry file", dir.join(t).display()),
-                ));
+                let msg = format!("{}: no such telemetry file", dir.join(t).display());
+                return Err(file.error("analysis.telemetry", msg));
             }
         }
         if let Some(o) = an.telemetry_offset.filter(|o| !o.is_finite()) {
-            return Err(file.error(
-                "analysis.telemetry_offset",
-                format!("must be a number of seconds, got {o}"),
-            ));
+            let msg = format!("must be a number of seconds, got {o}");
+            return Err(file.error("analysis.telemetry_offset", msg));
         }
         if let Some(f) = an.images_fps.filter(|f| !(f.is_finite() && *f > 0.0)) {
-            return Err(file.error(
-                "analysis.images_fps",
-                format!("must be a positive number, got {f}"),
-            ));
+            let msg = format!("must be a positive number, got {f}");
+            return Err(file.error("analysis.images_fps", msg));
         }
         let mut exports = Vec::new();
         for (i, e) in w.export.iter().enumerate() {

@@ -147,11 +147,6 @@ impl SelectSettings {
         fsutil::relative_to(path, &project_dir.unwrap_or_default())
     }
 
-    /// The part of the input to sample.
-    pub fn boundaries(&self) -> Boundaries {
-        crate::steps::boundaries(&self.steps)
-    }
-
     /// The spacing step's threshold as given.
     fn spacing(&self) -> Option<Threshold> {
         self.steps.iter().find_map(|s| match s {
@@ -262,7 +257,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let full = open.codec_keyframes.is_none();
     let input_ref = input_ref(s)?;
     check_outputs(s)?;
-    let boundaries = s.boundaries();
+    let boundaries = steps::boundaries(&s.steps);
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;
     let auto = AutoThresholds::find(s, open, &known)?;

@@ -47,7 +47,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     // Keyframes are already far apart: measure flow between every consecutive pair.
     let mut movement = s.movement;
     movement.stride = 1;
-    let bounds = keyframe_bounds(&s.boundaries(), &index)?;
+    let bounds = keyframe_bounds(&crate::steps::boundaries(&s.steps), &index)?;
     let mut steps: Vec<Step> = s
         .steps
         .iter()
@@ -84,7 +84,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     select::manual_step(&mut keys, &mut history, &s.steps, n_all)?;
     p.keyframes = keys;
     p.history = history;
-    p.boundaries = s.boundaries();
+    p.boundaries = crate::steps::boundaries(&s.steps);
     p.metadata.frame_count = n_all;
     p.metadata.frame_count_exact = true;
     // As a full decode measures it: first to last frame plus one frame interval (the analysis

@@ -99,10 +99,8 @@ impl BlurParams {
     /// Checks ranges.
     pub fn validate(&self) -> Result<()> {
         if !(self.ratio.is_finite() && self.ratio > 0.0) {
-            return Err(Error::plugin(
-                "blur",
-                format!("ratio must be a positive number, got {}", self.ratio),
-            ));
+            let msg = format!("ratio must be a positive number, got {}", self.ratio);
+            return Err(Error::plugin("blur", msg));
         }
         if self.window == 0 {
             return Err(Error::plugin("blur", "window must be at least 1 frame"));

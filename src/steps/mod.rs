@@ -69,10 +69,8 @@ pub fn check_movement(r: &MovementRequest) -> crate::error::Result<()> {
         return Err(Error::param("flow_stride", "must be at least 1"));
     }
     if r.analysis_width < 16 {
-        return Err(Error::param(
-            "analysis_width",
-            format!("must be at least 16 pixels, got {}", r.analysis_width),
-        ));
+        let msg = format!("must be at least 16 pixels, got {}", r.analysis_width);
+        return Err(Error::param("analysis_width", msg));
     }
     if let Some(d) = &r.derotate {
         d.validate()?;
@@ -387,10 +385,8 @@ impl Step {
             }
             Step::FootprintOverlap { percent, hfov } => {
                 if !(*percent > 0.0 && *percent < 100.0) {
-                    return bad(
-                        "percent",
-                        format!("must be between 0 and 100 (exclusive), got {percent}"),
-                    );
+                    let msg = format!("must be between 0 and 100 (exclusive), got {percent}");
+                    return bad("percent", msg);
                 }
                 if let Some(h) = hfov.filter(|h| !(*h > 1.0 && *h < 179.0)) {
                     return bad("hfov", format!("{h} must be between 1 and 179 degrees"));
