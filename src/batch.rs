@@ -265,9 +265,7 @@ fn finished_before(w: &Workflow, input: &Path, done_path: &Path, report: &mut In
     let Some(done) = read_done(done_path) else {
         return false;
     };
-    let same_input = select::identify(input)
-        .map(|(_, f)| f == done.fingerprint)
-        .unwrap_or(false);
+    let same_input = select::identify(input).is_ok_and(|(_, f)| f == done.fingerprint);
     if done.workflow_hash == format!("{:016x}", w.hash) && same_input {
         report.keyframes = done.report.keyframes;
         report.exported = done.report.exported.clone();

@@ -785,10 +785,8 @@ impl SelectArgs {
             checkpoint_every_s: match self.checkpoint_every {
                 x if x.is_finite() && x >= 0.0 => x,
                 x => {
-                    return Err(Error::param(
-                        "--checkpoint-every",
-                        format!("must be 0 or more seconds, got {x}"),
-                    ))
+                    let msg = format!("must be 0 or more seconds, got {x}");
+                    return Err(Error::param("--checkpoint-every", msg));
                 }
             },
             preview: self.preview,

@@ -96,10 +96,8 @@ impl ExportSettings {
                 Some(Resize::Size { width, height })
             }
             (None, Some(f)) if !(f.is_finite() && f > 0.0) => {
-                return Err(Error::param(
-                    "scale",
-                    format!("must be a positive number, got {f}"),
-                ))
+                let msg = format!("must be a positive number, got {f}");
+                return Err(Error::param("scale", msg));
             }
             (None, Some(f)) => Some(Resize::Scale(f)),
             (None, None) => None,
