@@ -120,14 +120,9 @@ pub fn folder_names(inputs: &[PathBuf]) -> Result<Vec<String>> {
     let names: Vec<String> = inputs.iter().map(|p| folder_name(p)).collect();
     for (i, n) in names.iter().enumerate() {
         if let Some(j) = names[..i].iter().position(|m| m == n) {
-            return Err(Error::param(
-                "INPUT",
-                format!(
-                    "{} and {} are the same input",
-                    inputs[j].display(),
-                    inputs[i].display()
-                ),
-            ));
+            let (a, b) = (inputs[j].display(), inputs[i].display());
+            let msg = format!("{a} and {b} are the same input");
+            return Err(Error::param("INPUT", msg));
         }
     }
     Ok(names)
@@ -270,9 +265,7 @@ fn finished_before(w: &Workflow, input: &Path, done_path: &Path, report: &mut In
     let Some(done) = read_done(done_path) else {
         return false;
     };
-    let same_input = select::identify(input)
-        .map(|(_, f)| f == done.fingerprint)
-        .unwrap_or(false);
+    let same_input = select::identify(input).is_ok_and(|(_, f)| f == done.fingerprint);
     if done.workflow_hash == format!("{:016x}", w.hash) && same_input {
         report.keyframes = done.report.keyframes;
         report.exported = done.report.exported.clone();

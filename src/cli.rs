@@ -768,10 +768,8 @@ impl SelectArgs {
             s.validate().map_err(|e| Error::param("--hfov", e.msg))?;
         }
         if !self.telemetry_offset.is_finite() {
-            return Err(Error::param(
-                "--telemetry-offset",
-                format!("must be a number of seconds, got {}", self.telemetry_offset),
-            ));
+            let msg = format!("must be a number of seconds, got {}", self.telemetry_offset);
+            return Err(Error::param("--telemetry-offset", msg));
         }
         Ok(SelectSettings {
             input: self.input.clone(),
@@ -787,10 +785,8 @@ impl SelectArgs {
             checkpoint_every_s: match self.checkpoint_every {
                 x if x.is_finite() && x >= 0.0 => x,
                 x => {
-                    return Err(Error::param(
-                        "--checkpoint-every",
-                        format!("must be 0 or more seconds, got {x}"),
-                    ))
+                    let msg = format!("must be 0 or more seconds, got {x}");
+                    return Err(Error::param("--checkpoint-every", msg));
                 }
             },
             preview: self.preview,

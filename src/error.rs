@@ -136,6 +136,14 @@ impl Error {
             msg: msg.into(),
         }
     }
+
+    /// A parameter's or plugin's message without its name; any other error in full.
+    pub fn into_msg(self) -> String {
+        match self {
+            Error::Param { msg, .. } | Error::Plugin { msg, .. } => msg,
+            other => other.to_string(),
+        }
+    }
 }
 
 /// OpenCV's message for `e`, preceded by what it means and what to do when it is one of the

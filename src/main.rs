@@ -8,22 +8,10 @@ use cli::{Cli, Command};
 use keyframer::{analysis, gpu, source};
 use std::process::ExitCode;
 
-/// How a command ended when it did not fail outright.
-enum Outcome {
-    Ok,
-    /// Some of the work could not be done; the rest was written.
-    Partial,
-}
-
-impl Outcome {
-    /// Ok when nothing went wrong, else Partial.
-    fn unless(partial: bool) -> Outcome {
-        if partial {
-            Outcome::Partial
-        } else {
-            Outcome::Ok
-        }
-    }
+/// How a command ended when it did not fail outright: 0, or 2 when some of the work could not be
+/// done (the rest was written).
+fn partial_if(partial: bool) -> ExitCode {
+    ExitCode::from(if partial { 2 } else { 0 })
 }
 
 fn main() -> ExitCode {
@@ -55,8 +43,7 @@ fn main() -> ExitCode {
     let outcome = run(cli);
     report_peak_memory();
     match outcome {
-        Ok(Outcome::Ok) => ExitCode::SUCCESS,
-        Ok(Outcome::Partial) => ExitCode::from(2),
+        Ok(code) => code,
         Err(e) => {
             // Library errors already carry their cause in the message; print it once. A
             // parameter the library names by its key is shown as the flag that set it.
@@ -110,7 +97,7 @@ fn keep_frame_buffers() {
     }
 }
 
-fn run(cli: Cli) -> Result<Outcome> {
+fn run(cli: Cli) -> Result<ExitCode> {
     let quiet = cli.quiet;
     match cli.command {
         Command::Info(a) => info(&a),
@@ -131,7 +118,7 @@ fn run(cli: Cli) -> Result<Outcome> {
     }
 }
 
-fn info(a: &cli::InfoArgs) -> Result<Outcome> {
+fn info(a: &cli::InfoArgs) -> Result<ExitCode> {
     let i = keyframer::info::gather(a.adapter.as_deref());
     print_json_or(a.json, &i, keyframer::info::render)
 }
@@ -141,16 +128,16 @@ fn print_json_or<T: serde::Serialize>(
     json: bool,
     value: &T,
     render: fn(&T) -> String,
-) -> Result<Outcome> {
+) -> Result<ExitCode> {
     if json {
         println!("{}", serde_json::to_string_pretty(value)?);
     } else {
         print!("{}", render(value));
     }
-    Ok(Outcome::Ok)
+    Ok(ExitCode::SUCCESS)
 }
 
-fn bench(a: &cli::BenchArgs) -> Result<Outcome> {
+fn bench(a: &cli::BenchArgs) -> Result<ExitCode> {
     use keyframer::bench;
     let ctx = || keyframer::gpu::GpuContext::new(a.adapter.as_deref()).map(std::sync::Arc::new);
     let text = match a.what {
@@ -168,10 +155,10 @@ fn bench(a: &cli::BenchArgs) -> Result<Outcome> {
         }
     };
     print!("{text}");
-    Ok(Outcome::Ok)
+    Ok(ExitCode::SUCCESS)
 }
 
-fn select(a: &cli::SelectArgs, quiet: bool) -> Result<Outcome> {
+fn select(a: &cli::SelectArgs, quiet: bool) -> Result<ExitCode> {
     let settings = a.settings(quiet)?;
     let r = keyframer::select::select(&settings)?;
     for line in &r.proposals {
@@ -192,10 +179,10 @@ fn select(a: &cli::SelectArgs, quiet: bool) -> Result<Outcome> {
     for e in &p.decode_problems {
         eprintln!("warning: {}: {e}", settings.input.display());
     }
-    Ok(Outcome::unless(!p.decode_problems.is_empty()))
+    Ok(partial_if(!p.decode_problems.is_empty()))
 }
 
-fn review(a: &cli::ReviewArgs) -> Result<Outcome> {
+fn review(a: &cli::ReviewArgs) -> Result<ExitCode> {
     use keyframer::review::{http::Served, Review, ReviewSettings};
     let settings = ReviewSettings {
         project: a.project.clone(),
@@ -218,19 +205,18 @@ fn review(a: &cli::ReviewArgs) -> Result<Outcome> {
     }
     served.run();
     eprintln!("review stopped");
-    Ok(Outcome::Ok)
+    Ok(ExitCode::SUCCESS)
 }
 
-fn report(a: &cli::ReportArgs) -> Result<Outcome> {
-    let camera = match &a.model {
-        Some(m) => Some(keyframer::report::CameraPath {
-            points: keyframer::eval::camera_centres(m, a.export.as_deref())?
-                .into_iter()
-                .map(|(frame, centre)| keyframer::report::PathPoint { frame, centre })
-                .collect(),
-        }),
-        None => None,
-    };
+fn report(a: &cli::ReportArgs) -> Result<ExitCode> {
+    let centres = (a.model.as_ref())
+        .map(|m| keyframer::eval::camera_centres(m, a.export.as_deref()))
+        .transpose()?;
+    let camera = centres.map(|c| keyframer::report::CameraPath {
+        points: (c.into_iter())
+            .map(|(frame, centre)| keyframer::report::PathPoint { frame, centre })
+            .collect(),
+    });
     let r = keyframer::report::write_report(&a.project, &a.settings(), camera.as_ref())?;
     eprintln!(
         "report: {} keyframes, {} thumbnails -> {} (timeline {})",
@@ -239,10 +225,10 @@ fn report(a: &cli::ReportArgs) -> Result<Outcome> {
         r.html.display(),
         r.timeline.display()
     );
-    Ok(Outcome::Ok)
+    Ok(ExitCode::SUCCESS)
 }
 
-fn run_workflow(a: &cli::RunArgs, quiet: bool) -> Result<Outcome> {
+fn run_workflow(a: &cli::RunArgs, quiet: bool) -> Result<ExitCode> {
     let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
     let settings = keyframer::batch::RunSettings {
         inputs: a.all_inputs()?,
@@ -258,18 +244,18 @@ fn run_workflow(a: &cli::RunArgs, quiet: bool) -> Result<Outcome> {
         println!("{}", serde_json::to_string_pretty(&reports)?);
     }
     use keyframer::batch::Status;
-    Ok(Outcome::unless(reports.iter().any(|r| {
+    Ok(partial_if(reports.iter().any(|r| {
         !matches!(r.status, Status::Done | Status::Skipped)
     })))
 }
 
-fn workflow_save(a: &cli::WorkflowSaveArgs) -> Result<Outcome> {
+fn workflow_save(a: &cli::WorkflowSaveArgs) -> Result<ExitCode> {
     let to = keyframer::workflow::save(&a.project, &a.export, &a.output, a.force)?;
     eprintln!("workflow -> {}", to.display());
-    Ok(Outcome::Ok)
+    Ok(ExitCode::SUCCESS)
 }
 
-fn workflow_check(a: &cli::WorkflowCheckArgs) -> Result<Outcome> {
+fn workflow_check(a: &cli::WorkflowCheckArgs) -> Result<ExitCode> {
     let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
     eprintln!(
         "{}: ok ({} sampler steps, {} exports)",
@@ -277,10 +263,10 @@ fn workflow_check(a: &cli::WorkflowCheckArgs) -> Result<Outcome> {
         wf.file.sample.len(),
         wf.exports.len()
     );
-    Ok(Outcome::Ok)
+    Ok(ExitCode::SUCCESS)
 }
 
-fn export(a: &cli::ExportArgs, quiet: bool) -> Result<Outcome> {
+fn export(a: &cli::ExportArgs, quiet: bool) -> Result<ExitCode> {
     let settings = a.settings()?;
     let m = keyframer::export::export(&a.project, &a.out, &settings, a.force, quiet)?;
     eprintln!(
@@ -301,20 +287,20 @@ fn export(a: &cli::ExportArgs, quiet: bool) -> Result<Outcome> {
     for f in &m.missing {
         eprintln!("warning: frame {} not exported: {}", f.index, f.reason);
     }
-    Ok(Outcome::unless(!m.missing.is_empty()))
+    Ok(partial_if(!m.missing.is_empty()))
 }
 
-fn colmap(a: &cli::ColmapArgs, quiet: bool) -> Result<Outcome> {
+fn colmap(a: &cli::ColmapArgs, quiet: bool) -> Result<ExitCode> {
     let rec = keyframer::colmap::run(&a.settings(), quiet)?;
     print_json_or(a.json, &rec, keyframer::colmap::render)
 }
 
-fn eval(a: &cli::EvalArgs) -> Result<Outcome> {
+fn eval(a: &cli::EvalArgs) -> Result<ExitCode> {
     let r = keyframer::eval::evaluate(&a.settings())?;
     print_json_or(a.json, &r, keyframer::eval::render)
 }
 
-fn segment(a: &cli::SegmentArgs) -> Result<Outcome> {
+fn segment(a: &cli::SegmentArgs) -> Result<ExitCode> {
     let settings = a.settings();
     let r = keyframer::segment::segment_file(
         &settings,
@@ -331,10 +317,10 @@ fn segment(a: &cli::SegmentArgs) -> Result<Outcome> {
         settings.backend,
         a.output.display()
     );
-    Ok(Outcome::Ok)
+    Ok(ExitCode::SUCCESS)
 }
 
-fn probe(a: &cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
+fn probe(a: &cli::ProbeArgs, quiet: bool) -> Result<ExitCode> {
     let options = source::OpenOptions {
         images_fps: a.images_fps,
         ..Default::default()
@@ -378,10 +364,10 @@ fn probe(a: &cli::ProbeArgs, quiet: bool) -> Result<Outcome> {
             println!("problem:     {p}");
         }
     }
-    Ok(Outcome::unless(!problems.is_empty()))
+    Ok(partial_if(!problems.is_empty()))
 }
 
-fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
+fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<ExitCode> {
     let (backend, ctx) =
         gpu::resolve_backend(a.analysis.backend.into(), a.analysis.adapter.as_deref());
     let request = analysis::Request {
@@ -417,10 +403,10 @@ fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<Outcome> {
             }
         }
     }
-    Ok(Outcome::unless(!r.problems.is_empty()))
+    Ok(partial_if(!r.problems.is_empty()))
 }
 
-fn flow(a: &cli::FlowArgs) -> Result<Outcome> {
+fn flow(a: &cli::FlowArgs) -> Result<ExitCode> {
     let params = a.farneback.params();
     params.validate()?;
     let mut inputs: Vec<&std::path::Path> = vec![&a.a, &a.b];
@@ -441,5 +427,5 @@ fn flow(a: &cli::FlowArgs) -> Result<Outcome> {
         a.output.display(),
         r.median_px
     );
-    Ok(Outcome::Ok)
+    Ok(ExitCode::SUCCESS)
 }

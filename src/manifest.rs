@@ -96,10 +96,8 @@ impl ExportSettings {
                 Some(Resize::Size { width, height })
             }
             (None, Some(f)) if !(f.is_finite() && f > 0.0) => {
-                return Err(Error::param(
-                    "scale",
-                    format!("must be a positive number, got {f}"),
-                ))
+                let msg = format!("must be a positive number, got {f}");
+                return Err(Error::param("scale", msg));
             }
             (None, Some(f)) => Some(Resize::Scale(f)),
             (None, None) => None,
@@ -131,10 +129,8 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     // OpenCV reads no image above 2^30 pixels or 2^20 a side (CV_IO_MAX_IMAGE_PIXELS): an
     // export nothing can read back would only exhaust memory.
     if w > 1 << 20 || h > 1 << 20 || u64::from(w) * u64::from(h) > 1 << 30 {
-        return Err(Error::param(
-            "resize",
-            format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)"),
-        ));
+        let msg = format!("`{s}` is larger than images can be (at most 2^30 pixels, 2^20 a side)");
+        return Err(Error::param("resize", msg));
     }
     Ok((w, h))
 }
@@ -252,20 +248,11 @@ pub fn read_manifest(path: &Path) -> Option<Manifest> {
 impl Manifest {
     /// Reads and checks a manifest: the current layout, every name a plain file name.
     pub fn load(path: &Path) -> Result<Manifest> {
-        let text = crate::output::read_text(path)?;
-        let bad = |field: String, msg: &str| Error::file(path, None, "export manifest", field, msg);
-        let de = &mut serde_json::Deserializer::from_str(&text);
-        let m: Manifest = serde_path_to_error::deserialize(de).map_err(|e| {
-            let field = e.path().to_string();
-            let inner = e.into_inner();
-            bad(
-                field,
-                &format!("{inner} (line {}, column {})", inner.line(), inner.column()),
-            )
-        })?;
+        let m: Manifest = crate::output::read_json(path, "export manifest")?;
+        let bad = |field: &str, msg: &str| Error::file(path, None, "export manifest", field, msg);
         if m.layout != LAYOUT {
             return Err(bad(
-                "layout".into(),
+                "layout",
                 "made by an older keyframer (images beside manifest.json, no images/ folder); export again into a new folder",
             ));
         }
@@ -281,7 +268,7 @@ impl Manifest {
         let mut names: Vec<&str> = m.frames.iter().map(|f| f.file.as_str()).collect();
         names.sort_unstable();
         if names.windows(2).any(|w| w[0] == w[1]) {
-            return Err(bad("frames".into(), "lists one file twice"));
+            return Err(bad("frames", "lists one file twice"));
         }
         Ok(m)
     }

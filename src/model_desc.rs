@@ -220,32 +220,25 @@ impl ModelDesc {
         } else {
             names
         };
+        let (path, classes) = (self.path.display(), self.classes.join(", "));
+        let bad = |msg: String| Error::param("masks.classes", msg);
         if names.is_empty() {
-            return Err(Error::param(
-                "masks.classes",
-                format!(
-                    "name the classes to hide ({} has no `hide` list); classes: {}",
-                    self.path.display(),
-                    self.classes.join(", ")
-                ),
-            ));
+            let msg =
+                format!("name the classes to hide ({path} has no `hide` list); classes: {classes}");
+            return Err(bad(msg));
         }
         names
             .iter()
             .map(|n| {
-                self.classes
+                let i = self
+                    .classes
                     .iter()
-                    .position(|c| c.eq_ignore_ascii_case(n.trim()))
-                    .ok_or_else(|| {
-                        Error::param(
-                            "masks.classes",
-                            format!(
-                                "`{n}` is not a class of {} (classes: {})",
-                                self.path.display(),
-                                self.classes.join(", ")
-                            ),
-                        )
-                    })
+                    .position(|c| c.eq_ignore_ascii_case(n.trim()));
+                i.ok_or_else(|| {
+                    bad(format!(
+                        "`{n}` is not a class of {path} (classes: {classes})"
+                    ))
+                })
             })
             .collect()
     }

@@ -91,13 +91,11 @@ pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
         } else {
             continue;
         };
-        return Err(Error::output(
-            out,
-            format!(
-                "the output {how} {}; keyframer never writes into its inputs: choose another output",
-                input.display()
-            ),
-        ));
+        let msg = format!(
+            "the output {how} {}; keyframer never writes into its inputs: choose another output",
+            input.display()
+        );
+        return Err(Error::output(out, msg));
     }
     Ok(())
 }
@@ -129,12 +127,8 @@ pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
         }
         Some("file") => {}
         Some(kind) => {
-            return Err(Error::output(
-                path,
-                format!(
-                    "is a {kind}, not a regular file; keyframer replaces only regular files: choose another output"
-                ),
-            ))
+            let msg = format!("is a {kind}, not a regular file; keyframer replaces only regular files: choose another output");
+            return Err(Error::output(path, msg));
         }
     }
     if let (Some(dir), Some(name)) = (path.parent(), path.file_name()) {
@@ -236,6 +230,19 @@ pub fn read_text(path: &Path) -> Result<String> {
     fs::read_to_string(path).map_err(|e| Error::io(path, e))
 }
 
+/// Reads the JSON record `path` (a `what`: "project file"), errors naming the offending field
+/// with its line and column.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str) -> Result<T> {
+    let text = read_text(path)?;
+    let de = &mut serde_json::Deserializer::from_str(&text);
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let field = e.path().to_string();
+        let inner = e.into_inner();
+        let msg = format!("{inner} (line {}, column {})", inner.line(), inner.column());
+        Error::file(path, None, what, field, msg)
+    })
+}
+
 /// A name suffix unique to this process and call: `PID-N`, so a temporary is always a new file
 /// (never one planted or left under a predictable name).
 pub fn unique_suffix() -> String {
@@ -291,10 +298,8 @@ pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &[&Path]) 
     clear_stale_temps_of(dir, None);
     if let Err(e) = probe_write(dir) {
         out.abandon();
-        return Err(Error::output(
-            dir,
-            format!("output folder is not writable: {e}"),
-        ));
+        let msg = format!("output folder is not writable: {e}");
+        return Err(Error::output(dir, msg));
     }
     Ok(out)
 }

@@ -156,16 +156,12 @@ impl FarnebackParams {
     pub fn validate(&self) -> Result<()> {
         let bad = |name: &str, msg: String| Err(Error::param(name, msg));
         if !(self.pyr_scale > 0.0 && self.pyr_scale < 1.0) {
-            return bad(
-                "pyr_scale",
-                format!("must be in (0, 1), got {}", self.pyr_scale),
-            );
+            let msg = format!("must be in (0, 1), got {}", self.pyr_scale);
+            return bad("pyr_scale", msg);
         }
         if self.levels > Self::MAX_LEVELS {
-            return bad(
-                "levels",
-                format!("must be at most {}, got {}", Self::MAX_LEVELS, self.levels),
-            );
+            let msg = format!("must be at most {}, got {}", Self::MAX_LEVELS, self.levels);
+            return bad("levels", msg);
         }
         let up_to = |name: &str, v: u32, max: u32| {
             if (1..=max).contains(&v) {
@@ -180,10 +176,8 @@ impl FarnebackParams {
             return bad("poly_n", format!("must be 5 or 7, got {}", self.poly_n));
         }
         if !(self.poly_sigma.is_finite() && self.poly_sigma > 0.0) {
-            return bad(
-                "poly_sigma",
-                format!("must be a positive number, got {}", self.poly_sigma),
-            );
+            let msg = format!("must be a positive number, got {}", self.poly_sigma);
+            return bad("poly_sigma", msg);
         }
         Ok(())
     }
@@ -216,10 +210,8 @@ impl Statistic {
     pub fn validate(&self) -> Result<()> {
         if let Statistic::TrimmedMean { trim } = self {
             if !(0.0..0.5).contains(trim) {
-                return Err(Error::param(
-                    "trim",
-                    format!("must be in [0, 0.5), got {trim}"),
-                ));
+                let msg = format!("must be in [0, 0.5), got {trim}");
+                return Err(Error::param("trim", msg));
             }
         }
         Ok(())
@@ -254,10 +246,8 @@ impl Derotate {
     /// Checks the field of view.
     pub fn validate(&self) -> Result<()> {
         if !(self.hfov_deg > 1.0 && self.hfov_deg < 179.0) {
-            return Err(Error::param(
-                "hfov",
-                format!("{} must be between 1 and 179 degrees", self.hfov_deg),
-            ));
+            let msg = format!("{} must be between 1 and 179 degrees", self.hfov_deg);
+            return Err(Error::param("hfov", msg));
         }
         Ok(())
     }
@@ -300,27 +290,18 @@ impl MovementRequest {
             ("flow-stride", Some(self.stride.to_string())),
             ("hfov", self.derotate.map(|r| r.hfov_deg.to_string())),
         ];
-        let farneback = [
-            (
-                "pyr-scale",
-                f.pyr_scale.to_string(),
-                d.pyr_scale.to_string(),
-            ),
-            ("levels", f.levels.to_string(), d.levels.to_string()),
-            ("winsize", f.winsize.to_string(), d.winsize.to_string()),
-            (
-                "iterations",
-                f.iterations.to_string(),
-                d.iterations.to_string(),
-            ),
-            ("poly-n", f.poly_n.to_string(), d.poly_n.to_string()),
-            (
-                "poly-sigma",
-                f.poly_sigma.to_string(),
-                d.poly_sigma.to_string(),
-            ),
-        ];
-        pairs.extend(farneback.map(|(k, v, default)| (k, (v != default).then_some(v))));
+        let unless_default = |k, v: fn(&FarnebackParams) -> String| {
+            let value = v(&f);
+            (k, (value != v(&d)).then_some(value))
+        };
+        pairs.extend([
+            unless_default("pyr-scale", |p| p.pyr_scale.to_string()),
+            unless_default("levels", |p| p.levels.to_string()),
+            unless_default("winsize", |p| p.winsize.to_string()),
+            unless_default("iterations", |p| p.iterations.to_string()),
+            unless_default("poly-n", |p| p.poly_n.to_string()),
+            unless_default("poly-sigma", |p| p.poly_sigma.to_string()),
+        ]);
         let mut out: Vec<String> = (pairs.into_iter())
             .filter_map(|(k, v)| Some([format!("--{k}"), v?]))
             .flatten()

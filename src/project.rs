@@ -194,18 +194,9 @@ impl Project {
 
     /// Reads and validates a project file.
     pub fn load(path: &Path) -> Result<Project> {
-        let text = crate::output::read_text(path)?;
-        let bad = |field: String, msg: String| Error::file(path, None, "project file", field, msg);
-        let de = &mut serde_json::Deserializer::from_str(&text);
-        let project: Project = serde_path_to_error::deserialize(de).map_err(|e| {
-            let field = e.path().to_string();
-            let inner = e.into_inner();
-            bad(
-                field,
-                format!("{inner} (line {}, column {})", inner.line(), inner.column()),
-            )
-        })?;
-        project.validate().map_err(|(field, msg)| bad(field, msg))?;
+        let project: Project = crate::output::read_json(path, "project file")?;
+        let bad = |(field, msg)| Error::file(path, None, "project file", field, msg);
+        project.validate().map_err(bad)?;
         Ok(project)
     }
 
@@ -215,15 +206,11 @@ impl Project {
     /// derotation, stationary parameters) in the ranges the flags accept; and the history's
     /// plugins, backends and parameters, so that everything that reads a loaded project (export,
     /// report, `workflow save`) can trust it. The error is (field path, message).
-    pub fn validate(&self) -> std::result::Result<(), (String, String)> {
+    pub fn validate(&self) -> Checked {
         if !READS.contains(&self.schema_version) {
-            return Err((
-                "schema_version".into(),
-                format!(
-                    "version {} is not supported by this build (reads {READS:?})",
-                    self.schema_version
-                ),
-            ));
+            let v = self.schema_version;
+            let msg = format!("version {v} is not supported by this build (reads {READS:?})");
+            return fail("schema_version", msg);
         }
         let n = self.metadata.frame_count;
         self.validate_metadata()?;
@@ -233,170 +220,114 @@ impl Project {
         self.validate_movement(n)?;
         self.validate_stationary(n)?;
         self.validate_telemetry(n)?;
-        self.validate_history(n)
+        for (i, step) in self.history.iter().enumerate() {
+            validate_step(step, n).map_err(under(format!("history[{i}]")))?;
+        }
+        Ok(())
     }
 
     /// Keyframes, damaged frames and boundaries: within the input, sorted and distinct.
-    fn validate_selection(&self, n: usize) -> std::result::Result<(), (String, String)> {
-        for (i, w) in self.keyframes.windows(2).enumerate() {
-            if w[0] >= w[1] {
-                return Err((
-                    format!("keyframes[{}]", i + 1),
-                    format!(
-                        "{} follows {}: keyframes must be sorted and distinct",
-                        w[1], w[0]
-                    ),
-                ));
-            }
+    fn validate_selection(&self, n: usize) -> Checked {
+        if let Some(i) = self.keyframes.windows(2).position(|w| w[0] >= w[1]) {
+            let (a, b) = (self.keyframes[i], self.keyframes[i + 1]);
+            let msg = format!("{b} follows {a}: keyframes must be sorted and distinct");
+            return fail(format!("keyframes[{}]", i + 1), msg);
         }
         if let Some((i, k)) = self.keyframes.iter().enumerate().find(|(_, &k)| k >= n) {
-            return Err((
-                format!("keyframes[{i}]"),
-                format!("frame {k} is beyond the input's {n} frames"),
-            ));
+            let msg = format!("frame {k} is beyond the input's {n} frames");
+            return fail(format!("keyframes[{i}]"), msg);
         }
         check_frames(&self.damaged_frames, n).map_err(|msg| ("damaged_frames".into(), msg))?;
-        for (name, b) in [
+        let ends = [
             ("start", self.boundaries.start),
             ("end", self.boundaries.end),
-        ] {
+        ];
+        for (name, b) in ends {
             if let Some(crate::steps::Bound::Seconds(s)) = b {
-                if !(s.is_finite() && s >= 0.0) {
-                    return Err((
-                        format!("boundaries.{name}.seconds"),
-                        format!("must be a non-negative number of seconds, got {s}"),
-                    ));
-                }
+                seconds(format!("boundaries.{name}.seconds"), s)?;
             }
         }
         Ok(())
     }
 
     /// One finite, strictly increasing timestamp per frame.
-    fn validate_timestamps(&self, n: usize) -> std::result::Result<(), (String, String)> {
-        if let Some(ts) = &self.cache.timestamps_s {
-            if ts.len() != n {
-                return Err((
-                    "cache.timestamps_s".into(),
-                    format!("{} timestamps for {n} frames", ts.len()),
-                ));
-            }
-            if let Some(i) = ts.iter().position(|t| !t.is_finite()) {
-                return Err((
-                    format!("cache.timestamps_s[{i}]"),
-                    format!("must be a finite number of seconds, got {}", ts[i]),
-                ));
-            }
-            if let Some(i) = ts.windows(2).position(|w| w[1] <= w[0]) {
-                return Err((
-                    format!("cache.timestamps_s[{}]", i + 1),
-                    format!(
-                        "{} follows {}: timestamps must increase strictly",
-                        ts[i + 1],
-                        ts[i]
-                    ),
-                ));
-            }
+    fn validate_timestamps(&self, n: usize) -> Checked {
+        let Some(ts) = &self.cache.timestamps_s else {
+            return Ok(());
+        };
+        per_frame("cache.timestamps_s".into(), "timestamps", ts.len(), n)?;
+        if let Some(i) = ts.iter().position(|t| !t.is_finite()) {
+            let msg = format!("must be a finite number of seconds, got {}", ts[i]);
+            return fail(format!("cache.timestamps_s[{i}]"), msg);
+        }
+        if let Some(i) = ts.windows(2).position(|w| w[1] <= w[0]) {
+            let msg = format!(
+                "{} follows {}: timestamps must increase strictly",
+                ts[i + 1],
+                ts[i]
+            );
+            return fail(format!("cache.timestamps_s[{}]", i + 1), msg);
         }
         Ok(())
     }
 
     /// Sharpness series: a positive analysis size, one finite non-negative score per frame.
-    fn validate_sharpness(&self, n: usize) -> std::result::Result<(), (String, String)> {
+    fn validate_sharpness(&self, n: usize) -> Checked {
         for (i, series) in self.cache.sharpness.iter().enumerate() {
             let at = |k: &str| format!("cache.sharpness[{i}].{k}");
-            if series.width == 0 || series.height == 0 {
-                return Err((
-                    at("width"),
-                    format!(
-                        "the analysis size {}x{} must be positive",
-                        series.width, series.height
-                    ),
-                ));
-            }
-            if series.scores.len() != n {
-                return Err((
-                    at("scores"),
-                    format!("{} scores for {n} frames", series.scores.len()),
-                ));
-            }
+            analysis_size(at("width"), series.width, series.height)?;
+            per_frame(at("scores"), "scores", series.scores.len(), n)?;
             if let Some(j) = series
                 .scores
                 .iter()
                 .position(|v| !v.is_finite() || *v < 0.0)
             {
-                return Err((
-                    format!("cache.sharpness[{i}].scores[{j}]"),
-                    "scores must be finite and non-negative".into(),
-                ));
+                return fail(
+                    at(&format!("scores[{j}]")),
+                    "scores must be finite and non-negative",
+                );
             }
         }
         Ok(())
     }
 
     /// Movement series: a valid request, positive sizes and scale, one value per frame.
-    fn validate_movement(&self, n: usize) -> std::result::Result<(), (String, String)> {
+    fn validate_movement(&self, n: usize) -> Checked {
         for (i, m) in self.cache.movement.iter().enumerate() {
             let at = |k: &str| format!("cache.movement[{i}].{k}");
-            validate_request(&m.request).map_err(|(k, msg)| (at(&format!("request.{k}")), msg))?;
+            validate_request(&m.request).map_err(under(at("request")))?;
             let s = &m.series;
-            if s.width == 0 || s.height == 0 {
-                return Err((
-                    at("series.width"),
-                    format!(
-                        "the analysis size {}x{} must be positive",
-                        s.width, s.height
-                    ),
-                ));
-            }
-            if !(s.scale_to_full.is_finite() && s.scale_to_full > 0.0) {
-                return Err((
-                    at("series.scale_to_full"),
-                    format!("must be a positive number, got {}", s.scale_to_full),
-                ));
-            }
-            if s.values.len() != n {
-                return Err((
-                    at("series.values"),
-                    format!("{} values for {n} frames", s.values.len()),
-                ));
-            }
+            analysis_size(at("series.width"), s.width, s.height)?;
+            positive(at("series.scale_to_full"), s.scale_to_full)?;
+            per_frame(at("series.values"), "values", s.values.len(), n)?;
             if let Some(j) = s.values.iter().position(|v| !v.is_finite() || *v < 0.0) {
-                return Err((
-                    at(&format!("series.values[{j}]")),
-                    format!(
-                        "movement must be finite and non-negative, got {}",
-                        s.values[j]
-                    ),
-                ));
+                let msg = format!(
+                    "movement must be finite and non-negative, got {}",
+                    s.values[j]
+                );
+                return fail(at(&format!("series.values[{j}]")), msg);
             }
         }
         Ok(())
     }
 
     /// Stationary runs: a valid request and parameters, keyframes of the input.
-    fn validate_stationary(&self, n: usize) -> std::result::Result<(), (String, String)> {
+    fn validate_stationary(&self, n: usize) -> Checked {
         for (i, r) in self.cache.stationary.iter().enumerate() {
             let at = |k: &str| format!("cache.stationary[{i}].{k}");
-            validate_request(&r.request).map_err(|(k, msg)| (at(&format!("request.{k}")), msg))?;
+            validate_request(&r.request).map_err(under(at("request")))?;
             let p = &r.params;
             if !(p.threshold.is_finite() && p.threshold > 0.0) {
-                return Err((
-                    at("params.threshold"),
-                    format!("must be a positive number of pixels, got {}", p.threshold),
-                ));
+                let msg = format!("must be a positive number of pixels, got {}", p.threshold);
+                return fail(at("params.threshold"), msg);
             }
             if p.reset_delta == 0 {
-                return Err((at("params.reset_delta"), "must be at least 1 frame".into()));
+                return fail(at("params.reset_delta"), "must be at least 1 frame");
             }
             if p.first > p.last || p.last >= n {
-                return Err((
-                    at("params.last"),
-                    format!(
-                        "the range {}..={} is not within the input's {n} frames",
-                        p.first, p.last
-                    ),
-                ));
+                let (a, b) = (p.first, p.last);
+                let msg = format!("the range {a}..={b} is not within the input's {n} frames");
+                return fail(at("params.last"), msg);
             }
             check_frames(&r.keyframes, n).map_err(|msg| (at("keyframes"), msg))?;
         }
@@ -404,20 +335,15 @@ impl Project {
     }
 
     /// Telemetry: one entry per frame, latitudes and longitudes in range, finite numbers.
-    fn validate_telemetry(&self, n: usize) -> std::result::Result<(), (String, String)> {
+    fn validate_telemetry(&self, n: usize) -> Checked {
         let Some(tel) = &self.cache.telemetry else {
             return Ok(());
         };
         let at = |k: &str| format!("cache.telemetry.{k}");
         if !tel.source.offset_s.is_finite() {
-            return Err((at("source.offset_s"), "must be a finite number".into()));
+            return fail(at("source.offset_s"), "must be a finite number");
         }
-        if tel.positions.len() != n {
-            return Err((
-                at("positions"),
-                format!("{} positions for {n} frames", tel.positions.len()),
-            ));
-        }
+        per_frame(at("positions"), "positions", tel.positions.len(), n)?;
         for (i, p) in tel.positions.iter().enumerate() {
             let Some(p) = p else { continue };
             let optional = [
@@ -430,56 +356,33 @@ impl Project {
             if !(p.lat_deg.abs() <= 90.0 && p.lon_deg.abs() <= 180.0)
                 || optional.iter().flatten().any(|v| !v.is_finite())
             {
-                return Err((
+                return fail(
                     at(&format!("positions[{i}]")),
-                    "latitude within ±90°, longitude within ±180° and finite numbers".into(),
-                ));
-            }
-        }
-        Ok(())
-    }
-
-    /// History entries: known plugins with parameters in range (see `validate_step`).
-    fn validate_history(&self, n: usize) -> std::result::Result<(), (String, String)> {
-        for (i, step) in self.history.iter().enumerate() {
-            validate_step(step, n).map_err(|(k, msg)| {
-                let field = if k.is_empty() {
-                    format!("history[{i}]")
-                } else {
-                    format!("history[{i}].{k}")
-                };
-                (field, msg)
-            })?;
-        }
-        Ok(())
-    }
-
-    fn validate_metadata(&self) -> std::result::Result<(), (String, String)> {
-        let m = &self.metadata;
-        let bad = |k: &str, msg: String| Err((format!("metadata.{k}"), msg));
-        if m.frame_count == 0 {
-            return bad("frame_count", "an input has at least one frame".into());
-        }
-        if m.width == 0 || m.height == 0 {
-            return bad(
-                if m.width == 0 { "width" } else { "height" },
-                format!("the frame size {}x{} must be positive", m.width, m.height),
-            );
-        }
-        if let Some(f) = m.fps {
-            if !(f.is_finite() && f > 0.0) {
-                return bad("fps", format!("must be a positive number, got {f}"));
-            }
-        }
-        if let Some(d) = m.duration_s {
-            if !(d.is_finite() && d >= 0.0) {
-                return bad(
-                    "duration_s",
-                    format!("must be a non-negative number of seconds, got {d}"),
+                    "latitude within ±90°, longitude within ±180° and finite numbers",
                 );
             }
         }
         Ok(())
+    }
+
+    fn validate_metadata(&self) -> Checked {
+        let m = &self.metadata;
+        let at = |k: &str| format!("metadata.{k}");
+        if m.frame_count == 0 {
+            return fail(at("frame_count"), "an input has at least one frame");
+        }
+        if m.width == 0 || m.height == 0 {
+            let k = if m.width == 0 { "width" } else { "height" };
+            let msg = format!("the frame size {}x{} must be positive", m.width, m.height);
+            return fail(at(k), msg);
+        }
+        if let Some(f) = m.fps {
+            positive(at("fps"), f)?;
+        }
+        match m.duration_s {
+            Some(d) => seconds(at("duration_s"), d),
+            None => Ok(()),
+        }
     }
 
     /// Writes the project file atomically, refusing to replace an existing one unless `force`.
@@ -492,9 +395,59 @@ impl Project {
     }
 }
 
+/// A check's outcome: on failure, the path of the offending field and what is wrong with it.
+type Checked = std::result::Result<(), (String, String)>;
+
+/// The failure `msg` at `field`.
+fn fail(field: impl Into<String>, msg: impl Into<String>) -> Checked {
+    Err((field.into(), msg.into()))
+}
+
+/// Puts a failure whose field is relative to `prefix` under it (an empty field is `prefix`).
+fn under(prefix: String) -> impl FnOnce((String, String)) -> (String, String) {
+    move |(k, msg)| match k.is_empty() {
+        true => (prefix, msg),
+        false => (format!("{prefix}.{k}"), msg),
+    }
+}
+
+/// `len` values of a per-frame series called `what`, for an input of `n` frames.
+fn per_frame(field: String, what: &str, len: usize, n: usize) -> Checked {
+    if len != n {
+        return fail(field, format!("{len} {what} for {n} frames"));
+    }
+    Ok(())
+}
+
+/// An analysis size with both sides positive.
+fn analysis_size(field: String, width: u32, height: u32) -> Checked {
+    if width == 0 || height == 0 {
+        let msg = format!("the analysis size {width}x{height} must be positive");
+        return fail(field, msg);
+    }
+    Ok(())
+}
+
+/// A finite number above 0.
+fn positive(field: String, v: f64) -> Checked {
+    if !(v.is_finite() && v > 0.0) {
+        return fail(field, format!("must be a positive number, got {v}"));
+    }
+    Ok(())
+}
+
+/// A finite, non-negative number of seconds.
+fn seconds(field: String, s: f64) -> Checked {
+    if !(s.is_finite() && s >= 0.0) {
+        let msg = format!("must be a non-negative number of seconds, got {s}");
+        return fail(field, msg);
+    }
+    Ok(())
+}
+
 /// A movement request's fields in the ranges the flags accept; the error's key is relative to
 /// the request (`farneback.pyr_scale`).
-fn validate_request(r: &MovementRequest) -> std::result::Result<(), (String, String)> {
+fn validate_request(r: &MovementRequest) -> Checked {
     crate::steps::check_movement(r).map_err(|e| match e {
         Error::Param { name, msg } => {
             let k = match name.as_str() {
@@ -520,18 +473,15 @@ fn check_frames(frames: &[usize], n: usize) -> std::result::Result<(), String> {
 
 /// One history step: a known plugin, a known backend, and the parameters `workflow save` reads
 /// in their ranges. The error's key is relative to the step (`params.fps`).
-fn validate_step(step: &HistoryEntry, n: usize) -> std::result::Result<(), (String, String)> {
+fn validate_step(step: &HistoryEntry, n: usize) -> Checked {
     use crate::steps::Applied;
-    let bad = |k: &str, msg: String| Err((k.to_string(), msg));
     if step.kept > n {
-        return bad(
-            "kept",
-            format!("{} kept frames of an input of {n} frames", step.kept),
-        );
+        let msg = format!("{} kept frames of an input of {n} frames", step.kept);
+        return fail("kept", msg);
     }
     let applied = Applied::from_entry(step)?;
     if let (_, Some(r)) = applied.analysis() {
-        validate_request(&r).map_err(|(k, msg)| (format!("params.movement.{k}"), msg))?;
+        validate_request(&r).map_err(under("params.movement".into()))?;
     }
     applied.check(n)
 }

@@ -193,13 +193,9 @@ impl Workflow {
         let file = tomlfile::parse::<RawFile>(path, "workflow", text)?;
         let raw = &file.value;
         if raw.version != VERSION {
-            return Err(file.error(
-                "version",
-                format!(
-                    "version {} is not supported (this build reads {VERSION})",
-                    raw.version
-                ),
-            ));
+            let v = raw.version;
+            let msg = format!("version {v} is not supported (this build reads {VERSION})");
+            return Err(file.error("version", msg));
         }
         let sample = raw
             .sample
@@ -225,23 +221,17 @@ impl Workflow {
         if let Some(t) = &an.telemetry {
             let dir = file.path().parent().unwrap_or(Path::new("."));
             if !dir.join(t).is_file() {
-                return Err(file.error(
-                    "analysis.telemetry",
-                    format!("{}: no such telemetry file", dir.join(t).display()),
-                ));
+                let msg = format!("{}: no such telemetry file", dir.join(t).display());
+                return Err(file.error("analysis.telemetry", msg));
             }
         }
         if let Some(o) = an.telemetry_offset.filter(|o| !o.is_finite()) {
-            return Err(file.error(
-                "analysis.telemetry_offset",
-                format!("must be a number of seconds, got {o}"),
-            ));
+            let msg = format!("must be a number of seconds, got {o}");
+            return Err(file.error("analysis.telemetry_offset", msg));
         }
         if let Some(f) = an.images_fps.filter(|f| !(f.is_finite() && *f > 0.0)) {
-            return Err(file.error(
-                "analysis.images_fps",
-                format!("must be a positive number, got {f}"),
-            ));
+            let msg = format!("must be a positive number, got {f}");
+            return Err(file.error("analysis.images_fps", msg));
         }
         let mut exports = Vec::new();
         for (i, e) in w.export.iter().enumerate() {
@@ -250,7 +240,7 @@ impl Workflow {
                 let desc = crate::model_desc::ModelDesc::load(&m.model)
                     .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
                 desc.class_ids(&m.classes)
-                    .map_err(|e| file.error(&format!("export[{i}].masks.classes"), param_msg(e)))?;
+                    .map_err(|e| file.error(&format!("export[{i}].masks.classes"), e.into_msg()))?;
             }
             exports.push((e.name.clone(), settings));
         }
@@ -262,14 +252,6 @@ impl Workflow {
             backend,
             exports,
         })
-    }
-}
-
-/// A parameter error's message without the parameter's name; any other error in full.
-fn param_msg(e: Error) -> String {
-    match e {
-        Error::Param { msg, .. } => msg,
-        other => other.to_string(),
     }
 }
 
@@ -321,18 +303,13 @@ fn check_steps(file: &TomlFile<RawFile>, steps: &[Step]) -> Result<()> {
 fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
     let d = FarnebackParams::default();
     let fb = an.farneback.clone().unwrap_or_default();
-    let statistic = match an.movement.as_deref() {
-        None | Some("median") => Statistic::Median,
-        Some("trimmed-mean") => Statistic::TrimmedMean {
-            trim: an.trim.unwrap_or(crate::steps::defaults::TRIM),
-        },
-        Some(other) => {
-            return Err(Error::param(
-                "movement",
-                format!("invalid value '{other}' [possible values: median, trimmed-mean]"),
-            ))
-        }
+    let trimmed = Statistic::TrimmedMean {
+        trim: an.trim.unwrap_or(crate::steps::defaults::TRIM),
     };
+    let statistics = [("median", Statistic::Median), ("trimmed-mean", trimmed)];
+    let statistic = choice(an.movement.as_deref(), &statistics)
+        .map_err(|m| Error::param("movement", m))?
+        .unwrap_or(Statistic::Median);
     let request = MovementRequest {
         farneback: FarnebackParams {
             pyr_scale: fb.pyr_scale.unwrap_or(d.pyr_scale),
@@ -356,6 +333,27 @@ fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
     };
     crate::steps::check_movement(&request)?;
     Ok(request)
+}
+
+/// `value` when it is one of `choices` (absent: None), else the message clap gives for a value
+/// not among them.
+fn choice<T: Copy>(
+    value: Option<&str>,
+    choices: &[(&str, T)],
+) -> std::result::Result<Option<T>, String> {
+    let Some(v) = value else {
+        return Ok(None);
+    };
+    match choices.iter().find(|c| c.0 == v) {
+        Some(&(_, t)) => Ok(Some(t)),
+        None => {
+            let names: Vec<&str> = choices.iter().map(|c| c.0).collect();
+            Err(format!(
+                "invalid value '{v}' [possible values: {}]",
+                names.join(", ")
+            ))
+        }
+    }
 }
 
 /// Relations between keys that clap would report without naming the key that caused them.
@@ -408,55 +406,31 @@ fn export_settings(
     e: &Export,
 ) -> Result<ExportSettings> {
     let at = |k: &str| format!("export[{i}].{k}");
-    if !valid_name(&e.name) {
-        return Err(file.error(
-            &at("name"),
-            format!(
-                "`{}` is not a plain folder name (letters, digits, - _ .)",
-                e.name
-            ),
-        ));
-    }
-    if w.export[..i].iter().any(|x| x.name == e.name) {
-        return Err(file.error(
-            &at("name"),
-            format!("`{}` is used by an earlier export", e.name),
-        ));
-    }
-    if RESERVED_NAMES.contains(&e.name.as_str()) || e.name.starts_with('.') {
-        return Err(file.error(
-            &at("name"),
-            format!(
-                "`{}` is reserved: `keyframer run` keeps its own files under these names in each input's folder ({}, or any name starting with `.`)",
-                e.name,
-                RESERVED_NAMES.join(", ")
-            ),
-        ));
-    }
-    let format = match e.format.as_deref() {
-        None => None,
-        Some("jpg") => Some(Format::Jpg),
-        Some("png") => Some(Format::Png),
-        Some(other) => {
-            return Err(file.error(
-                &at("format"),
-                format!("invalid value '{other}' [possible values: jpg, png]"),
-            ))
-        }
+    let name = &e.name;
+    let refusal = if !valid_name(name) {
+        Some("is not a plain folder name (letters, digits, - _ .)".to_string())
+    } else if w.export[..i].iter().any(|x| &x.name == name) {
+        Some("is used by an earlier export".to_string())
+    } else if RESERVED_NAMES.contains(&name.as_str()) || name.starts_with('.') {
+        Some(format!(
+            "is reserved: `keyframer run` keeps its own files under these names in each input's folder ({}, or any name starting with `.`)",
+            RESERVED_NAMES.join(", ")
+        ))
+    } else {
+        None
     };
+    if let Some(why) = refusal {
+        return Err(file.error(&at("name"), format!("`{name}` {why}")));
+    }
+    let formats = [("jpg", Format::Jpg), ("png", Format::Png)];
+    let format = choice(e.format.as_deref(), &formats).map_err(|m| file.error(&at("format"), m))?;
     let masks = match &e.masks {
         None => None,
         Some(m) => {
-            let backend = match m.backend.as_deref() {
-                None | Some("opencv") => SegRuntime::Opencv,
-                Some("ort") => SegRuntime::Ort,
-                Some(other) => {
-                    return Err(file.error(
-                        &at("masks.backend"),
-                        format!("invalid value '{other}' [possible values: opencv, ort]"),
-                    ))
-                }
-            };
+            let runtimes = [("opencv", SegRuntime::Opencv), ("ort", SegRuntime::Ort)];
+            let backend = choice(m.backend.as_deref(), &runtimes)
+                .map_err(|m| file.error(&at("masks.backend"), m))?
+                .unwrap_or_default();
             let dir = file.path().parent().unwrap_or(Path::new("."));
             Some(MaskSettings {
                 model: crate::fsutil::absolute(&dir.join(&m.model)),
@@ -562,7 +536,7 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
             .map(|(k, s)| {
                 sample_to_table(s).map_err(|e| Error::file(project, None, "project file", format!("history[{k}].params"), format!(
                         "cannot be written as a workflow step ({}; TOML integers go up to 2^63 - 1)",
-                        param_msg(e)
+                        e.into_msg()
                     )))
             })
             .collect::<Result<Vec<_>>>()?,

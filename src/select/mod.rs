@@ -139,23 +139,12 @@ impl SelectSettings {
         }
     }
 
-    /// The part of the input to sample.
-    pub fn boundaries(&self) -> Boundaries {
-        crate::steps::boundaries(&self.steps)
-    }
-
-    /// The stationary step: threshold as given and reset delta.
-    fn stationary(&self) -> Option<(Option<Threshold>, usize)> {
-        self.steps.iter().find_map(|s| match s {
-            Step::Stationary {
-                threshold,
-                reset_delta,
-            } => Some((
-                *threshold,
-                reset_delta.unwrap_or(crate::steps::defaults::RESET_DELTA),
-            )),
-            _ => None,
-        })
+    /// `path` relative to the project file's folder when possible, as the project records it.
+    fn relative(&self, path: &Path) -> PathBuf {
+        let project_dir = fsutil::absolute(&self.output)
+            .parent()
+            .map(Path::to_path_buf);
+        fsutil::relative_to(path, &project_dir.unwrap_or_default())
     }
 
     /// The spacing step's threshold as given.
@@ -268,7 +257,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let full = open.codec_keyframes.is_none();
     let input_ref = input_ref(s)?;
     check_outputs(s)?;
-    let boundaries = s.boundaries();
+    let boundaries = steps::boundaries(&s.steps);
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;
     let auto = AutoThresholds::find(s, open, &known)?;
@@ -333,12 +322,8 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
 /// The project's reference to its input: kind, fingerprint and a path relative to the project.
 fn input_ref(s: &SelectSettings) -> Result<InputRef> {
     let (kind, fingerprint) = identify(&s.input)?;
-    let project_dir = fsutil::absolute(&s.output)
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_default();
     Ok(InputRef {
-        path: fsutil::relative_to(&s.input, &project_dir),
+        path: s.relative(&s.input),
         kind,
         fingerprint,
     })
@@ -413,7 +398,11 @@ impl Known {
         let uses_seconds = [boundaries.start, boundaries.end]
             .iter()
             .any(|b| matches!(b, Some(steps::Bound::Seconds(_))));
-        if s.stationary().is_none() || self.metadata.is_some() || !uses_seconds {
+        let stationary = s
+            .steps
+            .iter()
+            .any(|st| matches!(st, Step::Stationary { .. }));
+        if !stationary || self.metadata.is_some() || !uses_seconds {
             return Ok(());
         }
         let a = analysis::analyse(
@@ -534,11 +523,11 @@ struct AutoThresholds {
 
 impl AutoThresholds {
     fn find(s: &SelectSettings, open: &OpenOptions, known: &Known) -> Result<AutoThresholds> {
-        let wants_auto_stationary = matches!(s.stationary(), Some((Some(Threshold::Auto), _)));
         let mut t = AutoThresholds {
             resolved: Resolved::given(&s.steps, s.movement),
             proposals: Vec::new(),
         };
+        let wants_auto_stationary = t.resolved.stationary_auto;
         let auto_spacing = s.spacing() == Some(Threshold::Auto);
         if !(wants_auto_stationary || auto_spacing) {
             return Ok(t);

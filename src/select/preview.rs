@@ -18,27 +18,19 @@ use std::sync::Arc;
 /// keyframes carry the video's timestamps).
 pub fn keyframe_bounds(b: &Boundaries, index: &CodecKeyframeIndex) -> Result<Boundaries> {
     let k = &index.keyframes;
+    let none = |msg: String| Err(Error::plugin("preview", msg));
     let start = match b.start {
-        Some(Bound::Frame(i)) => {
-            let pos = k.partition_point(|&f| f < i);
-            if pos == k.len() {
-                return Err(Error::plugin(
-                    "preview",
-                    format!("no codec keyframe at or after --start frame {i}"),
-                ));
+        Some(Bound::Frame(i)) => match k.partition_point(|&f| f < i) {
+            pos if pos == k.len() => {
+                return none(format!("no codec keyframe at or after --start frame {i}"))
             }
-            Some(Bound::Frame(pos))
-        }
+            pos => Some(Bound::Frame(pos)),
+        },
         other => other,
     };
     let end = match b.end {
         Some(Bound::Frame(i)) => match k.partition_point(|&f| f <= i) {
-            0 => {
-                return Err(Error::plugin(
-                    "preview",
-                    format!("no codec keyframe at or before --end frame {i}"),
-                ))
-            }
+            0 => return none(format!("no codec keyframe at or before --end frame {i}")),
             n => Some(Bound::Frame(n - 1)),
         },
         other => other,
@@ -55,7 +47,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     // Keyframes are already far apart: measure flow between every consecutive pair.
     let mut movement = s.movement;
     movement.stride = 1;
-    let bounds = keyframe_bounds(&s.boundaries(), &index)?;
+    let bounds = keyframe_bounds(&crate::steps::boundaries(&s.steps), &index)?;
     let mut steps: Vec<Step> = s
         .steps
         .iter()
@@ -92,7 +84,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     select::manual_step(&mut keys, &mut history, &s.steps, n_all)?;
     p.keyframes = keys;
     p.history = history;
-    p.boundaries = s.boundaries();
+    p.boundaries = crate::steps::boundaries(&s.steps);
     p.metadata.frame_count = n_all;
     p.metadata.frame_count_exact = true;
     // As a full decode measures it: first to last frame plus one frame interval (the analysis

@@ -136,12 +136,8 @@ pub(crate) fn positions(
 /// Where the positions come from, as the project records it: `file` relative to the project's
 /// folder, its kind, the offset and (except for EXIF) the file's fingerprint.
 fn source_of(s: &SelectSettings, file: &Path, kind: TelemetryKind) -> Result<TelemetrySource> {
-    let project_dir = fsutil::absolute(&s.output)
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_default();
     Ok(TelemetrySource {
-        path: fsutil::relative_to(file, &project_dir),
+        path: s.relative(file),
         kind,
         offset_s: s.telemetry_offset_s,
         fingerprint: match kind {

@@ -99,10 +99,8 @@ impl BlurParams {
     /// Checks ranges.
     pub fn validate(&self) -> Result<()> {
         if !(self.ratio.is_finite() && self.ratio > 0.0) {
-            return Err(Error::plugin(
-                "blur",
-                format!("ratio must be a positive number, got {}", self.ratio),
-            ));
+            let msg = format!("ratio must be a positive number, got {}", self.ratio);
+            return Err(Error::plugin("blur", msg));
         }
         if self.window == 0 {
             return Err(Error::plugin("blur", "window must be at least 1 frame"));
@@ -121,13 +119,9 @@ pub fn blur(
 ) -> Result<Vec<usize>> {
     p.validate()?;
     if hi >= scores.len() || lo > hi {
-        return Err(Error::plugin(
-            "blur",
-            format!(
-                "range {lo}..={hi} does not fit {} scored frames",
-                scores.len()
-            ),
-        ));
+        let n = scores.len();
+        let msg = format!("range {lo}..={hi} does not fit {n} scored frames");
+        return Err(Error::plugin("blur", msg));
     }
     let window = |k: usize| k.saturating_sub(p.window).max(lo)..=k.saturating_add(p.window).min(hi);
     Ok(match p.mode {

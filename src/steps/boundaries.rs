@@ -91,33 +91,26 @@ impl Boundaries {
         frame_count: usize,
         timestamps_s: Option<&[f64]>,
     ) -> Result<Vec<usize>> {
+        let err = |msg: String| Error::plugin("boundaries", msg);
         if frame_count == 0 {
-            return Err(Error::plugin("boundaries", "the input has no frames"));
+            return Err(err("the input has no frames".into()));
         }
         let resolve = |b: Bound, is_end: bool| -> Result<usize> {
             match b {
                 Bound::Frame(i) => Ok(i),
                 Bound::Seconds(s) => {
                     let ts = timestamps_s.ok_or_else(|| {
-                        Error::plugin(
-                            "boundaries",
-                            format!("`{b}` needs timestamps, and this input has no frame rate"),
-                        )
+                        err(format!(
+                            "`{b}` needs timestamps, and this input has no frame rate"
+                        ))
                     })?;
                     let t0 = ts.first().copied().unwrap_or(0.0);
                     // Tolerance for timestamps stored in milliseconds.
                     let eps = 1e-6;
                     Ok(if is_end {
                         // Last frame at or before the time (none: before frame 0).
-                        match ts.iter().rposition(|&t| t - t0 <= s + eps) {
-                            Some(i) => i,
-                            None => {
-                                return Err(Error::plugin(
-                                    "boundaries",
-                                    format!("end {b} lies before the first frame"),
-                                ))
-                            }
-                        }
+                        let i = ts.iter().rposition(|&t| t - t0 <= s + eps);
+                        i.ok_or_else(|| err(format!("end {b} lies before the first frame")))?
                     } else {
                         ts.iter()
                             .position(|&t| t - t0 >= s - eps)
@@ -138,14 +131,11 @@ impl Boundaries {
             .unwrap_or(frame_count - 1)
             .min(frame_count - 1);
         if start > end {
-            return Err(Error::plugin(
-                "boundaries",
-                format!(
-                    "start ({}) is after end ({}) in a input of {frame_count} frames",
-                    self.start.map(|b| b.to_string()).unwrap_or("0".into()),
-                    self.end.map(|b| b.to_string()).unwrap_or("last".into())
-                ),
-            ));
+            return Err(err(format!(
+                "start ({}) is after end ({}) in a input of {frame_count} frames",
+                self.start.map(|b| b.to_string()).unwrap_or("0".into()),
+                self.end.map(|b| b.to_string()).unwrap_or("last".into())
+            )));
         }
         Ok((start..=end).collect())
     }

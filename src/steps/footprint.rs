@@ -94,7 +94,8 @@ pub(crate) fn footprints(
     let ground = origin.abs_alt_m;
     if placed.iter().any(|(_, p)| p.rel_alt_m.is_none()) {
         if ground.is_none() {
-            return Err(plugin_error(
+            return Err(Error::plugin(
+                ID,
                 "the telemetry gives no height above take-off (rel_alt) nor altitude",
             ));
         }
@@ -124,10 +125,13 @@ pub(crate) fn footprints(
             (Some(h), _) => (0.5 * h.to_radians()).tan(),
             (None, Some(f)) => 18.0 / f,
             (None, None) => {
-                return Err(plugin_error(&format!(
-                    "frame {k}: no field of view: the telemetry has no focal length and the \
+                return Err(Error::plugin(
+                    ID,
+                    format!(
+                        "frame {k}: no field of view: the telemetry has no focal length and the \
                      camera is not one of the known DJI models; give --hfov"
-                )))
+                    ),
+                ))
             }
         };
         let h = match (p.rel_alt_m, p.abs_alt_m, ground) {
@@ -147,10 +151,6 @@ pub(crate) fn footprints(
         by_frame.insert(k, print);
     }
     Ok(keys.iter().map(|k| by_frame.remove(k)).collect())
-}
-
-fn plugin_error(msg: &str) -> Error {
-    Error::plugin(ID, msg)
 }
 
 /// The direction of travel at `placed[j]` (degrees clockwise from north), from the neighbouring

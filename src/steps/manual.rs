@@ -49,10 +49,8 @@ pub fn manual(
     frame_count: usize,
 ) -> Result<Vec<usize>> {
     if let Some(&bad) = add.iter().find(|&&i| i >= frame_count) {
-        return Err(Error::plugin(
-            "manual",
-            format!("cannot add frame {bad}: the input has {frame_count} frames"),
-        ));
+        let msg = format!("cannot add frame {bad}: the input has {frame_count} frames");
+        return Err(Error::plugin("manual", msg));
     }
     let mut out: Vec<usize> = keyframes
         .iter()

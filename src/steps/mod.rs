@@ -69,10 +69,8 @@ pub fn check_movement(r: &MovementRequest) -> crate::error::Result<()> {
         return Err(Error::param("flow_stride", "must be at least 1"));
     }
     if r.analysis_width < 16 {
-        return Err(Error::param(
-            "analysis_width",
-            format!("must be at least 16 pixels, got {}", r.analysis_width),
-        ));
+        let msg = format!("must be at least 16 pixels, got {}", r.analysis_width);
+        return Err(Error::param("analysis_width", msg));
     }
     if let Some(d) = &r.derotate {
         d.validate()?;
@@ -130,13 +128,11 @@ fn positions<'a>(
         .filter(|&&k| positions.get(k).is_none_or(Option::is_none))
         .count();
     if without == keys.len() && !keys.is_empty() {
-        return Err(Error::plugin(
-            plugin,
-            format!(
-                "none of the {without} candidates has a position (they lie outside the \
-                 telemetry's time span; check --telemetry-offset)"
-            ),
-        ));
+        let msg = format!(
+            "none of the {without} candidates has a position (they lie outside the \
+             telemetry's time span; check --telemetry-offset)"
+        );
+        return Err(Error::plugin(plugin, msg));
     }
     if without > 0 {
         log::warn!(
@@ -147,38 +143,29 @@ fn positions<'a>(
     Ok(positions)
 }
 
+/// Each step's flags and the reader of its step from their values, in the chain's order.
+type FlagReader = fn(&FlagValues) -> Result<Option<Step>>;
+static STEPS: [(&[Flag], FlagReader); 9] = [
+    (boundaries::FLAGS, boundaries::from_flags),
+    (stationary::FLAGS, stationary::from_flags),
+    (spacing::FLAGS, spacing::from_flags),
+    (geo_distance::FLAGS, geo_distance::from_flags),
+    (footprint::FLAGS, footprint::from_flags),
+    (every_nth::FLAGS, every_nth::from_flags),
+    (fps::FLAGS, fps::from_flags),
+    (blur::FLAGS, blur::from_flags),
+    (manual::FLAGS, manual::from_flags),
+];
+
 /// The flags of every step, in the chain's order.
 pub fn flags() -> impl Iterator<Item = &'static Flag> {
-    [
-        boundaries::FLAGS,
-        stationary::FLAGS,
-        spacing::FLAGS,
-        geo_distance::FLAGS,
-        footprint::FLAGS,
-        every_nth::FLAGS,
-        fps::FLAGS,
-        blur::FLAGS,
-        manual::FLAGS,
-    ]
-    .into_iter()
-    .flatten()
+    STEPS.iter().flat_map(|s| s.0)
 }
 
 /// The steps the flags give, in keyframer's order, checked (errors name the flag's parameter).
 pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
-    let readers = [
-        boundaries::from_flags,
-        stationary::from_flags,
-        spacing::from_flags,
-        geo_distance::from_flags,
-        footprint::from_flags,
-        every_nth::from_flags,
-        fps::from_flags,
-        blur::from_flags,
-        manual::from_flags,
-    ];
     let mut steps = Vec::new();
-    for read in readers {
+    for (_, read) in &STEPS {
         if let Some(step) = read(v)? {
             step.validate().map_err(flag_error)?;
             steps.push(step);
@@ -238,7 +225,7 @@ impl Step {
 fn flag_error(e: StepError) -> Error {
     match flags().find(|f| f.sets == Some((e.plugin, e.key))) {
         Some(f) => Error::param(f.long, e.msg),
-        None => e.into_error(),
+        None => Error::plugin(e.plugin, e.msg),
     }
 }
 
@@ -296,13 +283,6 @@ pub struct StepError {
     pub key: &'static str,
     /// What is wrong, starting with the parameter's name as a user reads it.
     pub msg: String,
-}
-
-impl StepError {
-    /// As the library's error: the plugin and the message.
-    pub fn into_error(self) -> Error {
-        Error::plugin(self.plugin, self.msg)
-    }
 }
 
 impl Step {
@@ -405,10 +385,8 @@ impl Step {
             }
             Step::FootprintOverlap { percent, hfov } => {
                 if !(*percent > 0.0 && *percent < 100.0) {
-                    return bad(
-                        "percent",
-                        format!("must be between 0 and 100 (exclusive), got {percent}"),
-                    );
+                    let msg = format!("must be between 0 and 100 (exclusive), got {percent}");
+                    return bad("percent", msg);
                 }
                 if let Some(h) = hfov.filter(|h| !(*h > 1.0 && *h < 179.0)) {
                     return bad("hfov", format!("{h} must be between 1 and 179 degrees"));
@@ -421,11 +399,7 @@ impl Step {
                 if let Some(p) = self.blur_params() {
                     if let Err(e) = p.validate() {
                         let key = if p.window == 0 { "window" } else { "ratio" };
-                        let msg = match e {
-                            Error::Plugin { msg, .. } => msg,
-                            other => other.to_string(),
-                        };
-                        return bad(key, msg);
+                        return bad(key, e.into_msg());
                     }
                 }
             }
@@ -441,24 +415,17 @@ impl Step {
 pub fn check_order(steps: &[Step]) -> std::result::Result<(), (usize, String)> {
     let mut last: Option<&Step> = None;
     for (i, s) in steps.iter().enumerate() {
+        let id = s.id();
         if steps[..i].iter().any(|p| p.rank() == s.rank()) {
-            return Err((
-                i,
-                format!(
-                    "`{}`: at most one step per sampler (and one of every-nth / fps)",
-                    s.id()
-                ),
-            ));
+            let msg = format!("`{id}`: at most one step per sampler (and one of every-nth / fps)");
+            return Err((i, msg));
         }
         if let Some(p) = last.filter(|p| p.rank() > s.rank()) {
-            return Err((
-                i,
-                format!(
-                    "`{}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual",
-                    s.id(),
-                    p.id()
-                ),
-            ));
+            let msg = format!(
+                "`{id}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual",
+                p.id()
+            );
+            return Err((i, msg));
         }
         last = Some(s);
     }
@@ -631,14 +598,14 @@ impl Applied {
                 count("reset_delta", *reset_delta)
             }
             Applied::Spacing { threshold_px, .. } => positive("threshold_px", Some(*threshold_px)),
-            Applied::GeoDistance { .. } | Applied::FootprintOverlap { .. } => {
-                match self.step().map(|s| s.validate()) {
-                    Some(Err(e)) => bad(e.key, e.msg),
-                    _ => Ok(()),
-                }
-            }
+            // The step's own check says the same for these (`fps`: "must be a positive number").
+            Applied::GeoDistance { .. }
+            | Applied::FootprintOverlap { .. }
+            | Applied::Fps { .. } => match self.step().map(|s| s.validate()) {
+                Some(Err(e)) => bad(e.key, e.msg),
+                _ => Ok(()),
+            },
             Applied::EveryNth { n } => count("n", Some(*n)),
-            Applied::Fps { fps } => positive("fps", Some(*fps)),
             Applied::Blur { ratio, window, .. } => {
                 positive("ratio", *ratio)?;
                 count("window", *window)

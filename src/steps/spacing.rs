@@ -49,17 +49,14 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, given: Threshold) -> Result<App
 /// Candidates spaced by `threshold` of accumulated movement; `movement[i]` is the movement from
 /// frame i-1 to frame i.
 pub fn spacing(candidates: &[usize], movement: &[f64], threshold: f64) -> Result<Vec<usize>> {
+    let err = |msg: String| Err(Error::plugin("spacing", msg));
     if !(threshold.is_finite() && threshold > 0.0) {
-        return Err(Error::plugin(
-            "spacing",
-            format!("threshold must be a positive number of pixels, got {threshold}"),
+        return err(format!(
+            "threshold must be a positive number of pixels, got {threshold}"
         ));
     }
     if let Some(&bad) = candidates.iter().find(|&&c| c >= movement.len()) {
-        return Err(Error::plugin(
-            "spacing",
-            format!("frame {bad} has no movement value"),
-        ));
+        return err(format!("frame {bad} has no movement value"));
     }
     let Some(&first) = candidates.first() else {
         return Ok(Vec::new());

@@ -53,21 +53,22 @@ pub enum NumOrText {
 }
 
 impl NumOrText {
-    fn text(&self) -> String {
-        match self {
+    /// The value parsed as its text; the error quotes it.
+    fn parse<T: std::str::FromStr<Err = String>>(&self) -> std::result::Result<T, String> {
+        let text = match self {
             NumOrText::Int(i) => i.to_string(),
             NumOrText::Float(f) => f.to_string(),
             NumOrText::Text(s) => s.clone(),
-        }
+        };
+        text.parse()
+            .map_err(|e| format!("invalid value '{text}': {e}"))
     }
 }
 
 impl TryFrom<NumOrText> for Threshold {
     type Error = String;
     fn try_from(v: NumOrText) -> std::result::Result<Self, String> {
-        let text = v.text();
-        text.parse()
-            .map_err(|e| format!("invalid value '{text}': {e}"))
+        v.parse()
     }
 }
 
@@ -89,10 +90,7 @@ pub struct BoundArg(pub Bound);
 impl TryFrom<NumOrText> for BoundArg {
     type Error = String;
     fn try_from(v: NumOrText) -> std::result::Result<Self, String> {
-        let text = v.text();
-        text.parse()
-            .map(BoundArg)
-            .map_err(|e| format!("invalid value '{text}': {e}"))
+        v.parse().map(BoundArg)
     }
 }
 
