@@ -502,6 +502,30 @@ impl GpuContext {
         })
     }
 
+    /// A 2-D `width` x `height` texture of one mip level and one sample.
+    pub fn texture(
+        &self,
+        label: &str,
+        (width, height): (u32, u32),
+        format: wgpu::TextureFormat,
+        usage: wgpu::TextureUsages,
+    ) -> wgpu::Texture {
+        self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    }
+
     /// A command encoder labelled `label`.
     pub fn encoder(&self, label: &str) -> wgpu::CommandEncoder {
         self.device

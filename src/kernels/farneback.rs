@@ -303,22 +303,14 @@ fn texture(
     (w, h): (u32, u32),
     format: wgpu::TextureFormat,
 ) -> wgpu::Texture {
-    ctx.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size: wgpu::Extent3d {
-            width: w.max(1),
-            height: h.max(1),
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
+    ctx.texture(
+        label,
+        (w.max(1), h.max(1)),
         format,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING
+        wgpu::TextureUsages::TEXTURE_BINDING
             | wgpu::TextureUsages::STORAGE_BINDING
             | wgpu::TextureUsages::COPY_DST,
-        view_formats: &[],
-    })
+    )
 }
 
 /// A uniform of [`MAX_TAPS`] taps (`Taps` in the shaders, the tap in x) starting with `values`.
