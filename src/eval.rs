@@ -239,7 +239,6 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
         .or(r.selected_from_workspace);
     let ordered = order_images(&m, manifest.as_ref(), export.as_deref())?;
     let centres: Vec<Vec3> = ordered.iter().map(|o| o.centre).collect();
-    let np = m.points.len();
     let registered = m.images.len();
     let gt = a.gt.as_deref().map(|p| compare_gt(p, &ordered));
     Ok(Report {
@@ -251,11 +250,9 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
         registered_ratio: selected
             .filter(|&s| s > 0)
             .map(|s| registered as f64 / s as f64),
-        points3d: np,
-        mean_reprojection_error: (np > 0)
-            .then(|| m.points.values().map(|p| p.error).sum::<f64>() / np as f64),
-        mean_track_length: (np > 0)
-            .then(|| m.points.values().map(|p| p.track.len()).sum::<usize>() as f64 / np as f64),
+        points3d: m.points.len(),
+        mean_reprojection_error: m.point_mean(|p| p.error),
+        mean_track_length: m.point_mean(|p| p.track.len() as f64),
         spacing: stats(&spacings(&centres)),
         order: ordered.iter().map(|o| (o.name.clone(), o.index)).collect(),
         gt: gt.transpose()?,

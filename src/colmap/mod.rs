@@ -540,13 +540,11 @@ pub fn largest(models: &[ModelSummary]) -> Option<&ModelSummary> {
 }
 
 fn summarise(m: &model::Model, rel: &Path) -> ModelSummary {
-    let n = m.points.len();
     ModelSummary {
         path: rel.display().to_string(),
         registered_images: m.images.len(),
-        points3d: n,
-        mean_reprojection_error: (n > 0)
-            .then(|| m.points.values().map(|p| p.error).sum::<f64>() / n as f64),
+        points3d: m.points.len(),
+        mean_reprojection_error: m.point_mean(|p| p.error),
     }
 }
 
@@ -613,30 +611,20 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
 /// Every regular file (and link) now inside the places keyframer and COLMAP write in `ws`,
 /// relative to `ws`, sorted.
 fn ours_now(ws: &Path) -> Vec<String> {
-    fn walk(dir: &Path, rel: &Path, out: &mut Vec<String>) {
-        let Ok(entries) = std::fs::read_dir(dir) else {
-            return;
-        };
-        for e in entries.flatten() {
-            let r = rel.join(e.file_name());
-            match e.file_type() {
-                Ok(t) if t.is_dir() => walk(&e.path(), &r, out),
-                Ok(_) => out.push(r.to_string_lossy().into_owned()),
-                Err(_) => {}
+    fn walk(p: &Path, rel: &Path, out: &mut Vec<String>) {
+        match std::fs::symlink_metadata(p) {
+            Ok(m) if m.is_dir() => {
+                for e in std::fs::read_dir(p).into_iter().flatten().flatten() {
+                    walk(&e.path(), &rel.join(e.file_name()), out);
+                }
             }
+            Ok(_) => out.push(rel.to_string_lossy().into_owned()),
+            Err(_) => {}
         }
     }
     let mut out = Vec::new();
-    for name in OURS {
-        if name == RECORD {
-            continue;
-        }
-        let p = ws.join(name);
-        match std::fs::symlink_metadata(&p) {
-            Ok(m) if m.is_dir() => walk(&p, Path::new(name), &mut out),
-            Ok(_) => out.push(name.to_string()),
-            Err(_) => {}
-        }
+    for name in OURS.into_iter().filter(|&n| n != RECORD) {
+        walk(&ws.join(name), Path::new(name), &mut out);
     }
     out.sort();
     out
