@@ -348,13 +348,11 @@ fn fill_workspace(ws: &Path, export: &Path, manifest: &Manifest, force: bool) ->
         }
         Ok(())
     })();
-    if let Err(e) = linked {
+    // abandon removes only folders this run created.
+    linked.inspect_err(|_| {
         remove_ours(ws, &ours_now(ws));
-        if dir.is_new() {
-            dir.abandon();
-        }
-        return Err(e);
-    }
+        dir.abandon();
+    })?;
     Ok(masks)
 }
 
