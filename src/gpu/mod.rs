@@ -202,19 +202,14 @@ pub fn pick_adapter(wanted: Option<&str>) -> Result<wgpu::Adapter> {
         return Ok(list.swap_remove(0));
     };
     let lw = w.to_lowercase();
-    match list
-        .iter()
-        .position(|a| a.get_info().name.to_lowercase().contains(&lw))
-    {
-        Some(i) => Ok(list.swap_remove(i)),
-        None => {
-            let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
-            Err(Error::Gpu(format!(
-                "no adapter matches `{w}`; available: {}",
-                names.join(", ")
-            )))
-        }
+    if let Some(i) = (list.iter()).position(|a| a.get_info().name.to_lowercase().contains(&lw)) {
+        return Ok(list.swap_remove(i));
     }
+    let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
+    Err(Error::Gpu(format!(
+        "no adapter matches `{w}`; available: {}",
+        names.join(", ")
+    )))
 }
 
 /// Summary of an adapter's identity and relevant limits.
