@@ -115,13 +115,8 @@ pub fn read_tum(path: &Path) -> Result<Vec<GtPose>> {
 }
 
 fn tum_err(path: &Path, line: usize, msg: &str) -> Error {
-    Error::file(
-        path,
-        Some(line),
-        "TUM trajectory",
-        "timestamp tx ty tz qx qy qz qw",
-        msg,
-    )
+    let fields = "timestamp tx ty tz qx qy qz qw";
+    Error::file(path, Some(line), "TUM trajectory", fields, msg)
 }
 
 /// Ground-truth part of the report.

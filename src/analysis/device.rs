@@ -99,17 +99,9 @@ impl DeviceMovement {
         let gates = [shapes.len(), shapes.len() + stat.shapes().len()];
         shapes.extend(stat.shapes());
         shapes.extend(flow.copy_shapes());
+        let views = (&frame, &results);
         let stationary = stationary
-            .map(|st| {
-                StationaryGpu::new(
-                    ctx.clone(),
-                    st,
-                    scale,
-                    (&frame, &results),
-                    &shapes,
-                    gates[1],
-                )
-            })
+            .map(|st| StationaryGpu::new(ctx.clone(), st, scale, views, &shapes, gates[1]))
             .transpose()?;
         Ok(DeviceMovement {
             ctx: ctx.clone(),

@@ -805,37 +805,29 @@ impl FarnebackGpu {
     fn pyramid_steps(&self, slot: usize) -> Vec<Step<'_>> {
         let s = &self.slots[slot];
         let (w, h) = (self.levels[0].width, self.levels[0].height);
-        let by8 = |n: u32| n.div_ceil(8);
+        let (by8, p, rows) = (|n: u32| n.div_ceil(8), &self.pipes, self.strip_rows);
         let mut steps = vec![Step(
             "level0",
-            &self.pipes.level0,
+            &p.level0,
             &s.level0,
-            (by8(w.div_ceil(16)), h.div_ceil(self.strip_rows)),
+            (by8(w.div_ceil(16)), h.div_ceil(rows)),
         )];
         for (k, l) in self.levels.iter().enumerate() {
             if k > 0 {
                 let [v, hz] = &self.scratch.smooth[k - 1];
-                steps.push(Step(
-                    "vsmooth",
-                    &self.pipes.vsmooth,
-                    v,
-                    (by8(texels(w)), l.height),
-                ));
+                steps.push(Step("vsmooth", &p.vsmooth, v, (by8(texels(w)), l.height)));
                 steps.push(Step(
                     "hsmooth",
-                    &self.pipes.hsmooth,
+                    &p.hsmooth,
                     hz,
                     (by8(texels(l.width) + 2 * HALO), l.height),
                 ));
             }
             steps.push(Step(
                 "polyexp",
-                &self.pipes.polyexp,
+                &p.polyexp,
                 &s.polyexp[k],
-                (
-                    by8(l.width.div_ceil(16)),
-                    l.height.div_ceil(self.strip_rows),
-                ),
+                (by8(l.width.div_ceil(16)), l.height.div_ceil(rows)),
             ));
         }
         steps
