@@ -194,10 +194,8 @@ fn resolve(path: &Path) -> Result<Resolved> {
         (path.to_path_buf(), None, None)
     };
     if !root.is_dir() {
-        return Err(Error::input(
-            root,
-            "no sparse model here (run `keyframer colmap --sparse`)",
-        ));
+        let msg = "no sparse model here (run `keyframer colmap --sparse`)";
+        return Err(Error::input(root, msg));
     }
     let dirs = model::model_dirs(&root)?;
     // The largest model by registered images; reading images.* is enough to count them.

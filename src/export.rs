@@ -54,10 +54,8 @@ pub fn output_size(settings: &ExportSettings, width: u32, height: u32) -> Result
             let sw = (f64::from(w) * s).round() as u32;
             let sh = (f64::from(h) * s).round() as u32;
             if sw == 0 || sh == 0 {
-                return Err(Error::param(
-                    "scale",
-                    format!("{s} makes a {w}x{h} frame empty"),
-                ));
+                let msg = format!("{s} makes a {w}x{h} frame empty");
+                return Err(Error::param("scale", msg));
             }
             (sw, sh)
         }

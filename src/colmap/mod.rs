@@ -219,10 +219,8 @@ pub fn read_record(workspace: &Path) -> Result<Record> {
 pub fn read_manifest(export: &Path) -> Result<Manifest> {
     let p = export.join(MANIFEST);
     if !p.is_file() {
-        return Err(Error::input(
-            export,
-            "no manifest.json: not an export folder made by `keyframer export`",
-        ));
+        let msg = "no manifest.json: not an export folder made by `keyframer export`";
+        return Err(Error::input(export, msg));
     }
     Manifest::load(&p)
 }
@@ -275,10 +273,8 @@ fn check_settings(a: &ColmapSettings) -> Result<()> {
     }
     if !model::CAMERA_MODELS.iter().any(|m| m.1 == a.camera_model) {
         let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
-        return Err(Error::param(
-            "camera_model",
-            format!("`{}` is not one of {}", a.camera_model, names.join(", ")),
-        ));
+        let msg = format!("`{}` is not one of {}", a.camera_model, names.join(", "));
+        return Err(Error::param("camera_model", msg));
     }
     mapper_keys(&a.mapper_option)?;
     if let Some(params) = &a.camera_params {
@@ -312,10 +308,8 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
     for f in &manifest.frames {
         let from = crate::export::image_path(&export, f);
         if !from.is_file() {
-            return Err(Error::input(
-                &from,
-                "listed in the export's manifest but missing",
-            ));
+            let msg = "listed in the export's manifest but missing";
+            return Err(Error::input(&from, msg));
         }
     }
     Ok((export, manifest, ws))
@@ -660,10 +654,8 @@ fn remove_ours(ws: &Path, files: &[String]) {
 /// Hard-links `from` to `to`, copying (atomically) when a link is impossible (other file system).
 fn link_or_copy(from: &Path, to: &Path) -> Result<()> {
     if !from.is_file() {
-        return Err(Error::input(
-            from,
-            "listed in the export's manifest but missing",
-        ));
+        let msg = "listed in the export's manifest but missing";
+        return Err(Error::input(from, msg));
     }
     crate::output::check_replaceable(to)?;
     if std::fs::hard_link(from, to).is_ok() {
