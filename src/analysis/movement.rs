@@ -286,10 +286,9 @@ impl MovementPass {
         let cur = self.free_slot();
         self.engine.load(cur, px)?;
         self.last = (!stride_point).then_some((Some(cur), i, None));
-        let from = match stride_point {
-            true => self.anchor.replace((cur, i)),
-            false => None,
-        };
+        let from = stride_point
+            .then(|| self.anchor.replace((cur, i)))
+            .flatten();
         let m = Measured {
             index: i,
             stride_point,
