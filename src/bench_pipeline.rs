@@ -89,10 +89,8 @@ fn clip(dir: &Path, name: &str, w: u32, h: u32, fps: u32, secs: u32) -> Result<P
         CLIP_TOOL,
     )?;
     if !out.is_file() {
-        return Err(Error::param(
-            CLIP_TOOL,
-            format!("succeeded but {} is missing", out.display()),
-        ));
+        let msg = format!("succeeded but {} is missing", out.display());
+        return Err(Error::param(CLIP_TOOL, msg));
     }
     Ok(out)
 }

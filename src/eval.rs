@@ -115,13 +115,8 @@ pub fn read_tum(path: &Path) -> Result<Vec<GtPose>> {
 }
 
 fn tum_err(path: &Path, line: usize, msg: &str) -> Error {
-    Error::file(
-        path,
-        Some(line),
-        "TUM trajectory",
-        "timestamp tx ty tz qx qy qz qw",
-        msg,
-    )
+    let fields = "timestamp tx ty tz qx qy qz qw";
+    Error::file(path, Some(line), "TUM trajectory", fields, msg)
 }
 
 /// Ground-truth part of the report.
@@ -199,10 +194,8 @@ fn resolve(path: &Path) -> Result<Resolved> {
         (path.to_path_buf(), None, None)
     };
     if !root.is_dir() {
-        return Err(Error::input(
-            root,
-            "no sparse model here (run `keyframer colmap --sparse`)",
-        ));
+        let msg = "no sparse model here (run `keyframer colmap --sparse`)";
+        return Err(Error::input(root, msg));
     }
     let dirs = model::model_dirs(&root)?;
     // The largest model by registered images; reading images.* is enough to count them.
@@ -239,7 +232,6 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
         .or(r.selected_from_workspace);
     let ordered = order_images(&m, manifest.as_ref(), export.as_deref())?;
     let centres: Vec<Vec3> = ordered.iter().map(|o| o.centre).collect();
-    let np = m.points.len();
     let registered = m.images.len();
     let gt = a.gt.as_deref().map(|p| compare_gt(p, &ordered));
     Ok(Report {
@@ -251,11 +243,9 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
         registered_ratio: selected
             .filter(|&s| s > 0)
             .map(|s| registered as f64 / s as f64),
-        points3d: np,
-        mean_reprojection_error: (np > 0)
-            .then(|| m.points.values().map(|p| p.error).sum::<f64>() / np as f64),
-        mean_track_length: (np > 0)
-            .then(|| m.points.values().map(|p| p.track.len()).sum::<usize>() as f64 / np as f64),
+        points3d: m.points.len(),
+        mean_reprojection_error: m.point_mean(|p| p.error),
+        mean_track_length: m.point_mean(|p| p.track.len() as f64),
         spacing: stats(&spacings(&centres)),
         order: ordered.iter().map(|o| (o.name.clone(), o.index)).collect(),
         gt: gt.transpose()?,

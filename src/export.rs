@@ -54,10 +54,8 @@ pub fn output_size(settings: &ExportSettings, width: u32, height: u32) -> Result
             let sw = (f64::from(w) * s).round() as u32;
             let sh = (f64::from(h) * s).round() as u32;
             if sw == 0 || sh == 0 {
-                return Err(Error::param(
-                    "scale",
-                    format!("{s} makes a {w}x{h} frame empty"),
-                ));
+                let msg = format!("{s} makes a {w}x{h} frame empty");
+                return Err(Error::param("scale", msg));
             }
             (sw, sh)
         }
@@ -168,13 +166,7 @@ pub fn export(
         geo: geo.as_ref(),
     };
     let result = stage_and_commit(&job, out, dir.is_new(), src.as_mut(), masker.as_mut());
-    let (frames, missing) = match result {
-        Ok(v) => v,
-        Err(e) => {
-            dir.abandon();
-            return Err(e);
-        }
-    };
+    let (frames, missing) = result.inspect_err(|_| dir.abandon())?;
     let manifest = Manifest {
         tool: "keyframer".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
@@ -191,13 +183,16 @@ pub fn export(
         mask_ms_per_image: masker.as_ref().and_then(|m| m.seg.ms_per_image()),
     };
     write_manifest(out, &manifest)?;
-    let unplaced = manifest.frames.iter().filter(|f| f.position.is_none());
-    match (geo.is_some(), unplaced.count()) {
-        (true, n) if n > 0 => log::warn!(
+    let n = manifest
+        .frames
+        .iter()
+        .filter(|f| f.position.is_none())
+        .count();
+    if geo.is_some() && n > 0 {
+        log::warn!(
             "{n} of the {} exported images have no telemetry position (outside the telemetry's time span or without GPS tags): they carry no geotag and manifest.json lists no position for them",
             manifest.frames.len()
-        ),
-        _ => {}
+        );
     }
     Ok(manifest)
 }

@@ -99,17 +99,9 @@ impl DeviceMovement {
         let gates = [shapes.len(), shapes.len() + stat.shapes().len()];
         shapes.extend(stat.shapes());
         shapes.extend(flow.copy_shapes());
+        let views = (&frame, &results);
         let stationary = stationary
-            .map(|st| {
-                StationaryGpu::new(
-                    ctx.clone(),
-                    st,
-                    scale,
-                    (&frame, &results),
-                    &shapes,
-                    gates[1],
-                )
-            })
+            .map(|st| StationaryGpu::new(ctx.clone(), st, scale, views, &shapes, gates[1]))
             .transpose()?;
         Ok(DeviceMovement {
             ctx: ctx.clone(),
@@ -190,12 +182,9 @@ impl DeviceMovement {
             st.encode_plan(&mut enc);
             let pair = (REFERENCE, w.slot);
             self.flow.encode_flow(&mut enc, pair, gate(0))?;
-            self.stat.encode(
-                &mut enc,
-                self.statistic,
-                Some(&self.dest[1]),
-                gate(statistic),
-            );
+            let dest = Some(&self.dest[1]);
+            self.stat
+                .encode(&mut enc, self.statistic, dest, gate(statistic));
             st.encode_decide(&mut enc);
             self.flow
                 .encode_copy(&mut enc, w.slot, REFERENCE, gate(keep))?;

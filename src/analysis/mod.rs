@@ -349,14 +349,8 @@ fn scan_only(src: &mut dyn FrameSource, input: &Path, quiet: bool) -> Result<Ana
         bar.set_position(done.frames as u64);
     }
     bar.finish_and_clear();
-    Ok(conclude(
-        src,
-        input,
-        &Request::default(),
-        done,
-        None,
-        Backend::Opencv,
-    ))
+    let req = Request::default();
+    Ok(conclude(src, input, &req, done, None, Backend::Opencv))
 }
 
 fn finish_metadata(metadata: &mut Metadata, input: &Path, done: &Collected) {

@@ -106,6 +106,12 @@ fn engine(
     Ok((Engine::Host(Box::new(cpu)), Backend::Opencv))
 }
 
+/// The analysis size of `meta`'s frames for `req`, and the factor from it to full resolution.
+fn analysis(req: &MovementRequest, meta: &Metadata) -> ((u32, u32), f64) {
+    let size = analysis_size(meta.width, meta.height, req.analysis_width);
+    (size, f64::from(meta.width) / f64::from(size.0))
+}
+
 /// A frame measured: at a stride point, the consecutive movement from the previous one (`from`,
 /// none for the first frame); for a candidate, the stationary step.
 struct Measured {
@@ -159,8 +165,7 @@ impl MovementPass {
         if req.stride == 0 {
             return Err(Error::param("flow stride", "must be at least 1"));
         }
-        let size = analysis_size(meta.width, meta.height, req.analysis_width);
-        let scale = f64::from(meta.width) / f64::from(size.0);
+        let (size, scale) = analysis(&req, meta);
         let (engine, used) = engine(&req, stationary.as_ref(), backend, ctx, size, scale)?;
         Ok((MovementPass::with(&req, stationary, engine, meta), used))
     }
@@ -182,13 +187,13 @@ impl MovementPass {
         engine: Engine,
         meta: &Metadata,
     ) -> MovementPass {
-        let (w, h) = analysis_size(meta.width, meta.height, req.analysis_width);
+        let ((w, h), scale) = analysis(req, meta);
         let reference = matches!(engine, Engine::Device(_)).then_some(REFERENCE);
         MovementPass {
             engine,
             stride: req.stride as usize,
             size: (w as i32, h as i32),
-            scale: f64::from(meta.width) / f64::from(w),
+            scale,
             values: Vec::new(),
             anchor: None,
             reference,
@@ -281,10 +286,9 @@ impl MovementPass {
         let cur = self.free_slot();
         self.engine.load(cur, px)?;
         self.last = (!stride_point).then_some((Some(cur), i, None));
-        let from = match stride_point {
-            true => self.anchor.replace((cur, i)),
-            false => None,
-        };
+        let from = stride_point
+            .then(|| self.anchor.replace((cur, i)))
+            .flatten();
         let m = Measured {
             index: i,
             stride_point,
@@ -314,17 +318,11 @@ impl MovementPass {
         let consecutive = from.map(|s| e.movement(s, cur)).transpose()?;
         push_values(&mut self.values, self.scale, &m, consecutive);
         let slot = self.reference;
-        let from_reference = || {
+        let from_ref = || {
             let slot = slot.ok_or_else(|| Error::param("stationary", "no reference loaded"))?;
             e.movement(slot, cur)
         };
-        if step(
-            &mut self.stationary,
-            &m,
-            consecutive,
-            self.scale,
-            from_reference,
-        )? {
+        if step(&mut self.stationary, &m, consecutive, self.scale, from_ref)? {
             self.reference = Some(cur);
         }
         Ok(())
@@ -350,14 +348,8 @@ impl MovementPass {
     fn replay(&mut self, m: &Measured, r: &Record) -> Result<()> {
         let consecutive = m.from.map(|_| checked(r.consecutive)).transpose()?;
         push_values(&mut self.values, self.scale, m, consecutive);
-        let from_reference = || checked(r.reference);
-        let anchored = step(
-            &mut self.stationary,
-            m,
-            consecutive,
-            self.scale,
-            from_reference,
-        )?;
+        let from_ref = || checked(r.reference);
+        let anchored = step(&mut self.stationary, m, consecutive, self.scale, from_ref)?;
         if m.candidate && anchored != (r.decision != 0) {
             return Err(Error::Gpu(format!(
                 "the device's stationary decision at frame {} differs from the host's",

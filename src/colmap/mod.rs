@@ -219,10 +219,8 @@ pub fn read_record(workspace: &Path) -> Result<Record> {
 pub fn read_manifest(export: &Path) -> Result<Manifest> {
     let p = export.join(MANIFEST);
     if !p.is_file() {
-        return Err(Error::input(
-            export,
-            "no manifest.json: not an export folder made by `keyframer export`",
-        ));
+        let msg = "no manifest.json: not an export folder made by `keyframer export`";
+        return Err(Error::input(export, msg));
     }
     Manifest::load(&p)
 }
@@ -275,10 +273,8 @@ fn check_settings(a: &ColmapSettings) -> Result<()> {
     }
     if !model::CAMERA_MODELS.iter().any(|m| m.1 == a.camera_model) {
         let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
-        return Err(Error::param(
-            "camera_model",
-            format!("`{}` is not one of {}", a.camera_model, names.join(", ")),
-        ));
+        let msg = format!("`{}` is not one of {}", a.camera_model, names.join(", "));
+        return Err(Error::param("camera_model", msg));
     }
     mapper_keys(&a.mapper_option)?;
     if let Some(params) = &a.camera_params {
@@ -312,10 +308,8 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
     for f in &manifest.frames {
         let from = crate::export::image_path(&export, f);
         if !from.is_file() {
-            return Err(Error::input(
-                &from,
-                "listed in the export's manifest but missing",
-            ));
+            let msg = "listed in the export's manifest but missing";
+            return Err(Error::input(&from, msg));
         }
     }
     Ok((export, manifest, ws))
@@ -348,13 +342,11 @@ fn fill_workspace(ws: &Path, export: &Path, manifest: &Manifest, force: bool) ->
         }
         Ok(())
     })();
-    if let Err(e) = linked {
+    // abandon removes only folders this run created.
+    linked.inspect_err(|_| {
         remove_ours(ws, &ours_now(ws));
-        if dir.is_new() {
-            dir.abandon();
-        }
-        return Err(e);
-    }
+        dir.abandon();
+    })?;
     Ok(masks)
 }
 
@@ -540,13 +532,11 @@ pub fn largest(models: &[ModelSummary]) -> Option<&ModelSummary> {
 }
 
 fn summarise(m: &model::Model, rel: &Path) -> ModelSummary {
-    let n = m.points.len();
     ModelSummary {
         path: rel.display().to_string(),
         registered_images: m.images.len(),
-        points3d: n,
-        mean_reprojection_error: (n > 0)
-            .then(|| m.points.values().map(|p| p.error).sum::<f64>() / n as f64),
+        points3d: m.points.len(),
+        mean_reprojection_error: m.point_mean(|p| p.error),
     }
 }
 
@@ -613,30 +603,20 @@ fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
 /// Every regular file (and link) now inside the places keyframer and COLMAP write in `ws`,
 /// relative to `ws`, sorted.
 fn ours_now(ws: &Path) -> Vec<String> {
-    fn walk(dir: &Path, rel: &Path, out: &mut Vec<String>) {
-        let Ok(entries) = std::fs::read_dir(dir) else {
-            return;
-        };
-        for e in entries.flatten() {
-            let r = rel.join(e.file_name());
-            match e.file_type() {
-                Ok(t) if t.is_dir() => walk(&e.path(), &r, out),
-                Ok(_) => out.push(r.to_string_lossy().into_owned()),
-                Err(_) => {}
+    fn walk(p: &Path, rel: &Path, out: &mut Vec<String>) {
+        match std::fs::symlink_metadata(p) {
+            Ok(m) if m.is_dir() => {
+                for e in std::fs::read_dir(p).into_iter().flatten().flatten() {
+                    walk(&e.path(), &rel.join(e.file_name()), out);
+                }
             }
+            Ok(_) => out.push(rel.to_string_lossy().into_owned()),
+            Err(_) => {}
         }
     }
     let mut out = Vec::new();
-    for name in OURS {
-        if name == RECORD {
-            continue;
-        }
-        let p = ws.join(name);
-        match std::fs::symlink_metadata(&p) {
-            Ok(m) if m.is_dir() => walk(&p, Path::new(name), &mut out),
-            Ok(_) => out.push(name.to_string()),
-            Err(_) => {}
-        }
+    for name in OURS.into_iter().filter(|&n| n != RECORD) {
+        walk(&ws.join(name), Path::new(name), &mut out);
     }
     out.sort();
     out
@@ -674,10 +654,8 @@ fn remove_ours(ws: &Path, files: &[String]) {
 /// Hard-links `from` to `to`, copying (atomically) when a link is impossible (other file system).
 fn link_or_copy(from: &Path, to: &Path) -> Result<()> {
     if !from.is_file() {
-        return Err(Error::input(
-            from,
-            "listed in the export's manifest but missing",
-        ));
+        let msg = "listed in the export's manifest but missing";
+        return Err(Error::input(from, msg));
     }
     crate::output::check_replaceable(to)?;
     if std::fs::hard_link(from, to).is_ok() {

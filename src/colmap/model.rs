@@ -77,6 +77,14 @@ pub struct Model {
     pub points: BTreeMap<u64, Point3D>,
 }
 
+impl Model {
+    /// The mean of `f` over the 3D points; `None` without points.
+    pub fn point_mean(&self, f: impl Fn(&Point3D) -> f64) -> Option<f64> {
+        let n = self.points.len() as f64;
+        (n > 0.0).then(|| self.points.values().map(f).sum::<f64>() / n)
+    }
+}
+
 /// The on-disk format a model was read from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]

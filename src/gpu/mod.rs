@@ -202,19 +202,14 @@ pub fn pick_adapter(wanted: Option<&str>) -> Result<wgpu::Adapter> {
         return Ok(list.swap_remove(0));
     };
     let lw = w.to_lowercase();
-    match list
-        .iter()
-        .position(|a| a.get_info().name.to_lowercase().contains(&lw))
-    {
-        Some(i) => Ok(list.swap_remove(i)),
-        None => {
-            let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
-            Err(Error::Gpu(format!(
-                "no adapter matches `{w}`; available: {}",
-                names.join(", ")
-            )))
-        }
+    if let Some(i) = (list.iter()).position(|a| a.get_info().name.to_lowercase().contains(&lw)) {
+        return Ok(list.swap_remove(i));
     }
+    let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
+    Err(Error::Gpu(format!(
+        "no adapter matches `{w}`; available: {}",
+        names.join(", ")
+    )))
 }
 
 /// Summary of an adapter's identity and relevant limits.
@@ -499,6 +494,30 @@ impl GpuContext {
             label: Some(label),
             layout: &pipe.get_bind_group_layout(0),
             entries: &entries,
+        })
+    }
+
+    /// A 2-D `width` x `height` texture of one mip level and one sample.
+    pub fn texture(
+        &self,
+        label: &str,
+        (width, height): (u32, u32),
+        format: wgpu::TextureFormat,
+        usage: wgpu::TextureUsages,
+    ) -> wgpu::Texture {
+        self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
         })
     }
 

@@ -11,6 +11,7 @@ use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use std::sync::Arc;
+use wgpu::TextureFormat;
 
 /// WGSL of the pyramid stages (level images and expansions), after its prelude.
 pub const PYRAMID_WGSL: &str = concat!(
@@ -303,22 +304,14 @@ fn texture(
     (w, h): (u32, u32),
     format: wgpu::TextureFormat,
 ) -> wgpu::Texture {
-    ctx.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size: wgpu::Extent3d {
-            width: w.max(1),
-            height: h.max(1),
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
+    ctx.texture(
+        label,
+        (w.max(1), h.max(1)),
         format,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING
+        wgpu::TextureUsages::TEXTURE_BINDING
             | wgpu::TextureUsages::STORAGE_BINDING
             | wgpu::TextureUsages::COPY_DST,
-        view_formats: &[],
-    })
+    )
 }
 
 /// A uniform of [`MAX_TAPS`] taps (`Taps` in the shaders, the tap in x) starting with `values`.
@@ -327,11 +320,8 @@ fn taps_uniform(ctx: &GpuContext, label: &str, values: &[f32]) -> wgpu::Buffer {
     for (t, v) in taps.iter_mut().zip(values) {
         t[0] = *v;
     }
-    ctx.buffer_init(
-        label,
-        wgpu::BufferUsages::UNIFORM,
-        bytemuck::cast_slice(&taps),
-    )
+    let bytes = bytemuck::cast_slice(&taps);
+    ctx.buffer_init(label, wgpu::BufferUsages::UNIFORM, bytes)
 }
 
 fn view(t: &wgpu::Texture) -> wgpu::TextureView {
@@ -340,7 +330,7 @@ fn view(t: &wgpu::Texture) -> wgpu::TextureView {
 
 /// A view of a new Rgba32Float [`texture`].
 fn float_view(ctx: &GpuContext, label: &str, size: (u32, u32)) -> wgpu::TextureView {
-    view(&texture(ctx, label, size, wgpu::TextureFormat::Rgba32Float))
+    view(&texture(ctx, label, size, TextureFormat::Rgba32Float))
 }
 
 /// A binding of a texture view.
@@ -407,7 +397,7 @@ impl PyramidScratch {
             ctx,
             "gray",
             (texels(w), h),
-            wgpu::TextureFormat::Rgba8Uint,
+            TextureFormat::Rgba8Uint,
         ));
         let (kern, ig) = poly_weights(p.poly_n, p.poly_sigma);
         let n = p.poly_n as usize;
@@ -596,12 +586,7 @@ impl LevelScratch {
             None => (uniform(base), Some(resize_from(l, 1.0, 2, 0))),
         };
         let initial = start_initial.as_ref().map(|_| {
-            let t = texture(
-                ctx,
-                "initial flow",
-                (2 * n, h),
-                wgpu::TextureFormat::Rgba32Float,
-            );
+            let t = texture(ctx, "initial flow", (2 * n, h), TextureFormat::Rgba32Float);
             let v = view(&t);
             (t, v)
         });
@@ -748,10 +733,8 @@ impl FarnebackGpu {
     ) -> Result<Self> {
         params.validate()?;
         if width < 2 || height < 2 {
-            return Err(Error::param(
-                "frame size",
-                "Farneback needs at least 2x2 pixels",
-            ));
+            let msg = "Farneback needs at least 2x2 pixels";
+            return Err(Error::param("frame size", msg));
         }
         let levels = levels(width, height, &params);
         let full = u64::from(width) * u64::from(height);
@@ -813,37 +796,29 @@ impl FarnebackGpu {
     fn pyramid_steps(&self, slot: usize) -> Vec<Step<'_>> {
         let s = &self.slots[slot];
         let (w, h) = (self.levels[0].width, self.levels[0].height);
-        let by8 = |n: u32| n.div_ceil(8);
+        let (by8, p, rows) = (|n: u32| n.div_ceil(8), &self.pipes, self.strip_rows);
         let mut steps = vec![Step(
             "level0",
-            &self.pipes.level0,
+            &p.level0,
             &s.level0,
-            (by8(w.div_ceil(16)), h.div_ceil(self.strip_rows)),
+            (by8(w.div_ceil(16)), h.div_ceil(rows)),
         )];
         for (k, l) in self.levels.iter().enumerate() {
             if k > 0 {
                 let [v, hz] = &self.scratch.smooth[k - 1];
-                steps.push(Step(
-                    "vsmooth",
-                    &self.pipes.vsmooth,
-                    v,
-                    (by8(texels(w)), l.height),
-                ));
+                steps.push(Step("vsmooth", &p.vsmooth, v, (by8(texels(w)), l.height)));
                 steps.push(Step(
                     "hsmooth",
-                    &self.pipes.hsmooth,
+                    &p.hsmooth,
                     hz,
                     (by8(texels(l.width) + 2 * HALO), l.height),
                 ));
             }
             steps.push(Step(
                 "polyexp",
-                &self.pipes.polyexp,
+                &p.polyexp,
                 &s.polyexp[k],
-                (
-                    by8(l.width.div_ceil(16)),
-                    l.height.div_ceil(self.strip_rows),
-                ),
+                (by8(l.width.div_ceil(16)), l.height.div_ceil(rows)),
             ));
         }
         steps
@@ -1033,10 +1008,8 @@ impl FarnebackGpu {
         let bytes = (u64::from(self.levels[0].width) * u64::from(self.levels[0].height))
             .next_multiple_of(4);
         if gray.size() < bytes {
-            return Err(Error::param(
-                "gray buffer",
-                "smaller than the level-0 image",
-            ));
+            let msg = "smaller than the level-0 image";
+            return Err(Error::param("gray buffer", msg));
         }
         let mut enc = self.ctx.encoder("farneback pyramid");
         enc.copy_buffer_to_buffer(gray, 0, &self.slots[slot].gray, 0, bytes);
@@ -1076,10 +1049,8 @@ impl FarnebackGpu {
             if init.typ() != opencv::core::CV_32FC2
                 || (init.cols() as u32, init.rows() as u32) != (full.width, full.height)
             {
-                return Err(Error::param(
-                    "initial flow",
-                    format!("must be {}x{} CV_32FC2", full.width, full.height),
-                ));
+                let msg = format!("must be {}x{} CV_32FC2", full.width, full.height);
+                return Err(Error::param("initial flow", msg));
             }
             let mut small = Mat::default();
             opencv::imgproc::resize(

@@ -32,16 +32,9 @@ pub fn from_totals(sum_off: u64, sum_sq: u64, n: u64, ksize: u32) -> f64 {
 /// OpenCV twin: variance of the Laplacian (CV_64F) of an 8-bit gray image.
 pub fn opencv(gray: &Mat, ksize: u32) -> Result<f64> {
     let mut lap = Mat::default();
-    imgproc::laplacian(
-        gray,
-        &mut lap,
-        core::CV_64F,
-        ksize as i32,
-        1.0,
-        0.0,
-        core::BORDER_DEFAULT,
-    )
-    .cv(|| format!("Laplacian ksize {ksize}"))?;
+    let (depth, border) = (core::CV_64F, core::BORDER_DEFAULT);
+    imgproc::laplacian(gray, &mut lap, depth, ksize as i32, 1.0, 0.0, border)
+        .cv(|| format!("Laplacian ksize {ksize}"))?;
     let mut mean = Vector::<f64>::new();
     let mut std = Vector::<f64>::new();
     core::mean_std_dev(&lap, &mut mean, &mut std, &core::no_array()).cv(|| "meanStdDev".into())?;

@@ -107,11 +107,8 @@ impl ResizeAreaGpu {
 
     /// A bind group reading the gray buffer `src` and writing `dst`.
     pub fn bind(&self, src: &wgpu::Buffer, dst: &wgpu::Buffer) -> wgpu::BindGroup {
-        self.ctx.bind(
-            "resize_area",
-            &self.pipe,
-            &[(0, src), (1, dst), (2, &self.params)],
-        )
+        let entries = [(0, src), (1, dst), (2, &self.params)];
+        self.ctx.bind("resize_area", &self.pipe, &entries)
     }
 
     /// Records the resize of one bound (src, dst) pair.
@@ -127,10 +124,8 @@ impl ResizeAreaGpu {
         if gray.typ() != opencv::core::CV_8UC1
             || (gray.cols() as usize, gray.rows() as usize) != (w, h)
         {
-            return Err(Error::param(
-                "resize_area",
-                format!("input must be {w}x{h} 8-bit gray"),
-            ));
+            let msg = format!("input must be {w}x{h} 8-bit gray");
+            return Err(Error::param("resize_area", msg));
         }
         let row = self.p.src_stride as usize * 4;
         let mut packed = vec![0u8; row * h];

@@ -224,11 +224,8 @@ impl SharpnessGpu {
     fn encode(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
         let s = &self.slots[slot];
         let groups = strip::groups(self.width, self.height, self.strip_rows);
-        enc.clear_buffer(
-            &self.totals,
-            TOTALS_SLOT * slot as u64,
-            Some(totals_of(self.metric) * 8),
-        );
+        let totals = Some(totals_of(self.metric) * 8);
+        enc.clear_buffer(&self.totals, TOTALS_SLOT * slot as u64, totals);
         let mut pass = compute_pass(enc, "sharpness");
         self.ctx
             .dispatch(&mut pass, &self.metric_pipe, &s.metric_bg, groups);

@@ -65,20 +65,12 @@ pub fn frame_texture(ctx: &GpuContext, width: u32, height: u32) -> Result<wgpu::
             "a {width}x{height} frame needs a {tw}x{height} texture; this adapter allows {max}x{max}"
         )));
     }
-    Ok(ctx.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some("bgr frame"),
-        size: wgpu::Extent3d {
-            width: tw,
-            height,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format: wgpu::TextureFormat::Rgba32Uint,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-        view_formats: &[],
-    }))
+    Ok(ctx.texture(
+        "bgr frame",
+        (tw, height),
+        wgpu::TextureFormat::Rgba32Uint,
+        wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+    ))
 }
 
 /// Uploads the pixels of `mat` (8-bit BGR, `width` x the texture's height; `what` names the runner in

@@ -288,19 +288,19 @@ impl Timeline {
                     end += 1;
                 }
             }
-            let vals: Vec<f64> = c.values[f..end]
+            // (lo, hi) of the finite values; lo > hi when there is none.
+            let (lo, hi) = c.values[f..end]
                 .iter()
-                .copied()
                 .filter(|v| v.is_finite())
-                .collect();
-            if vals.is_empty() {
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                    (lo.min(v), hi.max(v))
+                });
+            if lo > hi {
                 if cur.len() > 1 {
                     runs.push(std::mem::take(&mut cur));
                 }
                 cur.clear();
             } else {
-                let lo = vals.iter().copied().fold(f64::INFINITY, f64::min);
-                let hi = vals.iter().copied().fold(f64::NEG_INFINITY, f64::max);
                 cur.push((f64::from(x), self.y(i, lo, max)));
                 if hi > lo {
                     cur.push((f64::from(x), self.y(i, hi, max)));
@@ -495,6 +495,7 @@ impl Timeline {
 
 /// The thresholds the last recorded steps used (a project is validated when loaded, so every
 /// history entry reads as an `Applied`).
+#[derive(Default)]
 struct Recorded {
     blur: Option<RecordedBlur>,
     spacing: Option<Option<f64>>,
@@ -507,34 +508,23 @@ type RecordedBlur = (Option<Metric>, Option<BlurMode>, Option<f64>, Option<usize
 
 impl Recorded {
     fn of(history: &[HistoryEntry]) -> Recorded {
-        let applied: Vec<Applied> = history
-            .iter()
-            .filter_map(|e| Applied::from_entry(e).ok())
-            .collect();
-        Recorded {
-            blur: applied.iter().rev().find_map(|a| match a {
+        let mut r = Recorded::default();
+        for a in history.iter().filter_map(|e| Applied::from_entry(e).ok()) {
+            match a {
                 Applied::Blur {
                     metric,
                     mode,
                     ratio,
                     window,
                     ..
-                } => Some((*metric, *mode, *ratio, *window)),
-                _ => None,
-            }),
-            spacing: applied.iter().rev().find_map(|a| match a {
-                Applied::Spacing { threshold_px, .. } => Some(Some(*threshold_px)),
-                _ => None,
-            }),
-            stationary: applied.iter().rev().find_map(|a| match a {
-                Applied::Stationary { threshold_px, .. } => Some(*threshold_px),
-                _ => None,
-            }),
-            geo_distance: applied.iter().rev().find_map(|a| match a {
-                Applied::GeoDistance { metres } => Some(*metres),
-                _ => None,
-            }),
+                } => r.blur = Some((metric, mode, ratio, window)),
+                Applied::Spacing { threshold_px, .. } => r.spacing = Some(Some(threshold_px)),
+                Applied::Stationary { threshold_px, .. } => r.stationary = Some(threshold_px),
+                Applied::GeoDistance { metres } => r.geo_distance = Some(metres),
+                _ => {}
+            }
         }
+        r
     }
 }
 

@@ -148,10 +148,7 @@ impl Served {
         let started = Instant::now();
         let (method, url) = (rq.method().clone(), rq.url().to_string());
         let path = url.split('?').next().unwrap_or("").to_string();
-        let reply = match self.admit(&rq, &url) {
-            Ok(()) => self.route(&mut rq, &method, &path),
-            Err(e) => Err(e),
-        };
+        let reply = (self.admit(&rq, &url)).and_then(|()| self.route(&mut rq, &method, &path));
         let response = match reply {
             Ok(r) => r,
             Err(e) => {

@@ -350,10 +350,8 @@ impl Review {
     pub fn save(&self, steps: &[Step], revision: u64) -> ApiResult<u64> {
         let project = self.reselect(steps)?;
         if self.project().preview {
-            return Err(ApiError::new(
-                409,
-                "a preview project is never saved from review; run select without --preview",
-            ));
+            let msg = "a preview project is never saved from review; run select without --preview";
+            return Err(ApiError::new(409, msg));
         }
         if self.input.exists() {
             let same =

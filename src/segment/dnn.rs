@@ -35,10 +35,8 @@ impl DnnRunner {
                 )
             })?;
         if net.empty().cv(|| "Net::empty".into())? {
-            return Err(Error::input(
-                &desc.model,
-                "OpenCV DNN read an empty network",
-            ));
+            let msg = "OpenCV DNN read an empty network";
+            return Err(Error::input(&desc.model, msg));
         }
         net.set_preferable_backend(dnn::DNN_BACKEND_OPENCV)
             .cv(|| "setPreferableBackend".into())?;

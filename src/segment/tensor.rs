@@ -21,10 +21,8 @@ pub fn input_shape(desc: &ModelDesc, n: usize) -> [usize; 4] {
 pub fn push_image(desc: &ModelDesc, image: &Mat, out: &mut Vec<f32>) -> Result<()> {
     let (w, h) = (desc.input.width as i32, desc.input.height as i32);
     if image.channels() != 3 || image.depth() != opencv::core::CV_8U {
-        return Err(Error::param(
-            "image",
-            "segmentation needs an 8-bit, 3-channel image",
-        ));
+        let msg = "segmentation needs an 8-bit, 3-channel image";
+        return Err(Error::param("image", msg));
     }
     let resized;
     let img = if image.cols() == w && image.rows() == h {
@@ -102,10 +100,8 @@ pub fn decode_output(
         }
     };
     if bn != n {
-        return Err(mismatch(
-            desc,
-            format!("output batch is {bn} for {n} input images"),
-        ));
+        let msg = format!("output batch is {bn} for {n} input images");
+        return Err(mismatch(desc, msg));
     }
     if c != want_c {
         return Err(mismatch(
@@ -119,10 +115,8 @@ pub fn decode_output(
         ));
     }
     if data.len() != bn * c * h * w || h == 0 || w == 0 {
-        return Err(mismatch(
-            desc,
-            format!("output has {} values for shape {shape:?}", data.len()),
-        ));
+        let msg = format!("output has {} values for shape {shape:?}", data.len());
+        return Err(mismatch(desc, msg));
     }
     let plane = h * w;
     let at = |b: usize, k: usize, p: usize| {

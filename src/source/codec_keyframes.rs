@@ -105,10 +105,8 @@ pub fn probe(path: &Path) -> Result<CodecKeyframeIndex> {
     }
     let index = parse_packets(path, &String::from_utf8_lossy(&out.stdout))?;
     if index.keyframes.is_empty() {
-        return Err(Error::input(
-            path,
-            "the video marks no packet as a keyframe",
-        ));
+        let msg = "the video marks no packet as a keyframe";
+        return Err(Error::input(path, msg));
     }
     Ok(index)
 }

@@ -68,10 +68,8 @@ pub fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {
         )
     });
     if files.is_empty() {
-        return Err(Error::input(
-            dir,
-            "the folder holds no images (png, jpg, jpeg, tif, tiff, bmp)",
-        ));
+        let msg = "the folder holds no images (png, jpg, jpeg, tif, tiff, bmp)";
+        return Err(Error::input(dir, msg));
     }
     Ok(files)
 }
@@ -135,10 +133,8 @@ impl ImageSource {
             }
         }
         let Some((_, (w, h))) = size else {
-            return Err(Error::input(
-                path,
-                "none of the images can be read (all damaged or unsupported)",
-            ));
+            let msg = "none of the images can be read (all damaged or unsupported)";
+            return Err(Error::input(path, msg));
         };
         let n = files.len();
         Ok(ImageSource {
@@ -237,11 +233,8 @@ fn dimensions(file: &Path, index: usize) -> Result<(u32, u32)> {
     let m = imgcodecs::imread(file, imgcodecs::IMREAD_COLOR)
         .cv(|| format!("imread {}", file.display()))?;
     if m.empty() {
-        return Err(Error::frame(
-            file,
-            index,
-            "cannot read as an image (damaged or unsupported file)",
-        ));
+        let msg = "cannot read as an image (damaged or unsupported file)";
+        return Err(Error::frame(file, index, msg));
     }
     Ok((m.cols() as u32, m.rows() as u32))
 }

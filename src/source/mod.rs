@@ -130,10 +130,8 @@ pub fn kind_of(path: &Path) -> Result<SourceKind> {
 pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
     let kind = kind_of(path)?;
     if opts.codec_keyframes.is_some() && kind != SourceKind::Video {
-        return Err(Error::input(
-            path,
-            "the keyframe-only preview needs a video (images have no codec keyframes)",
-        ));
+        let msg = "the keyframe-only preview needs a video (images have no codec keyframes)";
+        return Err(Error::input(path, msg));
     }
     Ok(match (kind, &opts.codec_keyframes) {
         (SourceKind::Images, _) => Box::new(ImageSource::open_folder(path, opts.images_fps)?),

@@ -272,17 +272,10 @@ pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
         return Ok(None);
     };
     let altitude = match field(Tag::GPSAltitude) {
-        Some(Value::Rational(v)) => v.first().map(|r| {
-            let below =
-                matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
-            if below {
-                -r.to_f64()
-            } else {
-                r.to_f64()
-            }
-        }),
+        Some(Value::Rational(v)) => v.first().map(|r| r.to_f64()),
         _ => None,
     };
+    let below = matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
     let focal = field(Tag::FocalLengthIn35mmFilm)
         .and_then(|v| v.get_uint(0))
         .map(f64::from)
@@ -290,7 +283,7 @@ pub fn exif_fix(image: &Path) -> Result<Option<Fix>> {
     Ok(Some(Fix {
         lat_deg: lat,
         lon_deg: lon,
-        abs_alt_m: altitude,
+        abs_alt_m: altitude.map(|a| if below { -a } else { a }),
         focal_35mm: focal,
         ..Fix::default()
     }))

@@ -172,11 +172,8 @@ impl VideoSource {
             .retrieve(&mut image, 0)
             .cv(|| format!("retrieve {} frame {index}", self.path.display()))?;
         if !ok || image.empty() {
-            return Err(Error::frame(
-                &self.path,
-                index,
-                "the decoder returned no image",
-            ));
+            let msg = "the decoder returned no image";
+            return Err(Error::frame(&self.path, index, msg));
         }
         let turn = match self.meta.rotation_deg {
             90 => Some(cvcore::ROTATE_90_COUNTERCLOCKWISE),

@@ -256,30 +256,6 @@ fn upload_mips(ctx: &GpuContext, img: &MipImage, label: &str) -> wgpu::Texture {
     tex
 }
 
-fn target(
-    ctx: &GpuContext,
-    w: u32,
-    h: u32,
-    format: wgpu::TextureFormat,
-    usage: wgpu::TextureUsages,
-    label: &str,
-) -> wgpu::Texture {
-    ctx.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size: wgpu::Extent3d {
-            width: w,
-            height: h,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format,
-        usage,
-        view_formats: &[],
-    })
-}
-
 impl<'a> Renderer<'a> {
     /// Creates pipelines, uploads meshes and textures, allocates targets for `width` x `height`
     /// and `samples` sub-samples per frame.
@@ -531,37 +507,29 @@ impl<'a> Renderer<'a> {
         let resolve_pipeline = full("fs_resolve", colour_format, None);
 
         use wgpu::TextureUsages as U;
-        let sub = target(
-            ctx,
-            width,
-            height,
+        let sub = ctx.texture(
+            "scene sub-sample",
+            (width, height),
             colour_format,
             U::RENDER_ATTACHMENT | U::TEXTURE_BINDING,
-            "scene sub-sample",
         );
-        let depth = target(
-            ctx,
-            width,
-            height,
+        let depth = ctx.texture(
+            "scene depth",
+            (width, height),
             wgpu::TextureFormat::Depth32Float,
             U::RENDER_ATTACHMENT,
-            "scene depth",
         );
-        let accum = target(
-            ctx,
-            width,
-            height,
+        let accum = ctx.texture(
+            "scene accumulator",
+            (width, height),
             wgpu::TextureFormat::Rgba16Float,
             U::RENDER_ATTACHMENT | U::TEXTURE_BINDING,
-            "scene accumulator",
         );
-        let out_tex = target(
-            ctx,
-            width,
-            height,
+        let out_tex = ctx.texture(
+            "scene output",
+            (width, height),
             colour_format,
             U::RENDER_ATTACHMENT | U::COPY_SRC,
-            "scene output",
         );
         let sub_view = sub.create_view(&Default::default());
         let accum_view = accum.create_view(&Default::default());
