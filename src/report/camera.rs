@@ -254,24 +254,28 @@ pub fn scale_colour(t: f64) -> String {
 mod tests {
     use super::*;
 
+    /// 40 points on a circle of radius 2 in a plane tilted by 0.6 rad about x, with a small
+    /// wobble along the plane's normal.
+    fn tilted_circle() -> CameraPath {
+        let (s2, c2) = (0.6f64.sin(), 0.6f64.cos());
+        let points = (0..40usize)
+            .map(|i| {
+                let a = i as f64 / 40.0 * std::f64::consts::TAU;
+                let (u, w) = (2.0 * a.cos(), 2.0 * a.sin());
+                let e = 0.01 * (3.0 * a).sin();
+                let centre = [u, w * c2 - e * s2, w * s2 + e * c2];
+                PathPoint {
+                    frame: i * 5,
+                    centre,
+                }
+            })
+            .collect();
+        CameraPath { points }
+    }
+
     #[test]
     fn principal_axes_recover_a_tilted_plane_path() {
-        // A circle of radius 2 in a plane tilted out of x/y, plus a small wobble along the normal.
-        let n = 40;
-        let (s2, c2) = (0.6f64.sin(), 0.6f64.cos());
-        let path = CameraPath {
-            points: (0..n)
-                .map(|i| {
-                    let a = i as f64 / n as f64 * std::f64::consts::TAU;
-                    let (u, w) = (2.0 * a.cos(), 2.0 * a.sin());
-                    let e = 0.01 * (3.0 * a).sin();
-                    PathPoint {
-                        frame: i * 5,
-                        centre: [u, w * c2 - e * s2, w * s2 + e * c2],
-                    }
-                })
-                .collect(),
-        };
+        let (n, path) = (40, tilted_circle());
         let p = path.projected();
         assert_eq!(p.len(), n);
         for &(_, x, y) in &p {
@@ -319,20 +323,7 @@ mod tests {
                 .collect(),
         };
         // A circle: two equal principal spreads, the tie broken towards the lower world axis.
-        let (s2, c2) = (0.6f64.sin(), 0.6f64.cos());
-        let circle = CameraPath {
-            points: (0..40)
-                .map(|i| {
-                    let a = i as f64 / 40.0 * std::f64::consts::TAU;
-                    let (u, w) = (2.0 * a.cos(), 2.0 * a.sin());
-                    let e = 0.01 * (3.0 * a).sin();
-                    PathPoint {
-                        frame: i * 5,
-                        centre: [u, w * c2 - e * s2, w * s2 + e * c2],
-                    }
-                })
-                .collect(),
-        };
+        let circle = tilted_circle();
         for (name, path, first, last) in [
             (
                 "helix",
