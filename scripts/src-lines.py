@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Lines of the product's src/ at a git revision, the measure issue 15 uses for "src/ does not
 grow": code+comments outside tests (`#[cfg(test)] mod` blocks and `tests.rs` files left out),
-the comment lines among them, and the test lines. src/scene (moved to tools/scene) is left out.
+the code, comment and blank lines among them, and the test lines. src/scene (moved to tools/scene) is left out.
 Usage: scripts/src-lines.py REV [REV...]"""
 import re
 import subprocess
@@ -10,7 +10,7 @@ import sys
 for rev in sys.argv[1:] or ["HEAD"]:
     files = subprocess.run(["git", "ls-tree", "-r", "--name-only", rev, "src"],
                            capture_output=True, text=True, check=True).stdout.split()
-    code = comments = tests = 0
+    code = comments = blank = tests = 0
     for f in files:
         if not f.endswith(".rs") or f.startswith("src/scene"):
             continue
@@ -31,5 +31,7 @@ for rev in sys.argv[1:] or ["HEAD"]:
                 continue
             code += 1
             comments += lines[i].strip().startswith("//")
+            blank += lines[i].strip() == ""
             i += 1
-    print(f"{rev}: code+comments {code} (comments {comments}), tests {tests}")
+    print(f"{rev}: code+comments {code} (code {code - comments - blank}, comments {comments}, "
+          f"blank {blank}), tests {tests}")
