@@ -607,6 +607,12 @@ fn page_count(tab: &Tab) -> usize {
     v.as_u64().expect("a count") as usize
 }
 
+/// Waits until the keyframe count the page shows is (`op` "===") or is no longer ("!==") `n`.
+fn wait_count(tab: &Tab, op: &str, n: usize, within: Duration) {
+    let js = format!("document.getElementById('kf-count').dataset.count {op} '{n}'");
+    tab.wait_for(&js, within).unwrap();
+}
+
 /// How many selections the page has drawn.
 fn redraws(tab: &Tab) -> u64 {
     let v = tab.eval("Number(document.body.dataset.redraws || 0)");
@@ -701,11 +707,7 @@ fn review_page_threshold_change_gives_select_count() {
         "spacing 40 must change the count for this test to see it"
     );
     set_param(&tab, "spacing", "threshold", "40");
-    tab.wait_for(
-        &format!("document.getElementById('kf-count').dataset.count !== '{first}'"),
-        PAGE_WAIT,
-    )
-    .unwrap();
+    wait_count(&tab, "!==", first, PAGE_WAIT);
     assert_eq!(page_count(&tab), want, "the page's count is select's");
     assert_clean(&tab);
 }
@@ -740,14 +742,7 @@ fn review_page_click_adds_keyframe_and_save_finds_it() {
         "the page maps the x back to frame {f}"
     );
     tab.click(x, y);
-    tab.wait_for(
-        &format!(
-            "document.getElementById('kf-count').dataset.count === '{}'",
-            first + 1
-        ),
-        PAGE_WAIT,
-    )
-    .unwrap();
+    wait_count(&tab, "===", first + 1, PAGE_WAIT);
     assert!(tab
         .eval("kfTest.keyframes()")
         .as_array()
@@ -779,15 +774,7 @@ fn review_page_click_adds_keyframe_and_save_finds_it() {
     );
 
     // The other tab sees the save at its next poll.
-    second
-        .wait_for(
-            &format!(
-                "document.getElementById('kf-count').dataset.count === '{}'",
-                first + 1
-            ),
-            Duration::from_secs(3),
-        )
-        .unwrap();
+    wait_count(&second, "===", first + 1, Duration::from_secs(3));
     assert_eq!(second.eval("document.body.dataset.revision"), "1");
     assert_clean(&second);
 }
@@ -899,19 +886,11 @@ fn review_page_disables_steps_the_cache_lacks() {
     .unwrap();
     let count = page_count(&tab);
     tab.key("k");
-    tab.wait_for(
-        &format!("document.getElementById('kf-count').dataset.count !== '{count}'"),
-        PAGE_WAIT,
-    )
-    .unwrap();
+    wait_count(&tab, "!==", count, PAGE_WAIT);
     let toggled = page_count(&tab);
     assert_eq!(toggled.abs_diff(count), 1, "k toggles one keyframe");
     tab.key("Control+z");
-    tab.wait_for(
-        &format!("document.getElementById('kf-count').dataset.count === '{count}'"),
-        PAGE_WAIT,
-    )
-    .unwrap();
+    wait_count(&tab, "===", count, PAGE_WAIT);
     // + zooms in around the cursor (frame 1) to half the frames, 0 shows every frame again.
     tab.key("+");
     let view = "(m => m && [Number(m[1]), Number(m[2])])(document.getElementById('view-info').textContent.match(/view (\\d+)–(\\d+)$/))";
