@@ -412,7 +412,7 @@ pub struct MovementArgs {
     #[arg(long, default_value_t = defaults::TRIM)]
     pub trim: f64,
     /// Width of the analysis resolution for flow (never above the input's width). Default from
-    /// `keyframer bench pipeline --tradeoffs` (see README).
+    /// `keyframer bench pipeline --tradeoffs` (see docs/benchmarks.md).
     #[arg(long, value_name = "W", default_value_t = defaults::ANALYSIS_WIDTH)]
     pub analysis_width: u32,
     /// Measure flow between frames K apart (each frame in between gets an equal share of the

@@ -135,7 +135,7 @@ fn cycle_from(g: &BTreeMap<String, BTreeSet<String>>, start: &str) -> Option<Vec
     walk(g, start, start, &mut path, &mut BTreeSet::new()).then_some(path)
 }
 
-/// The library's layers, top to bottom, as README's Architecture section draws them: a module may
+/// The library's layers, top to bottom, as docs/architecture.md draws them: a module may
 /// import modules of its own layer or below, never above.
 const LAYERS: [(&str, &[&str]); 4] = [
     (
@@ -236,7 +236,7 @@ fn library_layers_point_down_without_cycles_and_clap_stays_in_the_binary() {
     for (m, deps) in &g {
         let Some(at) = layer_of(m) else {
             upward.push(format!(
-                "{m} is in no layer (add it to LAYERS and the README)"
+                "{m} is in no layer (add it to LAYERS and docs/architecture.md)"
             ));
             continue;
         };

@@ -7,6 +7,7 @@ mod cdp;
 mod checks;
 mod colmap;
 mod common;
+mod docs;
 mod experiment;
 mod fixtures;
 mod flow;

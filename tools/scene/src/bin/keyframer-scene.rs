@@ -1,5 +1,5 @@
 //! `keyframer-scene`: renders a synthetic drone sequence (video.mp4, poses.tum, scene.json); see
-//! the README section "Synthetic drone sequences". Exit codes: 0 success, 1 usage or error.
+//! docs/scene.md. Exit codes: 0 success, 1 usage or error.
 
 use clap::Parser;
 use keyframer_scene::cli::SceneArgs;
