@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# Installs what keyframer needs on Debian 12 (only what is missing) and fetches the public test
-# data (Debian's opencv-doc examples) into target/testdata/. Safe to run again.
+# Installs what keyframer needs on Debian 12 (only what is missing), fetches the public test data
+# (Debian's opencv-doc examples) into target/testdata/, ONNX Runtime into target/onnxruntime/ and
+# a person-segmentation model into target/models/selfie/. Safe to run again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates curl unzip colmap chromium jq fonts-dejavu-core libimage-exiftool-perl sqlite3)
+packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates curl unzip colmap chromium jq fonts-dejavu-core libimage-exiftool-perl sqlite3 python3)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -43,3 +44,7 @@ if [ ! -s target/onnxruntime/libonnxruntime.so.1.31.1 ]; then
   echo "setup: fetching ONNX Runtime 1.31.1 into target/onnxruntime/" >&2
   scripts/fetch-ort.sh target/onnxruntime >/dev/null
 fi
+
+# A person-segmentation model for `export --masks models/selfie.toml`: MediaPipe's selfie
+# segmentation (Apache-2.0) from the npm registry's package, converted to ONNX (4 MB download).
+scripts/fetch-selfie.sh target/models/selfie >/dev/null

@@ -155,9 +155,9 @@ mod tests {
     #[test]
     fn reads_the_selfie_models_signature() {
         let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../shared/models/selfie/selfie_segmentation.onnx");
+            .join("target/models/selfie/selfie_segmentation.onnx");
         if !p.exists() {
-            eprintln!("skipped: {} not present", p.display());
+            eprintln!("SKIPPED: {} not present: run scripts/setup.sh", p.display());
             return;
         }
         let s = signature(&p).map_err(|e| e.to_string()).unwrap();

@@ -25,4 +25,5 @@ mod safety;
 mod scene;
 mod segment;
 mod sharpness;
+mod standalone;
 mod telemetry;

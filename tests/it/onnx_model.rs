@@ -1,7 +1,10 @@
 //! Writes tiny ONNX models for the tests (a hand-rolled protobuf encoder, a few hundred bytes per
-//! model): a 1x1 convolution with chosen weights, optionally followed by a sigmoid.
+//! model): a 1x1 convolution with chosen weights, optionally followed by a sigmoid, and their
+//! model descriptions.
 
 #![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
 
 fn varint(out: &mut Vec<u8>, mut v: u64) {
     loop {
@@ -145,4 +148,45 @@ pub fn conv1x1(
     int(&mut opset, 2, 13);
     bytes(&mut model, 8, &opset);
     model
+}
+
+/// Weights (rows: classes; columns: R, G, B) and biases of the tiny 3-class model.
+pub const W3: [[f32; 3]; 3] = [[1.0, -0.5, 0.0], [0.0, 1.0, -0.5], [-0.5, 0.0, 1.0]];
+pub const B3: [f32; 3] = [0.0, 0.05, -0.05];
+/// Weights of the tiny probability model (one logit).
+pub const W1: [[f32; 3]; 1] = [[2.0, -1.0, -1.5]];
+pub const B1: [f32; 1] = [0.1];
+
+/// Writes the tiny model and its description into `dir`; returns the description's path.
+pub fn tiny_model(
+    dir: &Path,
+    name: &str,
+    probability: bool,
+    batch: Option<i64>,
+    extra: &str,
+) -> PathBuf {
+    let (w, h) = (12, 8);
+    let model = if probability {
+        conv1x1(h, w, batch, &W1, &B1, true)
+    } else {
+        conv1x1(h, w, batch, &W3, &B3, false)
+    };
+    std::fs::write(dir.join(format!("{name}.onnx")), model).unwrap();
+    let (classes, kind) = if probability {
+        (r#"["keep", "hide"]"#, "probability")
+    } else {
+        (r#"["red", "green", "blue"]"#, "scores")
+    };
+    let desc = dir.join(format!("{name}.toml"));
+    let batch_line = if batch.is_none() { "batch = 3\n" } else { "" };
+    std::fs::write(
+        &desc,
+        format!(
+            "model = \"{name}.onnx\"\nframework = \"onnx\"\nclasses = {classes}\n{extra}\n\
+             [input]\nwidth = {w}\nheight = {h}\nlayout = \"nchw\"\nchannels = \"rgb\"\n\
+             scale = 0.00392156862745098\n{batch_line}\n[output]\nkind = \"{kind}\"\n"
+        ),
+    )
+    .unwrap();
+    desc
 }

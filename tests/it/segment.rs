@@ -3,7 +3,7 @@
 //! ENet / selfie models on public test images.
 
 use crate::common::*;
-use crate::onnx_model::conv1x1;
+use crate::onnx_model::{tiny_model, B1, B3, W1, W3};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -45,14 +45,66 @@ fn kf_ort_ok(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
-/// The repository's example descriptions resolve `../shared/models` beside the repository.
-fn shared_models() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/models");
-    if p.is_dir() {
-        Some(p)
-    } else {
-        eprintln!("skipped: {} is not present", p.display());
-        None
+/// Whether scripts/setup.sh has fetched the selfie models the repository's descriptions name;
+/// says that the test skips, and why, when it has not.
+fn fetched_selfie() -> bool {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/models/selfie");
+    let files = [
+        "selfie_segmentation.onnx",
+        "selfie_segmentation_landscape.onnx",
+    ];
+    let there = files.iter().all(|f| dir.join(f).is_file());
+    if !there {
+        eprintln!(
+            "SKIPPED: {} lacks the selfie models: run scripts/setup.sh",
+            dir.display()
+        );
+    }
+    there
+}
+
+/// A copy in `dir` of the repository's description `name` with its `model` set to `model`.
+fn retarget(dir: &Path, name: &str, model: &Path) -> String {
+    let text = std::fs::read_to_string(repo_desc(name)).unwrap();
+    let lines: Vec<String> = text
+        .lines()
+        .map(|l| match l.starts_with("model = ") {
+            true => format!("model = {:?}", s(model)),
+            false => l.to_string(),
+        })
+        .collect();
+    let copy = dir.join(name);
+    std::fs::write(&copy, lines.join("\n")).unwrap();
+    s(&copy).to_string()
+}
+
+/// The project's models folder beside the repository (test assets only, see its README).
+fn shared_model(file: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/models")
+        .join(file);
+    p.is_file().then_some(p)
+}
+
+/// A description of the ENet Cityscapes network (no registry ships it): the repository's own when
+/// the network is where it points, else a copy in `dir` that names the shared one; None, saying
+/// that the test skips, when neither is there.
+fn enet_desc(dir: &Path) -> Option<String> {
+    let own = repo_desc("enet-cityscapes.toml");
+    let net =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("target/models/enet-cityscapes/enet-model.net");
+    if net.is_file() {
+        return Some(own);
+    }
+    match shared_model("enet-cityscapes/enet-model.net") {
+        Some(shared) => Some(retarget(dir, "enet-cityscapes.toml", &shared)),
+        None => {
+            eprintln!(
+                "SKIPPED: no ENet Cityscapes network at {} nor beside the repository (see {own})",
+                net.display()
+            );
+            None
+        }
     }
 }
 
@@ -71,13 +123,6 @@ fn read_gray(p: &Path) -> (u32, u32, Vec<u8>) {
         .into_luma8();
     (img.width(), img.height(), img.into_raw())
 }
-
-/// Weights (rows: classes; columns: R, G, B) and biases of the tiny 3-class model.
-const W3: [[f32; 3]; 3] = [[1.0, -0.5, 0.0], [0.0, 1.0, -0.5], [-0.5, 0.0, 1.0]];
-const B3: [f32; 3] = [0.0, 0.05, -0.05];
-/// Weights of the tiny probability model (one logit).
-const W1: [[f32; 3]; 1] = [[2.0, -1.0, -1.5]];
-const B1: [f32; 1] = [0.1];
 
 const PALETTE: [[u8; 3]; 8] = [
     [220, 30, 40],
@@ -123,40 +168,6 @@ fn expected_class(rgb: [u8; 3], probability: bool) -> usize {
         }
         best
     }
-}
-
-/// Writes the tiny model and its description into `dir`; returns the description's path.
-fn tiny_model(
-    dir: &Path,
-    name: &str,
-    probability: bool,
-    batch: Option<i64>,
-    extra: &str,
-) -> PathBuf {
-    let (w, h) = (12, 8);
-    let bytes = if probability {
-        conv1x1(h, w, batch, &W1, &B1, true)
-    } else {
-        conv1x1(h, w, batch, &W3, &B3, false)
-    };
-    std::fs::write(dir.join(format!("{name}.onnx")), bytes).unwrap();
-    let (classes, kind) = if probability {
-        (r#"["keep", "hide"]"#, "probability")
-    } else {
-        (r#"["red", "green", "blue"]"#, "scores")
-    };
-    let desc = dir.join(format!("{name}.toml"));
-    let batch_line = if batch.is_none() { "batch = 3\n" } else { "" };
-    std::fs::write(
-        &desc,
-        format!(
-            "model = \"{name}.onnx\"\nframework = \"onnx\"\nclasses = {classes}\n{extra}\n\
-             [input]\nwidth = {w}\nheight = {h}\nlayout = \"nchw\"\nchannels = \"rgb\"\n\
-             scale = 0.00392156862745098\n{batch_line}\n[output]\nkind = \"{kind}\"\n"
-        ),
-    )
-    .unwrap();
-    desc
 }
 
 #[test]
@@ -506,11 +517,11 @@ fn moving_pixels(video: &Path, index: usize) -> (usize, usize, Vec<bool>) {
 
 #[test]
 fn enet_hides_the_walking_people_in_vtest() {
-    if shared_models().is_none() {
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
+    let Some(enet) = enet_desc(d) else {
+        return;
+    };
     let video = testdata("opencv-doc/vtest.avi");
     let project = d.join("p.json");
     kf_ok(&[
@@ -534,7 +545,7 @@ fn enet_hides_the_walking_people_in_vtest() {
         "--format",
         "png",
         "--masks",
-        &repo_desc("enet-cityscapes.toml"),
+        &enet,
         "--mask-classes",
         "person",
     ]);
@@ -599,7 +610,7 @@ fn dilate(m: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
 
 #[test]
 fn selfie_model_masks_agree_between_backends() {
-    if shared_models().is_none() {
+    if !fetched_selfie() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -649,5 +660,62 @@ fn selfie_model_masks_agree_between_backends() {
             eprintln!("{desc} {}: hidden {union} px, IoU {iou:.5}", img.display());
             assert!(iou >= 0.99, "{desc} {}: IoU {iou}", img.display());
         }
+    }
+}
+
+/// The selfie models that set-up converts (scripts/tflite-onnx.py) give exactly the masks of the
+/// shared ONNX conversions of the same MediaPipe models, on both backends (when those are there).
+#[test]
+fn fetched_selfie_models_give_the_masks_of_the_shared_conversion() {
+    if !fetched_selfie() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let images = [
+        testdata("opencv-doc/messi5.jpg"),
+        testdata("opencv-doc/basketball1.png"),
+    ];
+    for (desc, file) in [
+        ("selfie.toml", "selfie_segmentation.onnx"),
+        (
+            "selfie-landscape.toml",
+            "selfie_segmentation_landscape.onnx",
+        ),
+    ] {
+        let Some(shared) = shared_model(&format!("selfie/{file}")) else {
+            eprintln!("SKIPPED: no shared {file} beside the repository to compare with");
+            return;
+        };
+        let shared_desc = retarget(d, desc, &shared);
+        let mut hidden = 0;
+        for img in &images {
+            for backend in BACKENDS {
+                let masks: Vec<Vec<u8>> = [repo_desc(desc), shared_desc.clone()]
+                    .iter()
+                    .enumerate()
+                    .map(|(i, model)| {
+                        let m = d.join(format!("{i}.png"));
+                        kf_ort_ok(&[
+                            "segment",
+                            s(img),
+                            "--model",
+                            model,
+                            "-o",
+                            s(&m),
+                            "--backend",
+                            backend,
+                            "--force",
+                        ]);
+                        read_gray(&m).2
+                    })
+                    .collect();
+                let n = masks[0].iter().filter(|&&v| v == 0).count();
+                eprintln!("{desc} {} {backend}: {n} px hidden", img.display());
+                assert!(masks[0] == masks[1], "{desc} {} {backend}", img.display());
+                hidden += n;
+            }
+        }
+        assert!(hidden > 0, "{desc} hides the people of the images");
     }
 }
