@@ -1,7 +1,8 @@
 //! `keyframer review` over HTTP, as a browser or an attacker speaks to it: refusals (token, Host,
 //! Origin, paths) logged without the token, bad requests that write nothing, a save equal to
-//! `select` with the same steps and `--add`, the workflow save, a clean stop on Ctrl-C, and answers
-//! and a stop within a second while fifty connections stall.
+//! `select` with the same steps and `--add`, the workflow save, a save after an outside change and
+//! a reload, a clean stop on Ctrl-C, and answers and a stop within a second while fifty
+//! connections stall.
 
 use crate::browser::{Browser, Tab};
 use crate::common::{json, keyframes, kf_loud, kf_ok, s, PAN_ANALYSIS};
@@ -570,6 +571,44 @@ fn review_stops_within_a_second_on_sigint_while_fifty_connections_stall() {
     let status = status.unwrap_or_else(|| panic!("still running {took:?} after SIGINT:\n{err}"));
     assert_eq!(status.code(), Some(0), "{err}");
     assert!(err.contains("review stopped"), "{err}");
+}
+
+#[test]
+fn review_saves_after_an_outside_change_once_the_page_reloads() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_copy(&dir.path().join("a"));
+    let other = pan_copy(&dir.path().join("b"));
+    let srv = Served::start(&project, &[]);
+    let (code, first) = srv.call("GET", "/api/state", None);
+    assert_eq!(code, 200, "{first}");
+    // Another program replaces the project while the page is open.
+    select_pan(&project, &["--spacing", "40", "--blur"]);
+    let chain = serde_json::json!([{"spacing": {"threshold": 35}}, {"blur": {}}]);
+    let (code, v) = srv.call("POST", "/api/save", Some(&steps(chain.clone())));
+    assert_eq!(code, 409, "{v}");
+    let msg = v["error"].as_str().unwrap();
+    assert!(msg.contains("reload the page"), "{msg}");
+    // The page's reload asks for the state again: it shows the project now on disk.
+    let (code, state) = srv.call("GET", "/api/state", None);
+    assert_eq!(code, 200, "{state}");
+    assert_eq!(
+        state["selection"]["keyframes"],
+        json(&project)["keyframes"],
+        "the reloaded page shows the file on disk"
+    );
+    assert_ne!(
+        state["selection"]["keyframes"],
+        first["selection"]["keyframes"]
+    );
+    let body = serde_json::json!({"steps": chain, "revision": state["revision"]});
+    let (code, saved) = srv.call("POST", "/api/save", Some(&body));
+    assert_eq!(code, 200, "{saved}");
+    select_pan(&other, &["--spacing", "35", "--blur"]);
+    assert_eq!(
+        json(&project),
+        json(&other),
+        "the save after the reload equals select with the same steps"
+    );
 }
 
 #[test]
