@@ -2,7 +2,8 @@
 //! through [`select::run_steps`], the code `select` runs, on the cached series (nothing decoded);
 //! a step whose series the cache lacks is left out and named with the `select` command that would
 //! compute it. **Save** writes what `select` with the same steps would write, atomically and only
-//! over the project file it loaded (unchanged since). Frames are decoded on demand for previews.
+//! over the project file it loaded (unchanged since; `/api/state`, asked on a page reload, reads a
+//! changed file again). Frames are decoded on demand for previews.
 //! The HTTP side and its request checks are in [`http`].
 
 pub mod bench;
@@ -374,7 +375,7 @@ impl Review {
                 409,
                 format!(
                     "{} changed since this page loaded it (saved elsewhere or by another tab); \
-                     reload the page",
+                     reload the page: it reads the file again (edits not saved are lost)",
                     self.path.display()
                 ),
             ));
@@ -480,9 +481,46 @@ impl Review {
         }
     }
 
+    /// Re-reads the project file when it changed on disk since it was loaded or saved (a page
+    /// reload asks for the state, so "reload the page" makes the next save start from the file on
+    /// disk); a new revision makes other tabs reload too. Refuses a file that no longer loads or
+    /// that names another input.
+    fn reread(&self) -> ApiResult<()> {
+        let mut saved = lock(&self.saved);
+        let path = self.path.display();
+        let now = fsutil::fingerprint_file(&self.path)
+            .map_err(|e| ApiError::new(409, format!("{e}; restore {path} or restart review")))?;
+        if now == saved.fingerprint {
+            return Ok(());
+        }
+        let project = Project::load(&self.path).map_err(|e| {
+            let msg =
+                format!("{path} changed on disk and does not load ({e}); fix it, then reload");
+            ApiError::new(409, msg)
+        })?;
+        if project.input_path(&self.path) != self.input {
+            let msg = format!(
+                "{path} now names another input ({}); restart review on it",
+                project.input_path(&self.path).display()
+            );
+            return Err(ApiError::new(409, msg));
+        }
+        if project.input.fingerprint != saved.project.input.fingerprint {
+            *lock(&self.frames) = None;
+        }
+        log::info!("review: {path} changed on disk; read it again");
+        *saved = Saved {
+            project: Arc::new(project),
+            fingerprint: now,
+            revision: saved.revision + 1,
+        };
+        Ok(())
+    }
+
     /// `/api/state`: the project, its steps, the parameters each step takes, the series that do
     /// not depend on the keyframes, the export and the current selection.
     pub fn state(&self) -> ApiResult<Value> {
+        self.reread()?;
         let project = self.project();
         let steps = Review::steps_of(&project);
         let started = Instant::now();

@@ -558,7 +558,7 @@
         p.title = s.busy.what;
       }
       if (s.revision > S.revision && !S.saving) {
-        say("the project was saved in another tab; reloaded");
+        say("the project was saved in another tab or read again after a change on disk; reloaded");
         S.undo = [];
         S.redo = [];
         await load();

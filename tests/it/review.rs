@@ -1,6 +1,8 @@
 //! `keyframer review` over HTTP, as a browser or an attacker speaks to it: refusals (token, Host,
 //! Origin, paths) logged without the token, bad requests that write nothing, a save equal to
-//! `select` with the same steps and `--add`, the workflow save, a clean stop on Ctrl-C.
+//! `select` with the same steps and `--add`, the workflow save, a save after an outside change and
+//! a reload, a clean stop on Ctrl-C, and answers and a stop within a second while fifty
+//! connections stall.
 
 use crate::browser::{Browser, Tab};
 use crate::common::{json, keyframes, kf_loud, kf_ok, s, PAN_ANALYSIS};
@@ -10,7 +12,7 @@ use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// A copy of the pan project (`common::pan_project`): a 4 s, 30 fps pan over a photo (320x240), selected with spacing 25
 /// and blur at analysis width 160, frames 60 and 61 added by hand. Made once; each test copies
@@ -113,10 +115,7 @@ impl Served {
     /// Sends SIGINT and waits: the exit code and stderr.
     pub fn stop(&mut self) -> (i32, String) {
         let mut child = self.child.take().unwrap();
-        Command::new("kill")
-            .args(["-INT", &child.id().to_string()])
-            .status()
-            .unwrap();
+        sigint(&child);
         let status = child.wait().unwrap();
         (
             status.code().unwrap_or(-1),
@@ -131,6 +130,14 @@ impl Drop for Served {
             self.stop();
         }
     }
+}
+
+fn sigint(child: &Child) {
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
 }
 
 /// A raw HTTP/1.1 request; returns the status and the body.
@@ -487,6 +494,121 @@ fn review_stops_cleanly_on_sigint() {
     assert!(err.contains("review stopped"), "{err}");
     let after: Vec<_> = crate::common::listing(dir.path());
     assert_eq!(before, after, "nothing left beside the project");
+}
+
+/// Fifty connections that send a request's headers with `Content-Length: 100000` and no body,
+/// held open: half without the token (refused before the body), half with it (the server waits
+/// for their bodies).
+fn stall(srv: &Served) -> Vec<TcpStream> {
+    let host = format!("127.0.0.1:{}", srv.port);
+    let authed = format!("X-Keyframer-Token: {}\r\n", srv.token);
+    (0..50)
+        .map(|i| {
+            let mut tcp = TcpStream::connect(("127.0.0.1", srv.port)).unwrap();
+            let token = if i % 2 == 0 { authed.as_str() } else { "" };
+            let head = format!(
+                "POST /api/save HTTP/1.1\r\nHost: {host}\r\nOrigin: http://{host}\r\n{token}\
+                 Content-Type: application/json\r\nContent-Length: 100000\r\n\r\n"
+            );
+            tcp.write_all(head.as_bytes()).unwrap();
+            tcp
+        })
+        .collect()
+}
+
+#[test]
+fn review_answers_within_a_second_while_fifty_connections_stall() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_copy(dir.path());
+    let srv = Served::start(&project, &[]);
+    let stalled = stall(&srv);
+    let (port, token) = (srv.port, srv.token.clone());
+    let (tx, rx) = std::sync::mpsc::channel();
+    let started = Instant::now();
+    std::thread::spawn(move || {
+        let host = format!("127.0.0.1:{port}");
+        let headers = [("Host", host.as_str()), ("X-Keyframer-Token", &token)];
+        let _ = tx.send(raw(port, "GET", "/api/state", &headers, None));
+    });
+    let answer = rx.recv_timeout(Duration::from_secs(1));
+    let took = started.elapsed();
+    let (code, body) = answer.unwrap_or_else(|e| {
+        panic!("no answer to GET /api/state within 1 s while 50 connections stall ({e})")
+    });
+    assert_eq!(code, 200, "{}", String::from_utf8_lossy(&body));
+    let state: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(state["input"]["frames"], 120, "{took:?}");
+    drop(stalled);
+}
+
+#[test]
+fn review_stops_within_a_second_on_sigint_while_fifty_connections_stall() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_copy(dir.path());
+    let mut srv = Served::start(&project, &[]);
+    let (code, _) = srv.call("GET", "/api/status", None);
+    assert_eq!(code, 200);
+    let stalled = stall(&srv);
+    // Time for the server to take the connections and read their headers.
+    std::thread::sleep(Duration::from_millis(500));
+    let mut child = srv.child.take().unwrap();
+    let started = Instant::now();
+    sigint(&child);
+    let status = loop {
+        match child.try_wait().unwrap() {
+            Some(status) => break Some(status),
+            None if started.elapsed() > Duration::from_secs(1) => break None,
+            None => std::thread::sleep(Duration::from_millis(10)),
+        }
+    };
+    let took = started.elapsed();
+    if status.is_none() {
+        child.kill().unwrap();
+        child.wait().unwrap();
+    }
+    drop(stalled);
+    let err = std::fs::read_to_string(&srv.stderr).unwrap();
+    let status = status.unwrap_or_else(|| panic!("still running {took:?} after SIGINT:\n{err}"));
+    assert_eq!(status.code(), Some(0), "{err}");
+    assert!(err.contains("review stopped"), "{err}");
+}
+
+#[test]
+fn review_saves_after_an_outside_change_once_the_page_reloads() {
+    let dir = tempfile::tempdir().unwrap();
+    let project = pan_copy(&dir.path().join("a"));
+    let other = pan_copy(&dir.path().join("b"));
+    let srv = Served::start(&project, &[]);
+    let (code, first) = srv.call("GET", "/api/state", None);
+    assert_eq!(code, 200, "{first}");
+    // Another program replaces the project while the page is open.
+    select_pan(&project, &["--spacing", "40", "--blur"]);
+    let chain = serde_json::json!([{"spacing": {"threshold": 35}}, {"blur": {}}]);
+    let (code, v) = srv.call("POST", "/api/save", Some(&steps(chain.clone())));
+    assert_eq!(code, 409, "{v}");
+    let msg = v["error"].as_str().unwrap();
+    assert!(msg.contains("reload the page"), "{msg}");
+    // The page's reload asks for the state again: it shows the project now on disk.
+    let (code, state) = srv.call("GET", "/api/state", None);
+    assert_eq!(code, 200, "{state}");
+    assert_eq!(
+        state["selection"]["keyframes"],
+        json(&project)["keyframes"],
+        "the reloaded page shows the file on disk"
+    );
+    assert_ne!(
+        state["selection"]["keyframes"],
+        first["selection"]["keyframes"]
+    );
+    let body = serde_json::json!({"steps": chain, "revision": state["revision"]});
+    let (code, saved) = srv.call("POST", "/api/save", Some(&body));
+    assert_eq!(code, 200, "{saved}");
+    select_pan(&other, &["--spacing", "35", "--blur"]);
+    assert_eq!(
+        json(&project),
+        json(&other),
+        "the save after the reload equals select with the same steps"
+    );
 }
 
 #[test]
