@@ -218,29 +218,35 @@ fn run_one(w: &Workflow, input: &Path, folder: &Path, s: &RunSettings) -> InputR
         seconds: 0.0,
         error: None,
     };
-    let result = process(w, input, folder, s, &mut report).map(|status| report.status = status);
-    report.seconds = t.elapsed().as_secs_f64();
-    // Done and partial inputs are recorded as finished; a failure to record them fails them.
-    let result = result.and_then(|()| {
-        if !matches!(report.status, Status::Done | Status::Partial) {
-            return Ok(());
-        }
-        let (_, fingerprint) = select::identify(input)?;
-        let done = Done {
-            workflow_hash: format!("{:016x}", w.hash),
-            input: fsutil::absolute(input),
-            fingerprint,
-            report: report.clone(),
-        };
-        let text = serde_json::to_string_pretty(&done)
-            .map_err(|e| Error::output(folder.join(DONE), e.to_string()))?;
-        fsutil::write_atomic(&folder.join(DONE), text.as_bytes())
+    // One run per folder: locked beside it (it may not exist yet) until done.json is written.
+    let result = crate::output::lock::beside(folder).and_then(|_held| {
+        let status = process(w, input, folder, s, &mut report);
+        report.seconds = t.elapsed().as_secs_f64();
+        report.status = status?;
+        record_done(w, input, folder, &report)
     });
     if let Err(e) = result {
         report.status = Status::Failed;
         report.error = Some(e.to_string());
     }
     report
+}
+
+/// Records a done or partial input as finished (`done.json`).
+fn record_done(w: &Workflow, input: &Path, folder: &Path, report: &InputReport) -> Result<()> {
+    if !matches!(report.status, Status::Done | Status::Partial) {
+        return Ok(());
+    }
+    let (_, fingerprint) = select::identify(input)?;
+    let done = Done {
+        workflow_hash: format!("{:016x}", w.hash),
+        input: fsutil::absolute(input),
+        fingerprint,
+        report: report.clone(),
+    };
+    let text = serde_json::to_string_pretty(&done)
+        .map_err(|e| Error::output(folder.join(DONE), e.to_string()))?;
+    fsutil::write_atomic(&folder.join(DONE), text.as_bytes())
 }
 
 fn process(

@@ -166,7 +166,13 @@ pub fn export(
         geo: geo.as_ref(),
     };
     let result = stage_and_commit(&job, out, dir.is_new(), src.as_mut(), masker.as_mut());
-    let (frames, missing) = result.inspect_err(|_| dir.abandon())?;
+    let (frames, missing) = match result {
+        Ok(r) => r,
+        Err(e) => {
+            dir.abandon();
+            return Err(e);
+        }
+    };
     let manifest = Manifest {
         tool: "keyframer".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
@@ -736,7 +742,32 @@ fn commit(out: &Path, staging: &Path, ours: &[PathBuf], frames: &[ExportedFrame]
         // Empty masks/ or overlays/ folders left from an earlier export go.
         let _ = std::fs::remove_dir(out.join(d));
     }
+    warn_unlisted(out, &new_set);
     Ok(())
+}
+
+/// Warns about the files beside the export's own that no record of keyframer lists (a user's,
+/// or left by two older keyframers exporting here at once): kept, as keyframer removes only what
+/// it wrote, but whatever reads the folder reads them too.
+fn warn_unlisted(out: &Path, listed: &std::collections::HashSet<&PathBuf>) {
+    for d in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
+        let Ok(entries) = std::fs::read_dir(out.join(d)) else {
+            continue;
+        };
+        let names: Vec<String> = entries
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| !n.starts_with('.') && !listed.contains(&Path::new(d).join(n)))
+            .collect();
+        if let Some(first) = names.first() {
+            log::warn!(
+                "{}: {} file(s) that keyframer did not write by its records were kept ({first}{}); tools reading this folder will read them too: move them away",
+                out.join(d).display(),
+                names.len(),
+                if names.len() > 1 { ", ..." } else { "" }
+            );
+        }
+    }
 }
 
 /// Refuses to export when the input is no longer the one the project was made from.

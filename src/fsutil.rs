@@ -67,8 +67,8 @@ fn temp_sibling(path: &Path) -> PathBuf {
 }
 
 /// Refuses to replace an existing file unless `force`, and anything that is not a regular file
-/// (the output rule of [`crate::output::check_file`], without inputs to compare).
-pub fn check_overwrite(path: &Path, force: bool) -> Result<()> {
+/// (the output rule of [`crate::output::check_file`], without inputs to compare); returns its lock.
+pub fn check_overwrite(path: &Path, force: bool) -> Result<crate::output::lock::Lock> {
     crate::output::check_file(path, force, &[])
 }
 

@@ -411,7 +411,7 @@ fn flow(a: &cli::FlowArgs) -> Result<ExitCode> {
     params.validate()?;
     let mut inputs: Vec<&std::path::Path> = vec![&a.a, &a.b];
     inputs.extend(a.initial.as_deref());
-    keyframer::output::check_file(&a.output, a.force, &inputs)?;
+    let _held = keyframer::output::check_file(&a.output, a.force, &inputs)?;
     let r = keyframer::flow::between_files(
         &a.a,
         &a.b,

@@ -4,9 +4,13 @@
 //! names; a folder output is replaced only where keyframer's own record (manifest.json,
 //! colmap.json, scene.json, .keyframer-run) lists what it wrote, a folder without that record is
 //! refused; keyframer's own stale temporaries (of processes that are gone) are cleared; a folder
-//! created by a command that then fails is removed again.
+//! created by a command that then fails is removed again; every output is written under its lock
+//! (one writer at a time, see [`lock`]).
+
+pub mod lock;
 
 use crate::error::{Error, Result};
+use lock::Lock;
 use std::ffi::OsStr;
 use std::fs;
 use std::path::{Component, Path, PathBuf};
@@ -116,21 +120,14 @@ fn kind_of(path: &Path) -> Option<&'static str> {
 }
 
 /// Checks a single-file output named by the user (`select -o`, `flow -o`, `report`, ...): not an
-/// input, a regular file or a missing path, replaced only with `force`. Clears this name's stale
-/// temporaries of earlier, killed runs.
-pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
+/// input, a regular file or a missing path, replaced only with `force`; takes its lock first (hold
+/// it until the file is written). Clears this name's stale temporaries of earlier, killed runs.
+pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<Lock> {
     check_not_input(path, inputs)?;
-    match kind_of(path) {
-        None => {}
-        Some("file") if !force => {
-            return Err(Error::output(path, "exists; pass --force to overwrite it"));
-        }
-        Some("file") => {}
-        Some(kind) => {
-            let msg = format!("is a {kind}, not a regular file; keyframer replaces only regular files: choose another output");
-            return Err(Error::output(path, msg));
-        }
-    }
+    // Refused before anything is made beside it, and checked again under the lock.
+    file_replaceable(path, force)?;
+    let held = lock::beside(path)?;
+    file_replaceable(path, force)?;
     if let (Some(dir), Some(name)) = (path.parent(), path.file_name()) {
         let dir = if dir.as_os_str().is_empty() {
             Path::new(".")
@@ -139,7 +136,20 @@ pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
         };
         clear_stale_temps_of(dir, Some(name));
     }
-    Ok(())
+    Ok(held)
+}
+
+/// Refuses a file output that is not a regular file or missing, or that exists without `force`.
+fn file_replaceable(path: &Path, force: bool) -> Result<()> {
+    match kind_of(path) {
+        None => Ok(()),
+        Some("file") if !force => Err(Error::output(path, "exists; pass --force to overwrite it")),
+        Some("file") => Ok(()),
+        Some(kind) => {
+            let msg = format!("is a {kind}, not a regular file; keyframer replaces only regular files: choose another output");
+            Err(Error::output(path, msg))
+        }
+    }
 }
 
 /// Refuses to replace `path` unless it is a regular file or missing (for files inside an output
@@ -259,13 +269,15 @@ pub fn unique_suffix() -> String {
     )
 }
 
-/// A folder output being written; created by this command when `created` is not empty (the
-/// folders made, outermost first), which [`OutDir::abandon`] removes again when still empty.
+/// A folder output being written, locked for this process while the value lives; created by this
+/// command when `created` is not empty (the folders made, outermost first), which
+/// [`OutDir::abandon`] removes again when still empty.
 #[derive(Debug)]
 pub struct OutDir {
     /// The folder.
     pub path: PathBuf,
     created: Vec<PathBuf>,
+    lock: Lock,
 }
 
 impl OutDir {
@@ -274,26 +286,38 @@ impl OutDir {
         !self.created.is_empty()
     }
 
-    /// After a failure: removes the folders this command created, when nothing else is in them.
-    pub fn abandon(&self) {
-        for d in self.created.iter().rev() {
-            clear_stale_temps_of(d, None);
-            let _ = fs::remove_dir(d);
-        }
+    /// After a failure: releases the lock and removes the folders this command created, when
+    /// nothing else is in them.
+    pub fn abandon(self) {
+        drop(self.lock);
+        remove_created(&self.created);
+    }
+}
+
+/// Removes the folders of `created` (outermost first) that hold nothing but stale temporaries.
+fn remove_created(created: &[PathBuf]) {
+    for d in created.iter().rev() {
+        clear_stale_temps_of(d, None);
+        let _ = fs::remove_dir(d);
     }
 }
 
 /// Prepares a folder output named by the user (`export --out`, `colmap -o`, `keyframer-scene`):
 /// refuses an input, a non-folder and a folder keyframer did not make (non-empty without `record`
 /// inside); a non-empty folder of keyframer's needs `force`. Clears stale temporaries, creates the folder
-/// when missing and checks that it is writable, leaving nothing behind.
+/// when missing, locks it and checks that it is writable, leaving nothing behind.
 pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &[&Path]) -> Result<OutDir> {
     check_not_input(dir, inputs)?;
+    let created = create_dir(dir)?;
+    // Ownership first (a folder keyframer may not write is not touched, not even locked), and
+    // again under the lock; temporaries are cleared only in a folder that is keyframer's (or empty).
+    check_ours(dir, force, records)?;
+    let held = lock::folder(dir).inspect_err(|_| remove_created(&created))?;
     let out = OutDir {
         path: dir.to_path_buf(),
-        created: create_dir(dir)?,
+        created,
+        lock: held,
     };
-    // Ownership first: temporaries are cleared only in a folder that is keyframer's (or empty).
     check_ours(dir, force, records)?;
     clear_stale_temps_of(dir, None);
     if let Err(e) = probe_write(dir) {
@@ -326,17 +350,17 @@ fn create_dir(dir: &Path) -> Result<Vec<PathBuf>> {
     }
 }
 
-/// Refuses a non-empty `dir` (keyframer's temporaries aside) without a record, or without `force`.
+/// Refuses a non-empty `dir` (keyframer's temporaries and lock files aside) without a record, or
+/// without `force`.
 fn check_ours(dir: &Path, force: bool, records: &[&str]) -> Result<()> {
     let record = records.first().copied().unwrap_or("record");
     let non_empty = fs::read_dir(dir)
         .map_err(|e| Error::io(dir, e))?
         .flatten()
         .any(|e| {
-            e.file_name()
+            !e.file_name()
                 .to_str()
-                .and_then(|n| temp_pid(n, None))
-                .is_none()
+                .is_some_and(|n| temp_pid(n, None).is_some() || lock::is_lock_file(n))
         });
     if non_empty && !records.iter().any(|r| dir.join(r).is_file()) {
         let msg = format!("is not empty and holds no {record}, so keyframer did not make it; keyframer replaces only its own results: choose a new or empty folder");

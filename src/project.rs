@@ -387,7 +387,7 @@ impl Project {
 
     /// Writes the project file atomically, refusing to replace an existing one unless `force`.
     pub fn save(&self, path: &Path, force: bool) -> Result<()> {
-        fsutil::check_overwrite(path, force)?;
+        let _held = fsutil::check_overwrite(path, force)?;
         let mut text = serde_json::to_string_pretty(self)
             .map_err(|e| Error::file(path, None, "project file", "", e.to_string()))?;
         text.push('\n');

@@ -616,7 +616,7 @@ pub fn save_loaded(
         .collect();
     let mut inputs: Vec<&Path> = vec![project, &source];
     inputs.extend(manifests.iter().map(|m| m.as_path()));
-    crate::output::check_file(output, force, &inputs)?;
+    let _held = crate::output::check_file(output, force, &inputs)?;
     crate::fsutil::write_atomic(output, text.as_bytes())?;
     Ok(output.to_path_buf())
 }

@@ -278,7 +278,7 @@ impl MovementPass {
     /// Takes frame `i` (frames come in order).
     pub(crate) fn step(&mut self, i: usize, px: Pixels) -> Result<()> {
         let candidate = self.stationary.as_ref().is_some_and(|s| s.wants(i));
-        let stride_point = self.anchor.is_none() || i % self.stride == 0;
+        let stride_point = self.anchor.is_none() || i.is_multiple_of(self.stride);
         if !stride_point && !candidate {
             self.last = Some((None, i, Some(px)));
             return Ok(());

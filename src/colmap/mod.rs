@@ -230,7 +230,8 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
     check_settings(a)?;
     let colmap = locate()?;
     let (export, manifest, ws) = check_export(a)?;
-    let masks = fill_workspace(&ws, &export, &manifest, a.force)?;
+    // The workspace stays locked until its record is written last.
+    let (masks, _held) = fill_workspace(&ws, &export, &manifest, a.force)?;
     let mut rec = Record {
         tool: "keyframer".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
@@ -317,8 +318,13 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
 
 /// Prepares the workspace (replacing only keyframer's own content) and links or copies the
 /// export's images and masks into `images/` and `masks/`; on failure removes what it made.
-/// Returns the number of masks.
-fn fill_workspace(ws: &Path, export: &Path, manifest: &Manifest, force: bool) -> Result<usize> {
+/// Returns the number of masks and the workspace (locked while it lives).
+fn fill_workspace(
+    ws: &Path,
+    export: &Path,
+    manifest: &Manifest,
+    force: bool,
+) -> Result<(usize, crate::output::OutDir)> {
     let dir = prepare_workspace(ws, force)?;
     let images = ws.join("images");
     let masks_dir = ws.join("masks");
@@ -342,12 +348,13 @@ fn fill_workspace(ws: &Path, export: &Path, manifest: &Manifest, force: bool) ->
         }
         Ok(())
     })();
-    // abandon removes only folders this run created.
-    linked.inspect_err(|_| {
+    if let Err(e) = linked {
         remove_ours(ws, &ours_now(ws));
+        // abandon removes only folders this run created.
         dir.abandon();
-    })?;
-    Ok(masks)
+        return Err(e);
+    }
+    Ok((masks, dir))
 }
 
 /// `project.ini`, then the database alone, or the sparse stages (and the dense ones).

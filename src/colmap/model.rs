@@ -400,7 +400,7 @@ fn txt_image(mut f: Fields, lines: &mut Lines) -> Result<Image> {
 /// The `X Y POINT3D_ID` triples of an image's second line.
 fn txt_points2d(mut g: Fields) -> Result<Vec<(f64, f64, Option<u64>)>> {
     let toks = g.rest();
-    if toks.len() % 3 != 0 {
+    if !toks.len().is_multiple_of(3) {
         return Err(g.err("POINTS2D", "not a list of X Y POINT3D_ID triples"));
     }
     let num = |t: &str| {
@@ -424,7 +424,7 @@ fn txt_point(mut f: Fields, _: &mut Lines) -> Result<Point3D> {
     let rgb = [f.next("R")?, f.next("G")?, f.next("B")?];
     let error = f.next("ERROR")?;
     let toks = f.rest();
-    if toks.len() % 2 != 0 {
+    if !toks.len().is_multiple_of(2) {
         return Err(f.err("TRACK", "not a list of IMAGE_ID POINT2D_IDX pairs"));
     }
     let track = toks

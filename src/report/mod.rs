@@ -86,8 +86,10 @@ pub fn write_report(
     let source = project.input_path(project_path);
     let mut inputs: Vec<&Path> = vec![project_path, &source];
     inputs.extend(export_parts.iter().map(|p| p.as_path()));
-    crate::output::check_file(&settings.output, settings.force, &inputs)?;
-    crate::output::check_file(&png_path, settings.force, &inputs)?;
+    let _held = (
+        crate::output::check_file(&settings.output, settings.force, &inputs)?,
+        crate::output::check_file(&png_path, settings.force, &inputs)?,
+    );
     let timeline = Timeline::from_project(&project);
     let mut missing = timeline.missing.clone();
 

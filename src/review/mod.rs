@@ -369,6 +369,9 @@ impl Review {
             }
         }
         let mut saved = lock(&self.saved);
+        // Under the project file's lock: a `select` writing it now makes this save a conflict.
+        let _held = crate::output::check_file(&self.path, true, &[&self.input])
+            .map_err(|e| ApiError::new(409, e.to_string()))?;
         let now = fsutil::fingerprint_file(&self.path).ok();
         if saved.revision != revision || now.as_ref() != Some(&saved.fingerprint) {
             return Err(ApiError::new(
@@ -380,7 +383,6 @@ impl Review {
                 ),
             ));
         }
-        crate::output::check_file(&self.path, true, &[&self.input])?;
         select::write(&project, &self.path)?;
         saved.fingerprint = fsutil::fingerprint_file(&self.path)?;
         saved.project = Arc::new(project);

@@ -309,12 +309,12 @@ pub fn segment_file(
     if let Some(c) = &desc.config {
         inputs.push(c);
     }
-    crate::output::check_file(output, force, &inputs)?;
-    if let Some(o) = overlay {
-        crate::output::check_file(o, force, &inputs)?;
-        if crate::output::resolve(o) == crate::output::resolve(output) {
-            return Err(Error::param("overlay", "must differ from the mask output"));
-        }
+    let _held = (
+        crate::output::check_file(output, force, &inputs)?,
+        (overlay.map(|o| crate::output::check_file(o, force, &inputs))).transpose()?,
+    );
+    if overlay.is_some_and(|o| crate::output::resolve(o) == crate::output::resolve(output)) {
+        return Err(Error::param("overlay", "must differ from the mask output"));
     }
     let mut seg = Segmenter::new(settings)?;
     let image = opencv::imgcodecs::imread(

@@ -11,6 +11,7 @@ use crate::analysis::{self, MovementRequest, Request, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu::{self, Backend, BackendChoice};
+use crate::output::lock::Lock;
 use crate::params::Metric;
 use crate::project::{
     Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
@@ -178,11 +179,11 @@ pub fn identify(input: &Path) -> Result<(SourceKind, Fingerprint)> {
 }
 
 /// The output rule for `select`: the project file and its checkpoint are regular files (or
-/// missing), not the input nor inside it; an existing project needs `--force`.
-pub(crate) fn check_outputs(s: &SelectSettings) -> Result<()> {
-    crate::output::check_file(&s.output, s.force, &[&s.input])?;
+/// missing), not the input nor inside it; an existing project needs `--force`. Returns their locks.
+pub(crate) fn check_outputs(s: &SelectSettings) -> Result<[Lock; 2]> {
+    let project = crate::output::check_file(&s.output, s.force, &[&s.input])?;
     let checkpoint = checkpoint_path(&s.output);
-    crate::output::check_file(&checkpoint, true, &[&s.input])?;
+    let partial = crate::output::check_file(&checkpoint, true, &[&s.input])?;
     // The checkpoint is replaced and removed without --force only when it is keyframer's own.
     if checkpoint.exists() && !s.force && !crate::analysis::is_checkpoint(&checkpoint) {
         return Err(Error::output(
@@ -190,7 +191,7 @@ pub(crate) fn check_outputs(s: &SelectSettings) -> Result<()> {
             "exists and is not a keyframer checkpoint; pass --force to replace it",
         ));
     }
-    Ok(())
+    Ok([project, partial])
 }
 
 /// The checkpoint file of a running analysis for the project `output`: `output` + `.partial`.
@@ -202,6 +203,8 @@ pub fn checkpoint_path(output: &Path) -> PathBuf {
 
 /// Runs `select` and writes the project file.
 pub fn select(s: &SelectSettings) -> Result<SelectReport> {
+    // One writer per project file, from the checks until the project is written.
+    let _held = check_outputs(s)?;
     if s.preview {
         return preview::select_preview(s);
     }
@@ -256,7 +259,7 @@ pub(crate) fn manual_step(
 pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectReport> {
     let full = open.codec_keyframes.is_none();
     let input_ref = input_ref(s)?;
-    check_outputs(s)?;
+    let _held = check_outputs(s)?;
     let boundaries = steps::boundaries(&s.steps);
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;

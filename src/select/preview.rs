@@ -121,7 +121,7 @@ fn check_input(s: &SelectSettings) -> Result<()> {
             "--preview needs a video (images have no codec keyframes)",
         ));
     }
-    select::check_outputs(s)?;
+    let _held = select::check_outputs(s)?;
     if let Ok(old) = crate::project::Project::load(&s.output) {
         if !old.preview && !old.cache.sharpness.is_empty() {
             log::warn!(

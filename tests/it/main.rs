@@ -15,6 +15,7 @@ mod foundation;
 mod geotag;
 mod inputs;
 mod layers;
+mod lock;
 mod movement;
 mod onnx_model;
 mod pipeline;
