@@ -1,10 +1,11 @@
 //! The one output-safety rule every writing command goes through. Guarantees: an output is never
-//! an input, nor inside or around one; only regular files (or missing paths) are ever replaced,
-//! never a device, FIFO, socket, symbolic link or folder; names read from files are plain file
-//! names; a folder output is replaced only where keyframer's own record (manifest.json,
-//! colmap.json, scene.json, .keyframer-run) lists what it wrote, a folder without that record is
-//! refused; keyframer's own stale temporaries (of processes that are gone) are cleared; a folder
-//! created by a command that then fails is removed again.
+//! an input (anything the command reads, listed in its [`Inputs`]), nor inside or around one;
+//! only regular files (or missing paths) are ever replaced, never a device, FIFO, socket, symbolic
+//! link or folder; names read from files are plain file names; a folder output is replaced only
+//! where keyframer's own record (manifest.json, colmap.json, scene.json, .keyframer-run) lists
+//! what it wrote, a folder without that record is refused; keyframer's own stale temporaries (of
+//! processes that are gone) are cleared; a folder created by a command that then fails is removed
+//! again.
 
 use crate::error::{Error, Result};
 use std::ffi::OsStr;
@@ -77,10 +78,49 @@ pub fn resolve(path: &Path) -> PathBuf {
     cur
 }
 
-/// Refuses an output that is an input, lies inside an input folder or contains an input.
-pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
+/// Everything a command reads (the video, the telemetry beside it, a project, an export's
+/// manifest and images, a COLMAP model, a workflow, a model description and the network files it
+/// names, ...), each path with what it is. Each command builds its list where it resolves its
+/// inputs, and every output check ([`check_file`], [`prepare_dir`], [`check_not_input`]) takes
+/// it, so an output is checked against all of them and the refusal names the input.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Inputs(Vec<(&'static str, PathBuf)>);
+
+impl Inputs {
+    /// No inputs (a command that reads nothing, or a check made again after the command's own).
+    pub fn none() -> Inputs {
+        Inputs::default()
+    }
+
+    /// Adds `path`, a `what` ("telemetry", "COLMAP model").
+    pub fn add(&mut self, what: &'static str, path: impl Into<PathBuf>) -> &mut Inputs {
+        self.0.push((what, path.into()));
+        self
+    }
+
+    /// `self` with `path` added.
+    pub fn with(mut self, what: &'static str, path: impl Into<PathBuf>) -> Inputs {
+        self.add(what, path);
+        self
+    }
+
+    /// Adds every input of `other`.
+    pub fn extend(&mut self, other: &Inputs) -> &mut Inputs {
+        self.0.extend(other.0.iter().cloned());
+        self
+    }
+
+    /// The inputs: what each is, and its path.
+    pub fn iter(&self) -> impl Iterator<Item = (&'static str, &Path)> {
+        self.0.iter().map(|(w, p)| (*w, p.as_path()))
+    }
+}
+
+/// Refuses an output that is an input, lies inside an input folder or contains an input; the
+/// message names the input and what it is.
+pub fn check_not_input(out: &Path, inputs: &Inputs) -> Result<()> {
     let o = resolve(out);
-    for input in inputs {
+    for (what, input) in inputs.iter() {
         let i = resolve(input);
         let how = if o == i {
             "is the input"
@@ -92,7 +132,7 @@ pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
             continue;
         };
         let msg = format!(
-            "the output {how} {}; keyframer never writes into its inputs: choose another output",
+            "the output {how} {} ({what}); keyframer never writes into its inputs: choose another output",
             input.display()
         );
         return Err(Error::output(out, msg));
@@ -118,7 +158,7 @@ fn kind_of(path: &Path) -> Option<&'static str> {
 /// Checks a single-file output named by the user (`select -o`, `flow -o`, `report`, ...): not an
 /// input, a regular file or a missing path, replaced only with `force`. Clears this name's stale
 /// temporaries of earlier, killed runs.
-pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
+pub fn check_file(path: &Path, force: bool, inputs: &Inputs) -> Result<()> {
     check_not_input(path, inputs)?;
     match kind_of(path) {
         None => {}
@@ -287,7 +327,7 @@ impl OutDir {
 /// refuses an input, a non-folder and a folder keyframer did not make (non-empty without `record`
 /// inside); a non-empty folder of keyframer's needs `force`. Clears stale temporaries, creates the folder
 /// when missing and checks that it is writable, leaving nothing behind.
-pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &[&Path]) -> Result<OutDir> {
+pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &Inputs) -> Result<OutDir> {
     check_not_input(dir, inputs)?;
     let out = OutDir {
         path: dir.to_path_buf(),
@@ -420,15 +460,21 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let input = d.path().join("in");
         fs::create_dir_all(&input).unwrap();
-        let i: &Path = &input;
-        assert!(check_not_input(&input, &[i]).is_err());
-        assert!(check_not_input(&input.join("x"), &[i]).is_err());
-        assert!(check_not_input(d.path(), &[i]).is_err());
-        assert!(check_not_input(&d.path().join("out"), &[i]).is_ok());
+        let i = Inputs::none().with("image folder", &input);
+        assert!(check_not_input(&input, &i).is_err());
+        assert!(check_not_input(&input.join("x"), &i).is_err());
+        assert!(check_not_input(d.path(), &i).is_err());
+        assert!(check_not_input(&d.path().join("out"), &i).is_ok());
+        // The refusal names the input and what it is.
+        let e = check_not_input(&input, &i).unwrap_err().to_string();
+        assert!(
+            e.contains("is the input") && e.contains("(image folder)"),
+            "{e}"
+        );
         // Through a symbolic link too, and through `LINK/..` (the link's parent, not `.`).
         let link = d.path().join("link");
         std::os::unix::fs::symlink(&input, &link).unwrap();
-        assert!(check_not_input(&link.join("y"), &[i]).is_err());
+        assert!(check_not_input(&link.join("y"), &i).is_err());
         let sub = input.join("sub");
         fs::create_dir_all(&sub).unwrap();
         let elsewhere = d.path().join("elsewhere");
@@ -436,6 +482,6 @@ mod tests {
         let l2 = elsewhere.join("l2");
         std::os::unix::fs::symlink(&sub, &l2).unwrap();
         assert_eq!(resolve(&l2.join("../v.mp4")), resolve(&input.join("v.mp4")));
-        assert!(check_not_input(&l2.join("../v.mp4"), &[i]).is_err());
+        assert!(check_not_input(&l2.join("../v.mp4"), &i).is_err());
     }
 }

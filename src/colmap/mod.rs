@@ -292,9 +292,7 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
         return Err(Error::input(&export, "the export holds no images"));
     }
     let ws = fsutil::absolute(&a.output.clone().unwrap_or_else(|| export.join("colmap")));
-    let read =
-        [crate::export::IMAGE_DIR, crate::export::MASK_DIR, MANIFEST].map(|p| export.join(p));
-    crate::output::check_not_input(&ws, &read.each_ref().map(PathBuf::as_path))?;
+    crate::output::check_not_input(&ws, &read_by(&export))?;
     if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
         return Err(Error::param(
             "output",
@@ -319,7 +317,7 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
 /// export's images and masks into `images/` and `masks/`; on failure removes what it made.
 /// Returns the number of masks.
 fn fill_workspace(ws: &Path, export: &Path, manifest: &Manifest, force: bool) -> Result<usize> {
-    let dir = prepare_workspace(ws, force)?;
+    let dir = prepare_workspace(ws, export, force)?;
     let images = ws.join("images");
     let masks_dir = ws.join("masks");
     let export_masks = export.join(crate::export::MASK_DIR);
@@ -544,13 +542,21 @@ fn write_record(ws: &Path, rec: &Record) -> Result<()> {
     fsutil::write_json(&ws.join(RECORD), rec)
 }
 
+/// What `colmap` reads: the export's manifest, images and masks (the workspace may lie beside
+/// them, in the export folder).
+fn read_by(export: &Path) -> crate::output::Inputs {
+    let mut inputs = crate::output::Inputs::none();
+    crate::manifest::add_export(&mut inputs, export);
+    inputs
+}
+
 /// Prepares the workspace through the one output rule (a folder without `colmap.json` is not
 /// keyframer's and is refused; `--force` is needed to replace a keyframer workspace). With
 /// `force`, removes exactly the files `colmap.json` lists; any other file inside the places
 /// keyframer and COLMAP write (`images/ masks/ sparse/ dense/ logs/ database.db project.ini`) is a
 /// user's and stops the run before anything is removed.
-fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
-    let dir = crate::output::prepare_dir(ws, force, &[RECORD], &[])?;
+fn prepare_workspace(ws: &Path, export: &Path, force: bool) -> Result<crate::output::OutDir> {
+    let dir = crate::output::prepare_dir(ws, force, &[RECORD], &read_by(export))?;
     if dir.is_new() || !ws.join(RECORD).is_file() {
         return Ok(dir);
     }

@@ -379,12 +379,21 @@ impl Review {
                 ),
             ));
         }
-        crate::output::check_file(&self.path, true, &[&self.input])?;
+        crate::output::check_file(&self.path, true, &self.inputs())?;
         select::write(&project, &self.path)?;
         saved.fingerprint = fsutil::fingerprint_file(&self.path)?;
         saved.project = Arc::new(project);
         saved.revision += 1;
         Ok(saved.revision)
+    }
+
+    /// What a save reads besides the project it replaces: the project's input and the export.
+    fn inputs(&self) -> crate::output::Inputs {
+        let mut inputs = crate::output::Inputs::none().with("the project's input", &self.input);
+        if let Some((dir, _)) = &self.export {
+            crate::manifest::add_export(&mut inputs, dir);
+        }
+        inputs
     }
 
     /// Writes the workflow of `steps` beside the project (`<stem>.workflow.toml`), refusing to

@@ -18,6 +18,7 @@ mod movement;
 mod onnx_model;
 mod pipeline;
 mod preview;
+mod read_inputs;
 mod report;
 mod review;
 mod safety;
