@@ -99,8 +99,9 @@ struct Done {
 }
 
 /// The result folder of one input: its file name (letters, digits, `-`, `_`, `.` kept, anything
-/// else `_`) and the 16 hex digits of a hash of its resolved absolute path, so the same input gets the
-/// same folder whatever the other inputs of a run, and two inputs never share one.
+/// else `_`; cut to 223 bytes) and the 16 hex digits of a hash of its resolved absolute path, so
+/// the same input gets the same folder whatever the other inputs of a run, and two inputs never
+/// share one.
 pub fn folder_name(input: &Path) -> String {
     use std::os::unix::ffi::OsStrExt;
     let resolved = crate::output::resolve(input);
@@ -114,7 +115,10 @@ pub fn folder_name(input: &Path) -> String {
             "_",
         );
     let hash = fsutil::fnv1a64(resolved.as_os_str().as_bytes());
-    format!("{base}-{hash:016x}")
+    // Within NAME_MAX with the hash and the `.NAME.keyframer-new` it is made under (the base is
+    // ASCII by now, so any cut is a character boundary).
+    let room = crate::output::NAME_MAX - ".-0123456789abcdef.keyframer-new".len();
+    format!("{}-{hash:016x}", &base[..base.len().min(room)])
 }
 
 /// The result folder names of `inputs`, in order; an input named twice (under two spellings)

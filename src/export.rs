@@ -452,6 +452,7 @@ fn check_targets(
     for rel in targets {
         let p = out.join(&rel);
         crate::output::check_replaceable(&p)?;
+        crate::output::check_name_len(&p)?;
         if p.exists() && !ours.contains(&rel) {
             return Err(Error::output(
                 p,

@@ -1,11 +1,11 @@
 //! The one output-safety rule every writing command goes through. Guarantees: an output is never
 //! an input (anything the command reads, listed in its [`Inputs`]), nor inside or around one;
-//! only regular files (or missing paths) are ever replaced, never a device, FIFO, socket, symbolic
-//! link or folder; names read from files are plain file names; a folder output is replaced only
-//! where keyframer's own record (manifest.json, colmap.json, scene.json, .keyframer-run) lists
-//! what it wrote, a folder without that record is refused; keyframer's own stale temporaries (of
-//! processes that are gone) are cleared; a folder created by a command that then fails is removed
-//! again.
+//! names are at most [`NAME_MAX`] bytes, keyframer's temporaries included; only regular files (or
+//! missing paths) are ever replaced, never a device, FIFO, socket, symbolic link or folder; names
+//! read from files are plain file names; a folder output is replaced only where keyframer's own
+//! record (manifest.json, colmap.json, scene.json, .keyframer-run) lists what it wrote, a folder
+//! without that record is refused; keyframer's own stale temporaries (of processes that are gone)
+//! are cleared; a folder created by a command that then fails is removed again.
 
 use crate::error::{Error, Result};
 use std::ffi::OsStr;
@@ -171,6 +171,7 @@ pub fn check_file(path: &Path, force: bool, inputs: &Inputs) -> Result<()> {
             return Err(Error::output(path, msg));
         }
     }
+    check_name_len(path)?;
     if let (Some(dir), Some(name)) = (path.parent(), path.file_name()) {
         let dir = if dir.as_os_str().is_empty() {
             Path::new(".")
@@ -178,6 +179,22 @@ pub fn check_file(path: &Path, force: bool, inputs: &Inputs) -> Result<()> {
             dir
         };
         clear_stale_temps_of(dir, Some(name));
+    }
+    Ok(())
+}
+
+/// The longest file name the file systems keyframer writes to take (Linux `NAME_MAX`), in bytes.
+pub const NAME_MAX: usize = 255;
+
+/// Refuses an output whose file name is longer than [`NAME_MAX`] bytes: said before any work,
+/// instead of a failed write at the end.
+pub fn check_name_len(path: &Path) -> Result<()> {
+    let n = path.file_name().map_or(0, OsStr::len);
+    if n > NAME_MAX {
+        let msg = format!(
+            "its name is {n} bytes; a file name may have at most {NAME_MAX}: choose a shorter name"
+        );
+        return Err(Error::output(path, msg));
     }
     Ok(())
 }
@@ -199,14 +216,41 @@ fn pid_alive(pid: u32) -> bool {
     pid == std::process::id() || Path::new("/proc").join(pid.to_string()).exists()
 }
 
+/// Bytes a temporary's name adds to its base: `.`, `.tmp-` and [`unique_suffix`] (a pid of at
+/// most 10 digits, `-`, a counter of at most 20 and 9 digits of nanoseconds).
+const TEMP_EXTRA: usize = 1 + 5 + 40;
+
+/// The part of a temporary's name that says whose it is: the file's `name` when the rest fits
+/// within [`NAME_MAX`], else its first bytes, `~` and 16 hex digits of a hash of the whole name:
+/// one base per name either way, so the temporaries of a long name are still found as its own.
+fn temp_base(name: &OsStr) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let full = name.to_string_lossy();
+    let room = NAME_MAX - TEMP_EXTRA;
+    if full.len() <= room {
+        return full.into_owned();
+    }
+    let tag = format!("~{:016x}", fnv1a64(name.as_bytes()));
+    let mut cut = room - tag.len();
+    while !full.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    format!("{}{tag}", &full[..cut])
+}
+
+/// A new temporary's name for the file `name` (written beside it, then renamed over it):
+/// `.NAME.tmp-PID-N`, the name shortened so that it never has more than [`NAME_MAX`] bytes.
+pub fn temp_name(name: &OsStr) -> String {
+    format!(".{}.tmp-{}", temp_base(name), unique_suffix())
+}
+
 /// The pid a keyframer temporary's name ends with, if `name` is one (of `of`, when given).
 fn temp_pid(name: &str, of: Option<&OsStr>) -> Option<u32> {
     // `PID` or `PID-UNIQUE`.
     let digits = |s: &str| s.split('-').next().and_then(|p| p.parse::<u32>().ok());
     if let Some(rest) = name.strip_prefix('.') {
         if let Some((base, pid)) = rest.rsplit_once(".tmp-") {
-            let same = of.is_none_or(|o| o.to_str() == Some(base));
-            if same {
+            if of.is_none_or(|o| temp_base(o) == base) {
                 return digits(pid);
             }
         }
@@ -283,6 +327,17 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str
     })
 }
 
+/// FNV-1a, 64 bit: a small, stable, non-cryptographic hash (fingerprints, folder and temporary
+/// names).
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
 /// A name suffix unique to this process and call: `PID-N`, so a temporary is always a new file
 /// (never one planted or left under a predictable name).
 pub fn unique_suffix() -> String {
@@ -329,6 +384,7 @@ impl OutDir {
 /// when missing and checks that it is writable, leaving nothing behind.
 pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &Inputs) -> Result<OutDir> {
     check_not_input(dir, inputs)?;
+    check_name_len(dir)?;
     let out = OutDir {
         path: dir.to_path_buf(),
         created: create_dir(dir)?,
@@ -456,6 +512,43 @@ mod tests {
     }
 
     #[test]
+    fn temp_names_of_long_names_fit_and_stay_recognised() {
+        let d = tempfile::tempdir().unwrap();
+        // 255 bytes, the longest name a file may have; one ASCII, one of 2-byte characters.
+        let ascii = "a".repeat(251) + ".jpg";
+        let wide = "é".repeat(125) + "x.jpg";
+        let sibling = "a".repeat(250) + "b.jpg";
+        for name in [&ascii, &wide, &sibling] {
+            assert_eq!(name.len(), NAME_MAX);
+            let n = OsStr::new(name.as_str());
+            let (t1, t2) = (temp_name(n), temp_name(n));
+            assert!(t1.len() <= NAME_MAX, "{} bytes", t1.len());
+            assert_ne!(t1, t2, "unique");
+            // The file system takes it, and it is known as this name's temporary only.
+            std::fs::write(d.path().join(&t1), "x").unwrap();
+            assert_eq!(temp_pid(&t1, Some(n)), Some(std::process::id()));
+            assert_eq!(temp_pid(&t1, None), Some(std::process::id()));
+            let other = if name == &ascii { &sibling } else { &ascii };
+            assert_eq!(temp_pid(&t1, Some(OsStr::new(other.as_str()))), None);
+        }
+        // A short name keeps its plain form.
+        let t = temp_name(OsStr::new("p.json"));
+        assert!(t.starts_with(".p.json.tmp-"), "{t}");
+        // A stale temporary of a long name (its process gone) is cleared as that name's.
+        let dead = (3_000_000..4_000_000)
+            .find(|p| !Path::new("/proc").join(p.to_string()).exists())
+            .unwrap();
+        let stale = format!(".{}.tmp-{dead}-0", temp_base(OsStr::new(ascii.as_str())));
+        std::fs::write(d.path().join(&stale), "x").unwrap();
+        assert_eq!(
+            clear_stale_temps_of(d.path(), Some(OsStr::new(&sibling))),
+            0
+        );
+        assert_eq!(clear_stale_temps_of(d.path(), Some(OsStr::new(&ascii))), 1);
+        assert!(!d.path().join(&stale).exists());
+    }
+
+    #[test]
     fn outputs_never_touch_inputs() {
         let d = tempfile::tempdir().unwrap();
         let input = d.path().join("in");
@@ -483,5 +576,19 @@ mod tests {
         std::os::unix::fs::symlink(&sub, &l2).unwrap();
         assert_eq!(resolve(&l2.join("../v.mp4")), resolve(&input.join("v.mp4")));
         assert!(check_not_input(&l2.join("../v.mp4"), &i).is_err());
+    }
+
+    #[test]
+    fn names_past_name_max_are_refused_before_any_work() {
+        let d = tempfile::tempdir().unwrap();
+        let ok = d.path().join("a".repeat(NAME_MAX));
+        assert!(check_file(&ok, false, &Inputs::none()).is_ok());
+        let long = d.path().join("a".repeat(NAME_MAX + 1));
+        let e = check_file(&long, false, &Inputs::none())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("256 bytes"), "{e}");
+        assert!(prepare_dir(&long, false, &["r"], &Inputs::none()).is_err());
+        assert!(!long.exists());
     }
 }

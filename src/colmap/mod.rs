@@ -744,10 +744,7 @@ impl Runner<'_> {
 /// (absolute) and settings filled in.
 fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
     let ws = runner.ws;
-    let tmp = ws.join(format!(
-        ".project.ini.tmp-{}",
-        crate::output::unique_suffix()
-    ));
+    let tmp = ws.join(crate::output::temp_name("project.ini".as_ref()));
     let stage = runner.stage(
         "project_generator",
         &[

@@ -14,6 +14,7 @@ mod foundation;
 mod geotag;
 mod inputs;
 mod layers;
+mod long_names;
 mod movement;
 mod onnx_model;
 mod pipeline;
