@@ -3,6 +3,7 @@
 //! last, matching workflow and input) are skipped, so a re-run after a crash finishes the job.
 
 use crate::error::{Error, Result};
+use crate::output::Inputs;
 use crate::workflow::Workflow;
 use crate::{export, fsutil, select};
 use serde::{Deserialize, Serialize};
@@ -42,6 +43,8 @@ impl std::str::FromStr for Shard {
 pub struct RunSettings {
     /// Inputs in the order given.
     pub inputs: Vec<PathBuf>,
+    /// The file the inputs were listed in (`--inputs-from`), when they were.
+    pub inputs_from: Option<PathBuf>,
     /// Folder receiving one sub-folder per input.
     pub out: PathBuf,
     /// Redo finished inputs.
@@ -96,8 +99,9 @@ struct Done {
 }
 
 /// The result folder of one input: its file name (letters, digits, `-`, `_`, `.` kept, anything
-/// else `_`) and the 16 hex digits of a hash of its resolved absolute path, so the same input gets the
-/// same folder whatever the other inputs of a run, and two inputs never share one.
+/// else `_`; cut to 223 bytes) and the 16 hex digits of a hash of its resolved absolute path, so
+/// the same input gets the same folder whatever the other inputs of a run, and two inputs never
+/// share one.
 pub fn folder_name(input: &Path) -> String {
     use std::os::unix::ffi::OsStrExt;
     let resolved = crate::output::resolve(input);
@@ -111,7 +115,10 @@ pub fn folder_name(input: &Path) -> String {
             "_",
         );
     let hash = fsutil::fnv1a64(resolved.as_os_str().as_bytes());
-    format!("{base}-{hash:016x}")
+    // Within NAME_MAX with the hash and the `.NAME.keyframer-new` it is made under (the base is
+    // ASCII by now, so any cut is a character boundary).
+    let room = crate::output::NAME_MAX - ".-0123456789abcdef.keyframer-new".len();
+    format!("{}-{hash:016x}", &base[..base.len().min(room)])
 }
 
 /// The result folder names of `inputs`, in order; an input named twice (under two spellings)
@@ -164,8 +171,7 @@ pub fn run(workflow: &Workflow, s: &RunSettings) -> Result<Vec<InputReport>> {
     if sorted.len() != s.inputs.len() {
         return Err(Error::param("INPUT", "an input is listed twice"));
     }
-    let inputs: Vec<&Path> = s.inputs.iter().map(PathBuf::as_path).collect();
-    crate::output::check_not_input(&s.out, &inputs)?;
+    crate::output::check_not_input(&s.out, &read_by(workflow, s))?;
     let names = folder_names(&s.inputs)?;
     std::fs::create_dir_all(&s.out).map_err(|e| Error::io(&s.out, e))?;
     let mine = shard_of(&s.inputs, s.shard);
@@ -191,6 +197,21 @@ pub fn run(workflow: &Workflow, s: &RunSettings) -> Result<Vec<InputReport>> {
     let mut v = reports.into_inner().unwrap_or_default();
     v.sort_by_key(|(i, _)| *i);
     Ok(v.into_iter().map(|(_, r)| r).collect())
+}
+
+/// What a run reads: the workflow and the files it names, the list of inputs, and what the
+/// `select` of each input reads (the input and its telemetry).
+fn read_by(workflow: &Workflow, s: &RunSettings) -> Inputs {
+    let mut inputs = Inputs::none().with("workflow", &workflow.path);
+    inputs.extend(&workflow.inputs);
+    if let Some(list) = &s.inputs_from {
+        inputs.add("list of inputs", list);
+    }
+    for input in &s.inputs {
+        let select = select::SelectSettings::from_workflow(workflow, input, Path::new(""), true);
+        inputs.extend(&select.inputs());
+    }
+    inputs
 }
 
 fn log_line(n: usize, total: usize, r: &InputReport) {

@@ -121,6 +121,7 @@ impl ReportArgs {
             output: self.output.clone(),
             timeline: self.timeline.clone(),
             export: self.export.clone(),
+            model: self.model.clone(),
             thumbs: self.thumbs,
             force: self.force,
         }

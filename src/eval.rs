@@ -9,6 +9,7 @@ use crate::colmap::model::{self, Format, Model};
 use crate::colmap::{self as cm, read_manifest};
 use crate::error::{Error, Result};
 use crate::export::Manifest;
+use crate::output::Inputs;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -250,6 +251,23 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
         order: ordered.iter().map(|o| (o.name.clone(), o.index)).collect(),
         gt: gt.transpose()?,
     })
+}
+
+/// What [`camera_centres`] reads: the model at `model` (folder, `sparse/` root or workspace)
+/// and the export that numbers its images (`export`, else the one a workspace records).
+pub fn model_inputs(model: &Path, export: Option<&Path>) -> Inputs {
+    let mut inputs = Inputs::none().with("COLMAP model", model);
+    let recorded = || {
+        let workspace = model.join(cm::RECORD).is_file();
+        workspace.then(|| cm::read_record(model).ok()).flatten()
+    };
+    let export = export
+        .map(Path::to_path_buf)
+        .or_else(|| recorded().map(|r| r.export));
+    if let Some(e) = export {
+        crate::manifest::add_export(&mut inputs, &e);
+    }
+    inputs
 }
 
 /// Registered camera centres with their frame index (from the export's manifest), in frame

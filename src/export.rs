@@ -14,6 +14,7 @@ pub use crate::manifest::{
     MissingFrame, Resize, DEFAULT_QUALITY, IMAGE_DIR, LAYOUT, MANIFEST, MASK_DIR, OVERLAY_DIR,
     PENDING,
 };
+use crate::output::Inputs;
 use crate::project::Project;
 use crate::segment::{MaskSettings, Segmenter};
 use crate::source::telemetry::{self, Camera, Position};
@@ -145,13 +146,12 @@ pub fn export(
     let is_video = meta.kind == SourceKind::Video;
     let names = output_names(&project, src.as_ref(), settings, is_video)?;
     let geo = geo_of(&project, &input, src.as_ref(), settings, &names);
-    let network = (settings.masks.as_ref())
-        .map(|m| Ok(crate::model_desc::ModelDesc::load(&m.model)?.model))
-        .transpose()?;
-    let mut inputs: Vec<&Path> = vec![project_path, &input];
-    if let (Some(m), Some(n)) = (&settings.masks, &network) {
-        inputs.push(&m.model);
-        inputs.push(n);
+    // What the export reads: the project, its input and the mask model's files.
+    let mut inputs = Inputs::none()
+        .with("project", project_path)
+        .with("the project's input", &input);
+    if let Some(m) = &settings.masks {
+        inputs.extend(&crate::model_desc::ModelDesc::load(&m.model)?.inputs);
     }
     // The model is loaded and checked before anything is written.
     let mut masker = settings.masks.as_ref().map(Masker::new).transpose()?;
@@ -458,6 +458,7 @@ fn check_targets(
     for rel in targets {
         let p = out.join(&rel);
         crate::output::check_replaceable(&p)?;
+        crate::output::check_name_len(&p)?;
         if p.exists() && !ours.contains(&rel) {
             return Err(Error::output(
                 p,

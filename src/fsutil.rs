@@ -2,6 +2,7 @@
 //! relative paths and input fingerprints.
 
 use crate::error::{Error, Result};
+pub use crate::output::fnv1a64;
 use serde::{Deserialize, Serialize};
 use std::fs;
 use std::io::{Read, Write};
@@ -59,17 +60,15 @@ pub fn now_unix_s() -> u64 {
 }
 
 fn temp_sibling(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp-{}", crate::output::unique_suffix()))
+    path.with_file_name(crate::output::temp_name(
+        path.file_name().unwrap_or_default(),
+    ))
 }
 
 /// Refuses to replace an existing file unless `force`, and anything that is not a regular file
 /// (the output rule of [`crate::output::check_file`], without inputs to compare); returns its lock.
 pub fn check_overwrite(path: &Path, force: bool) -> Result<crate::output::lock::Lock> {
-    crate::output::check_file(path, force, &[])
+    crate::output::check_file(path, force, &crate::output::Inputs::none())
 }
 
 /// `target` expressed relative to the folder `base`, when both are absolute paths on the same root;
@@ -173,16 +172,6 @@ fn mtime_s(meta: &fs::Metadata) -> u64 {
         .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
         .map(|d| d.as_secs())
         .unwrap_or(0)
-}
-
-/// FNV-1a, 64 bit: a small, stable, non-cryptographic hash for fingerprints.
-pub fn fnv1a64(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
 }
 
 #[cfg(test)]

@@ -232,6 +232,7 @@ fn run_workflow(a: &cli::RunArgs, quiet: bool) -> Result<ExitCode> {
     let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
     let settings = keyframer::batch::RunSettings {
         inputs: a.all_inputs()?,
+        inputs_from: a.inputs_from.clone(),
         out: a.out.clone(),
         force: a.force,
         jobs: a.jobs,
@@ -409,8 +410,12 @@ fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<ExitCode> {
 fn flow(a: &cli::FlowArgs) -> Result<ExitCode> {
     let params = a.farneback.params();
     params.validate()?;
-    let mut inputs: Vec<&std::path::Path> = vec![&a.a, &a.b];
-    inputs.extend(a.initial.as_deref());
+    let mut inputs = keyframer::output::Inputs::none()
+        .with("first image", &a.a)
+        .with("second image", &a.b);
+    if let Some(i) = &a.initial {
+        inputs.add("initial flow", i);
+    }
     let _held = keyframer::output::check_file(&a.output, a.force, &inputs)?;
     let r = keyframer::flow::between_files(
         &a.a,

@@ -25,6 +25,15 @@ pub const LAYOUT: u32 = 2;
 /// Sub-folder of an export holding the overlay previews.
 pub const OVERLAY_DIR: &str = "overlays";
 
+/// Adds what is read of the export folder `dir` to `inputs`: its manifest, images, masks and
+/// overlays (not the folder: a report or COLMAP workspace beside them is fine).
+pub fn add_export(inputs: &mut crate::output::Inputs, dir: &Path) {
+    inputs.add("export manifest", dir.join(MANIFEST));
+    for sub in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
+        inputs.add("export folder", dir.join(sub));
+    }
+}
+
 /// How to size the exported images.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

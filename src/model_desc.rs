@@ -2,6 +2,7 @@
 //! its classes are called. Loading checks everything that can be checked without the model.
 
 use crate::error::{Error, Result};
+use crate::output::Inputs;
 use crate::tomlfile::{self, TomlFile};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -165,6 +166,8 @@ pub struct ModelDesc {
     pub input: InputDesc,
     /// How to read its output.
     pub output: OutputDesc,
+    /// Every file the description names, itself included (what a command using it reads).
+    pub inputs: Inputs,
 }
 
 impl ModelDesc {
@@ -186,6 +189,18 @@ impl ModelDesc {
             }
         }
         check_numbers(&file)?;
+        let mut inputs = Inputs::none()
+            .with("model description", path)
+            .with("network", &model);
+        for (what, f) in [
+            ("network config", &raw.config),
+            ("class names", &raw.classes_file),
+            ("class colours", &raw.colors_file),
+        ] {
+            if let Some(f) = f {
+                inputs.add(what, dir.join(f));
+            }
+        }
         Ok(ModelDesc {
             path: path.to_path_buf(),
             model,
@@ -196,6 +211,7 @@ impl ModelDesc {
             hide,
             input: raw.input.clone(),
             output: raw.output.clone(),
+            inputs,
         })
     }
 

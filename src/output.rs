@@ -1,11 +1,12 @@
 //! The one output-safety rule every writing command goes through. Guarantees: an output is never
-//! an input, nor inside or around one; only regular files (or missing paths) are ever replaced,
-//! never a device, FIFO, socket, symbolic link or folder; names read from files are plain file
-//! names; a folder output is replaced only where keyframer's own record (manifest.json,
-//! colmap.json, scene.json, .keyframer-run) lists what it wrote, a folder without that record is
-//! refused; keyframer's own stale temporaries (of processes that are gone) are cleared; a folder
-//! created by a command that then fails is removed again; every output is written under its lock
-//! (one writer at a time, see [`lock`]).
+//! an input (anything the command reads, listed in its [`Inputs`]), nor inside or around one;
+//! names are at most [`NAME_MAX`] bytes, keyframer's temporaries included; only regular files (or
+//! missing paths) are ever replaced, never a device, FIFO, socket, symbolic link or folder; names
+//! read from files are plain file names; a folder output is replaced only where keyframer's own
+//! record (manifest.json, colmap.json, scene.json, .keyframer-run) lists what it wrote, a folder
+//! without that record is refused; keyframer's own stale temporaries (of processes that are gone)
+//! are cleared; a folder created by a command that then fails is removed again; every output is
+//! written under its lock (one writer at a time, see [`lock`]).
 
 pub mod lock;
 
@@ -81,10 +82,49 @@ pub fn resolve(path: &Path) -> PathBuf {
     cur
 }
 
-/// Refuses an output that is an input, lies inside an input folder or contains an input.
-pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
+/// Everything a command reads (the video, the telemetry beside it, a project, an export's
+/// manifest and images, a COLMAP model, a workflow, a model description and the network files it
+/// names, ...), each path with what it is. Each command builds its list where it resolves its
+/// inputs, and every output check ([`check_file`], [`prepare_dir`], [`check_not_input`]) takes
+/// it, so an output is checked against all of them and the refusal names the input.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Inputs(Vec<(&'static str, PathBuf)>);
+
+impl Inputs {
+    /// No inputs (a command that reads nothing, or a check made again after the command's own).
+    pub fn none() -> Inputs {
+        Inputs::default()
+    }
+
+    /// Adds `path`, a `what` ("telemetry", "COLMAP model").
+    pub fn add(&mut self, what: &'static str, path: impl Into<PathBuf>) -> &mut Inputs {
+        self.0.push((what, path.into()));
+        self
+    }
+
+    /// `self` with `path` added.
+    pub fn with(mut self, what: &'static str, path: impl Into<PathBuf>) -> Inputs {
+        self.add(what, path);
+        self
+    }
+
+    /// Adds every input of `other`.
+    pub fn extend(&mut self, other: &Inputs) -> &mut Inputs {
+        self.0.extend(other.0.iter().cloned());
+        self
+    }
+
+    /// The inputs: what each is, and its path.
+    pub fn iter(&self) -> impl Iterator<Item = (&'static str, &Path)> {
+        self.0.iter().map(|(w, p)| (*w, p.as_path()))
+    }
+}
+
+/// Refuses an output that is an input, lies inside an input folder or contains an input; the
+/// message names the input and what it is.
+pub fn check_not_input(out: &Path, inputs: &Inputs) -> Result<()> {
     let o = resolve(out);
-    for input in inputs {
+    for (what, input) in inputs.iter() {
         let i = resolve(input);
         let how = if o == i {
             "is the input"
@@ -96,7 +136,7 @@ pub fn check_not_input(out: &Path, inputs: &[&Path]) -> Result<()> {
             continue;
         };
         let msg = format!(
-            "the output {how} {}; keyframer never writes into its inputs: choose another output",
+            "the output {how} {} ({what}); keyframer never writes into its inputs: choose another output",
             input.display()
         );
         return Err(Error::output(out, msg));
@@ -122,8 +162,9 @@ fn kind_of(path: &Path) -> Option<&'static str> {
 /// Checks a single-file output named by the user (`select -o`, `flow -o`, `report`, ...): not an
 /// input, a regular file or a missing path, replaced only with `force`; takes its lock first (hold
 /// it until the file is written). Clears this name's stale temporaries of earlier, killed runs.
-pub fn check_file(path: &Path, force: bool, inputs: &[&Path]) -> Result<Lock> {
+pub fn check_file(path: &Path, force: bool, inputs: &Inputs) -> Result<Lock> {
     check_not_input(path, inputs)?;
+    check_name_len(path)?;
     // Refused before anything is made beside it, and checked again under the lock.
     file_replaceable(path, force)?;
     let held = lock::beside(path)?;
@@ -152,6 +193,22 @@ fn file_replaceable(path: &Path, force: bool) -> Result<()> {
     }
 }
 
+/// The longest file name the file systems keyframer writes to take (Linux `NAME_MAX`), in bytes.
+pub const NAME_MAX: usize = 255;
+
+/// Refuses an output whose file name is longer than [`NAME_MAX`] bytes: said before any work,
+/// instead of a failed write at the end.
+pub fn check_name_len(path: &Path) -> Result<()> {
+    let n = path.file_name().map_or(0, OsStr::len);
+    if n > NAME_MAX {
+        let msg = format!(
+            "its name is {n} bytes; a file name may have at most {NAME_MAX}: choose a shorter name"
+        );
+        return Err(Error::output(path, msg));
+    }
+    Ok(())
+}
+
 /// Refuses to replace `path` unless it is a regular file or missing (for files inside an output
 /// folder that keyframer is about to write).
 pub fn check_replaceable(path: &Path) -> Result<()> {
@@ -169,14 +226,41 @@ fn pid_alive(pid: u32) -> bool {
     pid == std::process::id() || Path::new("/proc").join(pid.to_string()).exists()
 }
 
+/// Bytes a temporary's name adds to its base: `.`, `.tmp-` and [`unique_suffix`] (a pid of at
+/// most 10 digits, `-`, a counter of at most 20 and 9 digits of nanoseconds).
+const TEMP_EXTRA: usize = 1 + 5 + 40;
+
+/// The part of a temporary's name that says whose it is: the file's `name` when the rest fits
+/// within [`NAME_MAX`], else its first bytes, `~` and 16 hex digits of a hash of the whole name:
+/// one base per name either way, so the temporaries of a long name are still found as its own.
+fn temp_base(name: &OsStr) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let full = name.to_string_lossy();
+    let room = NAME_MAX - TEMP_EXTRA;
+    if full.len() <= room {
+        return full.into_owned();
+    }
+    let tag = format!("~{:016x}", fnv1a64(name.as_bytes()));
+    let mut cut = room - tag.len();
+    while !full.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    format!("{}{tag}", &full[..cut])
+}
+
+/// A new temporary's name for the file `name` (written beside it, then renamed over it):
+/// `.NAME.tmp-PID-N`, the name shortened so that it never has more than [`NAME_MAX`] bytes.
+pub fn temp_name(name: &OsStr) -> String {
+    format!(".{}.tmp-{}", temp_base(name), unique_suffix())
+}
+
 /// The pid a keyframer temporary's name ends with, if `name` is one (of `of`, when given).
 fn temp_pid(name: &str, of: Option<&OsStr>) -> Option<u32> {
     // `PID` or `PID-UNIQUE`.
     let digits = |s: &str| s.split('-').next().and_then(|p| p.parse::<u32>().ok());
     if let Some(rest) = name.strip_prefix('.') {
         if let Some((base, pid)) = rest.rsplit_once(".tmp-") {
-            let same = of.is_none_or(|o| o.to_str() == Some(base));
-            if same {
+            if of.is_none_or(|o| temp_base(o) == base) {
                 return digits(pid);
             }
         }
@@ -253,6 +337,17 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str
     })
 }
 
+/// FNV-1a, 64 bit: a small, stable, non-cryptographic hash (fingerprints, folder and temporary
+/// names).
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
 /// A name suffix unique to this process and call: `PID-N`, so a temporary is always a new file
 /// (never one planted or left under a predictable name).
 pub fn unique_suffix() -> String {
@@ -306,8 +401,9 @@ fn remove_created(created: &[PathBuf]) {
 /// refuses an input, a non-folder and a folder keyframer did not make (non-empty without `record`
 /// inside); a non-empty folder of keyframer's needs `force`. Clears stale temporaries, creates the folder
 /// when missing, locks it and checks that it is writable, leaving nothing behind.
-pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &[&Path]) -> Result<OutDir> {
+pub fn prepare_dir(dir: &Path, force: bool, records: &[&str], inputs: &Inputs) -> Result<OutDir> {
     check_not_input(dir, inputs)?;
+    check_name_len(dir)?;
     let created = create_dir(dir)?;
     // Ownership first (a folder keyframer may not write is not touched, not even locked), and
     // again under the lock; temporaries are cleared only in a folder that is keyframer's (or empty).
@@ -440,19 +536,62 @@ mod tests {
     }
 
     #[test]
+    fn temp_names_of_long_names_fit_and_stay_recognised() {
+        let d = tempfile::tempdir().unwrap();
+        // 255 bytes, the longest name a file may have; one ASCII, one of 2-byte characters.
+        let ascii = "a".repeat(251) + ".jpg";
+        let wide = "é".repeat(125) + "x.jpg";
+        let sibling = "a".repeat(250) + "b.jpg";
+        for name in [&ascii, &wide, &sibling] {
+            assert_eq!(name.len(), NAME_MAX);
+            let n = OsStr::new(name.as_str());
+            let (t1, t2) = (temp_name(n), temp_name(n));
+            assert!(t1.len() <= NAME_MAX, "{} bytes", t1.len());
+            assert_ne!(t1, t2, "unique");
+            // The file system takes it, and it is known as this name's temporary only.
+            std::fs::write(d.path().join(&t1), "x").unwrap();
+            assert_eq!(temp_pid(&t1, Some(n)), Some(std::process::id()));
+            assert_eq!(temp_pid(&t1, None), Some(std::process::id()));
+            let other = if name == &ascii { &sibling } else { &ascii };
+            assert_eq!(temp_pid(&t1, Some(OsStr::new(other.as_str()))), None);
+        }
+        // A short name keeps its plain form.
+        let t = temp_name(OsStr::new("p.json"));
+        assert!(t.starts_with(".p.json.tmp-"), "{t}");
+        // A stale temporary of a long name (its process gone) is cleared as that name's.
+        let dead = (3_000_000..4_000_000)
+            .find(|p| !Path::new("/proc").join(p.to_string()).exists())
+            .unwrap();
+        let stale = format!(".{}.tmp-{dead}-0", temp_base(OsStr::new(ascii.as_str())));
+        std::fs::write(d.path().join(&stale), "x").unwrap();
+        assert_eq!(
+            clear_stale_temps_of(d.path(), Some(OsStr::new(&sibling))),
+            0
+        );
+        assert_eq!(clear_stale_temps_of(d.path(), Some(OsStr::new(&ascii))), 1);
+        assert!(!d.path().join(&stale).exists());
+    }
+
+    #[test]
     fn outputs_never_touch_inputs() {
         let d = tempfile::tempdir().unwrap();
         let input = d.path().join("in");
         fs::create_dir_all(&input).unwrap();
-        let i: &Path = &input;
-        assert!(check_not_input(&input, &[i]).is_err());
-        assert!(check_not_input(&input.join("x"), &[i]).is_err());
-        assert!(check_not_input(d.path(), &[i]).is_err());
-        assert!(check_not_input(&d.path().join("out"), &[i]).is_ok());
+        let i = Inputs::none().with("image folder", &input);
+        assert!(check_not_input(&input, &i).is_err());
+        assert!(check_not_input(&input.join("x"), &i).is_err());
+        assert!(check_not_input(d.path(), &i).is_err());
+        assert!(check_not_input(&d.path().join("out"), &i).is_ok());
+        // The refusal names the input and what it is.
+        let e = check_not_input(&input, &i).unwrap_err().to_string();
+        assert!(
+            e.contains("is the input") && e.contains("(image folder)"),
+            "{e}"
+        );
         // Through a symbolic link too, and through `LINK/..` (the link's parent, not `.`).
         let link = d.path().join("link");
         std::os::unix::fs::symlink(&input, &link).unwrap();
-        assert!(check_not_input(&link.join("y"), &[i]).is_err());
+        assert!(check_not_input(&link.join("y"), &i).is_err());
         let sub = input.join("sub");
         fs::create_dir_all(&sub).unwrap();
         let elsewhere = d.path().join("elsewhere");
@@ -460,6 +599,20 @@ mod tests {
         let l2 = elsewhere.join("l2");
         std::os::unix::fs::symlink(&sub, &l2).unwrap();
         assert_eq!(resolve(&l2.join("../v.mp4")), resolve(&input.join("v.mp4")));
-        assert!(check_not_input(&l2.join("../v.mp4"), &[i]).is_err());
+        assert!(check_not_input(&l2.join("../v.mp4"), &i).is_err());
+    }
+
+    #[test]
+    fn names_past_name_max_are_refused_before_any_work() {
+        let d = tempfile::tempdir().unwrap();
+        let ok = d.path().join("a".repeat(NAME_MAX));
+        assert!(check_file(&ok, false, &Inputs::none()).is_ok());
+        let long = d.path().join("a".repeat(NAME_MAX + 1));
+        let e = check_file(&long, false, &Inputs::none())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("256 bytes"), "{e}");
+        assert!(prepare_dir(&long, false, &["r"], &Inputs::none()).is_err());
+        assert!(!long.exists());
     }
 }

@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
+use crate::output::Inputs;
 use crate::params::{BackendChoice, Derotate, FarnebackParams, MovementRequest, Statistic};
 use crate::project::Project;
 use crate::steps::{Applied, Step};
@@ -177,6 +178,9 @@ pub struct Workflow {
     pub backend: BackendChoice,
     /// Each `[[export]]`: its folder name and checked settings.
     pub exports: Vec<(String, ExportSettings)>,
+    /// The files it names (telemetry, mask model descriptions and their files), which running it
+    /// reads; the workflow file itself is not among them.
+    pub inputs: Inputs,
 }
 
 impl Workflow {
@@ -218,12 +222,14 @@ impl Workflow {
             None => BackendChoice::Auto,
             Some(b) => b.parse().map_err(|e| file.error("analysis.backend", e))?,
         };
+        let mut inputs = Inputs::none();
         if let Some(t) = &an.telemetry {
             let dir = file.path().parent().unwrap_or(Path::new("."));
             if !dir.join(t).is_file() {
                 let msg = format!("{}: no such telemetry file", dir.join(t).display());
                 return Err(file.error("analysis.telemetry", msg));
             }
+            inputs.add("telemetry", dir.join(t));
         }
         if let Some(o) = an.telemetry_offset.filter(|o| !o.is_finite()) {
             let msg = format!("must be a number of seconds, got {o}");
@@ -241,6 +247,7 @@ impl Workflow {
                     .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
                 desc.class_ids(&m.classes)
                     .map_err(|e| file.error(&format!("export[{i}].masks.classes"), e.into_msg()))?;
+                inputs.extend(&desc.inputs);
             }
             exports.push((e.name.clone(), settings));
         }
@@ -251,6 +258,7 @@ impl Workflow {
             movement,
             backend,
             exports,
+            inputs,
         })
     }
 }
@@ -607,15 +615,17 @@ pub fn save_loaded(
     force: bool,
 ) -> Result<PathBuf> {
     let text = from_loaded(p, project, exports)?;
-    Workflow::from_text(output, text.clone())
+    let wf = Workflow::from_text(output, text.clone())
         .map_err(|e| Error::input(project, format!("cannot be saved as a workflow: {e}")))?;
-    let source = p.input_path(project);
-    let manifests: Vec<PathBuf> = exports
-        .iter()
-        .map(|e| e.join(crate::manifest::MANIFEST))
-        .collect();
-    let mut inputs: Vec<&Path> = vec![project, &source];
-    inputs.extend(manifests.iter().map(|m| m.as_path()));
+    // What the save reads: the project, its input, the exports, and the files the workflow names
+    // (the project's telemetry, the exports' mask models).
+    let mut inputs = Inputs::none()
+        .with("project", project)
+        .with("the project's input", p.input_path(project));
+    for e in exports {
+        crate::manifest::add_export(&mut inputs, e);
+    }
+    inputs.extend(&wf.inputs);
     let _held = crate::output::check_file(output, force, &inputs)?;
     crate::fsutil::write_atomic(output, text.as_bytes())?;
     Ok(output.to_path_buf())

@@ -293,9 +293,7 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
         return Err(Error::input(&export, "the export holds no images"));
     }
     let ws = fsutil::absolute(&a.output.clone().unwrap_or_else(|| export.join("colmap")));
-    let read =
-        [crate::export::IMAGE_DIR, crate::export::MASK_DIR, MANIFEST].map(|p| export.join(p));
-    crate::output::check_not_input(&ws, &read.each_ref().map(PathBuf::as_path))?;
+    crate::output::check_not_input(&ws, &read_by(&export))?;
     if crate::output::resolve(&export).starts_with(crate::output::resolve(&ws)) {
         return Err(Error::param(
             "output",
@@ -325,7 +323,7 @@ fn fill_workspace(
     manifest: &Manifest,
     force: bool,
 ) -> Result<(usize, crate::output::OutDir)> {
-    let dir = prepare_workspace(ws, force)?;
+    let dir = prepare_workspace(ws, export, force)?;
     let images = ws.join("images");
     let masks_dir = ws.join("masks");
     let export_masks = export.join(crate::export::MASK_DIR);
@@ -551,13 +549,21 @@ fn write_record(ws: &Path, rec: &Record) -> Result<()> {
     fsutil::write_json(&ws.join(RECORD), rec)
 }
 
+/// What `colmap` reads: the export's manifest, images and masks (the workspace may lie beside
+/// them, in the export folder).
+fn read_by(export: &Path) -> crate::output::Inputs {
+    let mut inputs = crate::output::Inputs::none();
+    crate::manifest::add_export(&mut inputs, export);
+    inputs
+}
+
 /// Prepares the workspace through the one output rule (a folder without `colmap.json` is not
 /// keyframer's and is refused; `--force` is needed to replace a keyframer workspace). With
 /// `force`, removes exactly the files `colmap.json` lists; any other file inside the places
 /// keyframer and COLMAP write (`images/ masks/ sparse/ dense/ logs/ database.db project.ini`) is a
 /// user's and stops the run before anything is removed.
-fn prepare_workspace(ws: &Path, force: bool) -> Result<crate::output::OutDir> {
-    let dir = crate::output::prepare_dir(ws, force, &[RECORD], &[])?;
+fn prepare_workspace(ws: &Path, export: &Path, force: bool) -> Result<crate::output::OutDir> {
+    let dir = crate::output::prepare_dir(ws, force, &[RECORD], &read_by(export))?;
     if dir.is_new() || !ws.join(RECORD).is_file() {
         return Ok(dir);
     }
@@ -745,10 +751,7 @@ impl Runner<'_> {
 /// (absolute) and settings filled in.
 fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
     let ws = runner.ws;
-    let tmp = ws.join(format!(
-        ".project.ini.tmp-{}",
-        crate::output::unique_suffix()
-    ));
+    let tmp = ws.join(crate::output::temp_name("project.ini".as_ref()));
     let stage = runner.stage(
         "project_generator",
         &[

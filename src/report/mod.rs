@@ -13,6 +13,7 @@ pub use timeline::Timeline;
 use crate::error::{Error, Result};
 use crate::export;
 use crate::fsutil;
+use crate::output::Inputs;
 use crate::project::Project;
 use std::path::{Path, PathBuf};
 
@@ -26,6 +27,9 @@ pub struct ReportSettings {
     /// Take thumbnails from this export folder (its manifest) instead of decoding the input; an
     /// unreadable folder is an error, a missing input only a note on the page.
     pub export: Option<PathBuf>,
+    /// The COLMAP model the camera path was read from (model folder, `sparse/` root or
+    /// workspace; see [`crate::eval::camera_centres`]): an input the outputs may not touch.
+    pub model: Option<PathBuf>,
     /// At most this many thumbnails, spread evenly over the keyframes (0: none).
     pub thumbs: usize,
     /// Replace existing outputs.
@@ -55,8 +59,9 @@ pub fn default_timeline_path(html: &Path) -> PathBuf {
 }
 
 /// Writes the report of the project file at `project_path`: the HTML page and the PNG timeline,
-/// atomically, refusing existing outputs unless `settings.force`. `camera` adds the camera-path
-/// section (e.g. centres read from a COLMAP model); without it the section says how to get one.
+/// atomically, refusing existing outputs unless `settings.force` and outputs that touch an input.
+/// `camera` adds the camera-path section (e.g. centres read from `settings.model`); without it
+/// the section says how to get one.
 pub fn write_report(
     project_path: &Path,
     settings: &ReportSettings,
@@ -69,23 +74,8 @@ pub fn write_report(
     if crate::output::resolve(&png_path) == crate::output::resolve(&settings.output) {
         return Err(Error::param("timeline", "must differ from the HTML output"));
     }
-    // The export is read: its manifest and images are inputs (a report beside them is fine).
-    let export_parts: Vec<std::path::PathBuf> = settings
-        .export
-        .iter()
-        .flat_map(|e| {
-            [
-                e.join(crate::export::MANIFEST),
-                e.join(crate::export::IMAGE_DIR),
-                e.join(crate::export::MASK_DIR),
-            ]
-        })
-        .collect();
     let project = Project::load(project_path)?;
-    // The project's own input (video or image folder) is read for thumbnails.
-    let source = project.input_path(project_path);
-    let mut inputs: Vec<&Path> = vec![project_path, &source];
-    inputs.extend(export_parts.iter().map(|p| p.as_path()));
+    let inputs = inputs(project_path, &project, settings);
     let _held = (
         crate::output::check_file(&settings.output, settings.force, &inputs)?,
         crate::output::check_file(&png_path, settings.force, &inputs)?,
@@ -125,6 +115,22 @@ pub fn write_report(
         keyframes: project.keyframes.len(),
         thumbs: thumbs.len(),
     })
+}
+
+/// What a report reads: the project, its input (thumbnails), the export named (its manifest,
+/// images and masks: a report beside them is fine) and the COLMAP model of the camera path with
+/// the export its workspace records.
+fn inputs(project_path: &Path, project: &Project, settings: &ReportSettings) -> Inputs {
+    let mut inputs = Inputs::none()
+        .with("project", project_path)
+        .with("the project's input", project.input_path(project_path));
+    if let Some(e) = &settings.export {
+        crate::manifest::add_export(&mut inputs, e);
+    }
+    if let Some(m) = &settings.model {
+        inputs.extend(&crate::eval::model_inputs(m, settings.export.as_deref()));
+    }
+    inputs
 }
 
 /// Thumbnails of (a spread of) the keyframes, from the export when one is named, else decoded

@@ -117,7 +117,7 @@ fn stats(mut ms: Vec<f64>) -> (f64, f64, f64) {
 pub fn review(dir: &Path, frames: usize) -> Result<String> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let path = dir.join("review-bench.json");
-    let _held = crate::output::check_file(&path, true, &[])?;
+    let _held = crate::output::check_file(&path, true, &crate::output::Inputs::none())?;
     synthetic_project(frames)?.save(&path, true)?;
     let settings = ReviewSettings {
         project: path.clone(),

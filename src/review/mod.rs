@@ -370,7 +370,7 @@ impl Review {
         }
         let mut saved = lock(&self.saved);
         // Under the project file's lock: a `select` writing it now makes this save a conflict.
-        let _held = crate::output::check_file(&self.path, true, &[&self.input])
+        let _held = crate::output::check_file(&self.path, true, &self.inputs())
             .map_err(|e| ApiError::new(409, e.to_string()))?;
         let now = fsutil::fingerprint_file(&self.path).ok();
         if saved.revision != revision || now.as_ref() != Some(&saved.fingerprint) {
@@ -388,6 +388,15 @@ impl Review {
         saved.project = Arc::new(project);
         saved.revision += 1;
         Ok(saved.revision)
+    }
+
+    /// What a save reads besides the project it replaces: the project's input and the export.
+    fn inputs(&self) -> crate::output::Inputs {
+        let mut inputs = crate::output::Inputs::none().with("the project's input", &self.input);
+        if let Some((dir, _)) = &self.export {
+            crate::manifest::add_export(&mut inputs, dir);
+        }
+        inputs
     }
 
     /// Writes the workflow of `steps` beside the project (`<stem>.workflow.toml`), refusing to

@@ -305,10 +305,8 @@ pub fn segment_file(
 ) -> Result<SegmentReport> {
     use crate::manifest::Format;
     let desc = ModelDesc::load(&settings.model)?;
-    let mut inputs: Vec<&Path> = vec![image_path, &settings.model, &desc.model];
-    if let Some(c) = &desc.config {
-        inputs.push(c);
-    }
+    let mut inputs = crate::output::Inputs::none().with("image", image_path);
+    inputs.extend(&desc.inputs);
     let _held = (
         crate::output::check_file(output, force, &inputs)?,
         (overlay.map(|o| crate::output::check_file(o, force, &inputs))).transpose()?,

@@ -12,6 +12,7 @@ use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu::{self, Backend, BackendChoice};
 use crate::output::lock::Lock;
+use crate::output::Inputs;
 use crate::params::Metric;
 use crate::project::{
     Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
@@ -140,6 +141,21 @@ impl SelectSettings {
         }
     }
 
+    /// What this `select` reads: the input, and the telemetry it takes positions from (the
+    /// `--telemetry` file, or the DJI SRT found beside a video).
+    pub fn inputs(&self) -> Inputs {
+        let kind = source::kind_of(&self.input).unwrap_or(SourceKind::Video);
+        let mut inputs = Inputs::none().with("input", &self.input);
+        if let Some(file) = telemetry::file(self, kind) {
+            let what = match self.telemetry {
+                Some(_) => "telemetry",
+                None => "telemetry found beside the video",
+            };
+            inputs.add(what, file);
+        }
+        inputs
+    }
+
     /// `path` relative to the project file's folder when possible, as the project records it.
     fn relative(&self, path: &Path) -> PathBuf {
         let project_dir = fsutil::absolute(&self.output)
@@ -179,11 +195,13 @@ pub fn identify(input: &Path) -> Result<(SourceKind, Fingerprint)> {
 }
 
 /// The output rule for `select`: the project file and its checkpoint are regular files (or
-/// missing), not the input nor inside it; an existing project needs `--force`. Returns their locks.
+/// missing), none of its inputs nor inside one; an existing project needs `--force`. Returns
+/// their locks.
 pub(crate) fn check_outputs(s: &SelectSettings) -> Result<[Lock; 2]> {
-    let project = crate::output::check_file(&s.output, s.force, &[&s.input])?;
+    let inputs = s.inputs();
+    let project = crate::output::check_file(&s.output, s.force, &inputs)?;
     let checkpoint = checkpoint_path(&s.output);
-    let partial = crate::output::check_file(&checkpoint, true, &[&s.input])?;
+    let partial = crate::output::check_file(&checkpoint, true, &inputs)?;
     // The checkpoint is replaced and removed without --force only when it is keyframer's own.
     if checkpoint.exists() && !s.force && !crate::analysis::is_checkpoint(&checkpoint) {
         return Err(Error::output(

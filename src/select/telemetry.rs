@@ -26,9 +26,19 @@ fn wanted(s: &SelectSettings, kind: SourceKind) -> Result<Option<(PathBuf, Telem
         return Ok(Some((file.clone(), kind_of_file(file)?)));
     }
     Ok(match kind {
-        SourceKind::Video => telemetry::sidecar_of(&s.input).map(|p| (p, TelemetryKind::DjiSrt)),
+        SourceKind::Video => file(s, kind).map(|p| (p, TelemetryKind::DjiSrt)),
         SourceKind::Images | SourceKind::Image => Some((s.input.clone(), TelemetryKind::Exif)),
     })
+}
+
+/// The telemetry file this run reads besides the input (path as given): `--telemetry FILE`,
+/// else the DJI SRT sidecar beside a video (images carry theirs in EXIF).
+pub(super) fn file(s: &SelectSettings, kind: SourceKind) -> Option<PathBuf> {
+    match (&s.telemetry, kind) {
+        (Some(f), _) => Some(f.clone()),
+        (None, SourceKind::Video) => telemetry::sidecar_of(&s.input),
+        (None, _) => None,
+    }
 }
 
 /// `.gpx` and `.srt` by extension (any case); otherwise a file starting like XML is GPX and

@@ -242,6 +242,7 @@ fn report_renders_in_headless_chromium_with_bars_at_the_keyframes() {
         output: page.clone(),
         timeline: None,
         export: None,
+        model: None,
         thumbs: 6,
         force: true,
     };
@@ -336,6 +337,7 @@ fn report_driven_over_devtools_marks_keyframes_and_shows_the_hovered_frame() {
         output: page.clone(),
         timeline: None,
         export: None,
+        model: None,
         thumbs: 0,
         force: true,
     };

@@ -136,7 +136,7 @@ const PALETTE: [[u8; 3]; 8] = [
 ];
 
 /// A w x h RGB image whose pixels come from the palette in a scrambled order.
-fn palette_image(w: u32, h: u32) -> image::RgbImage {
+pub fn palette_image(w: u32, h: u32) -> image::RgbImage {
     image::RgbImage::from_fn(w, h, |x, y| {
         let i = ((x * 7 + y * 13 + x * y) % PALETTE.len() as u32) as usize;
         image::Rgb(PALETTE[i])

@@ -334,7 +334,8 @@ const FILES: [&str; 4] = ["video.mp4", "video.SRT", "poses.tum", "scene.json"];
 /// Generates the sequence described by `s`.
 pub fn generate(s: &SceneSettings) -> Result<SceneReport> {
     let seconds = validate(s)?;
-    let dir = keyframer::output::prepare_dir(&s.out, s.force, &["scene.json"], &[&s.textures])?;
+    let textures = keyframer::output::Inputs::none().with("textures", &s.textures);
+    let dir = keyframer::output::prepare_dir(&s.out, s.force, &["scene.json"], &textures)?;
     let r = (|| {
         for name in FILES {
             keyframer::output::check_replaceable(&s.out.join(name))?;
