@@ -1,5 +1,6 @@
 //! Input edge cases: rotation metadata, damaged images in a folder, file names that are not
-//! UTF-8, the keyframe-only preview on AVI and on cut-short streams, and frames read on demand.
+//! UTF-8, the keyframe-only preview on AVI and on cut-short streams, frames read on demand and
+//! inputs that are not regular files.
 
 use crate::common::*;
 use keyframer::source::codec_keyframes::{probe, CodecKeyframeSource};
@@ -665,4 +666,32 @@ fn frames_on_demand_equal_sequential_decode() {
         );
         assert!(Arc::ptr_eq(&again.0.unwrap(), &again.1.unwrap()));
     }
+}
+
+/// A FIFO given as the input is refused at once (it used to hang with no message).
+#[test]
+fn fifo_input_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let fifo = d.path().join("v.mp4");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let p = d.path().join("p.json");
+    for args in [
+        vec!["select", s(&fifo), "-o", s(&p)],
+        vec!["select", s(&fifo), "--preview", "-o", s(&p)],
+        vec!["probe", s(&fifo)],
+    ] {
+        let started = std::time::Instant::now();
+        let out = Command::new("timeout")
+            .arg("10")
+            .arg(env!("CARGO_BIN_EXE_keyframer"))
+            .args(&args)
+            .output()
+            .unwrap();
+        let (code, err) = code_and_stderr(&out);
+        assert_eq!(code, 1, "{args:?}: {err}");
+        assert!(err.contains("not a regular file"), "{args:?}: {err}");
+        assert!(started.elapsed().as_secs() < 5, "{args:?}");
+    }
+    assert!(!p.exists());
 }
