@@ -4,6 +4,7 @@
 pub mod codec_keyframes;
 mod images;
 mod natural;
+mod packets;
 mod reader;
 pub mod telemetry;
 mod video;
