@@ -87,23 +87,18 @@ pub fn parse_packets(path: &Path, text: &str) -> Result<CodecKeyframeIndex> {
 
 /// Lists the packets of `path`'s first video stream with `ffprobe` (demuxing only, no decode).
 pub fn probe(path: &Path) -> Result<CodecKeyframeIndex> {
-    let out = Command::new("ffprobe")
-        .args(["-v", "error", "-select_streams", "v:0"])
-        .args(["-show_entries", "packet=pts_time,dts_time,flags"])
-        .args(["-of", "csv=p=0"])
-        .arg(path)
-        .output()
-        .map_err(|e| missing_tool("ffprobe", e))?;
-    if !out.status.success() {
-        return Err(Error::input(
-            path,
-            format!(
-                "ffprobe cannot list the packets: {}",
-                String::from_utf8_lossy(&out.stderr).trim()
-            ),
-        ));
-    }
-    let index = parse_packets(path, &String::from_utf8_lossy(&out.stdout))?;
+    let args = [
+        "-show_entries",
+        "packet=pts_time,dts_time,flags",
+        "-of",
+        "csv=p=0",
+    ];
+    let text = super::packets::ffprobe(path, &args, |out| {
+        let mut text = Vec::new();
+        out.read_to_end(&mut text).map_err(|e| Error::io(path, e))?;
+        Ok(String::from_utf8_lossy(&text).into_owned())
+    })?;
+    let index = parse_packets(path, &text)?;
     if index.keyframes.is_empty() {
         let msg = "the video marks no packet as a keyframe";
         return Err(Error::input(path, msg));

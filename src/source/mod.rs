@@ -4,6 +4,7 @@
 pub mod codec_keyframes;
 mod images;
 mod natural;
+mod packets;
 mod reader;
 pub mod telemetry;
 mod video;
@@ -111,12 +112,18 @@ pub struct OpenOptions {
 }
 
 /// What `path` is, from the file system only: a folder of images, an image file (by its
-/// extension) or a video.
+/// extension) or a video; anything but a folder or a regular file (a FIFO would block the
+/// reader) is refused.
 pub fn kind_of(path: &Path) -> Result<SourceKind> {
     let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => Error::input(path, "no such file or folder"),
         _ => Error::io(path, e),
     })?;
+    if !meta.is_dir() && !meta.is_file() {
+        let msg = "is not a regular file (a device, FIFO or socket): give a video file, an image \
+                   file or a folder of images";
+        return Err(Error::input(path, msg));
+    }
     Ok(if meta.is_dir() {
         SourceKind::Images
     } else if is_image_name(path) {

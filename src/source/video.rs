@@ -2,6 +2,13 @@
 //! cheap skipping with `grab`, per-frame presentation timestamps, and detection of streams that end
 //! before the container says they should.
 //!
+//! Timestamps are the stream's: FFmpeg's best-effort timestamp of each frame (the pts), in
+//! seconds from frame 0, from the packet list ([`super::packets`], read once the first frame
+//! after frame 0 is reached). Every frame for which OpenCV reports a position is checked against
+//! the list; where they do not pair (no ffprobe, a decoder that drops frames) OpenCV's positions
+//! are used, which are missing for the last frames of a stream with B-frames (the previous
+//! interval is repeated there).
+//!
 //! Rotation: frames come out as FFmpeg displays them (`ffmpeg -i v.mp4 f.png` autorotates by the
 //! stream's display matrix). OpenCV 4.6 reads the display-matrix angle but turns the frame the
 //! wrong way for 90 and 270 (clockwise by ffprobe's counter-clockwise angle), so its automatic
@@ -9,12 +16,23 @@
 //! convention (`ffprobe -show_streams`, side data `rotation`): counter-clockwise degrees in
 //! [-180, 180), e.g. `-metadata:s:v:0 rotate=270` gives -90 and 180 gives -180.
 
+use super::packets::{self, StreamTimes, REPEAT_STEP_S};
 use super::{Frame, FrameSource, Metadata, SourceKind};
 use crate::error::{CvContext, Error, Result};
 use opencv::core::{self as cvcore, Mat};
 use opencv::prelude::*;
 use opencv::videoio::{self, VideoCapture};
 use std::path::{Path, PathBuf};
+
+/// Where a video's frame timestamps come from.
+enum Times {
+    /// Not listed yet.
+    Pending,
+    /// The packet list, paired with the decoded frames so far.
+    Listed(StreamTimes),
+    /// OpenCV's positions: no packet list, or one the decoded frames do not pair with.
+    OpenCv,
+}
 
 /// A video file being decoded front to back.
 pub struct VideoSource {
@@ -25,6 +43,9 @@ pub struct VideoSource {
     pending: Option<Frame>,
     /// Index of the next frame to come out of the decoder.
     next_index: usize,
+    times: Times,
+    /// OpenCV's position of frame 0, in seconds: timestamps count from it.
+    origin_s: f64,
     last_ts: Option<f64>,
     last_step: Option<f64>,
     ended: bool,
@@ -92,6 +113,8 @@ impl VideoSource {
             },
             pending: None,
             next_index: 0,
+            times: Times::Pending,
+            origin_s: 0.0,
             last_ts: None,
             last_step: None,
             ended: false,
@@ -109,8 +132,9 @@ impl VideoSource {
         Ok(src)
     }
 
-    /// Grabs the next frame; returns its index and timestamp, or `None` at the end of the stream.
-    fn grab(&mut self) -> Result<Option<(usize, Option<f64>)>> {
+    /// Grabs the next frame; returns its index and OpenCV's position of it in seconds, or `None`
+    /// at the end of the stream.
+    fn grab(&mut self) -> Result<Option<(usize, f64)>> {
         if self.ended {
             return Ok(None);
         }
@@ -125,34 +149,101 @@ impl VideoSource {
         }
         let index = self.next_index;
         self.next_index += 1;
-        let ts = self.timestamp(index);
-        Ok(Some((index, ts)))
+        let ms = self.cap.get(videoio::CAP_PROP_POS_MSEC).unwrap_or(f64::NAN);
+        Ok(Some((index, ms / 1000.0)))
     }
 
-    /// The current frame's presentation time. When the stream gives none or goes backwards (OpenCV
-    /// reports no usable time for frames drained from the decoder at the end), the previous
-    /// frame interval is repeated (1 / fps for the second frame).
-    fn timestamp(&mut self, index: usize) -> Option<f64> {
-        let ms = self.cap.get(videoio::CAP_PROP_POS_MSEC).unwrap_or(f64::NAN);
-        let from_stream = ms / 1000.0;
-        let fallback_step = self.last_step.or(self.meta.fps.map(|f| 1.0 / f));
-        let ts = match self.last_ts {
-            Some(prev) if !(from_stream.is_finite() && from_stream > prev) => {
-                log::debug!(
-                    "{}: frame {index}: no usable timestamp ({ms} ms); extrapolated",
-                    self.path.display()
-                );
-                Some(prev + fallback_step.unwrap_or(0.0))
-            }
-            None if !from_stream.is_finite() => self.meta.fps.map(|f| index as f64 / f),
-            _ => Some(from_stream),
+    /// Grabs the next frame; returns its index and timestamp, or `None` at the end of the stream.
+    fn advance(&mut self) -> Result<Option<(usize, Option<f64>)>> {
+        let Some((index, pos_s)) = self.grab()? else {
+            return Ok(None);
         };
+        Ok(Some((index, self.timestamp(index, pos_s))))
+    }
+
+    /// Reads the packet list, once (see the module header).
+    fn list_times(&mut self) {
+        if !matches!(self.times, Times::Pending) {
+            return;
+        }
+        self.times = match packets::list(&self.path) {
+            Ok(list) => {
+                if let Some(first) = list.repeated.first() {
+                    log::warn!(
+                        "{}: {} frames (the first is frame {first}) repeat the presentation time \
+                         of the frame before; each is placed {REPEAT_STEP_S} s after it",
+                        self.path.display(),
+                        list.repeated.len()
+                    );
+                }
+                Times::Listed(list)
+            }
+            Err(e) => {
+                log::warn!(
+                    "{e}; timestamps come from OpenCV instead (extrapolated for the last frames \
+                     of a stream with B-frames)"
+                );
+                Times::OpenCv
+            }
+        };
+    }
+
+    /// Frame `index`'s presentation time in seconds from frame 0, given OpenCV's position of it
+    /// (see the module header).
+    fn timestamp(&mut self, index: usize, pos_s: f64) -> Option<f64> {
+        if index == 0 {
+            self.origin_s = if pos_s.is_finite() { pos_s } else { 0.0 };
+        } else {
+            self.list_times();
+        }
+        let listed = match &self.times {
+            Times::Listed(l) => match l.pairs(index, pos_s, self.origin_s) {
+                Some(false) => {
+                    log::warn!(
+                        "{}: frame {index}: the decoder's frames do not pair with the stream's \
+                         packet list (OpenCV places it at {pos_s} s, the list at {} s); \
+                         timestamps come from OpenCV from here on",
+                        self.path.display(),
+                        l.opencv_s[index]
+                    );
+                    self.times = Times::OpenCv;
+                    None
+                }
+                _ => l.timestamps_s.get(index).copied(),
+            },
+            _ => None,
+        };
+        let ts = listed.or_else(|| self.opencv_time(index, pos_s));
         if let (Some(prev), Some(t)) = (self.last_ts, ts) {
             if t > prev {
                 self.last_step = Some(t - prev);
             }
         }
         self.last_ts = ts;
+        ts
+    }
+
+    /// OpenCV's position relative to frame 0's. Where it gives none past frame 0 (the frames
+    /// drained from the decoder at the end), the previous frame interval is repeated (1 / fps for
+    /// the second frame); where it repeats or goes back, the frame is placed
+    /// [`REPEAT_STEP_S`] after the previous one.
+    fn opencv_time(&self, index: usize, pos_s: f64) -> Option<f64> {
+        let t = pos_s - self.origin_s;
+        let ts = match self.last_ts {
+            Some(prev) if !pos_s.is_finite() || pos_s == 0.0 => {
+                let step = self.last_step.or(self.meta.fps.map(|f| 1.0 / f));
+                Some(prev + step.unwrap_or(0.0))
+            }
+            Some(prev) if t <= prev => Some(prev + REPEAT_STEP_S),
+            None if !pos_s.is_finite() => self.meta.fps.map(|f| index as f64 / f),
+            _ => Some(t),
+        };
+        if ts != Some(t) {
+            log::debug!(
+                "{}: frame {index}: no usable position from OpenCV ({pos_s} s); {ts:?} s",
+                self.path.display()
+            );
+        }
         ts
     }
 
@@ -163,9 +254,14 @@ impl VideoSource {
     }
 
     fn decode_next(&mut self) -> Result<Option<Frame>> {
-        let Some((index, timestamp_s)) = self.grab()? else {
+        let Some((index, timestamp_s)) = self.advance()? else {
             return Ok(None);
         };
+        self.retrieve(index, timestamp_s).map(Some)
+    }
+
+    /// The pixels of the frame just grabbed (frame `index`), turned upright.
+    fn retrieve(&mut self, index: usize, timestamp_s: Option<f64>) -> Result<Frame> {
         let mut image = Mat::default();
         let ok = self
             .cap
@@ -202,11 +298,11 @@ impl VideoSource {
                 ),
             ));
         }
-        Ok(Some(Frame {
+        Ok(Frame {
             index,
             timestamp_s,
             image,
-        }))
+        })
     }
 }
 
@@ -226,41 +322,43 @@ impl FrameSource for VideoSource {
         if let Some(f) = self.pending.take() {
             return Ok(Some((f.index, f.timestamp_s)));
         }
-        self.grab()
+        self.advance()
     }
 
     /// Sets `CAP_PROP_POS_FRAMES`, decodes the frame there and keeps it for `next_frame`. The
-    /// landing is checked: its timestamp must lie within half a frame of `expect_ts` (else of
-    /// `index / fps`). Timestamps of later frames follow the stream as in a sequential pass.
+    /// landing is checked: OpenCV's position of the frame must be the one the packet list gives
+    /// frame `index` (when there is a list), and its timestamp must lie within half a frame of
+    /// `expect_ts` (else of `index / fps`). Timestamps of later frames follow as in a sequential
+    /// pass.
     fn seek(&mut self, index: usize, expect_ts: Option<f64>) -> Result<bool> {
         let Some(fps) = self.meta.fps else {
             return Ok(false);
         };
+        self.list_times();
         let moved = self
             .cap
             .set(videoio::CAP_PROP_POS_FRAMES, index as f64)
             .cv(|| format!("seek {} to frame {index}", self.path.display()))?;
         (self.pending, self.next_index, self.ended) = (None, index, false);
         (self.last_ts, self.last_step) = (None, None);
-        if !moved {
-            return Ok(false);
-        }
-        let Some(frame) = self.decode_next()? else {
+        let Some((_, pos_s)) = moved.then(|| self.grab()).transpose()?.flatten() else {
             return Ok(false);
         };
+        let on_list = match &self.times {
+            Times::Listed(l) => l.pairs(index, pos_s, self.origin_s) == Some(true),
+            _ => true,
+        };
+        let ts = on_list.then(|| self.timestamp(index, pos_s)).flatten();
         let want = expect_ts.unwrap_or(index as f64 / fps);
-        let landed = frame
-            .timestamp_s
-            .is_some_and(|t| (t - want).abs() < 0.5 / fps);
-        if !landed {
+        if !ts.is_some_and(|t| (t - want).abs() < 0.5 / fps) {
             log::debug!(
-                "{}: seek to frame {index} landed at {:?} s, expected {want} s",
-                self.path.display(),
-                frame.timestamp_s
+                "{}: seek to frame {index} landed at {pos_s} s (OpenCV), expected {want} s",
+                self.path.display()
             );
+            return Ok(false);
         }
-        self.pending = Some(frame);
-        Ok(landed)
+        self.pending = Some(self.retrieve(index, ts)?);
+        Ok(true)
     }
 
     fn decode_failure(&self) -> Option<(usize, String)> {

@@ -1,5 +1,6 @@
 //! Input edge cases: rotation metadata, damaged images in a folder, file names that are not
-//! UTF-8, the keyframe-only preview on AVI and on cut-short streams, and frames read on demand.
+//! UTF-8, the keyframe-only preview on AVI and on cut-short streams, frames read on demand,
+//! variable-frame-rate timestamps and inputs that are not regular files.
 
 use crate::common::*;
 use keyframer::source::codec_keyframes::{probe, CodecKeyframeSource};
@@ -665,4 +666,130 @@ fn frames_on_demand_equal_sequential_decode() {
         );
         assert!(Arc::ptr_eq(&again.0.unwrap(), &again.1.unwrap()));
     }
+}
+
+/// The issue's clip: 120 frames, 30 fps up to frame 50, frame 51 repeating frame 50's pts, then
+/// 30 fps again to frame 60 and 15 fps after it (H.264 with B-frames in MP4).
+fn vfr_clip(dir: &Path) -> PathBuf {
+    let clip = dir.join("vfr.mp4");
+    let pts = "if(lte(N,50),N,if(lte(N,60),N-1,59+2*(N-60)))/30/TB";
+    let args = format!(
+        "-f lavfi -i testsrc2=size=160x120:rate=30 -vf setpts='{pts}' -frames:v 120 \
+         -fps_mode passthrough -c:v libx264 -pix_fmt yuv420p {}",
+        s(&clip)
+    );
+    ffmpeg(&args.split_whitespace().collect::<Vec<_>>());
+    clip
+}
+
+/// `ffprobe -show_frames`' best-effort timestamp of every frame, in seconds from the first.
+fn ffprobe_best_effort(v: &Path) -> Vec<f64> {
+    let o = Command::new("ffprobe")
+        .args(["-v", "error", "-select_streams", "v:0", "-show_entries"])
+        .args([
+            "stream=time_base:frame=best_effort_timestamp",
+            "-of",
+            "compact=nk=1",
+        ])
+        .arg(v)
+        .output()
+        .unwrap();
+    let text = String::from_utf8(o.stdout).unwrap();
+    let field = |l: &str| l.split('|').nth(1).unwrap().to_string();
+    let tb = text.lines().find(|l| l.starts_with("stream|")).map(field);
+    let (num, den) = tb.as_deref().and_then(|t| t.split_once('/')).unwrap();
+    let tb = num.parse::<f64>().unwrap() / den.parse::<f64>().unwrap();
+    let ticks: Vec<i64> = text
+        .lines()
+        .filter(|l| l.starts_with("frame|"))
+        .map(|l| field(l).parse().unwrap())
+        .collect();
+    ticks.iter().map(|t| (t - ticks[0]) as f64 * tb).collect()
+}
+
+/// Asserts that `project` caches `truth`'s timestamps within `tolerance` seconds, strictly
+/// increasing.
+fn assert_cached_timestamps(project: &Path, truth: &[f64], tolerance: f64) {
+    let ts = json(project)["cache"]["timestamps_s"].clone();
+    let ts: Vec<f64> = ts
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_f64().unwrap())
+        .collect();
+    assert_eq!(ts.len(), truth.len());
+    assert!(ts.windows(2).all(|w| w[1] > w[0]), "{ts:?}");
+    for (i, (t, want)) in ts.iter().zip(truth).enumerate() {
+        assert!(
+            (t - want).abs() < tolerance,
+            "frame {i}: {t} s, ffprobe {want} s"
+        );
+    }
+}
+
+/// Every frame's timestamp is the stream's best-effort timestamp, as `ffprobe -show_frames`
+/// prints it (from the first frame's), to the nanosecond: across frame-rate changes, where the
+/// stream repeats a pts (frames 51-60 used to come 1/30 s late, frame 60 at 2.000 s), and for the
+/// last frames, which the decoder drains without a position.
+#[test]
+fn vfr_timestamps_are_the_streams() {
+    let d = tempfile::tempdir().unwrap();
+    let clip = vfr_clip(d.path());
+    let truth = ffprobe_best_effort(&clip);
+    assert_eq!(truth.len(), 120);
+    assert!(truth.windows(2).all(|w| w[1] > w[0]), "{truth:?}");
+    assert!((truth[60] - 59.0 / 30.0).abs() < 1e-3, "{}", truth[60]);
+    let p = d.path().join("p.json");
+    kf_ok(&["select", s(&clip), "--every", "1", "-o", s(&p)]);
+    assert_cached_timestamps(&p, &truth, 1e-9);
+}
+
+/// Without ffprobe the timestamps come from OpenCV, and a warning says so; a repeated pts no
+/// longer pushes the frames after it late.
+#[test]
+fn without_ffprobe_timestamps_come_from_opencv() {
+    let d = tempfile::tempdir().unwrap();
+    let clip = vfr_clip(d.path());
+    let truth = ffprobe_best_effort(&clip);
+    let p = d.path().join("p.json");
+    let out = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args(["select", s(&clip), "--every", "1", "-o", s(&p), "--quiet"])
+        .env("PATH", d.path())
+        .output()
+        .unwrap();
+    let (code, err) = code_and_stderr(&out);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("cannot run `ffprobe`") && err.contains("timestamps come from OpenCV"),
+        "{err}"
+    );
+    assert_cached_timestamps(&p, &truth, 1e-3);
+}
+
+/// A FIFO given as the input is refused at once (it used to hang with no message).
+#[test]
+fn fifo_input_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let fifo = d.path().join("v.mp4");
+    let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let p = d.path().join("p.json");
+    for args in [
+        vec!["select", s(&fifo), "-o", s(&p)],
+        vec!["select", s(&fifo), "--preview", "-o", s(&p)],
+        vec!["probe", s(&fifo)],
+    ] {
+        let started = std::time::Instant::now();
+        let out = Command::new("timeout")
+            .arg("10")
+            .arg(env!("CARGO_BIN_EXE_keyframer"))
+            .args(&args)
+            .output()
+            .unwrap();
+        let (code, err) = code_and_stderr(&out);
+        assert_eq!(code, 1, "{args:?}: {err}");
+        assert!(err.contains("not a regular file"), "{args:?}: {err}");
+        assert!(started.elapsed().as_secs() < 5, "{args:?}");
+    }
+    assert!(!p.exists());
 }
