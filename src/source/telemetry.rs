@@ -183,44 +183,146 @@ fn check_order_and_jumps(track: &mut Track, unit: &str) {
 
 /// Reads the track points of a GPX file (every track and segment) as fixes timed in seconds
 /// from `start` (the video's creation time) plus `offset_s` (`--telemetry-offset`, to correct
-/// the camera's clock): a point at `start + offset_s` is at the video's first frame. Points
-/// without a time are skipped with a warning. Fails when the file cannot be read or parsed, or
-/// holds no timed point.
+/// the camera's clock): a point at `start + offset_s` is at the video's first frame. A point
+/// without a time, with a latitude, longitude, elevation or time that does not parse or is out
+/// of range, is skipped with a warning naming it; XML broken after the first point (a file cut
+/// short) ends the track there, warned. Fails when the file cannot be read, is not GPX, or holds
+/// no usable point.
 pub fn read_gpx(path: &Path, start: OffsetDateTime, offset_s: f64) -> Result<Track> {
+    use xml::reader::{EventReader, XmlEvent};
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let gpx = gpx::read(std::io::BufReader::new(file))
-        .map_err(|e| Error::input(path, format!("not a readable GPX file: {e}")))?;
+    let not_gpx = |why: String| Error::input(path, format!("not a readable GPX file: {why}"));
+    let name = path.display().to_string();
     let mut track = Track {
         path: path.into(),
         ..Track::default()
     };
-    let points = gpx
-        .tracks
-        .iter()
-        .flat_map(|t| &t.segments)
-        .flat_map(|s| &s.points);
-    for (k, p) in points.enumerate() {
-        let Some(time) = p.time else {
-            let msg = format!("{}:point {}: no time (skipped)", path.display(), k + 1);
-            track.warnings.push(msg);
-            continue;
-        };
-        let t = OffsetDateTime::from(time) - start;
-        let pos = p.point();
-        track.fixes.push(Fix {
-            t_s: t.as_seconds_f64() - offset_s,
-            lat_deg: pos.y(),
-            lon_deg: pos.x(),
-            abs_alt_m: p.elevation,
-            line: k + 1,
-            ..Fix::default()
-        });
+    let mut reader = EventReader::new(std::io::BufReader::new(file));
+    let (mut depth, mut count) = (0, 0);
+    let mut point: Option<GpxPoint> = None;
+    // The `ele` or `time` child of the point being read, and its text so far.
+    let mut child: Option<(String, String)> = None;
+    loop {
+        match reader.next() {
+            Ok(XmlEvent::StartElement {
+                name: tag,
+                attributes,
+                ..
+            }) => {
+                depth += 1;
+                let tag = tag.local_name;
+                if depth == 1 && tag != "gpx" {
+                    return Err(not_gpx(format!("the root element is <{tag}>")));
+                }
+                let attr = |n: &str| {
+                    let a = attributes.iter().find(|a| a.name.local_name == n);
+                    a.map(|a| a.value.clone())
+                };
+                match &point {
+                    None if tag == "trkpt" => {
+                        count += 1;
+                        point = Some(GpxPoint {
+                            depth,
+                            number: count,
+                            lat: attr("lat"),
+                            lon: attr("lon"),
+                            ..GpxPoint::default()
+                        });
+                    }
+                    Some(p) if depth == p.depth + 1 && (tag == "ele" || tag == "time") => {
+                        child = Some((tag, String::new()));
+                    }
+                    _ => {}
+                }
+            }
+            Ok(XmlEvent::Characters(t) | XmlEvent::CData(t)) => {
+                if let Some((_, text)) = &mut child {
+                    text.push_str(&t);
+                }
+            }
+            Ok(XmlEvent::EndElement { .. }) => {
+                if let (Some((tag, text)), Some(p)) = (child.take(), &mut point) {
+                    *(if tag == "ele" {
+                        &mut p.ele
+                    } else {
+                        &mut p.time
+                    }) = Some(text);
+                } else if let Some(p) = point.take_if(|p| p.depth == depth) {
+                    match p.fix(start, offset_s) {
+                        Ok(fix) => track.fixes.push(fix),
+                        Err(why) => (track.warnings)
+                            .push(format!("{name}:point {}: {why} (skipped)", p.number)),
+                    }
+                }
+                depth -= 1;
+            }
+            Ok(XmlEvent::EndDocument) => break,
+            Ok(_) => {}
+            Err(e) if count == 0 => return Err(not_gpx(e.to_string())),
+            Err(e) => {
+                let msg = format!("{name}: broken XML after point {count}: {e} (the rest skipped)");
+                track.warnings.push(msg);
+                break;
+            }
+        }
     }
     if track.fixes.is_empty() {
-        return Err(Error::input(path, "no track point with a time"));
+        let why = track
+            .warnings
+            .first()
+            .map_or("none in the file", String::as_str);
+        let msg = format!("no track point with a position and a time (first problem: {why})");
+        return Err(Error::input(path, msg));
     }
     check_order_and_jumps(&mut track, "point");
     Ok(track)
+}
+
+/// A GPX track point as written: its depth in the document, its number (from 1, over all tracks
+/// and segments) and the text of its coordinates, elevation and time.
+#[derive(Default)]
+struct GpxPoint {
+    depth: usize,
+    number: usize,
+    lat: Option<String>,
+    lon: Option<String>,
+    ele: Option<String>,
+    time: Option<String>,
+}
+
+impl GpxPoint {
+    /// Its fix, or why it has none.
+    fn fix(&self, start: OffsetDateTime, offset_s: f64) -> std::result::Result<Fix, String> {
+        use time::format_description::well_known::Iso8601;
+        let num = |v: &Option<String>, what: &str| {
+            let v = v.as_deref().ok_or_else(|| format!("no {what}"))?;
+            let x = v.trim().parse::<f64>().ok().filter(|x| x.is_finite());
+            x.ok_or_else(|| format!("{what} `{v}` is not a finite number"))
+        };
+        let (lat, lon) = (num(&self.lat, "lat")?, num(&self.lon, "lon")?);
+        position_ok(lat, lon)?;
+        let ele = self
+            .ele
+            .as_ref()
+            .map(|_| num(&self.ele, "ele"))
+            .transpose()?;
+        let text = self.time.as_deref().ok_or("no time")?.trim();
+        // xsd:dateTime: with an offset, or without one (UTC).
+        let time = OffsetDateTime::parse(text, &Iso8601::PARSING)
+            .or_else(|_| {
+                time::PrimitiveDateTime::parse(text, &Iso8601::PARSING)
+                    .map(time::PrimitiveDateTime::assume_utc)
+            })
+            .map_err(|_| format!("time `{text}` is not an ISO 8601 date and time"))?;
+        Ok(Fix {
+            t_s: (time - start).as_seconds_f64() - offset_s,
+            lat_deg: lat,
+            lon_deg: lon,
+            abs_alt_m: ele,
+            line: self.number,
+            ..Fix::default()
+        })
+    }
 }
 
 /// The creation time a video's container records (`ffprobe` format tag `creation_time`), which
@@ -384,54 +486,51 @@ fn srt_time(s: &str) -> Option<f64> {
     v.is_finite().then_some(v)
 }
 
-/// The fix in one entry's text, or why there is none.
+/// The fix in one entry's text, or why there is none: no position, a position that is not a
+/// latitude and longitude, or a field read whose value is not a whole, finite number.
 fn fix_of(body: &str, t_s: f64, line: usize) -> std::result::Result<Fix, String> {
     let fields = fields(body);
-    let get = |keys: &[&str]| {
-        keys.iter().find_map(|k| {
-            fields
-                .iter()
-                .find(|(name, _)| name == k)
-                .map(|(_, v)| v.as_str())
-        })
+    let field = |keys: &[&str], parse: fn(&str) -> Option<f64>| {
+        let found = keys
+            .iter()
+            .find_map(|k| fields.iter().find(|(name, _)| name == k));
+        match found {
+            None => Ok(None),
+            Some((key, v)) => parse(v)
+                .map(Some)
+                .ok_or_else(|| format!("{key}: `{v}` is not a finite number")),
+        }
     };
-    let num = |keys: &[&str]| get(keys).and_then(number);
-    let (lat, lon, gps_alt) = match (num(&["latitude"]), num(&["longitude", "longtitude"])) {
+    let num = |keys: &[&str]| field(keys, number);
+    let (lat, lon, gps_alt) = match (num(&["latitude"])?, num(&["longitude", "longtitude"])?) {
         (Some(lat), Some(lon)) => (lat, lon, None),
         _ => match gps_triple(body) {
-            Some((lon, lat, alt)) => (lat, lon, alt),
+            Some(found) => found.map(|(lon, lat, alt)| (lat, lon, alt))?,
             None => return Err("no position".into()),
         },
     };
-    if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
-        return Err(format!(
-            "position {lat}, {lon} is not a latitude and longitude"
-        ));
-    }
-    if lat == 0.0 && lon == 0.0 {
-        return Err("position 0, 0 (no GPS fix yet)".into());
-    }
-    let fnum = num(&["fnum"]).map(|f| if f > 30.0 { f / 100.0 } else { f });
-    let focal = num(&["focal_len"]).map(|f| if f > 200.0 { f / 10.0 } else { f });
-    let shutter = get(&["shutter", "ss"]).and_then(|v| {
-        let v = v.trim();
-        match v.split_once('/') {
-            Some((a, b)) => Some(number(a)? / number(b)?),
+    position_ok(lat, lon)?;
+    let fnum = num(&["fnum"])?.map(|f| if f > 30.0 { f / 100.0 } else { f });
+    let focal = num(&["focal_len"])?.map(|f| if f > 200.0 { f / 10.0 } else { f });
+    let shutter = field(&["shutter", "ss"], |v| {
+        let s = match v.trim().split_once('/') {
+            Some((a, b)) => number(a)? / number(b)?,
             // The older family writes the denominator alone (`SS 320`, `Shutter:60`).
-            None => number(v).map(|d| 1.0 / d),
-        }
-    });
+            None => 1.0 / number(v)?,
+        };
+        s.is_finite().then_some(s)
+    })?;
     Ok(Fix {
         t_s,
         lat_deg: lat,
         lon_deg: lon,
-        rel_alt_m: num(&["rel_alt", "barometer", "h"]),
-        abs_alt_m: num(&["abs_alt", "altitude"]).or(gps_alt),
+        rel_alt_m: num(&["rel_alt", "barometer", "h"])?,
+        abs_alt_m: num(&["abs_alt", "altitude"])?.or(gps_alt),
         focal_35mm: focal.filter(|f| *f > 0.0),
-        gimbal_pitch_deg: num(&["gb_pitch", "gimbal_pitch", "pitch"]),
-        gimbal_yaw_deg: num(&["gb_yaw", "gimbal_yaw", "yaw"]),
-        iso: num(&["iso"]),
-        shutter_s: shutter.filter(|s| s.is_finite() && *s > 0.0),
+        gimbal_pitch_deg: num(&["gb_pitch", "gimbal_pitch", "pitch"])?,
+        gimbal_yaw_deg: num(&["gb_yaw", "gimbal_yaw", "yaw"])?,
+        iso: num(&["iso"])?,
+        shutter_s: shutter.filter(|s| *s > 0.0),
         fnum: fnum.filter(|f| *f > 0.0),
         line,
     })
@@ -447,7 +546,7 @@ fn fields(body: &str) -> Vec<(String, String)> {
     while k < words.len() {
         let (w, after) = (words[k], |j: usize| words.get(k + j).copied());
         // The key and value at word `k`, and how many words they take.
-        let pair = if let Some(f) = w.strip_prefix("F/").filter(|f| number(f).is_some()) {
+        let pair = if let Some(f) = w.strip_prefix("F/").filter(|f| starts_numeric(f)) {
             // The older family's `F/2.8`.
             Some(("fnum", f, 1))
         } else if let Some((key, value)) = w.split_once(':') {
@@ -461,7 +560,7 @@ fn fields(body: &str) -> Vec<(String, String)> {
             after(2).map(|v| (w, v, 3))
         } else {
             // The older family's `SS 320`, `H 40.50m`, `ISO 100`.
-            (after(1).filter(|v| number(v).is_some())).map(|v| (w, v, 2))
+            (after(1).filter(|v| starts_numeric(v))).map(|v| (w, v, 2))
         };
         match pair {
             Some((key, value, used)) => {
@@ -474,28 +573,57 @@ fn fields(body: &str) -> Vec<(String, String)> {
     out
 }
 
-/// A number with an optional unit or `F` prefix: `40.50m`, `F2.8`, `2.80m/s`.
-fn number(v: &str) -> Option<f64> {
-    let v = v.trim().trim_start_matches(['F', 'f', '/']);
-    let end = v
-        .char_indices()
-        .find(|&(i, c)| !(c.is_ascii_digit() || c == '.' || ((c == '-' || c == '+') && i == 0)))
-        .map_or(v.len(), |(i, _)| i);
-    v[..end].parse::<f64>().ok().filter(|x| x.is_finite())
+/// Whether `v` starts like a number (`40.5m`, `-3`, `F2.8`, `1/60`): what makes the older
+/// family's `KEY v` a pair.
+fn starts_numeric(v: &str) -> bool {
+    let v = v.trim_start_matches(['F', 'f', '/']);
+    v.trim_start_matches(['-', '+', '.'])
+        .starts_with(|c: char| c.is_ascii_digit())
 }
 
+/// A number written whole (exponent notation included), with an optional unit after it or `F`
+/// before it: `40.50m`, `F2.8`, `2.80m/s`, `4.7e1`; None when the rest is not a number (`1e`,
+/// `4O.5`, `nan`) or it is not finite (`1e999`).
+fn number(v: &str) -> Option<f64> {
+    let v = v.trim().trim_start_matches(['F', 'f', '/']);
+    let unitless = v.trim_end_matches(|c: char| c.is_alphabetic() || matches!(c, '/' | '°' | '%'));
+    // `1e` is no number with the unit `e`.
+    if v[unitless.len()..].starts_with(['e', 'E']) {
+        return None;
+    }
+    unitless.parse::<f64>().ok().filter(|x| x.is_finite())
+}
+
+/// Refuses what is not a latitude and longitude, and 0, 0 (a receiver without a fix yet).
+fn position_ok(lat: f64, lon: f64) -> std::result::Result<(), String> {
+    if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
+        return Err(format!(
+            "position {lat:?}, {lon:?} is not a latitude and longitude"
+        ));
+    }
+    if lat == 0.0 && lon == 0.0 {
+        return Err("position 0, 0 (no GPS fix yet)".into());
+    }
+    Ok(())
+}
+
+/// Longitude and latitude (degrees), and an altitude when given (metres).
+type LonLatAlt = (f64, f64, Option<f64>);
+
 /// The older family's `GPS(lon,lat,alt)` / `GPS (lon, lat, alt)`: longitude, latitude and the
-/// third value when present.
-fn gps_triple(body: &str) -> Option<(f64, f64, Option<f64>)> {
+/// third value when present (None: no `GPS(...)`; an error when its values are not numbers).
+fn gps_triple(body: &str) -> Option<std::result::Result<LonLatAlt, String>> {
     let at = body.find("GPS")?;
     let rest = body[at + 3..].trim_start().strip_prefix('(')?;
     let inner = &rest[..rest.find(')')?];
-    let v: Vec<f64> = inner.split(',').filter_map(number).collect();
-    match v.as_slice() {
-        [lon, lat] => Some((*lon, *lat, None)),
-        [lon, lat, alt, ..] => Some((*lon, *lat, Some(*alt))),
-        _ => None,
-    }
+    let v: Option<Vec<f64>> = inner.split(',').map(number).collect();
+    Some(match v.as_deref() {
+        Some([lon, lat]) => Ok((*lon, *lat, None)),
+        Some([lon, lat, alt, ..]) => Ok((*lon, *lat, Some(*alt))),
+        _ => Err(format!(
+            "GPS({inner}) is not longitude, latitude[, altitude]"
+        )),
+    })
 }
 
 /// Radii of curvature of the WGS84 ellipsoid at latitude `lat_deg`: (meridian, prime vertical),
@@ -569,6 +697,15 @@ mod tests {
 
     fn parse(text: &str) -> Track {
         parse_dji_srt(Path::new("DJI_0001.SRT"), text)
+    }
+
+    /// Asserts that the track's warnings are `want`, each between `prefix` and `suffix`.
+    fn assert_warnings(t: &Track, prefix: &str, want: &[&str], suffix: &str) {
+        let want: Vec<String> = want
+            .iter()
+            .map(|w| format!("{prefix}{w}{suffix}"))
+            .collect();
+        assert_eq!(t.warnings, want);
     }
 
     #[test]
@@ -645,6 +782,56 @@ mod tests {
         assert_eq!(t.warnings.len(), 3);
     }
 
+    /// Numbers are read whole: exponent notation is a number (and 1e308 then no latitude), a
+    /// token that is not wholly a number (`1e`, `4O.5`), NaN and infinities refuse the entry.
+    #[test]
+    fn numbers_are_read_whole_and_bad_ones_refuse_the_entry() {
+        let bodies = [
+            "[latitude: 1e308] [longitude: 8.0]",
+            "[latitude: 4.7e1] [longitude: 8.0e0] [rel_alt: 3E1 abs_alt: 5.3e2]",
+            "[latitude: 47.0] [longitude: 1e]",
+            "[latitude: nan] [longitude: 8.0]",
+            "[latitude: 47.0] [longitude: -inf]",
+            "[latitude: 91.0] [longitude: 8.0]",
+            "[latitude: 47.0] [longitude: -180.5]",
+            "[latitude: 47.0] [longitude: 8.0] [rel_alt: 1e999 abs_alt: 500.0]",
+            "[latitude: 47.0] [longitude: 8.0] [focal_len: 4O.5]",
+            "GPS(8.0,1e308,16) BAROMETER:30.0",
+            "GPS(8.0,4O.5,16) BAROMETER:30.0",
+            "GPS(8.0,47.0,16) BAROMETER:3e1",
+        ];
+        let text: String = (bodies.iter().enumerate())
+            .map(|(i, b)| {
+                format!(
+                    "{}\n00:00:{i:02},000 --> 00:00:{:02},000\n{b}\n\n",
+                    i + 1,
+                    i + 1
+                )
+            })
+            .collect();
+        let t = parse(&text);
+        // Each entry takes four lines: its time line is line 4 i + 2.
+        let lines: Vec<usize> = t.fixes.iter().map(|f| f.line).collect();
+        assert_eq!(lines, [6, 46], "{:?}", t.warnings);
+        let (a, b) = (&t.fixes[0], &t.fixes[1]);
+        assert_eq!((a.lat_deg, a.lon_deg, a.rel_alt_m), (47.0, 8.0, Some(30.0)));
+        assert_eq!(a.abs_alt_m, Some(530.0));
+        assert_eq!((b.lat_deg, b.lon_deg, b.rel_alt_m), (47.0, 8.0, Some(30.0)));
+        let want = [
+            "line 2: position 1e308, 8.0 is not a latitude and longitude",
+            "line 10: longitude: `1e` is not a finite number",
+            "line 14: latitude: `nan` is not a finite number",
+            "line 18: longitude: `-inf` is not a finite number",
+            "line 22: position 91.0, 8.0 is not a latitude and longitude",
+            "line 26: position 47.0, -180.5 is not a latitude and longitude",
+            "line 30: rel_alt: `1e999` is not a finite number",
+            "line 34: focal_len: `4O.5` is not a finite number",
+            "line 38: position 1e308, 8.0 is not a latitude and longitude",
+            "line 42: GPS(8.0,4O.5,16) is not longitude, latitude[, altitude]",
+        ];
+        assert_warnings(&t, "DJI_0001.SRT:", &want, " (entry skipped)");
+    }
+
     #[test]
     fn a_file_without_positions_is_an_error_naming_it() {
         let d = tempfile::tempdir().unwrap();
@@ -692,6 +879,84 @@ mod tests {
         let e = read_gpx(&p, start, 0.0).unwrap_err().to_string();
         assert!(
             e.contains("track.gpx") && e.contains("not a readable GPX"),
+            "{e}"
+        );
+    }
+
+    /// A bad GPX point is skipped with a warning naming it, the others are kept; a file cut
+    /// short keeps the points before the cut; a file with no usable point is an error.
+    #[test]
+    fn bad_gpx_points_are_skipped_with_a_warning() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("track.gpx");
+        let pt =
+            |lat: &str, inner: &str| format!("<trkpt lat=\"{lat}\" lon=\"8.0\">{inner}</trkpt>\n");
+        let time = |s: u32| format!("<time>2024-05-01T10:00:{s:02}Z</time>");
+        let points = [
+            pt("47.0", &format!("<ele>500</ele>{}", time(0))),
+            pt("abc", &time(1)),
+            pt("95", &time(2)),
+            pt("47.0", "<time>yesterday</time>"),
+            pt("47.0", &format!("<ele>high</ele>{}", time(4))),
+            pt("NaN", &time(5)),
+            pt(
+                "47.00001",
+                &format!("<extensions><time>x</time></extensions>{}", time(6)),
+            ),
+        ]
+        .concat();
+        let head = "<?xml version=\"1.0\"?>\n<gpx version=\"1.1\" creator=\"t\" xmlns=\"http://www.topografix.com/GPX/1/1\"><trk><trkseg>\n";
+        std::fs::write(&p, format!("{head}{points}</trkseg></trk></gpx>\n")).unwrap();
+        let start = OffsetDateTime::parse("2024-05-01T10:00:00Z", &Rfc3339).unwrap();
+        let t = read_gpx(&p, start, 0.0).unwrap();
+        let kept: Vec<(usize, f64, f64)> = (t.fixes.iter())
+            .map(|f| (f.line, f.t_s, f.lat_deg))
+            .collect();
+        assert_eq!(
+            kept,
+            [(1, 0.0, 47.0), (7, 6.0, 47.00001)],
+            "{:?}",
+            t.warnings
+        );
+        let name = p.display();
+        let want = [
+            "point 2: lat `abc` is not a finite number",
+            "point 3: position 95.0, 8.0 is not a latitude and longitude",
+            "point 4: time `yesterday` is not an ISO 8601 date and time",
+            "point 5: ele `high` is not a finite number",
+            "point 6: lat `NaN` is not a finite number",
+        ];
+        assert_warnings(&t, &format!("{name}:"), &want, " (skipped)");
+        // Cut inside the third point's tag: the two before it are read (one kept), the cut warned.
+        let whole = format!("{head}{points}");
+        let cut = whole.find("<trkpt lat=\"95\"").unwrap() + 20;
+        std::fs::write(&p, &whole[..cut]).unwrap();
+        let t = read_gpx(&p, start, 0.0).unwrap();
+        assert_eq!(t.fixes.len(), 1, "{:?}", t.warnings);
+        let last = t.warnings.last().unwrap();
+        assert!(
+            last.starts_with(&format!("{name}: broken XML after point 2: "))
+                && last.ends_with("(the rest skipped)"),
+            "{:?}",
+            t.warnings
+        );
+        // Only bad points: an error naming the file and the first problem.
+        std::fs::write(
+            &p,
+            format!("{head}{}</trkseg></trk></gpx>", pt("abc", &time(1))),
+        )
+        .unwrap();
+        let e = read_gpx(&p, start, 0.0).unwrap_err().to_string();
+        assert!(
+            e.contains("track.gpx")
+                && e.contains("no track point with a position and a time")
+                && e.contains("point 1: lat `abc`"),
+            "{e}"
+        );
+        std::fs::write(&p, "<?xml version=\"1.0\"?><kml></kml>").unwrap();
+        let e = read_gpx(&p, start, 0.0).unwrap_err().to_string();
+        assert!(
+            e.contains("not a readable GPX file: the root element is <kml>"),
             "{e}"
         );
     }
