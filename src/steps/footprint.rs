@@ -18,6 +18,12 @@
 //! footprint), the intersection of two convex quadrilaterals by Sutherland–Hodgman clipping. The
 //! first candidate with a footprint is kept; a candidate whose overlap with the last keyframe
 //! falls below `percent` / 100 becomes the next keyframe.
+//!
+//! A candidate less than [`MIN_HEIGHT_M`] above take-off (on the ground before take-off or after
+//! landing, or below the take-off point) has no footprint and is never kept, like one without a
+//! position: a warning names those frames, and the step refuses, naming them, when no candidate
+//! is left. A camera at or above the horizon (taken as level) and a field of view of
+//! [`WIDE_FOV_DEG`] or more (footprints reach the cut) are warned about with their frames.
 
 use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
@@ -30,7 +36,13 @@ const ID: &str = "footprint-overlap";
 const MAX_RANGE_PER_HEIGHT: f64 = 10.0;
 
 /// Frames less than this high above take-off (metres) have no footprint.
-const MIN_HEIGHT_M: f64 = 0.5;
+pub const MIN_HEIGHT_M: f64 = 0.5;
+
+/// A field of view (horizontal or vertical) this wide or wider is warned about, degrees.
+pub const WIDE_FOV_DEG: f64 = 170.0;
+
+/// At most this many runs of frames are named in a message.
+const RUNS_NAMED: usize = 5;
 
 /// `--footprint-overlap PERCENT` (the field of view is `--hfov`, a movement flag too).
 pub const FLAGS: &[Flag] = &[Flag::value::<f64>(
@@ -76,7 +88,8 @@ pub fn apply(
 }
 
 /// The footprint of every candidate (None: no position, or too low), in metres east and north
-/// of the first candidate with a position, saying once what it assumed.
+/// of the first candidate with a position, saying once what it assumed and which frames have no
+/// footprint or a doubtful one; an error when candidates have positions but none a footprint.
 pub(crate) fn footprints(
     keys: &[usize],
     positions: &[Option<Position>],
@@ -120,6 +133,7 @@ pub(crate) fn footprints(
     let local =
         |p: &Position| east_north_m((origin.lat_deg, origin.lon_deg), (p.lat_deg, p.lon_deg));
     let mut by_frame = std::collections::HashMap::new();
+    let (mut low, mut skyward, mut wide) = (Vec::new(), Vec::new(), Vec::new());
     for (j, &(k, p)) in placed.iter().enumerate() {
         let tan_h = match (hfov, p.focal_35mm.or(camera.map(|c| c.focal_35mm))) {
             (Some(h), _) => (0.5 * h.to_radians()).tan(),
@@ -135,22 +149,96 @@ pub(crate) fn footprints(
             }
         };
         let h = match (p.rel_alt_m, p.abs_alt_m, ground) {
-            (Some(r), _, _) => r,
-            (None, Some(a), Some(g)) => a - g,
-            _ => continue,
+            (Some(r), _, _) => Some(r),
+            (None, Some(a), Some(g)) => Some(a - g),
+            _ => None,
         };
-        if h < MIN_HEIGHT_M {
+        let Some(h) = h.filter(|h| *h >= MIN_HEIGHT_M) else {
+            low.push(k);
             continue;
-        }
+        };
         let yaw = match p.gimbal_yaw_deg {
             Some(y) => y,
             None => course_deg(&placed, j, &local),
         };
         let depression = -p.gimbal_pitch_deg.unwrap_or(-90.0);
+        if depression <= 0.0 {
+            skyward.push(k);
+        }
+        if 2.0 * tan_h.max(tan_h * aspect).atan().to_degrees() >= WIDE_FOV_DEG {
+            wide.push(k);
+        }
         let print = footprint(local(p), h, yaw, depression, tan_h, tan_h * aspect);
         by_frame.insert(k, print);
     }
+    if !low.is_empty() {
+        let what = format!(
+            "{}: on the ground or below the take-off height (less than {MIN_HEIGHT_M} m above \
+             it, or no height): no ground footprint",
+            frame_runs(keys, &low)
+        );
+        if by_frame.is_empty() {
+            return Err(Error::plugin(
+                ID,
+                format!(
+                    "no candidate has a ground footprint: {what} (a flight below its take-off \
+                     point can use --geo-distance)"
+                ),
+            ));
+        }
+        log::warn!("{ID}: {what}");
+    }
+    if !skyward.is_empty() {
+        log::warn!(
+            "{ID}: {}: the camera looks at or above the horizon (gimbal pitch 0° or more): taken \
+             as level, footprints cut at {MAX_RANGE_PER_HEIGHT} times the height",
+            frame_runs(keys, &skyward)
+        );
+    }
+    if !wide.is_empty() {
+        log::warn!(
+            "{ID}: {}: a field of view of {WIDE_FOV_DEG}° or more: footprints reach out to the \
+             cut at {MAX_RANGE_PER_HEIGHT} times the height (check --hfov or the focal length)",
+            frame_runs(keys, &wide)
+        );
+    }
     Ok(keys.iter().map(|k| by_frame.remove(k)).collect())
+}
+
+/// `frames 0–9, 40 (11 of 120 candidates)`: the runs of consecutive candidates that `of` (some
+/// of `keys`) holds, the first [`RUNS_NAMED`] named.
+fn frame_runs(keys: &[usize], of: &[usize]) -> String {
+    let of: std::collections::HashSet<usize> = of.iter().copied().collect();
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut open = false;
+    for &k in keys {
+        let inside = of.contains(&k);
+        match runs.last_mut() {
+            Some(run) if inside && open => run.1 = k,
+            _ if inside => runs.push((k, k)),
+            _ => {}
+        }
+        open = inside;
+    }
+    let named: Vec<String> = (runs.iter().take(RUNS_NAMED))
+        .map(|&(a, b)| {
+            if a == b {
+                a.to_string()
+            } else {
+                format!("{a}–{b}")
+            }
+        })
+        .collect();
+    let more = match runs.len().saturating_sub(RUNS_NAMED) {
+        0 => String::new(),
+        n => format!(" and {n} more runs"),
+    };
+    format!(
+        "frames {}{more} ({} of {} candidates)",
+        named.join(", "),
+        of.len(),
+        keys.len()
+    )
 }
 
 /// The direction of travel at `placed[j]` (degrees clockwise from north), from the neighbouring
@@ -288,6 +376,21 @@ mod tests {
         assert_eq!(
             overlap(&p, &footprint((1e4, 0.0), 100.0, 0.0, 90.0, 1.0, 0.5)),
             0.0
+        );
+    }
+
+    #[test]
+    fn frame_runs_name_runs_of_consecutive_candidates() {
+        let keys = [0, 2, 4, 6, 8, 10, 12, 14];
+        assert_eq!(
+            frame_runs(&keys, &[0, 2, 4, 8, 12, 14]),
+            "frames 0–4, 8, 12–14 (6 of 8 candidates)"
+        );
+        let all: Vec<usize> = (0..20).collect();
+        let odd: Vec<usize> = (1..20).step_by(2).collect();
+        assert_eq!(
+            frame_runs(&all, &odd),
+            "frames 1, 3, 5, 7, 9 and 5 more runs (10 of 20 candidates)"
         );
     }
 

@@ -806,3 +806,128 @@ fn preview_keeps_every_frames_position() {
         );
     }
 }
+
+/// A DJI SRT for `bare_clip`'s 3 s: an entry every 0.1 s (entries 0 to 30), flying north at
+/// 10 m/s with a 24 mm lens facing north; `entry(i)` gives entry i's height above take-off and
+/// gimbal pitch; `bad` entries without a position follow.
+fn flight_srt(path: &Path, entry: impl Fn(usize) -> (f64, f64), bad: usize) {
+    let time = |i: usize| format!("00:00:{:02},{:03}", i / 10, (i % 10) * 100);
+    let mut text: String = (0..=30)
+        .map(|i| {
+            let (h, pitch) = entry(i);
+            format!(
+                "{}\n{} --> {}\n[focal_len: 24.00] [latitude: {:.8}] [longitude: 8.0] [rel_alt: {h:.3} abs_alt: {:.3}] [gb_yaw: 0.0 gb_pitch: {pitch:.1} gb_roll: 0.0]\n\n",
+                i + 1,
+                time(i),
+                time(i + 1),
+                47.0 + 9e-6 * i as f64,
+                500.0 + h
+            )
+        })
+        .collect();
+    for i in 31..31 + bad {
+        text += &format!("{}\n{} --> {}\n[iso: 100]\n\n", i + 1, time(i), time(i + 1));
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+/// `keyframer select CLIP --telemetry SRT ARGS -o P --force --quiet`.
+fn select_cmd(clip: &Path, srt: &Path, p: &Path, args: &[&str]) -> std::process::Command {
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_keyframer"));
+    c.args([
+        "select",
+        s(clip),
+        "--telemetry",
+        s(srt),
+        "-o",
+        s(p),
+        "--force",
+    ]);
+    c.args(args).arg("--quiet");
+    c
+}
+
+/// Runs [`select_cmd`]: exit code and stderr.
+fn select_with(clip: &Path, srt: &Path, p: &Path, args: &[&str]) -> (i32, String) {
+    code_and_stderr(&select_cmd(clip, srt, p, args).output().unwrap())
+}
+
+/// Frames on the ground (DJI's 0 m, and -0.2 m below the take-off point) before a climb have no
+/// footprint: footprint-overlap says which, keeps none of them and selects from the airborne
+/// frames as if the ground frames were no candidates (the same keyframes as `--start 11`).
+#[test]
+fn footprint_overlap_leaves_out_frames_on_the_ground_and_says_so() {
+    let tmp = tempfile::tempdir().unwrap();
+    let clip = bare_clip(tmp.path());
+    let srt = tmp.path().join("ground.srt");
+    let height = |i: usize| match i {
+        0..=5 => 0.0,
+        6..=10 => -0.2,
+        _ => 30.0,
+    };
+    flight_srt(&srt, |i| (height(i), -90.0), 0);
+    let p = tmp.path().join("p.json");
+    let (code, err) = select_with(&clip, &srt, &p, &["--footprint-overlap", "80"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains(
+            "footprint-overlap: frames 0–10 (11 of 30 candidates): on the ground or below the \
+             take-off height"
+        ),
+        "{err}"
+    );
+    let keys = keyframes(&p);
+    assert!(keys.len() >= 2 && keys[0] == 11, "{keys:?}");
+    let (code, err) = select_with(
+        &clip,
+        &srt,
+        &p,
+        &["--start", "11", "--footprint-overlap", "80"],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("on the ground"), "{err}");
+    assert_eq!(keyframes(&p), keys);
+}
+
+/// A flight that never leaves the ground, or stays below its take-off point (a survey down a
+/// slope), has no footprint at all: footprint-overlap refuses, naming the frames, and writes
+/// nothing.
+#[test]
+fn footprint_overlap_refuses_a_flight_without_a_frame_above_take_off() {
+    let tmp = tempfile::tempdir().unwrap();
+    let clip = bare_clip(tmp.path());
+    let srt = tmp.path().join("below.srt");
+    flight_srt(&srt, |i| (if i < 16 { 0.0 } else { -12.0 }, -90.0), 0);
+    let p = tmp.path().join("p.json");
+    let (code, err) = select_with(&clip, &srt, &p, &["--footprint-overlap", "80"]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains(
+            "plugin `footprint-overlap`: no candidate has a ground footprint: frames 0–29 (30 of \
+             30 candidates): on the ground or below the take-off height"
+        ),
+        "{err}"
+    );
+    assert!(!p.exists());
+}
+
+/// A camera at or above the horizon and a field of view of 170° or more are warned about with
+/// their frames (the selection still runs); a 24 mm lens looking down is not.
+#[test]
+fn footprint_overlap_warns_of_a_camera_at_the_horizon_and_a_very_wide_view() {
+    let tmp = tempfile::tempdir().unwrap();
+    let clip = bare_clip(tmp.path());
+    let srt = tmp.path().join("level.srt");
+    flight_srt(&srt, |i| (30.0, if i < 20 { -90.0 } else { 5.0 }), 0);
+    let p = tmp.path().join("p.json");
+    let horizon = "frames 20–29 (10 of 30 candidates): the camera looks at or above the horizon";
+    let wide = "frames 0–29 (30 of 30 candidates): a field of view of 170° or more";
+    let (code, err) = select_with(&clip, &srt, &p, &["--footprint-overlap", "80"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains(horizon) && !err.contains(wide), "{err}");
+    let args = ["--footprint-overlap", "80", "--hfov", "172"];
+    let (code, err) = select_with(&clip, &srt, &p, &args);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains(horizon) && err.contains(wide), "{err}");
+    assert!(!keyframes(&p).is_empty());
+}
