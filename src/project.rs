@@ -90,8 +90,12 @@ pub struct Cache {
 pub struct TelemetryCache {
     /// The file read: the key under which the positions are reused.
     pub source: TelemetrySource,
-    /// What was wrong with it (`FILE:line N: ...`), as `select` warned.
+    /// What was wrong with it (`FILE:line N: ...`), as `select` warned: the first few (older
+    /// projects: all of them) ...
     pub warnings: Vec<String>,
+    /// ... and how many more there were.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub more_warnings: usize,
     /// One entry per frame: its position interpolated at the frame's timestamp, `null` for a
     /// frame outside the telemetry's time span (or an image without GPS tags).
     pub positions: Vec<Option<Position>>,
@@ -99,6 +103,10 @@ pub struct TelemetryCache {
     /// model name, when one does.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<String>,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// Where a project's positions came from.

@@ -2,8 +2,9 @@
 //! told apart by extension, else by content), else the DJI SRT sidecar beside a video, else the
 //! EXIF GPS tags of an image folder's images. Each frame's position is the telemetry
 //! interpolated at the frame's timestamp (plus `--telemetry-offset`). Everything wrong with the
-//! telemetry is a warning naming the file and line; positions cached in the project being
-//! replaced are reused when they came from the same, unchanged file with the same offset.
+//! telemetry is a warning naming the file and line (the first few printed and kept in the
+//! project, the rest counted); positions cached in the project being replaced are reused when
+//! they came from the same, unchanged file with the same offset.
 
 use super::SelectSettings;
 use crate::error::{Error, Result};
@@ -15,6 +16,10 @@ use std::path::{Path, PathBuf};
 
 /// Consecutive frames further apart than this are reported (metres).
 const FRAME_JUMP_M: f64 = 1000.0;
+
+/// Telemetry warnings printed and kept in the project; the rest are counted (and printed at
+/// debug level when read).
+const WARNINGS_SHOWN: usize = 5;
 
 /// Where this run takes positions from (path as given), or None when the input has no
 /// telemetry.
@@ -92,10 +97,12 @@ pub(crate) fn positions(
             file.display(),
             s.output.display()
         );
-        for w in &c.warnings {
-            log::warn!("{w}");
-        }
-        return Ok(Some(c));
+        let (warnings, more_warnings) = summarised(&file, c.warnings, c.more_warnings);
+        return Ok(Some(TelemetryCache {
+            warnings,
+            more_warnings,
+            ..c
+        }));
     }
     if s.telemetry.is_none() && tkind == TelemetryKind::DjiSrt {
         log::info!(
@@ -118,9 +125,7 @@ pub(crate) fn positions(
             timed_positions(&track, &file, timestamps_s, frames)
         }
     };
-    for w in &warnings {
-        log::warn!("{w}");
-    }
+    let (warnings, more_warnings) = summarised(&file, warnings, 0);
     if positions.len() != frames {
         log::warn!(
             "{}: {} positions for the input's {frames} frames (no positions)",
@@ -138,9 +143,32 @@ pub(crate) fn positions(
     Ok(Some(TelemetryCache {
         source,
         warnings,
+        more_warnings,
         positions,
         camera: camera_of(&s.input, kind)?,
     }))
+}
+
+/// Prints the first [`WARNINGS_SHOWN`] of `warnings` (the rest at debug level) and a count of
+/// the rest and of `more` (not kept), and returns what a project keeps: those printed and the
+/// count.
+fn summarised(file: &Path, mut warnings: Vec<String>, more: usize) -> (Vec<String>, usize) {
+    let rest = warnings.split_off(warnings.len().min(WARNINGS_SHOWN));
+    for w in &warnings {
+        log::warn!("{w}");
+    }
+    for w in &rest {
+        log::debug!("{w}");
+    }
+    let more = more + rest.len();
+    if more > 0 {
+        let how = match rest.is_empty() {
+            true => "",
+            false => " (RUST_LOG=keyframer=debug prints them)",
+        };
+        log::warn!("{}: {more} more telemetry warnings{how}", file.display());
+    }
+    (warnings, more)
 }
 
 /// Where the positions come from, as the project records it: `file` relative to the project's
@@ -222,12 +250,14 @@ fn timed_positions(
         } else {
             format!("{missing} of {frames} frames have no position")
         };
-        warnings.push(format!(
+        // First: it is printed however many warnings follow.
+        let msg = format!(
             "{name}: the telemetry spans {a:.3}..{b:.3} s of the video's clock, the frames \
              {:.3}..{:.3} s: {msg}",
             v0.unwrap_or(0.0),
             v1.unwrap_or(0.0)
-        ));
+        );
+        warnings.insert(0, msg);
     }
     for (i, w) in fixes.windows(2).enumerate() {
         if let (Some(a), Some(b)) = (&w[0], &w[1]) {
@@ -274,11 +304,15 @@ fn exif_positions(input: &Path, kind: SourceKind) -> Result<(Vec<Option<Position
     }
     let without = positions.iter().filter(|p| p.is_none()).count();
     if without > 0 && without < positions.len() {
-        warnings.push(format!(
-            "{}: {without} of {} images have no EXIF GPS position",
-            input.display(),
-            positions.len()
-        ));
+        // First, as in `timed_positions`.
+        warnings.insert(
+            0,
+            format!(
+                "{}: {without} of {} images have no EXIF GPS position",
+                input.display(),
+                positions.len()
+            ),
+        );
     }
     Ok((positions, warnings))
 }

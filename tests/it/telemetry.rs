@@ -931,3 +931,49 @@ fn footprint_overlap_warns_of_a_camera_at_the_horizon_and_a_very_wide_view() {
     assert!(err.contains(horizon) && err.contains(wide), "{err}");
     assert!(!keyframes(&p).is_empty());
 }
+
+/// Many bad telemetry entries: the first five are printed (also with `-q`) and a count of the
+/// rest, and the project keeps those five and the count; RUST_LOG=keyframer=debug prints all.
+/// An older project keeping the full list still loads, and its reuse prints and keeps the
+/// summary.
+#[test]
+fn many_telemetry_warnings_are_summarised() {
+    let tmp = tempfile::tempdir().unwrap();
+    let clip = bare_clip(tmp.path());
+    let srt = tmp.path().join("noisy.srt");
+    flight_srt(&srt, |_| (30.0, -90.0), 40);
+    let p = tmp.path().join("p.json");
+    let (code, err) = select_with(&clip, &srt, &p, &["--every", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(err.matches("(entry skipped)").count(), 5, "{err}");
+    let count = format!("{}: 35 more telemetry warnings", srt.display());
+    assert!(err.contains(&count), "{err}");
+    let tel = &json(&p)["cache"]["telemetry"];
+    assert_eq!(tel["warnings"].as_array().unwrap().len(), 5);
+    assert_eq!(tel["more_warnings"], 35);
+    let debug = tmp.path().join("debug.json");
+    let out = select_cmd(&clip, &srt, &debug, &["--every", "1"])
+        .env("RUST_LOG", "keyframer=debug")
+        .output()
+        .unwrap();
+    let (code, err) = code_and_stderr(&out);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(err.matches("(entry skipped)").count(), 40, "{err}");
+    // The project as an older version wrote it: every warning, no count.
+    let mut old = json(&p);
+    let all: Vec<String> = (1..=40).map(|i| format!("old warning {i}.")).collect();
+    let tel = old["cache"]["telemetry"].as_object_mut().unwrap();
+    tel.insert("warnings".into(), serde_json::json!(all));
+    tel.remove("more_warnings");
+    std::fs::write(&p, serde_json::to_string_pretty(&old).unwrap()).unwrap();
+    let (code, err) = select_with(&clip, &srt, &p, &["--every", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("old warning 5.") && !err.contains("old warning 6."),
+        "{err}"
+    );
+    assert!(err.contains(&count), "{err}");
+    let tel = &json(&p)["cache"]["telemetry"];
+    assert_eq!(tel["warnings"], serde_json::json!(all[..5]));
+    assert_eq!(tel["more_warnings"], 35);
+}
