@@ -94,14 +94,20 @@ fn every_relative_link_in_readme_and_docs_resolves() {
         }
     }
     assert!(broken.is_empty(), "broken links:\n{}", broken.join("\n"));
-    assert!(checked > 20, "only {checked} links found: the link reader is broken");
+    assert!(
+        checked > 20,
+        "only {checked} links found: the link reader is broken"
+    );
 }
 
 #[test]
 fn readme_is_a_front_page() {
     let text = std::fs::read_to_string(root().join("README.md")).unwrap();
     let n = text.lines().count();
-    assert!(n <= 250, "README.md has {n} lines; the reference belongs in docs/");
+    assert!(
+        n <= 250,
+        "README.md has {n} lines; the reference belongs in docs/"
+    );
 }
 
 /// The `keyframer ...` lines of the README's tour, comments dropped.
@@ -111,7 +117,13 @@ fn tour_commands() -> Vec<Vec<String>> {
         .split("## A five-minute tour")
         .nth(1)
         .expect("README has a five-minute tour");
-    let block = tour.split("```sh").nth(1).unwrap().split("```").next().unwrap();
+    let block = tour
+        .split("```sh")
+        .nth(1)
+        .unwrap()
+        .split("```")
+        .next()
+        .unwrap();
     block
         .lines()
         .map(|l| l.split('#').next().unwrap().trim())
@@ -123,16 +135,28 @@ fn tour_commands() -> Vec<Vec<String>> {
 #[test]
 fn readme_tour_commands_exist() {
     let commands = tour_commands();
-    assert!(commands.len() >= 8, "the tour shows {} commands", commands.len());
+    assert!(
+        commands.len() >= 8,
+        "the tour shows {} commands",
+        commands.len()
+    );
     for words in commands {
         // The subcommand path: `workflow save` has two words.
         let mut path: Vec<&str> = vec![words[0].as_str()];
         let top = kf(&[path[0], "--help"]);
-        assert!(top.status.success(), "`keyframer {}` is not a command", path[0]);
+        assert!(
+            top.status.success(),
+            "`keyframer {}` is not a command",
+            path[0]
+        );
         let top_help = String::from_utf8_lossy(&top.stdout).to_string();
         if let Some(sub) = words.get(1) {
             if !sub.starts_with('-') && top_help.contains("Commands:") {
-                assert!(top_help.contains(sub.as_str()), "`keyframer {} {sub}` is not a command", path[0]);
+                assert!(
+                    top_help.contains(sub.as_str()),
+                    "`keyframer {} {sub}` is not a command",
+                    path[0]
+                );
                 path.push(sub);
             }
         }
@@ -141,7 +165,9 @@ fn readme_tour_commands_exist() {
         let help = String::from_utf8_lossy(&kf(&args).stdout).to_string();
         for flag in words.iter().filter(|w| w.starts_with('-')) {
             assert!(
-                help.contains(&format!("{flag} ")) || help.contains(&format!("{flag},")) || help.contains(&format!("{flag}\n")),
+                help.contains(&format!("{flag} "))
+                    || help.contains(&format!("{flag},"))
+                    || help.contains(&format!("{flag}\n")),
                 "`keyframer {}` has no flag {flag} in its --help",
                 path.join(" ")
             );
