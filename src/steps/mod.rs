@@ -830,6 +830,28 @@ mod tests {
         assert_eq!(Step::EveryNth { n: 0 }.validate().unwrap_err().key, "n");
     }
 
+    /// The chain's order and shared place come from [`STEPS`]; the messages are the ones
+    /// keyframer gave when the chain was written out by hand.
+    #[test]
+    fn the_chain_is_the_step_tables() {
+        let stationary = Step::Stationary {
+            threshold: None,
+            reset_delta: None,
+        };
+        let (i, msg) = check_order(&[Step::Fps { fps: 1.0 }, stationary]).unwrap_err();
+        assert_eq!(i, 1);
+        assert_eq!(
+            msg,
+            "`stationary` cannot follow `fps`: keyframer applies boundaries → stationary → \
+             spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual"
+        );
+        let (_, msg) = check_order(&[Step::EveryNth { n: 2 }, Step::Fps { fps: 1.0 }]).unwrap_err();
+        assert_eq!(
+            msg,
+            "`fps`: at most one step per sampler (and one of every-nth / fps)"
+        );
+    }
+
     #[test]
     fn flag_defaults_are_the_steps_defaults() {
         let mut v = FlagValues::default();
