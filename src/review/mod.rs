@@ -1,7 +1,8 @@
 //! `review`: a local web app over a project's cached scores. A parameter change re-runs the steps
 //! through [`select::run_steps`], the code `select` runs, on the cached series (nothing decoded);
-//! a step whose series the cache lacks is left out and named with the `select` command that would
-//! compute it. **Save** writes what `select` with the same steps would write, atomically and only
+//! a step that needs what the cache lacks ([`Step::needs`]) is left out with its refusal, and
+//! named with the `select` command that would compute it when `select` can; any other refusal is
+//! the answer's error. **Save** writes what `select` with the same steps would write, atomically and only
 //! over the project file it loaded (unchanged since; `/api/state`, asked on a page reload, reads a
 //! changed file again). Frames are decoded on demand for previews.
 //! The HTTP side and its request checks are in [`http`].
@@ -97,7 +98,8 @@ pub struct StepState {
     pub kept: Option<usize>,
     /// Why it did not run.
     pub reason: Option<String>,
-    /// The `select` command that computes what it lacks.
+    /// The `select` command that computes what it lacks (None when `select` cannot: the input
+    /// has no telemetry).
     pub command: Option<String>,
 }
 
@@ -227,33 +229,43 @@ impl Review {
         r
     }
 
-    /// Runs `steps` on the cached series of the loaded project. Steps of analysis the cache
-    /// lacks are left out (each named with the command that computes it); any other refusal is
-    /// the error.
+    /// Runs `steps` on the cached series of the loaded project. A step that needs what the
+    /// cache lacks is left out with its refusal (and the command that computes what it lacks,
+    /// when `select` can); any other refusal is the error.
     pub fn select(&self, steps: &[Step]) -> ApiResult<Selection> {
         check(steps)?;
         let project = self.project();
+        let (meta, cache) = (&project.metadata, &project.cache);
+        let refused = |e: Error| {
+            let step = match &e {
+                Error::Plugin { plugin, .. } => steps.iter().position(|s| s.id() == *plugin),
+                _ => None,
+            };
+            ApiError::step(step, None, e.to_string())
+        };
+        let lacking =
+            select::lacking(steps, &self.resolve(&project, steps), cache, meta).map_err(refused)?;
+        let lacks = |plugin: &str| {
+            let mut all = steps.iter().zip(&lacking);
+            all.find(|(s, _)| s.id() == plugin).map(|(_, l)| l)
+        };
         let mut active: Vec<Step> = steps.to_vec();
-        let mut disabled: Vec<(&'static str, String)> = Vec::new();
+        // Each step left out: its id, its refusal, whether `select` computes what it lacks.
+        let mut disabled: Vec<(&'static str, String, bool)> = Vec::new();
         let (keyframes, history) = loop {
             let resolved = self.resolve(&project, &active);
-            let meta = &project.metadata;
-            let (cache, damaged) = (&project.cache, &project.damaged_frames);
+            let damaged = &project.damaged_frames;
             match select::run_steps(&self.input, &active, &resolved, cache, meta, damaged) {
                 Ok(done) => break done,
-                Err(Error::Plugin { plugin, msg }) if needs_analysis(plugin) => {
+                Err(Error::Plugin { plugin, msg })
+                    if lacks(plugin).is_some_and(|l| !l.is_empty()) =>
+                {
+                    let measured =
+                        lacks(plugin).is_some_and(|l| l.iter().all(|n| n.measured_by_select()));
                     active.retain(|s| s.id() != plugin);
-                    disabled.push((plugin, msg));
+                    disabled.push((plugin, msg, measured));
                 }
-                Err(e) => {
-                    let step = match &e {
-                        Error::Plugin { plugin, .. } => {
-                            steps.iter().position(|s| s.id() == *plugin)
-                        }
-                        _ => None,
-                    };
-                    return Err(ApiError::step(step, None, e.to_string()));
-                }
+                Err(e) => return Err(refused(e)),
             }
         };
         let command = self.command(&project, steps);
@@ -271,7 +283,7 @@ impl Review {
                     enabled: off.is_none(),
                     kept: kept(s),
                     reason: off.map(|d| d.1.clone()),
-                    command: off.map(|_| command.clone()),
+                    command: off.filter(|d| d.2).map(|_| command.clone()),
                 }
             })
             .collect();
@@ -328,14 +340,12 @@ impl Review {
     pub fn reselect(&self, steps: &[Step]) -> ApiResult<Project> {
         let selection = self.select(steps)?;
         if let Some(s) = selection.steps_state.iter().find(|s| !s.enabled) {
-            return Err(ApiError::new(
-                409,
-                format!(
-                    "`{}` needs analysis the project lacks; run: {}",
-                    s.plugin,
-                    s.command.as_deref().unwrap_or_default()
-                ),
-            ));
+            let (plugin, reason) = (s.plugin, s.reason.as_deref().unwrap_or_default());
+            let msg = match &s.command {
+                Some(c) => format!("`{plugin}` needs analysis the project lacks; run: {c}"),
+                None => format!("`{plugin}` cannot run on this project: {reason}"),
+            };
+            return Err(ApiError::new(409, msg));
         }
         let mut p = (*self.project()).clone();
         p.schema_version = SCHEMA_VERSION;
@@ -547,6 +557,7 @@ impl Review {
                       "fps": project.metadata.fps, "width": project.metadata.width, "height": project.metadata.height,
                       "available": self.input.exists()},
             "steps": steps,
+            "chain": chain(),
             "schema": schema(),
             "series": series(&project),
             "export": exported,
@@ -556,12 +567,12 @@ impl Review {
     }
 }
 
-/// Step ids whose runtime refusal means "the cache lacks this analysis".
-fn needs_analysis(plugin: &str) -> bool {
-    matches!(
-        plugin,
-        "stationary" | "spacing" | "blur" | "geo-distance" | "footprint-overlap"
-    )
+/// The chain for the page's editor, in order: each step's id, the step whose place it shares,
+/// and the parameter a new one must be given.
+fn chain() -> Value {
+    (steps::STEPS.iter())
+        .map(|k| json!({"id": k.id, "instead_of": k.instead_of, "required": k.required}))
+        .collect()
 }
 
 /// The step list's order and each step's parameters, as `select` checks them.

@@ -20,7 +20,7 @@ use crate::project::{
 };
 use crate::source::{self, Metadata, OpenOptions, SourceKind};
 use crate::steps::{self, Boundaries};
-use crate::steps::{Applied, Step};
+use crate::steps::{Applied, Need, Step};
 use std::path::{Path, PathBuf};
 
 pub use crate::steps::Threshold;
@@ -164,12 +164,9 @@ impl SelectSettings {
         fsutil::relative_to(path, &project_dir.unwrap_or_default())
     }
 
-    /// The spacing step's threshold as given.
-    fn spacing(&self) -> Option<Threshold> {
-        self.steps.iter().find_map(|s| match s {
-            Step::Spacing { threshold } => Some(*threshold),
-            _ => None,
-        })
+    /// Whether a step of the chain needs `need`.
+    fn needs(&self, need: Need) -> bool {
+        self.steps.iter().any(|s| s.needs().contains(&need))
     }
 }
 
@@ -419,11 +416,7 @@ impl Known {
         let uses_seconds = [boundaries.start, boundaries.end]
             .iter()
             .any(|b| matches!(b, Some(steps::Bound::Seconds(_))));
-        let stationary = s
-            .steps
-            .iter()
-            .any(|st| matches!(st, Step::Stationary { .. }));
-        if !stationary || self.metadata.is_some() || !uses_seconds {
+        if !s.needs(Need::StationaryRun) || self.metadata.is_some() || !uses_seconds {
             return Ok(());
         }
         let a = analysis::analyse(
@@ -549,7 +542,7 @@ impl AutoThresholds {
             proposals: Vec::new(),
         };
         let wants_auto_stationary = t.resolved.stationary_auto;
-        let auto_spacing = s.spacing() == Some(Threshold::Auto);
+        let auto_spacing = s.needs(Need::SpacingProposal);
         if !(wants_auto_stationary || auto_spacing) {
             return Ok(t);
         }
@@ -607,8 +600,8 @@ impl AutoThresholds {
     }
 }
 
-/// What the analysis must still measure: sharpness metrics the blur steps use and the cache
-/// lacks, the movement series for spacing, the stationary run.
+/// What the analysis must still measure: what the steps need ([`Step::needs`]) and the cache
+/// lacks (sharpness metrics, the movement series, the stationary run).
 struct Plan {
     missing: Vec<Metric>,
     movement: bool,
@@ -617,11 +610,11 @@ struct Plan {
 
 impl Plan {
     fn of(s: &SelectSettings, known: &Known, stationary: Option<StationaryRequest>) -> Plan {
-        let metrics = s
-            .steps
-            .iter()
-            .filter_map(|b| b.blur_params())
-            .map(|b| b.metric);
+        let needs: Vec<Need> = s.steps.iter().flat_map(Step::needs).collect();
+        let metrics = needs.iter().filter_map(|n| match n {
+            Need::Sharpness(m) => Some(*m),
+            _ => None,
+        });
         let missing = match &known.metadata {
             Some(m) => metrics
                 .filter(|&k| known.cache.sharpness(k, m.width, m.height).is_none())
@@ -629,11 +622,13 @@ impl Plan {
             None => metrics.collect(),
         };
         let cache = &known.cache;
-        let need_series = s.spacing().is_some() && cache.movement(&s.movement).is_none();
+        let need_series = needs.contains(&Need::Movement) && cache.movement(&s.movement).is_none();
+        let need_run = needs.contains(&Need::StationaryRun);
         Plan {
             missing,
             movement: need_series,
-            stationary: stationary.filter(|st| cache.stationary(&s.movement, st).is_none()),
+            stationary: stationary
+                .filter(|st| need_run && cache.stationary(&s.movement, st).is_none()),
         }
     }
 
@@ -696,16 +691,45 @@ pub fn run_steps(
     metadata: &Metadata,
     damaged: &[usize],
 ) -> Result<(Vec<usize>, Vec<HistoryEntry>)> {
-    let boundaries = steps::boundaries(steps);
-    let ts = cache.timestamps_s.as_deref();
-    let range = boundaries.candidates(metadata.frame_count, ts)?;
-    let mut keys = range.clone();
+    let (range, at) = inputs(steps, resolved, cache, metadata)?;
+    let mut keys = range;
     keys.retain(|k| damaged.binary_search(k).is_err());
+    let boundaries = steps::boundaries(steps);
     let mut history = vec![Applied::Boundaries {
         end: boundaries.end,
         start: boundaries.start,
     }
     .entry(keys.len())];
+    for step in steps {
+        if let Some(applied) = step.apply(&at, &mut keys)? {
+            history.push(applied.entry(keys.len()));
+        }
+    }
+    Ok((drop_damaged(input, keys, damaged), history))
+}
+
+/// What each of `steps` needs that `cache` lacks ([`Step::lacks`]), with `resolved` thresholds.
+pub fn lacking(
+    steps: &[Step],
+    resolved: &Resolved,
+    cache: &Cache,
+    metadata: &Metadata,
+) -> Result<Vec<Vec<Need>>> {
+    let (_, at) = inputs(steps, resolved, cache, metadata)?;
+    Ok(steps.iter().map(|s| s.lacks(&at)).collect())
+}
+
+/// The boundaries' candidates and what the steps read: the input's frames and the series of
+/// `cache` that `resolved` selects.
+fn inputs<'a>(
+    steps: &[Step],
+    resolved: &Resolved,
+    cache: &'a Cache,
+    metadata: &Metadata,
+) -> Result<(Vec<usize>, steps::Inputs<'a>)> {
+    let boundaries = steps::boundaries(steps);
+    let ts = cache.timestamps_s.as_deref();
+    let range = boundaries.candidates(metadata.frame_count, ts)?;
     let movement = &resolved.movement;
     let stationary = match resolved.stationary {
         Some(st) => {
@@ -737,10 +761,5 @@ pub fn run_steps(
         camera: cache.telemetry.as_ref().and_then(|t| t.camera.as_deref()),
         frame_size: (w, h),
     };
-    for step in steps {
-        if let Some(applied) = step.apply(&at, &mut keys)? {
-            history.push(applied.entry(keys.len()));
-        }
-    }
-    Ok((drop_damaged(input, keys, damaged), history))
+    Ok((range, at))
 }

@@ -143,30 +143,117 @@ fn positions<'a>(
     Ok(positions)
 }
 
-/// Each step's flags and the reader of its step from their values, in the chain's order.
+/// Reads a step from its flags' values (None: its flags were not given).
 type FlagReader = fn(&FlagValues) -> Result<Option<Step>>;
-static STEPS: [(&[Flag], FlagReader); 9] = [
-    (boundaries::FLAGS, boundaries::from_flags),
-    (stationary::FLAGS, stationary::from_flags),
-    (spacing::FLAGS, spacing::from_flags),
-    (geo_distance::FLAGS, geo_distance::from_flags),
-    (footprint::FLAGS, footprint::from_flags),
-    (every_nth::FLAGS, every_nth::from_flags),
-    (fps::FLAGS, fps::from_flags),
-    (blur::FLAGS, blur::from_flags),
-    (manual::FLAGS, manual::from_flags),
+
+/// One kind of step as the chain lists it: its id, its flags and their reader, the parameter a
+/// new step of it must be given, and the step whose place it shares (a chain has one of them).
+#[derive(Debug, Clone, Copy)]
+pub struct Kind {
+    /// The stable plugin id.
+    pub id: &'static str,
+    /// Its command-line flags.
+    pub flags: &'static [Flag],
+    read: FlagReader,
+    /// The parameter without a default that a new step needs (the review page asks for it).
+    pub required: Option<&'static str>,
+    /// The step before it whose place in the chain it shares.
+    pub instead_of: Option<&'static str>,
+}
+
+impl Kind {
+    const fn new(id: &'static str, flags: &'static [Flag], read: FlagReader) -> Kind {
+        Kind {
+            id,
+            flags,
+            read,
+            required: None,
+            instead_of: None,
+        }
+    }
+
+    const fn required(self, key: &'static str) -> Kind {
+        Kind {
+            required: Some(key),
+            ..self
+        }
+    }
+
+    const fn instead_of(self, id: &'static str) -> Kind {
+        Kind {
+            instead_of: Some(id),
+            ..self
+        }
+    }
+}
+
+/// Every kind of step in keyframer's chain order. The flags, the order [`check_order`] enforces,
+/// the history's plugin ids and the review page's step list come from here; what a step reads
+/// from the analysis is its [`Step::needs`], which `select`'s plan and `review` read.
+pub static STEPS: [Kind; 9] = [
+    Kind::new("boundaries", boundaries::FLAGS, boundaries::from_flags),
+    Kind::new("stationary", stationary::FLAGS, stationary::from_flags),
+    Kind::new("spacing", spacing::FLAGS, spacing::from_flags),
+    Kind::new(
+        "geo-distance",
+        geo_distance::FLAGS,
+        geo_distance::from_flags,
+    )
+    .required("metres"),
+    Kind::new("footprint-overlap", footprint::FLAGS, footprint::from_flags).required("percent"),
+    Kind::new("every-nth", every_nth::FLAGS, every_nth::from_flags).required("n"),
+    Kind::new("fps", fps::FLAGS, fps::from_flags)
+        .required("fps")
+        .instead_of("every-nth"),
+    Kind::new("blur", blur::FLAGS, blur::from_flags),
+    Kind::new("manual", manual::FLAGS, manual::from_flags),
 ];
+
+/// What a step reads from the analysis: `select` measures what its chain's steps need and the
+/// cache lacks; `review` leaves out a step whose need the project's cache lacks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Need {
+    /// The sharpness scores of this metric.
+    Sharpness(Metric),
+    /// The movement series, measured as the movement flags say.
+    Movement,
+    /// The spacing threshold proposed from a movement sample (`--spacing auto`).
+    SpacingProposal,
+    /// The stationary run for the step's parameters (measured while decoding).
+    StationaryRun,
+    /// Each frame's camera position, from the input's telemetry.
+    Positions,
+}
+
+impl Need {
+    /// Whether `select` on the same input computes it when a step asks: positions come only
+    /// from the telemetry the input has, which every `select` reads.
+    pub fn measured_by_select(self) -> bool {
+        self != Need::Positions
+    }
+
+    /// Whether `at` holds it.
+    pub fn is_in(self, at: &Inputs) -> bool {
+        match self {
+            Need::Sharpness(m) => at.sharpness.iter().any(|s| s.0 == m),
+            Need::Movement => at.movement.is_some(),
+            Need::SpacingProposal => at.spacing_px.is_some(),
+            Need::StationaryRun => at.stationary.is_some(),
+            Need::Positions => at.positions.is_some(),
+        }
+    }
+}
 
 /// The flags of every step, in the chain's order.
 pub fn flags() -> impl Iterator<Item = &'static Flag> {
-    STEPS.iter().flat_map(|s| s.0)
+    STEPS.iter().flat_map(|k| k.flags)
 }
 
 /// The steps the flags give, in keyframer's order, checked (errors name the flag's parameter).
 pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
     let mut steps = Vec::new();
-    for (_, read) in &STEPS {
-        if let Some(step) = read(v)? {
+    for kind in &STEPS {
+        if let Some(step) = (kind.read)(v)? {
             step.validate().map_err(flag_error)?;
             steps.push(step);
         }
@@ -322,18 +409,37 @@ impl Step {
         }))
     }
 
-    /// Position in keyframer's chain (every-nth and fps share one slot).
-    fn rank(&self) -> usize {
+    /// What the step reads from the analysis.
+    pub fn needs(&self) -> Vec<Need> {
         match self {
-            Step::Boundaries { .. } => 0,
-            Step::Stationary { .. } => 1,
-            Step::Spacing { .. } => 2,
-            Step::GeoDistance { .. } => 3,
-            Step::FootprintOverlap { .. } => 4,
-            Step::EveryNth { .. } | Step::Fps { .. } => 5,
-            Step::Blur { .. } => 6,
-            Step::Manual { .. } => 7,
+            Step::Stationary { .. } => vec![Need::StationaryRun],
+            Step::Spacing {
+                threshold: Threshold::Auto,
+            } => vec![Need::Movement, Need::SpacingProposal],
+            Step::Spacing { .. } => vec![Need::Movement],
+            Step::GeoDistance { .. } | Step::FootprintOverlap { .. } => vec![Need::Positions],
+            Step::Blur { .. } => (self.blur_params().into_iter())
+                .map(|b| Need::Sharpness(b.metric))
+                .collect(),
+            Step::Boundaries { .. }
+            | Step::EveryNth { .. }
+            | Step::Fps { .. }
+            | Step::Manual { .. } => Vec::new(),
         }
+    }
+
+    /// What the step needs that `at` lacks.
+    pub fn lacks(&self, at: &Inputs) -> Vec<Need> {
+        (self.needs().into_iter())
+            .filter(|n| !n.is_in(at))
+            .collect()
+    }
+
+    /// Position in keyframer's chain ([`STEPS`]; a step shares the place it stands in for).
+    fn rank(&self) -> usize {
+        let at = |id: &str| STEPS.iter().position(|k| k.id == id);
+        let kind = at(self.id()).map(|i| &STEPS[i]);
+        (kind.and_then(|k| at(k.instead_of.unwrap_or(k.id)))).unwrap_or(usize::MAX)
     }
 
     /// The blur step's parameters with the defaults filled in.
@@ -409,27 +515,45 @@ impl Step {
     }
 }
 
-/// Checks that `steps` follow keyframer's chain (boundaries → stationary → spacing →
-/// geo-distance → footprint-overlap → every-nth/fps → blur → manual), at most one of each: the
-/// error names the step's index.
+/// Checks that `steps` follow keyframer's chain ([`STEPS`]: boundaries → stationary → spacing →
+/// ... → manual), at most one of each: the error names the step's index.
 pub fn check_order(steps: &[Step]) -> std::result::Result<(), (usize, String)> {
     let mut last: Option<&Step> = None;
     for (i, s) in steps.iter().enumerate() {
         let id = s.id();
         if steps[..i].iter().any(|p| p.rank() == s.rank()) {
-            let msg = format!("`{id}`: at most one step per sampler (and one of every-nth / fps)");
+            let shared = (places().into_iter())
+                .filter(|p| p.contains('/'))
+                .map(|p| format!(" (and one of {})", p.replace('/', " / ")));
+            let msg = format!(
+                "`{id}`: at most one step per sampler{}",
+                shared.collect::<String>()
+            );
             return Err((i, msg));
         }
         if let Some(p) = last.filter(|p| p.rank() > s.rank()) {
             let msg = format!(
-                "`{id}` cannot follow `{}`: keyframer applies boundaries → stationary → spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual",
-                p.id()
+                "`{id}` cannot follow `{}`: keyframer applies {}",
+                p.id(),
+                places().join(" → ")
             );
             return Err((i, msg));
         }
         last = Some(s);
     }
     Ok(())
+}
+
+/// The places of the chain: each step's id, ids that share a place joined by `/`.
+fn places() -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for k in &STEPS {
+        match (k.instead_of, out.last_mut()) {
+            (Some(_), Some(last)) => *last = format!("{last}/{}", k.id),
+            _ => out.push(k.id.to_string()),
+        }
+    }
+    out
 }
 
 /// The boundaries of a step list (none: the whole input).
@@ -635,20 +759,12 @@ impl Applied {
 
     /// Reads a history entry; the error names the parameter (`params.fps`).
     pub fn from_entry(e: &HistoryEntry) -> std::result::Result<Applied, (String, String)> {
-        const PLUGINS: [&str; 10] = [
-            "boundaries",
-            "preview",
-            "stationary",
-            "spacing",
-            "geo-distance",
-            "footprint-overlap",
-            "every-nth",
-            "fps",
-            "blur",
-            "manual",
-        ];
-        if !PLUGINS.contains(&e.plugin.as_str()) {
-            let known = PLUGINS.join(", ");
+        let ids = || STEPS.iter().map(|k| k.id);
+        let plugins: Vec<&str> = (ids().take(1).chain(["preview"]))
+            .chain(ids().skip(1))
+            .collect();
+        if !plugins.contains(&e.plugin.as_str()) {
+            let known = plugins.join(", ");
             let msg = format!("unknown plugin `{}` (known: {known})", e.plugin);
             return Err(("plugin".into(), msg));
         }
@@ -712,6 +828,28 @@ mod tests {
         );
         assert_eq!(blur.validate().unwrap_err().key, "window");
         assert_eq!(Step::EveryNth { n: 0 }.validate().unwrap_err().key, "n");
+    }
+
+    /// The chain's order and shared place come from [`STEPS`]; the messages are the ones
+    /// keyframer gave when the chain was written out by hand.
+    #[test]
+    fn the_chain_is_the_step_tables() {
+        let stationary = Step::Stationary {
+            threshold: None,
+            reset_delta: None,
+        };
+        let (i, msg) = check_order(&[Step::Fps { fps: 1.0 }, stationary]).unwrap_err();
+        assert_eq!(i, 1);
+        assert_eq!(
+            msg,
+            "`stationary` cannot follow `fps`: keyframer applies boundaries → stationary → \
+             spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual"
+        );
+        let (_, msg) = check_order(&[Step::EveryNth { n: 2 }, Step::Fps { fps: 1.0 }]).unwrap_err();
+        assert_eq!(
+            msg,
+            "`fps`: at most one step per sampler (and one of every-nth / fps)"
+        );
     }
 
     #[test]

@@ -5,10 +5,8 @@
   "use strict";
   const token = document.querySelector('meta[name="kf-token"]').content;
   const $ = (id) => document.getElementById(id);
-  const CHAIN = ["boundaries", "stationary", "spacing", "geo-distance", "footprint-overlap",
-    "every-nth", "fps", "blur", "manual"];
   const S = {
-    info: null, schema: [], steps: [], savedSteps: "[]", revision: 0,
+    info: null, chain: [], schema: [], steps: [], savedSteps: "[]", revision: 0,
     sel: null, view: null, cursor: 0, undo: [], redo: [], showMask: false, series: null,
     exported: new Map(), applySeq: 0, inputAt: 0, saving: false,
   };
@@ -56,7 +54,8 @@
   }
 
   function ordered(steps) {
-    return steps.slice().sort((a, b) => CHAIN.indexOf(stepId(a)) - CHAIN.indexOf(stepId(b)));
+    const at = (s) => S.chain.findIndex((k) => k.id === stepId(s));
+    return steps.slice().sort((a, b) => at(a) - at(b));
   }
 
   function commit(steps) {
@@ -91,7 +90,7 @@
           text: active.type === "text" } : null;
     form.textContent = "";
     const state = new Map(((S.sel && S.sel.steps_state) || []).map((s) => [s.plugin, s]));
-    for (const plugin of CHAIN) {
+    for (const plugin of S.chain.map((k) => k.id)) {
       const params = S.schema.filter((p) => p.plugin === plugin);
       if (params.length === 0 && plugin !== "manual") continue;
       const step = stepOf(plugin);
@@ -148,17 +147,20 @@
         const why = document.createElement("p");
         why.className = "needs";
         why.textContent = (st.reason || "the project lacks this step's analysis") +
-          "; compute it with:";
-        const code = document.createElement("code");
-        code.textContent = st.command || "";
-        const copy = document.createElement("button");
-        copy.type = "button";
-        copy.textContent = "Copy";
-        copy.addEventListener("click", () => {
-          navigator.clipboard.writeText(code.textContent).then(
-            () => say("command copied"), () => say("copy failed: select the text", true));
-        });
-        row.append(why, code, copy);
+          (st.command ? "; compute it with:" : "");
+        row.append(why);
+        if (st.command) {
+          const code = document.createElement("code");
+          code.textContent = st.command;
+          const copy = document.createElement("button");
+          copy.type = "button";
+          copy.textContent = "Copy";
+          copy.addEventListener("click", () => {
+            navigator.clipboard.writeText(code.textContent).then(
+              () => say("command copied"), () => say("copy failed: select the text", true));
+          });
+          row.append(code, copy);
+        }
       }
       form.append(row);
     }
@@ -183,9 +185,10 @@
         params.add = [];
         params.remove = [];
       }
-      const required = { "every-nth": "n", fps: "fps", "geo-distance": "metres", "footprint-overlap": "percent" };
-      if (required[plugin] && params[required[plugin]] === null) {
-        say(plugin + ": give " + required[plugin] + " first", true);
+      const kind = S.chain.find((k) => k.id === plugin);
+      const required = kind ? kind.required : null;
+      if (required && params[required] === null) {
+        say(plugin + ": give " + required + " first", true);
       }
       steps.push({ [plugin]: params });
     }
@@ -533,6 +536,7 @@
   async function load() {
     const st = await api("GET", "/api/state");
     S.info = st;
+    S.chain = st.chain;
     S.schema = st.schema;
     S.series = st.series;
     S.steps = st.steps;

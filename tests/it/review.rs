@@ -1064,3 +1064,85 @@ fn review_redraw_time_is_printed() {
          server median {sm:.1} ms, max {sx:.1} ms"
     );
 }
+
+/// A step that refuses for a reason of its own (footprint-overlap with no field of view: the
+/// telemetry has no focal length, the camera is unknown) makes the answer that error, with no
+/// `select` command (it would fail the same way); a step over positions the input lacks is left
+/// out with its reason and no command either (`select` reads the same telemetry); a series
+/// `select` measures (a sharpness metric not cached) is left out with the command.
+#[test]
+fn review_shows_a_steps_own_refusal_and_offers_select_only_when_it_would_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("flight");
+    crate::common::scene_ok(&[
+        s(&dir),
+        "--size",
+        "160x90",
+        "--fps",
+        "30",
+        "--seconds",
+        "4",
+        "--blur-samples",
+        "1",
+        "--pitch",
+        "90",
+    ]);
+    let srt = dir.join("video.SRT");
+    let text = crate::telemetry::without_focal(&std::fs::read_to_string(&srt).unwrap());
+    assert!(!text.contains("focal_len"));
+    std::fs::write(&srt, text).unwrap();
+    let project = tmp.path().join("p.json");
+    let video = dir.join("video.mp4");
+    kf_ok(&[
+        "select",
+        s(&video),
+        "-o",
+        s(&project),
+        "--geo-distance",
+        "5",
+    ]);
+    let positions = &json(&project)["cache"]["telemetry"]["positions"];
+    assert!(positions[0].is_object(), "{positions}");
+    let srv = Served::start(&project, &[]);
+    let apply = |steps: serde_json::Value| {
+        srv.call(
+            "POST",
+            "/api/apply",
+            Some(&serde_json::json!({ "steps": steps })),
+        )
+    };
+    let (code, v) = apply(serde_json::json!([{"footprint-overlap": {"percent": 80}}]));
+    assert_eq!(code, 400, "{}", v["steps_state"]);
+    let error = v["error"].as_str().unwrap();
+    assert!(
+        error.contains("no field of view") && error.contains("give --hfov"),
+        "{v}"
+    );
+    assert!(!v.to_string().contains("keyframer select"), "{v}");
+    assert_eq!(v["step"].as_u64(), Some(0), "{v}");
+    let (code, v) = apply(serde_json::json!([{"footprint-overlap": {"percent": 80, "hfov": 70}}]));
+    assert_eq!(code, 200, "{}", v["error"]);
+    assert_eq!(v["steps_state"][0]["enabled"], true, "{}", v["steps_state"]);
+    let (code, v) = apply(serde_json::json!([{"blur": {"metric": "laplacian-k3"}}]));
+    assert_eq!(code, 200, "{}", v["error"]);
+    let state = &v["steps_state"][0];
+    assert_eq!(state["enabled"], false, "{state}");
+    let command = state["command"].as_str().unwrap();
+    assert!(
+        command.contains("keyframer select") && command.contains("--blur"),
+        "{state}"
+    );
+
+    let pan = pan_copy(&tmp.path().join("pan"));
+    let srv = Served::start(&pan, &[]);
+    let body = serde_json::json!({"steps": [{"geo-distance": {"metres": 5}}]});
+    let (code, v) = srv.call("POST", "/api/apply", Some(&body));
+    assert_eq!(code, 200, "{}", v["error"]);
+    let state = &v["steps_state"][0];
+    assert_eq!(state["enabled"], false, "{state}");
+    assert!(
+        state["reason"].as_str().unwrap().contains("--telemetry"),
+        "{state}"
+    );
+    assert!(state["command"].is_null(), "{state}");
+}

@@ -579,6 +579,16 @@ fn exif_tagged_folder_gives_every_image_its_position() {
     assert_eq!(json(&p)["cache"]["telemetry"]["source"]["kind"], "exif");
 }
 
+/// The DJI SRT `srt` without its focal lengths.
+pub fn without_focal(srt: &str) -> String {
+    srt.lines()
+        .map(|l| match (l.find("[focal_len: "), l.find("] [latitude")) {
+            (Some(a), Some(b)) => format!("{}{}\n", &l[..a], &l[b + 2..]),
+            _ => format!("{l}\n"),
+        })
+        .collect()
+}
+
 /// Without a focal length in the telemetry, footprint-overlap takes the field of view from
 /// `--hfov`, else from the camera table when the video's container names a known DJI camera,
 /// else refuses, saying so.
@@ -588,13 +598,7 @@ fn footprint_field_of_view_from_hfov_or_the_camera_table() {
     let tmp = tempfile::tempdir().unwrap();
     let srt = std::fs::read_to_string(dir.join("video.SRT")).unwrap();
     assert!(srt.contains("[focal_len: "));
-    let without_focal: String = srt
-        .lines()
-        .map(|l| match (l.find("[focal_len: "), l.find("] [latitude")) {
-            (Some(a), Some(b)) => format!("{}{}\n", &l[..a], &l[b + 2..]),
-            _ => format!("{l}\n"),
-        })
-        .collect();
+    let without_focal = without_focal(&srt);
     assert!(!without_focal.contains("focal_len"));
     let named = tmp.path().join("named.mp4");
     let video = dir.join("video.mp4");
