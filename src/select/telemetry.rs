@@ -26,7 +26,12 @@ const WARNINGS_SHOWN: usize = 5;
 fn wanted(s: &SelectSettings, kind: SourceKind) -> Result<Option<(PathBuf, TelemetryKind)>> {
     if let Some(file) = &s.telemetry {
         if !file.is_file() {
-            return Err(Error::input(file, "telemetry file not found"));
+            let why = if file.exists() {
+                "telemetry file is not a regular file (a folder, device, FIFO or socket)"
+            } else {
+                "telemetry file not found"
+            };
+            return Err(Error::input(file, why));
         }
         return Ok(Some((file.clone(), kind_of_file(file)?)));
     }

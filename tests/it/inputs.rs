@@ -774,10 +774,17 @@ fn fifo_input_is_refused() {
     let made = Command::new("mkfifo").arg(&fifo).status().unwrap();
     assert!(made.success());
     let p = d.path().join("p.json");
+    // A FIFO as the telemetry file of a real video (an extension that is neither .gpx nor .srt,
+    // so the reader would sniff its first bytes).
+    let video = testsrc(d.path(), "real.mp4", 64, 48, "10", 1.0);
+    let track = d.path().join("track.dat");
+    let made = Command::new("mkfifo").arg(&track).status().unwrap();
+    assert!(made.success());
     for args in [
         vec!["select", s(&fifo), "-o", s(&p)],
         vec!["select", s(&fifo), "--preview", "-o", s(&p)],
         vec!["probe", s(&fifo)],
+        vec!["select", s(&video), "--telemetry", s(&track), "-o", s(&p)],
     ] {
         let started = std::time::Instant::now();
         let out = Command::new("timeout")
