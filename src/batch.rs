@@ -78,6 +78,7 @@ pub struct InputReport {
     pub input: PathBuf,
     /// Its output folder.
     pub folder: PathBuf,
+    /// What happened to it.
     pub status: Status,
     /// Number of keyframes selected.
     pub keyframes: Option<usize>,

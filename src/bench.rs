@@ -11,7 +11,9 @@ use std::time::Instant;
 /// item (a frame for sharpness, a frame pair for Farneback).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Row {
+    /// Frame width in pixels.
     pub width: u32,
+    /// Frame height in pixels.
     pub height: u32,
     /// Metric, or Farneback parameter set label.
     pub case: String,

@@ -10,46 +10,76 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 pub enum Error {
     /// The input (video, image folder, image) cannot be used.
     #[error("{}: {msg}", path.display())]
-    Input { path: PathBuf, msg: String },
+    Input {
+        /// The input.
+        path: PathBuf,
+        /// What is wrong with it.
+        msg: String,
+    },
 
     /// One frame of an input could not be decoded or processed.
     #[error("{}: frame {index}: {msg}", path.display())]
     Frame {
+        /// The input the frame belongs to.
         path: PathBuf,
+        /// The frame's index in the input, from 0.
         index: usize,
+        /// What failed.
         msg: String,
     },
 
     /// A file system operation failed.
     #[error("{}: {source}", path.display())]
     Io {
+        /// The file or folder the operation was on.
         path: PathBuf,
+        /// The operating system's error.
         #[source]
         source: std::io::Error,
     },
 
     /// A command-line or workflow parameter is invalid.
     #[error("invalid value for {name}: {msg}")]
-    Param { name: String, msg: String },
+    Param {
+        /// The parameter's name as the user spells it (a flag or a workflow key).
+        name: String,
+        /// Why the value is refused.
+        msg: String,
+    },
 
     /// A project, workflow or model file is malformed; `field` is the path of the offending key
     /// and `line` its line when known.
     #[error("{}{}: invalid {what} at `{field}`: {msg}", path.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
     File {
+        /// The malformed file.
         path: PathBuf,
+        /// The 1-based line of the offending key, when known.
         line: Option<usize>,
+        /// What kind of file it is (project, workflow, model ...).
         what: &'static str,
+        /// The dotted path of the offending key.
         field: String,
+        /// What is wrong with it.
         msg: String,
     },
 
     /// A step (sampler, export masks) refused its input or parameters.
     #[error("plugin `{plugin}`: {msg}")]
-    Plugin { plugin: &'static str, msg: String },
+    Plugin {
+        /// The step's name.
+        plugin: &'static str,
+        /// Why it refused.
+        msg: String,
+    },
 
     /// The output location would lose existing results.
     #[error("{}: {msg}", path.display())]
-    Output { path: PathBuf, msg: String },
+    Output {
+        /// The output path that is refused.
+        path: PathBuf,
+        /// Why.
+        msg: String,
+    },
 
     /// GPU set-up or execution failed.
     #[error("GPU: {0}")]
@@ -60,7 +90,9 @@ pub enum Error {
     /// do, see [`explain_opencv`].
     #[error("OpenCV {context}: {}", explain_opencv(source))]
     OpenCv {
+        /// Which OpenCV call failed and on what.
         context: String,
+        /// OpenCV's own error.
         #[source]
         source: opencv::Error,
     },

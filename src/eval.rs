@@ -16,19 +16,26 @@ use std::path::{Path, PathBuf};
 /// What `eval` reads: each field is the flag of the same name (`keyframer eval --help`).
 #[derive(Debug, Clone)]
 pub struct EvalSettings {
+    /// A COLMAP model folder, a `sparse/` folder of models, or a `keyframer colmap` workspace.
     pub model: PathBuf,
+    /// The export folder (None: the workspace's export).
     pub export: Option<PathBuf>,
+    /// Ground-truth camera-to-world poses in TUM format.
     pub gt: Option<PathBuf>,
 }
 
 /// Summary statistics of a list of distances.
 #[derive(Debug, Clone, Copy, Serialize, PartialEq)]
 pub struct Stats {
+    /// Number of distances.
     pub count: usize,
+    /// Arithmetic mean.
     pub mean: f64,
     /// Population standard deviation (divides by n).
     pub std: f64,
+    /// 10th percentile.
     pub q10: f64,
+    /// 90th percentile.
     pub q90: f64,
 }
 
@@ -149,6 +156,7 @@ pub struct GtReport {
 pub struct Report {
     /// The model folder evaluated.
     pub model: PathBuf,
+    /// How the model was stored (.bin or .txt).
     pub format: Format,
     /// Models found (1 for a single model folder).
     pub models: usize,
@@ -158,6 +166,7 @@ pub struct Report {
     pub registered: usize,
     /// registered / selected.
     pub registered_ratio: Option<f64>,
+    /// Points in the evaluated model.
     pub points3d: usize,
     /// Mean of the points' reprojection errors (px).
     pub mean_reprojection_error: Option<f64>,

@@ -14,7 +14,9 @@ use time::OffsetDateTime;
 /// What an exported image is tagged with.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GeoTag {
+    /// Latitude, degrees north.
     pub lat_deg: f64,
+    /// Longitude, degrees east.
     pub lon_deg: f64,
     /// Metres above sea level.
     pub alt_m: Option<f64>,
@@ -23,7 +25,9 @@ pub struct GeoTag {
     pub taken: Option<OffsetDateTime>,
     /// 35 mm equivalent focal length, millimetres.
     pub focal_35mm: Option<f64>,
+    /// Camera maker (EXIF Make).
     pub make: Option<String>,
+    /// Camera model (EXIF Model).
     pub model: Option<String>,
     /// The frame of the input the image shows (in ImageDescription: `frame N of NAME`).
     pub source: String,

@@ -16,6 +16,7 @@ pub struct Info {
     pub adapters: Vec<AdapterSummary>,
     /// The backend `--backend auto` (the default) resolves to here, and why.
     pub backend_auto: AutoDecision,
+    /// OpenCV's version string.
     pub opencv_version: String,
     /// OpenCV video I/O backends available for reading files.
     pub opencv_video_backends: Vec<String>,

@@ -39,7 +39,12 @@ pub fn add_export(inputs: &mut crate::output::Inputs, dir: &Path) {
 #[serde(rename_all = "snake_case")]
 pub enum Resize {
     /// Exact output size in pixels.
-    Size { width: u32, height: u32 },
+    Size {
+        /// Output width in pixels.
+        width: u32,
+        /// Output height in pixels.
+        height: u32,
+    },
     /// Scale factor applied to the (cropped) frame.
     Scale(f64),
 }
@@ -51,7 +56,9 @@ pub struct Crop {
     pub x: u32,
     /// Top edge.
     pub y: u32,
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
 }
 
@@ -203,7 +210,9 @@ pub struct Manifest {
     pub project: PathBuf,
     /// The input the frames came from.
     pub source: PathBuf,
+    /// Video or image folder.
     pub source_kind: SourceKind,
+    /// How the images were made.
     pub settings: ExportSettings,
     /// Size of every exported image.
     pub width: u32,
@@ -225,7 +234,9 @@ fn layout_one() -> u32 {
 /// A keyframe that could not be exported.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MissingFrame {
+    /// The keyframe's frame index.
     pub index: usize,
+    /// Why it was not exported.
     pub reason: String,
 }
 
@@ -303,6 +314,7 @@ pub struct MaskSettings {
     pub classes: Vec<String>,
     /// Grow the hidden area by this many pixels (of the exported image).
     pub dilate: u32,
+    /// Runtime that ran the network.
     pub backend: SegRuntime,
     /// Also write colour overlays of the class map.
     pub overlay: bool,

@@ -261,6 +261,7 @@ impl Derotate {
 /// How movement is measured.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MovementRequest {
+    /// Optical flow parameters.
     pub farneback: FarnebackParams,
     /// Statistic of the flow magnitudes.
     pub statistic: Statistic,
@@ -340,7 +341,9 @@ pub struct StationaryRequest {
 /// Movement between consecutive frames.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MovementSeries {
+    /// Analysis width in pixels.
     pub width: u32,
+    /// Analysis height in pixels.
     pub height: u32,
     /// Factor from analysis pixels to full-resolution pixels.
     pub scale_to_full: f64,

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 /// A parsed TOML file that can still point at its own lines.
 pub struct TomlFile<T> {
+    /// The parsed content.
     pub value: T,
     path: PathBuf,
     what: &'static str,
@@ -64,6 +65,7 @@ impl<T> TomlFile<T> {
         &self.text
     }
 
+    /// The file it was read from.
     pub fn path(&self) -> &Path {
         &self.path
     }

@@ -54,12 +54,19 @@ pub struct AnalysisSection {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FarnebackSection {
+    /// Scale between pyramid levels, in (0, 1).
     pub pyr_scale: Option<f64>,
+    /// Pyramid levels below full resolution.
     pub levels: Option<u32>,
+    /// Averaging window size.
     pub winsize: Option<u32>,
+    /// Iterations per level.
     pub iterations: Option<u32>,
+    /// Polynomial expansion neighbourhood: 5 or 7.
     pub poly_n: Option<u32>,
+    /// Polynomial expansion sigma.
     pub poly_sigma: Option<f64>,
+    /// Gaussian window instead of a box.
     pub gaussian: Option<bool>,
 }
 
@@ -69,11 +76,14 @@ pub struct FarnebackSection {
 pub struct Masks {
     /// Model description, relative to the workflow file.
     pub model: PathBuf,
+    /// Classes to hide (default: the description's `hide` list).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub classes: Vec<String>,
+    /// Grow the hidden area by this many pixels.
     pub dilate: Option<u32>,
     /// `opencv` or `ort`.
     pub backend: Option<String>,
+    /// Also write colour previews of the classes under `overlays/`.
     pub overlay: Option<bool>,
 }
 
@@ -85,12 +95,15 @@ pub struct Export {
     pub name: String,
     /// `jpg` or `png`.
     pub format: Option<String>,
+    /// JPEG quality, 1 to 100.
     pub quality: Option<u8>,
     /// `"1280x720"`.
     pub resize: Option<String>,
+    /// Scale factor for the (cropped) frame.
     pub scale: Option<f64>,
     /// `"x,y,w,h"` in source pixels.
     pub crop: Option<String>,
+    /// Segmentation masks for every exported image.
     pub masks: Option<Masks>,
     /// `false` is `export --no-geotag` (absent: on).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -169,6 +182,7 @@ fn sample_to_table(s: &Step) -> Result<toml::Table> {
 pub struct Workflow {
     /// Where it was read from.
     pub path: PathBuf,
+    /// The parsed file.
     pub file: WorkflowFile,
     /// FNV-1a hash of the file's text: a changed workflow redoes finished inputs.
     pub hash: u64,

@@ -25,6 +25,7 @@ pub struct Resume {
 /// A running analysis's saved state: frames 0..`frames` are complete.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Checkpoint {
+    /// Format version; a checkpoint of another version is not resumed.
     pub version: u32,
     /// The input it belongs to.
     pub fingerprint: Fingerprint,

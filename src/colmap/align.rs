@@ -29,6 +29,7 @@ pub fn mul(a: &Mat3, b: &Mat3) -> Mat3 {
     from_na(&(to_na(a) * to_na(b)))
 }
 
+/// `aᵀ`.
 pub fn transpose(a: &Mat3) -> Mat3 {
     from_na(&to_na(a).transpose())
 }
@@ -38,6 +39,7 @@ pub fn mul_vec(a: &Mat3, v: &Vec3) -> Vec3 {
     (to_na(a) * Vector3::from(*v)).into()
 }
 
+/// Determinant of `a`.
 pub fn det(a: &Mat3) -> f64 {
     to_na(a).determinant()
 }
@@ -108,6 +110,7 @@ pub struct Sim3 {
     pub scale: f64,
     /// Rotation (proper: determinant +1).
     pub rotation: Mat3,
+    /// Translation.
     pub translation: Vec3,
 }
 

@@ -38,16 +38,27 @@ const OURS: [&str; 10] = [
 /// of the same name, whose help (`keyframer colmap --help`) says what it does.
 #[derive(Debug, Clone)]
 pub struct ColmapSettings {
+    /// Export folder made by `keyframer export`.
     pub export: PathBuf,
+    /// Workspace folder (None: EXPORT/colmap).
     pub output: Option<PathBuf>,
+    /// Run feature extraction, matching and the mapper.
     pub sparse: bool,
+    /// Then densify (needs a CUDA COLMAP).
     pub dense: bool,
+    /// Feature matching strategy.
     pub matcher: Matcher,
+    /// Sequential matching: following images each image is matched with.
     pub overlap: u32,
+    /// COLMAP camera model shared by all images.
     pub camera_model: String,
+    /// Known intrinsics, comma-separated in COLMAP's order; the mapper keeps them fixed.
     pub camera_params: Option<String>,
+    /// Maximum SIFT features per image (None: COLMAP's default).
     pub max_features: Option<u32>,
+    /// Extra mapper options `KEY=VALUE`, passed as `--Mapper.KEY VALUE`.
     pub mapper_option: Vec<String>,
+    /// Replace the keyframer-made content of an existing workspace.
     pub force: bool,
 }
 
@@ -77,6 +88,7 @@ pub enum Matcher {
 /// The COLMAP installation used.
 #[derive(Debug, Clone)]
 pub struct Colmap {
+    /// The `colmap` executable.
     pub bin: PathBuf,
     /// Header line, e.g. "COLMAP 3.8 (Commit Unknown on Unknown without CUDA)".
     pub version: String,
@@ -152,6 +164,7 @@ pub struct ModelSummary {
     pub path: String,
     /// Registered images.
     pub registered_images: usize,
+    /// Points in the model.
     pub points3d: usize,
     /// Mean of the points' reprojection errors (px).
     pub mean_reprojection_error: Option<f64>,
@@ -178,6 +191,7 @@ pub struct Record {
     pub images: usize,
     /// Masks in the workspace.
     pub masks: usize,
+    /// COLMAP camera model shared by all images.
     pub camera_model: String,
     /// Matcher (when sparse ran).
     pub matcher: Option<Matcher>,

@@ -27,7 +27,9 @@ static TEST_FAULT: LazyLock<AtomicBool> = LazyLock::new(|| {
 
 /// A device and queue plus the adapter facts `keyframer info` reports.
 pub struct GpuContext {
+    /// The device.
     pub device: wgpu::Device,
+    /// Its queue.
     pub queue: wgpu::Queue,
     /// The adapter the device was made from.
     pub info: wgpu::AdapterInfo,
@@ -103,6 +105,7 @@ impl PerFrame {
     /// Columns of `bench`'s tables.
     pub const HEADER: &'static str = "  disp/f  up KiB/f  back B/f  waits/f";
 
+    /// The counters as a row under [`Self::HEADER`].
     pub fn columns(&self) -> String {
         format!(
             " {:>7.1} {:>9.1} {:>9.0} {:>8.3}",
@@ -622,7 +625,9 @@ pub fn mat_bytes<'a>(
 /// list the encoder publishes.
 #[derive(Clone, Copy)]
 pub struct Gate<'a> {
+    /// The buffer of dispatch sizes.
     pub args: &'a wgpu::Buffer,
+    /// The encoder's first entry in it.
     pub first: usize,
 }
 

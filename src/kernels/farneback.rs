@@ -57,7 +57,9 @@ pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>
 /// One pyramid level as OpenCV derives it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Level {
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
     /// pyr_scale^k.
     pub scale: f64,

@@ -266,6 +266,7 @@ pub struct FrameParams {
     pub entry: u32,
     /// The stationary step's flags (kernels::stationary).
     pub flags: u32,
+    /// Padding to WGSL's 16-byte uniform alignment.
     pub pad: u32,
 }
 

@@ -16,11 +16,15 @@ pub const WGSL: &str = include_str!("../../shaders/resize_area.wgsl");
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct ResizeAreaParams {
+    /// Source width in pixels.
     pub src_w: u32,
+    /// Source height in pixels.
     pub src_h: u32,
     /// u32 words per source row (gray.wgsl's packed layout).
     pub src_stride: u32,
+    /// Output width in pixels.
     pub dst_w: u32,
+    /// Output height in pixels.
     pub dst_h: u32,
     /// Horizontal factor.
     pub kx: u32,

@@ -19,7 +19,9 @@ const GROUP_WIDTH: u32 = 8;
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct StripParams {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     /// Rows per invocation.
     pub strip_rows: u32,
@@ -29,6 +31,7 @@ pub struct StripParams {
     pub ksize: u32,
     /// 1: also write the packed gray image.
     pub write_gray: u32,
+    /// Padding to WGSL's 16-byte uniform alignment.
     pub pad: [u32; 2],
 }
 

@@ -93,6 +93,7 @@ pub struct Served {
 pub struct Stopper(Arc<watch::Sender<bool>>);
 
 impl Stopper {
+    /// Asks the server to stop: `serve` returns when the answers in progress end or time out.
     pub fn stop(&self) {
         self.0.send_replace(true);
     }
@@ -134,14 +135,17 @@ impl Served {
         )
     }
 
+    /// The port listened on (the one chosen when 0 was asked for).
     pub fn port(&self) -> u16 {
         self.site.port
     }
 
+    /// The token every request must carry.
     pub fn token(&self) -> &str {
         &self.site.token
     }
 
+    /// A handle that stops the server from another thread.
     pub fn stopper(&self) -> Stopper {
         Stopper(self.stop.clone())
     }

@@ -40,9 +40,13 @@ pub struct ReviewSettings {
 /// the optional step index and parameter).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ApiError {
+    /// HTTP status code.
     pub status: u16,
+    /// The message.
     pub error: String,
+    /// Index of the step the error is about, if any.
     pub step: Option<usize>,
+    /// The step's parameter the error is about, if any.
     pub key: Option<String>,
 }
 
@@ -50,6 +54,7 @@ pub struct ApiError {
 pub type ApiResult<T> = std::result::Result<T, ApiError>;
 
 impl ApiError {
+    /// An error with no step or parameter.
     pub fn new(status: u16, error: impl Into<String>) -> ApiError {
         ApiError {
             status,
@@ -83,7 +88,9 @@ impl From<Error> for ApiError {
 /// The result of one step list on the cached series.
 #[derive(Debug, Clone, Serialize)]
 pub struct Selection {
+    /// Selected frame indices.
     pub keyframes: Vec<usize>,
+    /// What each step that ran did, as a project's history records it.
     pub history: Vec<HistoryEntry>,
     /// One per step given, in order.
     pub steps_state: Vec<StepState>,
@@ -92,7 +99,9 @@ pub struct Selection {
 /// Whether a step ran, and if not, what would compute what it lacks.
 #[derive(Debug, Clone, Serialize)]
 pub struct StepState {
+    /// The step's name.
     pub plugin: &'static str,
+    /// Whether it ran.
     pub enabled: bool,
     /// Frames kept after it (when it ran).
     pub kept: Option<usize>,
@@ -114,8 +123,11 @@ struct Saved {
 /// Long work in progress, for the page's progress bar.
 #[derive(Debug, Clone, Serialize)]
 pub struct Busy {
+    /// What is being done.
     pub what: String,
+    /// Units done.
     pub done: usize,
+    /// Units in all.
     pub total: usize,
 }
 

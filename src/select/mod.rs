@@ -61,7 +61,9 @@ pub fn recorded_auto(
 /// delta.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Stationary {
+    /// Pixels of movement at full resolution.
     pub threshold: Option<f64>,
+    /// Frames after which the reference is re-anchored.
     pub reset_delta: usize,
 }
 
@@ -69,7 +71,9 @@ pub struct Stationary {
 /// the steps need besides the cached series.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Resolved {
+    /// How movement is measured.
     pub movement: MovementRequest,
+    /// The stationary step's parameters, when the chain has one.
     pub stationary: Option<Stationary>,
     /// The stationary threshold was asked for as `auto`.
     pub stationary_auto: bool,

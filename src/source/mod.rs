@@ -34,6 +34,7 @@ pub enum SourceKind {
 /// Facts about an input, as `keyframer probe` reports them.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Metadata {
+    /// Video or image folder.
     pub kind: SourceKind,
     /// Number of frames (decoded count when `frame_count_exact`, else the container's claim).
     pub frame_count: usize,

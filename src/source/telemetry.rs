@@ -38,7 +38,9 @@ pub enum TelemetryKind {
 /// the frame's timestamp, without the exposure facts).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Position {
+    /// Latitude, degrees north.
     pub lat_deg: f64,
+    /// Longitude, degrees east.
     pub lon_deg: f64,
     /// Height above the take-off point, metres.
     pub rel_alt_m: Option<f64>,
@@ -71,7 +73,9 @@ impl From<&Fix> for Position {
 pub struct Fix {
     /// Seconds from the start of the video (the entry's start time).
     pub t_s: f64,
+    /// Latitude, degrees north.
     pub lat_deg: f64,
+    /// Longitude, degrees east.
     pub lon_deg: f64,
     /// Height above the take-off point, metres.
     pub rel_alt_m: Option<f64>,
@@ -83,9 +87,11 @@ pub struct Fix {
     pub gimbal_pitch_deg: Option<f64>,
     /// Gimbal yaw, degrees clockwise from north (DJI's `gb_yaw`).
     pub gimbal_yaw_deg: Option<f64>,
+    /// ISO sensitivity.
     pub iso: Option<f64>,
     /// Exposure time, seconds.
     pub shutter_s: Option<f64>,
+    /// Aperture f-number.
     pub fnum: Option<f64>,
     /// Where the fix is in its file, for messages: an SRT entry's time line, a GPX track point's
     /// number (from 1, over all tracks and segments), 0 for an image's EXIF.
@@ -95,7 +101,9 @@ pub struct Fix {
 /// The fixes of one telemetry file, in time order, and what was wrong with it.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Track {
+    /// The telemetry file.
     pub path: PathBuf,
+    /// Its fixes, in time order.
     pub fixes: Vec<Fix>,
     /// `FILE:line N: what` (GPX: `FILE:point N: what`) for every entry skipped or suspicious.
     pub warnings: Vec<String>,

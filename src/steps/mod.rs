@@ -324,38 +324,64 @@ fn flag_error(e: StepError) -> Error {
 pub enum Step {
     /// Part of the input to consider, both ends inclusive.
     Boundaries {
+        /// First candidate; absent: the input's first frame.
         start: Option<BoundArg>,
+        /// Last candidate; absent: the input's last frame.
         end: Option<BoundArg>,
     },
     /// Drop frames where the camera stands still (reference mode).
     Stationary {
         /// Pixels of movement since the last keyframe, or `auto`; default 1 % of the width.
         threshold: Option<Threshold>,
+        /// Frames after which the reference is re-anchored, carrying the accumulated movement.
         reset_delta: Option<usize>,
     },
     /// A keyframe every `threshold` pixels of accumulated movement.
-    Spacing { threshold: Threshold },
+    Spacing {
+        /// Pixels of accumulated movement per keyframe, `auto`, or a keyframe count (`60kf`).
+        threshold: Threshold,
+    },
     /// A keyframe each time the camera has moved `metres` (telemetry positions).
-    GeoDistance { metres: f64 },
+    GeoDistance {
+        /// Metres of travel between keyframes.
+        metres: f64,
+    },
     /// A keyframe when the ground footprint overlaps the last keyframe's by less than
     /// `percent`; `hfov` in degrees (default: from the telemetry's focal length).
-    FootprintOverlap { percent: f64, hfov: Option<f64> },
+    FootprintOverlap {
+        /// Overlap in percent below which a frame is kept.
+        percent: f64,
+        /// Horizontal field of view in degrees.
+        hfov: Option<f64>,
+    },
     /// Every n-th candidate.
     #[serde(alias = "every")]
-    EveryNth { n: usize },
+    EveryNth {
+        /// Keep one candidate in `n`.
+        n: usize,
+    },
     /// Resample to `fps` frames per second by timestamps.
-    Fps { fps: f64 },
+    Fps {
+        /// Target frames per second.
+        fps: f64,
+    },
     /// Drop (`filter`) or `replace` blurry keyframes.
     Blur {
+        /// Sharpness measure (Tenengrad or variance of the Laplacian).
         metric: Option<Metric>,
+        /// Half-width in frames of the window a frame is compared with.
         window: Option<usize>,
+        /// Filter mode keeps a frame iff its score over the window's mean is at least this.
         ratio: Option<f64>,
+        /// `filter` or `replace`.
         mode: Option<BlurMode>,
     },
     /// Add or remove frames by index.
     Manual {
+        /// Frame indices to add.
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         add: Vec<usize>,
+        /// Frame indices to remove.
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         remove: Vec<usize>,
     },
@@ -577,52 +603,87 @@ pub fn boundaries(steps: &[Step]) -> Boundaries {
 pub enum Applied {
     /// The candidate range.
     Boundaries {
+        /// Last candidate, when given.
         end: Option<Bound>,
+        /// First candidate, when given.
         start: Option<Bound>,
     },
     /// `select --preview`: the chain ran on the codec keyframes.
     Preview {
+        /// Codec keyframes the chain ran on.
         codec_keyframes: usize,
+        /// Frames in the input.
         frames: usize,
     },
     /// The stationary sampler with its resolved threshold.
     Stationary {
+        /// Whether the threshold was proposed (`auto`).
         #[serde(default)]
         auto: bool,
+        /// Backend that measured the movement.
         backend: Option<Backend>,
+        /// How the movement was measured.
         movement: Option<MovementRequest>,
+        /// Frames after which the reference was re-anchored.
         reset_delta: Option<usize>,
+        /// Threshold in pixels as applied.
         threshold_px: Option<f64>,
     },
     /// The spacing sampler with its resolved threshold.
     Spacing {
+        /// Whether the threshold was proposed (`auto`).
         #[serde(default)]
         auto: bool,
+        /// Backend that measured the movement.
         backend: Option<Backend>,
+        /// Keyframe count asked for (`--spacing Nkf`), if any.
         count: Option<usize>,
+        /// How the movement was measured.
         movement: Option<MovementRequest>,
+        /// Threshold in pixels as applied.
         threshold_px: f64,
     },
     /// The geo-distance sampler.
-    GeoDistance { metres: f64 },
+    GeoDistance {
+        /// Metres of travel between keyframes.
+        metres: f64,
+    },
     /// The footprint-overlap sampler (`hfov` as given).
-    FootprintOverlap { hfov: Option<f64>, percent: f64 },
+    FootprintOverlap {
+        /// Horizontal field of view in degrees, when given.
+        hfov: Option<f64>,
+        /// Overlap in percent below which a frame was kept.
+        percent: f64,
+    },
     /// Every n-th candidate.
-    EveryNth { n: usize },
+    EveryNth {
+        /// One candidate in `n` was kept.
+        n: usize,
+    },
     /// Resampled by timestamps.
-    Fps { fps: f64 },
+    Fps {
+        /// Target frames per second.
+        fps: f64,
+    },
     /// The blur sampler.
     Blur {
+        /// Backend that measured the sharpness.
         backend: Option<Backend>,
+        /// Sharpness measure.
         metric: Option<Metric>,
+        /// `filter` or `replace`.
         mode: Option<BlurMode>,
+        /// Filter-mode ratio.
         ratio: Option<f64>,
+        /// Half-width of the window in frames.
         window: Option<usize>,
     },
     /// Frames added and removed by index.
     Manual {
+        /// Frame indices added.
         #[serde(default)]
         add: Vec<usize>,
+        /// Frame indices removed.
         #[serde(default)]
         remove: Vec<usize>,
     },

@@ -145,8 +145,11 @@ pub struct SceneDescription {
 /// What video.SRT was written with.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Telemetry {
+    /// The world origin on Earth.
     pub origin: srt::GeoOrigin,
+    /// World height of the take-off point, metres (`rel_alt` is measured from it).
     pub takeoff_z_m: f64,
+    /// 35 mm equivalent focal length, millimetres.
     pub focal_35mm: f64,
     /// Date and time of frame 0 (also the video's creation_time).
     pub start_utc: String,

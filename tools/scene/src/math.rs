@@ -63,7 +63,6 @@ pub struct Pose {
 }
 
 impl Pose {
-    /// The pose of a camera at `centre` looking along `forward` with the world's +z up (no roll).
     /// A camera at `centre` looking along `forward` with its x axis (image right) along the
     /// horizontal `right` (for a camera looking straight down, where `looking` has no up).
     pub fn looking_right(centre: V3, forward: V3, right: V3) -> Pose {
@@ -75,6 +74,7 @@ impl Pose {
         }
     }
 
+    /// The pose of a camera at `centre` looking along `forward` with the world's +z up (no roll).
     pub fn looking(centre: V3, forward: V3) -> Pose {
         let z = forward.unit();
         let x = z.cross(V3(0.0, 0.0, 1.0)).unit();

@@ -10,7 +10,9 @@ use keyframer::source::telemetry::wgs84_radii;
 /// Where the world's origin (x east, y north, z up; metres) is on the WGS84 ellipsoid.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct GeoOrigin {
+    /// Latitude, degrees north.
     pub lat_deg: f64,
+    /// Longitude, degrees east.
     pub lon_deg: f64,
     /// Altitude above sea level of world z = 0, metres.
     pub alt_m: f64,
