@@ -48,7 +48,7 @@ pub struct ColmapSettings {
     pub dense: bool,
     /// Feature matching strategy.
     pub matcher: Matcher,
-    /// Sequential matching: following images each image is matched with.
+    /// Sequential matching: how many following images each image is matched with.
     pub overlap: u32,
     /// COLMAP camera model shared by all images.
     pub camera_model: String,
