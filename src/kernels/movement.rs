@@ -266,7 +266,7 @@ pub struct FrameParams {
     pub entry: u32,
     /// The stationary step's flags (kernels::stationary).
     pub flags: u32,
-    /// Padding to WGSL's 16-byte uniform alignment.
+    /// Unused: pads the struct to a multiple of 16 bytes.
     pub pad: u32,
 }
 

@@ -31,7 +31,7 @@ pub struct StripParams {
     pub ksize: u32,
     /// 1: also write the packed gray image.
     pub write_gray: u32,
-    /// Padding to WGSL's 16-byte uniform alignment.
+    /// Unused: pads the struct to a multiple of 16 bytes.
     pub pad: [u32; 2],
 }
 
