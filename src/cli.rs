@@ -63,6 +63,9 @@ pub enum Command {
     Bench(BenchArgs),
     /// COLMAP workspace from an export (images, masks, database, project.ini); --sparse runs it.
     Colmap(ColmapArgs),
+    /// Reconstruction in the loop: export, COLMAP, find the breaks, add frames from the cache
+    /// where the model breaks, again, until one connected model registers every keyframe.
+    Reconstruct(ReconstructArgs),
     /// Evaluate a COLMAP model: registered images, reprojection error, spacing, GT pose error.
     Eval(EvalArgs),
     /// Self-contained HTML report of a project (timeline, thumbnails, steps) plus a PNG timeline.
@@ -927,6 +930,150 @@ impl ColmapArgs {
             mapper_option: self.mapper_option.clone(),
             force: self.force,
         }
+    }
+}
+
+/// `reconstruct` flags.
+#[derive(Debug, Args)]
+pub struct ReconstructArgs {
+    /// Project file written by `select` (its keyframes start the loop; it is not changed).
+    pub project: PathBuf,
+    /// Workspace folder: the export of the final keyframes (images/, manifest.json), their COLMAP
+    /// workspace (colmap/), their project (project.json) and the loop's state (reconstruct.json).
+    #[arg(long, value_name = "WS")]
+    pub out: PathBuf,
+    /// Rounds of COLMAP at most (the first reconstructs the project's keyframes).
+    #[arg(long, default_value_t = keyframer::reconstruct::defaults::MAX_ROUNDS, value_name = "N")]
+    pub max_rounds: usize,
+    /// Frames the loop may add in all: a count (`40`) or a percentage of the starting keyframes
+    /// (`50%`).
+    #[arg(long, default_value = "100%", value_name = "N|PCT%")]
+    pub max_added: String,
+    /// A link between consecutive keyframes of one model is weak when they share fewer 3D
+    /// points than this.
+    #[arg(long, default_value_t = keyframer::reconstruct::defaults::MIN_SHARED, value_name = "P")]
+    pub min_shared: usize,
+    /// ... or when their two-view geometry has fewer inlier matches than this.
+    #[arg(long, default_value_t = keyframer::reconstruct::defaults::MIN_INLIERS, value_name = "N")]
+    pub min_inliers: usize,
+    /// Mapper: incremental (COLMAP's `mapper`) or global (`global_mapper`, recent COLMAP only).
+    #[arg(long, value_enum, default_value = "incremental")]
+    pub mapper: MapperArg,
+    /// How later rounds map: continue the largest model with the new images, or map afresh
+    /// (features and matches are reused either way).
+    #[arg(long, value_enum, default_value = "fresh")]
+    pub mapping: MappingArg,
+    /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
+    #[arg(long, value_enum, default_value = "sequential")]
+    pub matcher: MatcherArg,
+    /// Sequential matching: match each image with this many following images.
+    #[arg(long, default_value_t = 10)]
+    pub overlap: u32,
+    /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
+    #[arg(long, default_value = "SIMPLE_RADIAL")]
+    pub camera_model: String,
+    /// Known intrinsics for the camera model, comma-separated in COLMAP's order (PINHOLE:
+    /// `fx,fy,cx,cy`); the mapper then keeps them fixed.
+    #[arg(long, value_name = "P1,P2,..")]
+    pub camera_params: Option<String>,
+    /// Maximum SIFT features per image (COLMAP's default 8192 when not given).
+    #[arg(long, value_name = "N")]
+    pub max_features: Option<u32>,
+    /// Extra mapper option `KEY=VALUE`, passed as `--Mapper.KEY VALUE` (repeatable); the loop
+    /// adds `min_model_size=3` unless given.
+    #[arg(long, value_name = "KEY=VALUE")]
+    pub mapper_option: Vec<String>,
+    /// Output size WxH of the exported images.
+    #[arg(long, value_name = "WxH", conflicts_with = "scale")]
+    pub resize: Option<String>,
+    /// Scale factor of the exported images, e.g. 0.5.
+    #[arg(long, value_name = "S")]
+    pub scale: Option<f64>,
+    /// JPEG quality, 1 to 100.
+    #[arg(long, default_value_t = keyframer::export::DEFAULT_QUALITY)]
+    pub quality: u8,
+    /// Segmentation masks for every exported image (passed to COLMAP).
+    #[command(flatten)]
+    pub masks: MaskArgs,
+    /// Replace a workspace keyframer made for another project or with other options (a
+    /// workspace of this loop is resumed without it).
+    #[arg(long)]
+    pub force: bool,
+    /// Print the summary as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Mappers.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum MapperArg {
+    /// COLMAP's incremental `mapper`.
+    Incremental,
+    /// COLMAP's `global_mapper`.
+    Global,
+}
+
+/// How later rounds map.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum MappingArg {
+    /// `mapper --input_path` the largest model.
+    Continue,
+    /// Map every image afresh.
+    Fresh,
+}
+
+impl ReconstructArgs {
+    /// The library's settings.
+    pub fn settings(&self) -> Result<keyframer::reconstruct::ReconstructSettings> {
+        use keyframer::colmap::extend::{MapperKind, Mapping};
+        use keyframer::colmap::Matcher;
+        use keyframer::reconstruct::{breaks::Limits, Budget, Options, ReconstructSettings};
+        let export = ExportSettings::from_parts(
+            self.resize.as_deref(),
+            self.scale,
+            None,
+            None,
+            self.quality,
+            self.masks.masks.as_ref().map(|model| MaskSettings {
+                model: model.clone(),
+                classes: self.masks.mask_classes.clone(),
+                dilate: self.masks.mask_dilate,
+                backend: self.masks.mask_backend.into(),
+                overlay: self.masks.mask_overlay,
+            }),
+            true,
+        )?;
+        Ok(ReconstructSettings {
+            project: self.project.clone(),
+            out: self.out.clone(),
+            force: self.force,
+            options: Options {
+                max_rounds: self.max_rounds,
+                max_added: Budget::parse(&self.max_added)?,
+                limits: Limits {
+                    min_shared: self.min_shared,
+                    min_inliers: self.min_inliers,
+                },
+                matcher: match self.matcher {
+                    MatcherArg::Sequential => Matcher::Sequential,
+                    MatcherArg::Exhaustive => Matcher::Exhaustive,
+                },
+                overlap: self.overlap,
+                camera_model: self.camera_model.clone(),
+                camera_params: self.camera_params.clone(),
+                max_features: self.max_features,
+                mapper_option: self.mapper_option.clone(),
+                mapper: match self.mapper {
+                    MapperArg::Incremental => MapperKind::Incremental,
+                    MapperArg::Global => MapperKind::Global,
+                },
+                mapping: match self.mapping {
+                    MappingArg::Continue => Mapping::Continue,
+                    MappingArg::Fresh => Mapping::Fresh,
+                },
+                export,
+            },
+        })
     }
 }
 

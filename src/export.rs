@@ -134,8 +134,42 @@ pub fn export(
     quiet: bool,
 ) -> Result<Manifest> {
     let project = Project::load(project_path)?;
+    let target = Target {
+        out,
+        force,
+        records: &[],
+        project_file: project_path,
+    };
+    export_project(&project, project_path, &target, settings, quiet)
+}
+
+/// Where [`export_project`] writes.
+#[derive(Debug, Clone, Copy)]
+pub struct Target<'a> {
+    /// The export folder.
+    pub out: &'a Path,
+    /// Replace what keyframer wrote there.
+    pub force: bool,
+    /// Records of another keyframer command that also mark the folder as keyframer's (beside
+    /// `manifest.json`): `reconstruct` exports into its own workspace.
+    pub records: &'a [&'a str],
+    /// The project file the manifest names.
+    pub project_file: &'a Path,
+}
+
+/// Exports the keyframes of `project` (loaded from `read_from`, whose folder its input path is
+/// relative to) as [`export`] does, into `target` (`reconstruct` exports its own keyframe set and
+/// names the project file it writes).
+pub fn export_project(
+    project: &Project,
+    read_from: &Path,
+    target: &Target,
+    settings: &ExportSettings,
+    quiet: bool,
+) -> Result<Manifest> {
+    let (project_path, out, force) = (read_from, target.out, target.force);
     let input = project.input_path(project_path);
-    check_fingerprint(&project, &input)?;
+    check_fingerprint(project, &input)?;
     if !(1..=100).contains(&settings.quality) {
         return Err(Error::param("quality", "must be between 1 and 100"));
     }
@@ -144,8 +178,8 @@ pub fn export(
     let size = output_size(settings, meta.width, meta.height)?;
     check_size(settings, size)?;
     let is_video = meta.kind == SourceKind::Video;
-    let names = output_names(&project, src.as_ref(), settings, is_video)?;
-    let geo = geo_of(&project, &input, src.as_ref(), settings, &names);
+    let names = output_names(project, src.as_ref(), settings, is_video)?;
+    let geo = geo_of(project, &input, src.as_ref(), settings, &names);
     // What the export reads: the project, its input and the mask model's files.
     let mut inputs = Inputs::none()
         .with("project", project_path)
@@ -155,9 +189,11 @@ pub fn export(
     }
     // The model is loaded and checked before anything is written.
     let mut masker = settings.masks.as_ref().map(Masker::new).transpose()?;
-    let dir = crate::output::prepare_dir(out, force, &[MANIFEST, PENDING], &inputs)?;
+    let mut records = vec![MANIFEST, PENDING];
+    records.extend_from_slice(target.records);
+    let dir = crate::output::prepare_dir(out, force, &records, &inputs)?;
     let job = Job {
-        project: &project,
+        project,
         input: &input,
         settings,
         names: &names,
@@ -178,7 +214,7 @@ pub fn export(
         tool_version: env!("CARGO_PKG_VERSION").into(),
         layout: LAYOUT,
         created_unix_s: fsutil::now_unix_s(),
-        project: fsutil::absolute(project_path),
+        project: fsutil::absolute(target.project_file),
         source: fsutil::absolute(&input),
         source_kind: meta.kind,
         settings: settings.clone(),

@@ -25,6 +25,7 @@ pub mod output;
 pub mod params;
 pub mod progress;
 pub mod project;
+pub mod reconstruct;
 pub mod report;
 pub mod review;
 pub mod segment;

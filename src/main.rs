@@ -108,6 +108,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Select(a) => select(&a, quiet),
         Command::Segment(a) => segment(&a),
         Command::Colmap(a) => colmap(&a, quiet),
+        Command::Reconstruct(a) => reconstruct(&a, quiet),
         Command::Eval(a) => eval(&a),
         Command::Report(a) => report(&a),
         Command::Review(a) => review(&a),
@@ -294,6 +295,11 @@ fn export(a: &cli::ExportArgs, quiet: bool) -> Result<ExitCode> {
 fn colmap(a: &cli::ColmapArgs, quiet: bool) -> Result<ExitCode> {
     let rec = keyframer::colmap::run(&a.settings(), quiet)?;
     print_json_or(a.json, &rec, keyframer::colmap::render)
+}
+
+fn reconstruct(a: &cli::ReconstructArgs, quiet: bool) -> Result<ExitCode> {
+    let s = keyframer::reconstruct::run(&a.settings()?, quiet)?;
+    print_json_or(a.json, &s, keyframer::reconstruct::render)
 }
 
 fn eval(a: &cli::EvalArgs) -> Result<ExitCode> {

@@ -25,3 +25,20 @@ pub fn bar(len: u64, what: &str, quiet: bool) -> ProgressBar {
     pb.set_message(what.to_string());
     pb
 }
+
+/// A spinner for a task of unknown length labelled `what`, showing the elapsed time (ticking on
+/// its own thread until finished).
+pub fn spinner(what: &str, quiet: bool) -> ProgressBar {
+    let pb = ProgressBar::new_spinner();
+    if quiet {
+        pb.set_draw_target(ProgressDrawTarget::hidden());
+        return pb;
+    }
+    pb.set_draw_target(ProgressDrawTarget::stderr());
+    if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} {elapsed}") {
+        pb.set_style(style);
+    }
+    pb.set_message(what.to_string());
+    pb.enable_steady_tick(std::time::Duration::from_millis(200));
+    pb
+}

@@ -6,6 +6,7 @@
 //! atomically, also when a stage fails.
 
 pub mod align;
+pub mod extend;
 pub mod model;
 
 use crate::error::{Error, Result};
@@ -21,10 +22,11 @@ pub const RECORD: &str = "colmap.json";
 /// Environment variable naming the COLMAP binary to use instead of `colmap` on PATH.
 pub const COLMAP_ENV: &str = "KEYFRAMER_COLMAP";
 /// What keyframer creates in a workspace; `--force` removes exactly these.
-const OURS: [&str; 10] = [
+const OURS: [&str; 11] = [
     "images",
     "masks",
     "sparse",
+    extend::NEXT,
     "dense",
     "logs",
     "database.db",
@@ -379,7 +381,7 @@ fn run_stages(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<(
             .push(runner.stage("database_creator", &[("--database_path", p(&db))])?);
         return Ok(());
     }
-    extract_and_match(runner, rec, a)?;
+    extract_and_match(runner, rec, a, None)?;
     let best = map(runner, rec, a)?;
     if a.dense {
         densify(runner, rec, &ws.join(&best))?;
@@ -393,7 +395,12 @@ fn p(path: &Path) -> String {
 }
 
 /// `feature_extractor` (with the masks and known intrinsics) and the chosen matcher.
-fn extract_and_match(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
+fn extract_and_match(
+    runner: &Runner,
+    rec: &mut Record,
+    a: &ColmapSettings,
+    image_list: Option<&Path>,
+) -> Result<()> {
     let ws = runner.ws;
     let db = ws.join("database.db");
     let gpu = if runner.colmap.cuda { "1" } else { "0" };
@@ -412,6 +419,11 @@ fn extract_and_match(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> R
     }
     if let Some(params) = &a.camera_params {
         fe.push(("--ImageReader.camera_params", params.clone()));
+    }
+    if let Some(list) = image_list {
+        // Only the listed images, sharing the camera the first extraction made.
+        fe.push(("--image_list_path", p(list)));
+        fe.push(("--ImageReader.existing_camera_id", "1".into()));
     }
     rec.stages.push(runner.stage("feature_extractor", &fe)?);
     rec.matcher = Some(a.matcher);
@@ -437,29 +449,10 @@ fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> 
     let ws = runner.ws;
     let sparse = ws.join("sparse");
     std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
-    let mut margs = vec![
-        ("--database_path", p(&ws.join("database.db"))),
-        ("--image_path", p(&ws.join("images"))),
-        ("--output_path", p(&sparse)),
-    ];
-    let keys = mapper_keys(&a.mapper_option)?;
-    if a.camera_params.is_some() {
-        for k in [
-            "--Mapper.ba_refine_focal_length",
-            "--Mapper.ba_refine_extra_params",
-        ] {
-            if !keys.iter().any(|(key, _)| key == k) {
-                margs.push((k, "0".into()));
-            }
-        }
-    }
-    margs.extend(keys.iter().map(|(k, v)| (k.as_str(), v.clone())));
+    let margs = mapper_args(ws, &sparse, a)?;
+    let margs: Vec<(&str, String)> = margs.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
     rec.stages.push(runner.stage("mapper", &margs)?);
-    for dir in model::model_dirs(&sparse)? {
-        let (m, _) = model::read(&dir)?;
-        rec.models
-            .push(summarise(&m, &fsutil::relative_to(&dir, ws)));
-    }
+    rec.models = read_models(ws, &sparse)?;
     let Some(best) = largest(&rec.models) else {
         return Err(Error::Colmap(format!(
             "mapper made no model from {} images (see {})",
@@ -476,6 +469,39 @@ fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> 
         }
     }
     Ok(best.path.clone())
+}
+
+/// The mapper's arguments writing into `output` (known intrinsics kept fixed unless a mapper
+/// option says otherwise).
+fn mapper_args(ws: &Path, output: &Path, a: &ColmapSettings) -> Result<Vec<(String, String)>> {
+    let mut margs = vec![
+        ("--database_path".to_string(), p(&ws.join("database.db"))),
+        ("--image_path".to_string(), p(&ws.join("images"))),
+        ("--output_path".to_string(), p(output)),
+    ];
+    let keys = mapper_keys(&a.mapper_option)?;
+    if a.camera_params.is_some() {
+        for k in [
+            "--Mapper.ba_refine_focal_length",
+            "--Mapper.ba_refine_extra_params",
+        ] {
+            if !keys.iter().any(|(key, _)| key == k) {
+                margs.push((k.to_string(), "0".into()));
+            }
+        }
+    }
+    margs.extend(keys);
+    Ok(margs)
+}
+
+/// The summaries of the models under `sparse` (relative to `ws`), in folder order.
+fn read_models(ws: &Path, sparse: &Path) -> Result<Vec<ModelSummary>> {
+    let mut models = Vec::new();
+    for dir in model::model_dirs(sparse)? {
+        let (m, _) = model::read(&dir)?;
+        models.push(summarise(&m, &fsutil::relative_to(&dir, ws)));
+    }
+    Ok(models)
 }
 
 /// `image_undistorter`, `patch_match_stereo` and `stereo_fusion` on the model in `model_dir`
@@ -723,8 +749,23 @@ struct Runner<'a> {
 }
 
 impl Runner<'_> {
-    /// Runs `colmap <name> <args>` with stdout and stderr in `logs/<name>.log`.
+    /// Runs `colmap <name> <args>` with stdout and stderr in `logs/<name>.log`; a failure is an
+    /// error naming the stage and its log.
     fn stage(&self, name: &str, args: &[(&str, String)]) -> Result<StageRecord> {
+        let (record, failure) = self.try_stage(name, args)?;
+        match failure {
+            Some(e) => Err(e),
+            None => Ok(record),
+        }
+    }
+
+    /// Runs a stage as [`Runner::stage`] does and returns its record also when it failed, with
+    /// the error naming the stage and its log; Err only when COLMAP could not be started.
+    fn try_stage(
+        &self,
+        name: &str,
+        args: &[(&str, String)],
+    ) -> Result<(StageRecord, Option<Error>)> {
         let rel = format!("logs/{name}.log");
         let log = self.ws.join(&rel);
         let file = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
@@ -738,26 +779,31 @@ impl Runner<'_> {
             .stdout(file)
             .stderr(err);
         die_with_parent(&mut cmd);
-        let status = cmd.status().map_err(|e| {
-            Error::Colmap(format!("{}: cannot run: {e}", self.colmap.bin.display()))
-        })?;
+        let spinner = crate::progress::spinner(name, self.quiet);
+        let status = cmd
+            .status()
+            .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", self.colmap.bin.display())));
+        spinner.finish_and_clear();
+        let status = status?;
         let seconds = start.elapsed().as_secs_f64();
-        if !status.success() {
-            return Err(Error::Colmap(format!(
-                "colmap {name} failed ({status}) after {seconds:.1} s; log: {}",
-                log.display()
-            )));
-        }
-        if !self.quiet {
-            eprintln!("{name}: {seconds:.1} s");
-        }
-        Ok(StageRecord {
+        let record = StageRecord {
             stage: name.into(),
             command,
             seconds,
             log: rel,
             exit_code: status.code(),
-        })
+        };
+        if !status.success() {
+            let e = Error::Colmap(format!(
+                "colmap {name} failed ({status}) after {seconds:.1} s; log: {}",
+                log.display()
+            ));
+            return Ok((record, Some(e)));
+        }
+        if !self.quiet {
+            eprintln!("{name}: {seconds:.1} s");
+        }
+        Ok((record, None))
     }
 }
 

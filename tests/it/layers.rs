@@ -146,6 +146,7 @@ const LAYERS: [(&str, &[&str]); 4] = [
             "export",
             "batch",
             "colmap",
+            "reconstruct",
             "eval",
             "report",
             "bench",

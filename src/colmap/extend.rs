@@ -1,0 +1,267 @@
+//! One round of `keyframer reconstruct` in a COLMAP workspace. The first round makes the
+//! workspace as `keyframer colmap --sparse` does; a later round adds only the new images: they
+//! are linked into `images/`, features are extracted for them alone (`--image_list_path`), the
+//! matcher runs again (COLMAP skips the pairs its database already holds) and the mapper maps
+//! again, continuing from the largest model (`--input_path`) or afresh. Guarantees: a mapper that
+//! makes no model is a result (no image registered), not an error; any other failing stage is an
+//! error naming the stage and its log; `colmap.json` lists every file keyframer and COLMAP wrote
+//! and is rewritten at the end of every round; the new model replaces `sparse/` only once the
+//! mapper has finished (it is written to `sparse.next/` first).
+
+use super::{
+    check_export, check_settings, extract_and_match, fill_workspace, locate, mapper_args, ours_now,
+    p, read_models, read_record, remove_ours, write_project_ini, write_record, Colmap,
+    ColmapSettings, Record, Runner,
+};
+use crate::error::{Error, Result};
+use crate::fsutil;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Folder the mapper of a later round writes into before it replaces `sparse/`.
+pub const NEXT: &str = "sparse.next";
+/// The list of new images given to `feature_extractor` (inside `logs/`, which keyframer owns).
+const NEW_LIST: &str = "logs/new_images.txt";
+
+/// Which mapper builds the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MapperKind {
+    /// `colmap mapper`: incremental structure from motion (every COLMAP).
+    Incremental,
+    /// `colmap global_mapper`: global structure from motion (recent COLMAP only).
+    Global,
+}
+
+/// How a later round maps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mapping {
+    /// `mapper --input_path` the largest model: registers the new images into it (other models
+    /// are not carried over: their images are mapped again into it or left out).
+    Continue,
+    /// A fresh mapping of every image of the database (features and matches are reused).
+    Fresh,
+}
+
+/// The COLMAP command of a mapper kind.
+pub fn mapper_command(kind: MapperKind) -> &'static str {
+    match kind {
+        MapperKind::Incremental => "mapper",
+        MapperKind::Global => "global_mapper",
+    }
+}
+
+/// Whether the installed COLMAP offers `command` (listed by `colmap help`).
+pub fn offers(colmap: &Colmap, command: &str) -> Result<bool> {
+    let out = std::process::Command::new(&colmap.bin)
+        .arg("help")
+        .stdin(std::process::Stdio::null())
+        .output()
+        .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", colmap.bin.display())))?;
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Ok(text
+        .lines()
+        .any(|l| l.split_whitespace().any(|w| w == command)))
+}
+
+/// Finds COLMAP and checks that it offers the mapper `kind`, saying what is missing.
+pub fn locate_with(kind: MapperKind) -> Result<Colmap> {
+    let colmap = locate()?;
+    let command = mapper_command(kind);
+    if !offers(&colmap, command)? {
+        return Err(Error::param(
+            "mapper",
+            format!(
+                "{} ({}) has no `{command}` command (`colmap help` does not list it): the global mapper came with COLMAP 3.12 (it absorbed GLOMAP); install a recent COLMAP (or point {} at one) or use the incremental mapper",
+                colmap.bin.display(),
+                colmap.version,
+                super::COLMAP_ENV
+            ),
+        ));
+    }
+    Ok(colmap)
+}
+
+/// One round: with `new_images` None the workspace is made from the export (its images all
+/// new); otherwise only `new_images` (file names in the export) are added to it. Returns the
+/// record as written, with the models of this round's mapping (none when the mapper made none).
+pub fn round(
+    a: &ColmapSettings,
+    kind: MapperKind,
+    mapping: Mapping,
+    new_images: Option<&[String]>,
+    quiet: bool,
+) -> Result<Record> {
+    check_settings(a)?;
+    let colmap = locate_with(kind)?;
+    let (export, manifest, ws) = check_export(a)?;
+    // The workspace stays locked until its record is written last.
+    let mut _dir = None;
+    let mut _lock = None;
+    let mut rec = match new_images {
+        None => {
+            let (masks, held) = fill_workspace(&ws, &export, &manifest, a.force)?;
+            let rec = Record {
+                tool: "keyframer".into(),
+                tool_version: env!("CARGO_PKG_VERSION").into(),
+                colmap: colmap.bin.clone(),
+                colmap_version: colmap.version.clone(),
+                cuda: colmap.cuda,
+                export: export.clone(),
+                workspace: ws.clone(),
+                images: manifest.frames.len(),
+                masks,
+                camera_model: a.camera_model.clone(),
+                ..Record::default()
+            };
+            _dir = Some(held);
+            rec
+        }
+        Some(new) => {
+            _lock = Some(crate::output::lock::folder(&ws)?);
+            let rec = read_record(&ws)?;
+            link_new(&ws, &export, &manifest, new)?;
+            rec
+        }
+    };
+    rec.images = manifest.frames.len();
+    rec.files = ours_now(&ws);
+    rec.started_unix_s = fsutil::now_unix_s();
+    rec.finished = false;
+    rec.error = None;
+    write_record(&ws, &rec)?;
+    let runner = Runner {
+        colmap: &colmap,
+        ws: &ws,
+        quiet,
+    };
+    let result = (|| -> Result<()> {
+        match new_images {
+            None => {
+                write_project_ini(&runner, &mut rec, a)?;
+                extract_and_match(&runner, &mut rec, a, None)?;
+            }
+            Some(new) => {
+                let list = ws.join(NEW_LIST);
+                let mut text = new.join("\n");
+                text.push('\n');
+                fsutil::write_atomic(&list, text.as_bytes())?;
+                extract_and_match(&runner, &mut rec, a, Some(&list))?;
+            }
+        }
+        let continue_from = match (new_images, mapping) {
+            (Some(_), Mapping::Continue) => super::largest(&rec.models).map(|m| ws.join(&m.path)),
+            _ => None,
+        };
+        map_into_sparse(&runner, &mut rec, a, kind, continue_from.as_deref())
+    })();
+    if let Err(e) = &result {
+        rec.error = Some(e.to_string());
+    }
+    rec.finished = true;
+    rec.files = ours_now(&ws);
+    write_record(&ws, &rec)?;
+    result.map(|()| rec)
+}
+
+/// Links the new images (and their masks) of the export into the workspace.
+fn link_new(
+    ws: &Path,
+    export: &Path,
+    manifest: &crate::export::Manifest,
+    new: &[String],
+) -> Result<()> {
+    let export_masks = export.join(crate::export::MASK_DIR);
+    for name in new {
+        let f = manifest
+            .frames
+            .iter()
+            .find(|f| &f.file == name)
+            .ok_or_else(|| Error::input(export, format!("{name}: not in the export's manifest")))?;
+        let to = ws.join("images").join(&f.file);
+        if !to.is_file() {
+            super::link_or_copy(&crate::export::image_path(export, f), &to)?;
+        }
+        if let Some(m) = &f.mask {
+            let dir = ws.join("masks");
+            std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+            let to = dir.join(format!("{}.png", f.file));
+            if !to.is_file() {
+                super::link_or_copy(&export_masks.join(m), &to)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Runs the mapper into `sparse.next/` (continuing from `continue_from` when given), then
+/// replaces `sparse/` with it and records the models. A mapper that found no model leaves an
+/// empty `sparse/` and no models.
+fn map_into_sparse(
+    runner: &Runner,
+    rec: &mut Record,
+    a: &ColmapSettings,
+    kind: MapperKind,
+    continue_from: Option<&Path>,
+) -> Result<()> {
+    let ws = runner.ws;
+    let next = ws.join(NEXT);
+    clear(ws, NEXT)?;
+    let output = match continue_from {
+        Some(_) => next.join("0"),
+        None => next.clone(),
+    };
+    std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
+    let mut args = mapper_args(ws, &output, a)?;
+    if let Some(from) = continue_from {
+        args.push(("--input_path".into(), p(from)));
+    }
+    if kind == MapperKind::Global {
+        // The global mapper has its own options: only the paths carry over.
+        args.retain(|(k, _)| !k.starts_with("--Mapper."));
+    }
+    let args: Vec<(&str, String)> = args.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
+    let command = mapper_command(kind);
+    let (stage, failure) = runner.try_stage(command, &args)?;
+    let log = ws.join(&stage.log);
+    rec.stages.push(stage);
+    if let Some(e) = failure {
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
+        // COLMAP 3.8's mapper exits 1 when it keeps no model: that is a result here.
+        if !text.contains("failed to create sparse model") {
+            return Err(e);
+        }
+    }
+    clear(ws, "sparse")?;
+    let sparse = ws.join("sparse");
+    std::fs::rename(&next, &sparse).map_err(|e| Error::io(&sparse, e))?;
+    rec.models = read_models(ws, &sparse)?;
+    Ok(())
+}
+
+/// Removes the folder `name` of the workspace, which holds only what keyframer and COLMAP wrote
+/// (its files are among keyframer's places; anything else in it stops the run).
+fn clear(ws: &Path, name: &str) -> Result<()> {
+    let dir = ws.join(name);
+    if !dir.exists() {
+        return Ok(());
+    }
+    let files: Vec<String> = ours_now(ws)
+        .into_iter()
+        .filter(|f| Path::new(f).starts_with(name))
+        .collect();
+    for f in &files {
+        crate::output::check_replaceable(&ws.join(f))?;
+    }
+    remove_ours(ws, &files);
+    if dir.exists() {
+        let msg = "holds something keyframer did not write (only regular files are removed): move it away";
+        return Err(Error::output(dir, msg));
+    }
+    Ok(())
+}

@@ -1,0 +1,921 @@
+//! `keyframer reconstruct`: reconstruction in the loop. Exports a project's keyframes, runs
+//! COLMAP, finds where the result is broken ([`breaks`]), adds frames from the project's cache
+//! where it is ([`repair`]) and runs again, extending the same COLMAP workspace, until the
+//! keyframes form one connected model, only true breaks remain, or the budget is spent.
+//! Guarantees: the workspace holds a normal export of the final keyframes (`images/`,
+//! `manifest.json`), its COLMAP workspace (`colmap/`), the project of the final keyframes
+//! (`project.json`) and the state file (`reconstruct.json`, rewritten atomically at every
+//! round's start and end); a killed run resumes at the round it was in (its own workspace needs
+//! no `--force`); a finished one is left as it is; the input is checked against the project's
+//! fingerprint before anything is written.
+
+pub mod breaks;
+pub mod db;
+pub mod repair;
+
+use crate::colmap::extend::{self, MapperKind, Mapping};
+use crate::colmap::{model, ColmapSettings, Matcher, Record};
+use crate::error::{Error, Result};
+use crate::export::{ExportSettings, Manifest};
+use crate::fsutil;
+use crate::output::Inputs;
+use crate::project::Project;
+use breaks::{Break, Limits, Observed};
+use repair::{Choice, Frames, Measure};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+/// The state file in the workspace.
+pub const STATE: &str = "reconstruct.json";
+/// The project of the final keyframes, in the workspace.
+pub const PROJECT: &str = "project.json";
+/// The COLMAP workspace inside the workspace.
+pub const COLMAP_DIR: &str = "colmap";
+
+/// How many frames the loop may add in all.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Budget {
+    /// At most this many frames.
+    Frames(usize),
+    /// At most this percentage of the starting keyframe count (rounded up).
+    Percent(f64),
+}
+
+impl Budget {
+    /// `N` or `P%`; errors name the parameter `max_added`.
+    pub fn parse(text: &str) -> Result<Budget> {
+        let t = text.trim();
+        let bad = || {
+            Error::param(
+                "max_added",
+                format!("`{text}` is neither a frame count (`40`) nor a percentage (`50%`)"),
+            )
+        };
+        if let Some(p) = t.strip_suffix('%') {
+            let v: f64 = p.trim().parse().map_err(|_| bad())?;
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(bad());
+            }
+            return Ok(Budget::Percent(v));
+        }
+        t.parse().map(Budget::Frames).map_err(|_| bad())
+    }
+
+    /// The number of frames it allows for a start of `start` keyframes.
+    pub fn frames(&self, start: usize) -> usize {
+        match *self {
+            Budget::Frames(n) => n,
+            Budget::Percent(p) => (p / 100.0 * start as f64).ceil() as usize,
+        }
+    }
+}
+
+/// What `reconstruct` does; each field is the flag of the same name (`keyframer reconstruct
+/// --help` says what it does).
+#[derive(Debug, Clone)]
+pub struct ReconstructSettings {
+    /// The project whose keyframes start the loop.
+    pub project: PathBuf,
+    /// The workspace folder.
+    pub out: PathBuf,
+    /// The options that decide the result (recorded in the state file).
+    pub options: Options,
+    /// Replace a workspace keyframer made for another project or other options.
+    pub force: bool,
+}
+
+/// The options of a loop that decide its result; a workspace made with other options is not
+/// resumed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Options {
+    /// Rounds of COLMAP at most (the first reconstructs the starting keyframes).
+    pub max_rounds: usize,
+    /// Frames added at most, over all rounds.
+    pub max_added: Budget,
+    /// What makes a link weak.
+    pub limits: Limits,
+    /// Feature matching strategy.
+    pub matcher: Matcher,
+    /// Sequential matching: how many following images each image is matched with.
+    pub overlap: u32,
+    /// COLMAP camera model shared by all images.
+    pub camera_model: String,
+    /// Known intrinsics, kept fixed by the mapper.
+    pub camera_params: Option<String>,
+    /// Maximum SIFT features per image.
+    pub max_features: Option<u32>,
+    /// Extra mapper options `KEY=VALUE`.
+    pub mapper_option: Vec<String>,
+    /// Incremental or global mapper.
+    pub mapper: MapperKind,
+    /// How later rounds map: continuing the largest model, or afresh.
+    pub mapping: Mapping,
+    /// How the images are exported.
+    pub export: ExportSettings,
+}
+
+/// Defaults of the options (the flags' defaults too).
+pub mod defaults {
+    /// Rounds of COLMAP at most.
+    pub const MAX_ROUNDS: usize = 4;
+    /// Frames added at most, in percent of the starting keyframes.
+    pub const MAX_ADDED_PERCENT: f64 = 100.0;
+    /// Fewest 3D points consecutive keyframes must share.
+    pub const MIN_SHARED: usize = 15;
+    /// Fewest inlier matches of consecutive keyframes' two-view geometry (COLMAP's own minimum
+    /// for a verified pair).
+    pub const MIN_INLIERS: usize = 15;
+    /// The mapper option the loop adds unless given: keep models of 3 images and more (COLMAP
+    /// discards smaller ones, and a sparse start's models tell where it breaks).
+    pub const MIN_MODEL_SIZE: &str = "min_model_size=3";
+}
+
+/// The state file: the loop's rounds so far.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct State {
+    /// Always "keyframer".
+    pub tool: String,
+    /// keyframer version.
+    pub tool_version: String,
+    /// The project that started the loop (absolute).
+    pub project: PathBuf,
+    /// Its keyframes.
+    pub start: Vec<usize>,
+    /// The options.
+    pub options: Options,
+    /// COLMAP's version line.
+    pub colmap_version: String,
+    /// What a gap's middle is measured by.
+    pub measure: Measure,
+    /// The rounds, in order; the last one is still running when its `done` is false.
+    pub rounds: Vec<Round>,
+    /// How the loop ended (None while it runs).
+    pub outcome: Option<Outcome>,
+}
+
+/// One round: a COLMAP run on a keyframe set and what it showed.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Round {
+    /// 1 for the starting keyframes.
+    pub round: usize,
+    /// The keyframes reconstructed.
+    pub keyframes: Vec<usize>,
+    /// The frames new in this round (all of them in round 1).
+    pub new: Vec<usize>,
+    /// Keyframes registered in the largest model.
+    pub registered: usize,
+    /// The models, largest first by registered images: folder and keyframe ranges.
+    pub models: Vec<ModelRanges>,
+    /// The broken links.
+    pub breaks: Vec<Break>,
+    /// Frames added after this round (reconstructed in the next one).
+    pub added: Vec<Added>,
+    /// Breaks nothing can repair.
+    pub true_breaks: Vec<TrueBreak>,
+    /// Seconds per COLMAP stage in this round.
+    pub colmap_s: BTreeMap<String, f64>,
+    /// Whether the round finished.
+    pub done: bool,
+}
+
+/// A model and the keyframe ranges it holds.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ModelRanges {
+    /// Folder relative to the COLMAP workspace.
+    pub path: String,
+    /// Keyframes it registered.
+    pub registered: usize,
+    /// First and last frame of each run of consecutive keyframes it holds.
+    pub ranges: Vec<(usize, usize)>,
+}
+
+/// A frame the loop added.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Added {
+    /// Frame index.
+    pub frame: usize,
+    /// Its time in seconds, when known.
+    pub time_s: Option<f64>,
+    /// The round whose result it repairs.
+    pub round: usize,
+    /// Why and how it was chosen.
+    pub reason: String,
+}
+
+/// A break nothing in the cache can repair.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrueBreak {
+    /// The keyframe before it.
+    pub from: usize,
+    /// The keyframe after it.
+    pub to: usize,
+    /// Their times in seconds, when known.
+    pub times_s: Option<(f64, f64)>,
+    /// What is broken.
+    pub broken: String,
+    /// Why nothing repairs it.
+    pub why: String,
+}
+
+/// How the loop ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Outcome {
+    /// One model registers every keyframe with no weak link.
+    Connected,
+    /// Only true breaks are left.
+    TrueBreaks,
+    /// `--max-rounds` reached with breaks left.
+    RoundBudget,
+    /// `--max-added` reached with breaks left.
+    FrameBudget,
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Outcome::Connected => "connected: one model registers every keyframe",
+            Outcome::TrueBreaks => "stopped: only true breaks are left",
+            Outcome::RoundBudget => "stopped at --max-rounds with breaks left",
+            Outcome::FrameBudget => "stopped at --max-added with breaks left",
+        })
+    }
+}
+
+/// What `reconstruct` prints with `--json` and returns.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Summary {
+    /// The workspace (absolute).
+    pub workspace: PathBuf,
+    /// The project of the final keyframes.
+    pub project: PathBuf,
+    /// How the loop ended.
+    pub outcome: Outcome,
+    /// False when this run found the loop finished and changed nothing.
+    pub changed: bool,
+    /// Rounds run.
+    pub rounds: usize,
+    /// Keyframes at the start.
+    pub start_keyframes: usize,
+    /// Keyframes at the end.
+    pub final_keyframes: Vec<usize>,
+    /// Keyframes of the final set registered in its largest model.
+    pub registered: usize,
+    /// Models of the last round.
+    pub models: Vec<ModelRanges>,
+    /// Frames added, with their reasons.
+    pub added: Vec<Added>,
+    /// Breaks left (the last round's), true breaks among them.
+    pub breaks: Vec<Break>,
+    /// Breaks nothing can repair.
+    pub true_breaks: Vec<TrueBreak>,
+    /// What a gap's middle was measured by.
+    pub measure: Measure,
+    /// COLMAP seconds over all rounds, per stage.
+    pub colmap_s: BTreeMap<String, f64>,
+    /// COLMAP seconds over all rounds.
+    pub colmap_total_s: f64,
+    /// COLMAP's version line.
+    pub colmap_version: String,
+}
+
+/// Runs the loop (or resumes it); returns its summary. Progress on stderr unless `quiet`.
+pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
+    check(&s.options)?;
+    let project = Project::load(&s.project)?;
+    let input = project.input_path(&s.project);
+    crate::export::check_fingerprint(&project, &input)?;
+    if project.keyframes.is_empty() {
+        return Err(Error::input(&s.project, "the project has no keyframes"));
+    }
+    let colmap = extend::locate_with(s.options.mapper)?;
+    let ws = fsutil::absolute(&s.out);
+    let project_abs = fsutil::absolute(&s.project);
+    let inputs = Inputs::none()
+        .with("project", &s.project)
+        .with("the project's input", &input);
+    let earlier = ws
+        .join(STATE)
+        .is_file()
+        .then(|| crate::output::read_json::<State>(&ws.join(STATE), "reconstruct state"))
+        .transpose()?;
+    let resume = earlier.filter(|st| {
+        st.project == project_abs && st.options == s.options && st.start == project.keyframes
+    });
+    if resume.is_none() && ws.join(STATE).is_file() && !s.force {
+        return Err(Error::output(
+            &ws,
+            "holds a reconstruction of another project or with other options; pass --force to replace what keyframer wrote there, or choose another --out",
+        ));
+    }
+    let dir = crate::output::prepare_dir(&ws, s.force || resume.is_some(), &[STATE], &inputs)?;
+    let frames_data = FrameData::of(&project);
+    if !quiet && frames_data.measure == Measure::Time {
+        eprintln!(
+            "reconstruct: the project has no movement series (e.g. a --preview project): repairs are placed by time"
+        );
+    }
+    let mut state = match resume {
+        Some(st) => {
+            if let Some(outcome) = st.outcome {
+                if !quiet {
+                    eprintln!(
+                        "reconstruct: {} already holds this loop's result ({outcome}); nothing changed",
+                        ws.display()
+                    );
+                }
+                return Ok(summary(&st, &ws, false));
+            }
+            if !quiet {
+                eprintln!(
+                    "reconstruct: resuming {} at round {}",
+                    ws.display(),
+                    st.rounds.len().max(1)
+                );
+            }
+            st
+        }
+        None => State {
+            tool: "keyframer".into(),
+            tool_version: env!("CARGO_PKG_VERSION").into(),
+            project: project_abs.clone(),
+            start: project.keyframes.clone(),
+            options: s.options.clone(),
+            colmap_version: colmap.version.clone(),
+            measure: frames_data.measure,
+            rounds: Vec::new(),
+            outcome: None,
+        },
+    };
+    let job = Job {
+        s,
+        project: &project,
+        ws: &ws,
+        frames: &frames_data,
+        quiet,
+    };
+    let result = job.rounds(&mut state);
+    drop(dir);
+    result?;
+    Ok(summary(&state, &ws, true))
+}
+
+/// Checks the options before anything runs.
+fn check(o: &Options) -> Result<()> {
+    if o.max_rounds == 0 {
+        return Err(Error::param("max_rounds", "must be at least 1"));
+    }
+    if o.overlap == 0 {
+        return Err(Error::param("overlap", "must be at least 1"));
+    }
+    Ok(())
+}
+
+/// The per-frame numbers of the project that repairs read.
+struct FrameData {
+    movement: Option<Vec<f64>>,
+    times: Option<Vec<f64>>,
+    sharpness: Option<Vec<f64>>,
+    rejected: BTreeSet<usize>,
+    damaged: BTreeSet<usize>,
+    textureless_below: Option<f64>,
+    measure: Measure,
+}
+
+impl FrameData {
+    /// The project's first movement series and the sharpness the blur step used (else the
+    /// first); the frames the blur step (its parameters from the history, else the defaults)
+    /// rejects among all frames of the sampled range.
+    fn of(p: &Project) -> FrameData {
+        let n = p.metadata.frame_count;
+        let movement = p
+            .cache
+            .movement
+            .first()
+            .map(|m| m.series.values.clone())
+            .filter(|v| v.len() == n);
+        let blur = blur_params(p);
+        let series = p
+            .cache
+            .sharpness
+            .iter()
+            .find(|s| s.metric == blur.metric)
+            .or(p.cache.sharpness.first())
+            .map(|s| s.scores.clone())
+            .filter(|v| v.len() == n);
+        let (lo, hi) = range_of(p);
+        let mut rejected = BTreeSet::new();
+        let mut textureless_below = None;
+        if let Some(scores) = &series {
+            let all: Vec<usize> = (lo..=hi).collect();
+            if let Ok(kept) = crate::steps::blur(&all, scores, &blur, lo, hi) {
+                let kept: BTreeSet<usize> = kept.into_iter().collect();
+                rejected = all.into_iter().filter(|i| !kept.contains(i)).collect();
+            }
+            textureless_below = repair::median(scores, lo, hi).map(|m| m * repair::TEXTURELESS);
+        }
+        let measure = if movement.is_some() {
+            Measure::Movement
+        } else {
+            Measure::Time
+        };
+        FrameData {
+            movement,
+            times: p.cache.timestamps_s.clone().filter(|t| t.len() == n),
+            sharpness: series,
+            rejected,
+            damaged: p.damaged_frames.iter().copied().collect(),
+            textureless_below,
+            measure,
+        }
+    }
+
+    fn frames(&self) -> Frames<'_> {
+        Frames {
+            movement: self.movement.as_deref(),
+            times: self.times.as_deref(),
+            sharpness: self.sharpness.as_deref(),
+            rejected: self.rejected.clone(),
+            damaged: self.damaged.clone(),
+            textureless_below: self.textureless_below,
+        }
+    }
+
+    fn time(&self, frame: usize) -> Option<f64> {
+        self.times.as_ref().and_then(|t| t.get(frame).copied())
+    }
+}
+
+/// The blur step's parameters from the project's history (filter mode), else the defaults.
+fn blur_params(p: &Project) -> crate::steps::BlurParams {
+    use crate::steps::{defaults, BlurMode, BlurParams};
+    let mut b = BlurParams {
+        metric: crate::params::Metric::Tenengrad,
+        window: defaults::BLUR_WINDOW,
+        ratio: defaults::BLUR_RATIO,
+        mode: BlurMode::Filter,
+    };
+    for e in &p.history {
+        if let Ok(crate::steps::Applied::Blur {
+            metric,
+            ratio,
+            window,
+            ..
+        }) = crate::steps::Applied::from_entry(e)
+        {
+            b.metric = metric.unwrap_or(b.metric);
+            b.ratio = ratio.unwrap_or(b.ratio);
+            b.window = window.unwrap_or(b.window);
+        }
+    }
+    b
+}
+
+/// The sampled frame range of a project (its keyframes' span when the boundaries are open).
+fn range_of(p: &Project) -> (usize, usize) {
+    let n = p.metadata.frame_count.max(1);
+    (0, n - 1)
+}
+
+/// One run of the loop.
+struct Job<'a> {
+    s: &'a ReconstructSettings,
+    project: &'a Project,
+    ws: &'a Path,
+    frames: &'a FrameData,
+    quiet: bool,
+}
+
+impl Job<'_> {
+    fn save(&self, state: &State) -> Result<()> {
+        fsutil::write_json(&self.ws.join(STATE), state)
+    }
+
+    /// Runs rounds until the loop ends; the state is saved at every round's start and end.
+    fn rounds(&self, state: &mut State) -> Result<()> {
+        loop {
+            let (keys, new) = match state.rounds.last() {
+                None => (state.start.clone(), state.start.clone()),
+                Some(r) if !r.done => (r.keyframes.clone(), r.new.clone()),
+                Some(r) => {
+                    let new: Vec<usize> = r.added.iter().map(|a| a.frame).collect();
+                    let keys: BTreeSet<usize> = r.keyframes.iter().chain(&new).copied().collect();
+                    (keys.into_iter().collect(), new)
+                }
+            };
+            if state.rounds.last().is_none_or(|r| r.done) {
+                state.rounds.push(Round {
+                    round: state.rounds.len() + 1,
+                    keyframes: keys.clone(),
+                    new: new.clone(),
+                    registered: 0,
+                    models: Vec::new(),
+                    breaks: Vec::new(),
+                    added: Vec::new(),
+                    true_breaks: Vec::new(),
+                    colmap_s: BTreeMap::new(),
+                    done: false,
+                });
+                self.save(state)?;
+            }
+            let index = state.rounds.len() - 1;
+            let first = index == 0;
+            let round = self.round(state, &keys, &new, first)?;
+            let outcome = self.decide(state, round)?;
+            self.save(state)?;
+            if let Some(o) = outcome {
+                state.outcome = Some(o);
+                self.write_project(state)?;
+                self.save(state)?;
+                return Ok(());
+            }
+        }
+    }
+
+    /// Exports `keys`, runs COLMAP (the first round makes the workspace, later ones add `new`)
+    /// and reads what it made.
+    fn round(&self, state: &State, keys: &[usize], new: &[usize], first: bool) -> Result<Round> {
+        let o = &self.s.options;
+        let n = state.rounds.len();
+        let manifest = self.export(keys)?;
+        let by_frame: BTreeMap<usize, &str> = manifest
+            .frames
+            .iter()
+            .map(|f| (f.index, f.file.as_str()))
+            .collect();
+        let keys: Vec<usize> = by_frame.keys().copied().collect();
+        let cws = self.ws.join(COLMAP_DIR);
+        let mut mapper_option = o.mapper_option.clone();
+        if !mapper_option.iter().any(|m| {
+            m.trim_start_matches("Mapper.")
+                .starts_with("min_model_size")
+        }) {
+            mapper_option.push(defaults::MIN_MODEL_SIZE.into());
+        }
+        let cs = ColmapSettings {
+            export: self.ws.to_path_buf(),
+            output: Some(cws.clone()),
+            sparse: true,
+            dense: false,
+            matcher: o.matcher,
+            overlap: o.overlap,
+            camera_model: o.camera_model.clone(),
+            camera_params: o.camera_params.clone(),
+            max_features: o.max_features,
+            mapper_option,
+            force: true,
+        };
+        let earlier = crate::colmap::read_record(&cws).ok();
+        let extend_it = !first && earlier.is_some();
+        let before = match (&earlier, extend_it) {
+            (Some(r), true) => r.stages.len(),
+            _ => 0,
+        };
+        let names: Vec<String> = new
+            .iter()
+            .filter_map(|f| by_frame.get(f).map(|s| s.to_string()))
+            .collect();
+        let rec = extend::round(
+            &cs,
+            o.mapper,
+            o.mapping,
+            extend_it.then_some(names.as_slice()),
+            self.quiet,
+        )?;
+        let mut colmap_s = BTreeMap::new();
+        for st in rec.stages.iter().skip(before) {
+            *colmap_s.entry(st.stage.clone()).or_insert(0.0) += st.seconds;
+        }
+        let obs = observe(&cws, &rec, &keys, &by_frame)?;
+        let found = breaks::find(&keys, &obs, o.limits);
+        let ranges = breaks::ranges(&keys, &obs);
+        let mut models: Vec<ModelRanges> = obs
+            .models
+            .iter()
+            .zip(ranges)
+            .map(|(path, ranges)| ModelRanges {
+                path: path.clone(),
+                registered: obs
+                    .model_of
+                    .iter()
+                    .filter(|m| m.and_then(|m| obs.models.get(m)) == Some(path))
+                    .count(),
+                ranges,
+            })
+            .collect();
+        models.sort_by(|a, b| b.registered.cmp(&a.registered));
+        Ok(Round {
+            round: n,
+            keyframes: keys.clone(),
+            new: new.to_vec(),
+            registered: models.first().map_or(0, |m| m.registered),
+            models,
+            breaks: found,
+            added: Vec::new(),
+            true_breaks: Vec::new(),
+            colmap_s,
+            done: false,
+        })
+    }
+
+    /// Records `round` as the state's last and chooses the repairs; returns the outcome when the
+    /// loop ends here.
+    fn decide(&self, state: &mut State, mut round: Round) -> Result<Option<Outcome>> {
+        let o = &self.s.options;
+        let connected = round.breaks.is_empty()
+            && round.models.len() == 1
+            && round.registered == round.keyframes.len();
+        let frames = self.frames.frames();
+        let mut repairs: Vec<(usize, Added)> = Vec::new();
+        if !connected {
+            for b in &round.breaks {
+                match repair::choose(b.from, b.to, &frames) {
+                    Choice::Frame { frame, how } => {
+                        let reason =
+                            format!("repairs keyframes {}–{} ({}): {how}", b.from, b.to, b.why);
+                        if !repairs.iter().any(|(_, a)| a.frame == frame) {
+                            repairs.push((
+                                b.to - b.from,
+                                Added {
+                                    frame,
+                                    time_s: self.frames.time(frame),
+                                    round: round.round,
+                                    reason,
+                                },
+                            ));
+                        }
+                    }
+                    Choice::TrueBreak { why } => round.true_breaks.push(TrueBreak {
+                        from: b.from,
+                        to: b.to,
+                        times_s: self.frames.time(b.from).zip(self.frames.time(b.to)),
+                        broken: b.why.to_string(),
+                        why,
+                    }),
+                }
+            }
+        }
+        let added_so_far: usize = state.rounds.iter().map(|r| r.added.len()).sum();
+        let allowed = o.max_added.frames(state.start.len());
+        let outcome = if connected {
+            Some(Outcome::Connected)
+        } else if repairs.is_empty() {
+            Some(Outcome::TrueBreaks)
+        } else if round.round >= o.max_rounds {
+            Some(Outcome::RoundBudget)
+        } else if added_so_far >= allowed {
+            Some(Outcome::FrameBudget)
+        } else {
+            // The widest gaps first when the budget cannot repair them all.
+            repairs.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.frame.cmp(&b.1.frame)));
+            repairs.truncate(allowed - added_so_far);
+            let mut added: Vec<Added> = repairs.into_iter().map(|(_, a)| a).collect();
+            added.sort_by_key(|a| a.frame);
+            round.added = added;
+            None
+        };
+        round.done = true;
+        self.progress(&round);
+        if let Some(last) = state.rounds.last_mut() {
+            *last = round;
+        }
+        Ok(outcome)
+    }
+
+    /// The round's line on stderr.
+    fn progress(&self, r: &Round) {
+        if self.quiet {
+            return;
+        }
+        let stages: Vec<String> = r
+            .colmap_s
+            .iter()
+            .map(|(k, v)| format!("{k} {v:.1} s"))
+            .collect();
+        eprintln!(
+            "round {}: {}/{} registered, {} model(s), {} break(s), +{} frame(s); COLMAP {}",
+            r.round,
+            r.registered,
+            r.keyframes.len(),
+            r.models.len(),
+            r.breaks.len(),
+            r.added.len(),
+            stages.join(", ")
+        );
+    }
+
+    /// Exports `keys` into the workspace (replacing only what the earlier rounds wrote).
+    fn export(&self, keys: &[usize]) -> Result<Manifest> {
+        let mut p = self.project.clone();
+        p.keyframes = keys.to_vec();
+        let target = crate::export::Target {
+            out: self.ws,
+            force: true,
+            records: &[STATE],
+            project_file: &self.ws.join(PROJECT),
+        };
+        crate::export::export_project(
+            &p,
+            &self.s.project,
+            &target,
+            &self.s.options.export,
+            self.quiet,
+        )
+    }
+
+    /// Writes the project of the final keyframes (`project.json`): the starting project with
+    /// the added frames as a `manual` step of its history; its input path made absolute.
+    fn write_project(&self, state: &State) -> Result<()> {
+        let mut p = self.project.clone();
+        let Some(last) = state.rounds.last() else {
+            return Ok(());
+        };
+        p.keyframes = last.keyframes.clone();
+        let added: Vec<usize> = state
+            .rounds
+            .iter()
+            .flat_map(|r| r.added.iter().map(|a| a.frame))
+            .collect();
+        if !added.is_empty() {
+            let step = crate::steps::Applied::Manual {
+                add: added,
+                remove: Vec::new(),
+            };
+            p.history.push(step.entry(p.keyframes.len()));
+        }
+        p.input.path = self.project.input_path(&self.s.project);
+        if let Some(t) = &mut p.cache.telemetry {
+            if t.source.path.is_relative() {
+                let base = fsutil::absolute(&self.s.project);
+                if let Some(dir) = base.parent() {
+                    t.source.path = dir.join(&t.source.path);
+                }
+            }
+        }
+        p.save(&self.ws.join(PROJECT), true)
+    }
+}
+
+/// Reads the models of a round: which keyframe (position in `keys`) each registered, the 3D
+/// points consecutive keyframes share, and their two-view inliers from the database.
+fn observe(
+    cws: &Path,
+    rec: &Record,
+    keys: &[usize],
+    by_frame: &BTreeMap<usize, &str>,
+) -> Result<Observed> {
+    let position: BTreeMap<&str, usize> = keys
+        .iter()
+        .enumerate()
+        .filter_map(|(i, f)| by_frame.get(f).map(|n| (*n, i)))
+        .collect();
+    let mut obs = Observed {
+        model_of: vec![None; keys.len()],
+        shared: vec![0; keys.len().saturating_sub(1)],
+        ..Observed::default()
+    };
+    // Larger models first, so a keyframe registered twice counts in the larger.
+    let mut order: Vec<&crate::colmap::ModelSummary> = rec.models.iter().collect();
+    order.sort_by(|a, b| b.registered_images.cmp(&a.registered_images));
+    for summary in order {
+        let (m, _) = model::read(&cws.join(&summary.path))?;
+        let index = obs.models.len();
+        obs.models.push(summary.path.clone());
+        let mut pos_of_image: BTreeMap<u32, usize> = BTreeMap::new();
+        for (id, img) in &m.images {
+            if let Some(&i) = position.get(img.name.as_str()) {
+                pos_of_image.insert(*id, i);
+                if obs.model_of[i].is_none() {
+                    obs.model_of[i] = Some(index);
+                }
+            }
+        }
+        let tracks: Vec<Vec<usize>> = m
+            .points
+            .values()
+            .map(|p| {
+                p.track
+                    .iter()
+                    .filter_map(|(id, _)| pos_of_image.get(id).copied())
+                    .filter(|&i| obs.model_of[i] == Some(index))
+                    .collect()
+            })
+            .collect();
+        let shared = breaks::shared_points(keys.len(), tracks.iter().map(Vec::as_slice));
+        for (total, s) in obs.shared.iter_mut().zip(shared) {
+            *total += s;
+        }
+    }
+    let db = cws.join("database.db");
+    let table = db::inliers(&db)?;
+    obs.inliers = keys
+        .windows(2)
+        .map(|w| match (by_frame.get(&w[0]), by_frame.get(&w[1])) {
+            (Some(a), Some(b)) => Some(db::of(&table, a, b)),
+            _ => None,
+        })
+        .collect();
+    Ok(obs)
+}
+
+/// The summary of a state.
+fn summary(st: &State, ws: &Path, changed: bool) -> Summary {
+    let last = st.rounds.last();
+    let mut colmap_s: BTreeMap<String, f64> = BTreeMap::new();
+    for r in &st.rounds {
+        for (k, v) in &r.colmap_s {
+            *colmap_s.entry(k.clone()).or_insert(0.0) += v;
+        }
+    }
+    Summary {
+        workspace: ws.to_path_buf(),
+        project: ws.join(PROJECT),
+        outcome: st.outcome.unwrap_or(Outcome::RoundBudget),
+        changed,
+        rounds: st.rounds.len(),
+        start_keyframes: st.start.len(),
+        final_keyframes: last.map(|r| r.keyframes.clone()).unwrap_or_default(),
+        registered: last.map_or(0, |r| r.registered),
+        models: last.map(|r| r.models.clone()).unwrap_or_default(),
+        added: st.rounds.iter().flat_map(|r| r.added.clone()).collect(),
+        breaks: last.map(|r| r.breaks.clone()).unwrap_or_default(),
+        true_breaks: last.map(|r| r.true_breaks.clone()).unwrap_or_default(),
+        measure: st.measure,
+        colmap_total_s: colmap_s.values().sum(),
+        colmap_s,
+        colmap_version: st.colmap_version.clone(),
+    }
+}
+
+/// Human-readable summary.
+pub fn render(s: &Summary) -> String {
+    let mut out = format!(
+        "workspace: {}\nproject:   {}\noutcome:   {}{}\nrounds:    {}\nkeyframes: {} -> {} ({} added), {} registered in the largest of {} model(s)\n",
+        s.workspace.display(),
+        s.project.display(),
+        s.outcome,
+        if s.changed { "" } else { " (nothing changed)" },
+        s.rounds,
+        s.start_keyframes,
+        s.final_keyframes.len(),
+        s.added.len(),
+        s.registered,
+        s.models.len()
+    );
+    for m in &s.models {
+        let ranges: Vec<String> = m.ranges.iter().map(|(a, b)| format!("{a}–{b}")).collect();
+        out += &format!(
+            "model:     {} ({} keyframes): frames {}\n",
+            m.path,
+            m.registered,
+            ranges.join(", ")
+        );
+    }
+    for a in &s.added {
+        out += &format!(
+            "added:     frame {} (after round {}): {}\n",
+            a.frame, a.round, a.reason
+        );
+    }
+    for b in &s.true_breaks {
+        let times = b
+            .times_s
+            .map(|(x, y)| format!(" ({x:.2} s – {y:.2} s)"))
+            .unwrap_or_default();
+        out += &format!(
+            "break:     frames {}–{}{times}: {}; {}\n",
+            b.from, b.to, b.broken, b.why
+        );
+    }
+    let stages: Vec<String> = s
+        .colmap_s
+        .iter()
+        .map(|(k, v)| format!("{k} {v:.1} s"))
+        .collect();
+    out += &format!(
+        "colmap:    {:.1} s in all ({}); {}\n",
+        s.colmap_total_s,
+        stages.join(", "),
+        s.colmap_version
+    );
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn budgets_parse_and_scale() {
+        assert_eq!(Budget::parse("40").unwrap(), Budget::Frames(40));
+        assert_eq!(Budget::parse("50%").unwrap(), Budget::Percent(50.0));
+        assert_eq!(Budget::Percent(50.0).frames(7), 4);
+        assert_eq!(Budget::Frames(3).frames(100), 3);
+        for bad in ["", "x", "-5%", "1.5"] {
+            let e = Budget::parse(bad).unwrap_err();
+            assert!(e.to_string().contains("max_added"), "{e}");
+        }
+    }
+}
