@@ -947,7 +947,7 @@ pub struct ReconstructArgs {
     pub max_rounds: usize,
     /// Frames the loop may add in all: a count (`40`) or a percentage of the starting keyframes
     /// (`50%`).
-    #[arg(long, default_value = "100%", value_name = "N|PCT%")]
+    #[arg(long, default_value = keyframer::reconstruct::defaults::MAX_ADDED, value_name = "N|PCT%")]
     pub max_added: String,
     /// A link between consecutive keyframes of one model is weak when they share fewer 3D
     /// points than this.
@@ -980,7 +980,7 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "N")]
     pub max_features: Option<u32>,
     /// Extra mapper option `KEY=VALUE`, passed as `--Mapper.KEY VALUE` (repeatable); the loop
-    /// adds `min_model_size=3` unless given.
+    /// adds `min_model_size=3` and `init_min_tri_angle=4` unless given.
     #[arg(long, value_name = "KEY=VALUE")]
     pub mapper_option: Vec<String>,
     /// Output size WxH of the exported images.

@@ -120,16 +120,19 @@ pub struct Options {
 pub mod defaults {
     /// Rounds of COLMAP at most.
     pub const MAX_ROUNDS: usize = 4;
-    /// Frames added at most, in percent of the starting keyframes.
-    pub const MAX_ADDED_PERCENT: f64 = 100.0;
+    /// Frames added at most: twice the starting keyframes.
+    pub const MAX_ADDED: &str = "200%";
     /// Fewest 3D points consecutive keyframes must share.
     pub const MIN_SHARED: usize = 15;
     /// Fewest inlier matches of consecutive keyframes' two-view geometry (COLMAP's own minimum
     /// for a verified pair).
     pub const MIN_INLIERS: usize = 15;
-    /// The mapper option the loop adds unless given: keep models of 3 images and more (COLMAP
-    /// discards smaller ones, and a sparse start's models tell where it breaks).
-    pub const MIN_MODEL_SIZE: &str = "min_model_size=3";
+    /// The mapper options the loop adds unless given: keep models of 3 images and more (COLMAP
+    /// discards smaller ones, and a sparse start's models tell where it breaks); start a model
+    /// from a pair seen 4° apart rather than 16° (video keyframes have short baselines: with
+    /// 16° a survey's straight legs found no initial pair and stayed unregistered).
+    pub const MAPPER_OPTIONS: [(&str, &str); 2] =
+        [("min_model_size", "3"), ("init_min_tri_angle", "4")];
 }
 
 /// The state file: the loop's rounds so far.
@@ -548,11 +551,13 @@ impl Job<'_> {
         let keys: Vec<usize> = by_frame.keys().copied().collect();
         let cws = self.ws.join(COLMAP_DIR);
         let mut mapper_option = o.mapper_option.clone();
-        if !mapper_option.iter().any(|m| {
-            m.trim_start_matches("Mapper.")
-                .starts_with("min_model_size")
-        }) {
-            mapper_option.push(defaults::MIN_MODEL_SIZE.into());
+        for (key, value) in defaults::MAPPER_OPTIONS {
+            let given = |m: &String| {
+                m.trim().trim_start_matches("Mapper.").split('=').next() == Some(key)
+            };
+            if !o.mapper_option.iter().any(given) {
+                mapper_option.push(format!("{key}={value}"));
+            }
         }
         let cs = ColmapSettings {
             export: self.ws.to_path_buf(),

@@ -22,6 +22,7 @@ mod onnx_model;
 mod pipeline;
 mod preview;
 mod read_inputs;
+mod reconstruct;
 mod report;
 mod review;
 mod safety;

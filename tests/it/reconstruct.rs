@@ -1,0 +1,479 @@
+//! `keyframer reconstruct` on keyframer-scene surveys with ground truth: a sparse start that
+//! COLMAP fragments ends in one model of every final keyframe, within 1 % of the trajectory
+//! length after a similarity alignment, in at most 4 rounds, with the loop's COLMAP time within
+//! twice one run on the final set; a second run changes nothing; a start that reconstructs is
+//! left unchanged; a real break (2 s of black between two unrelated scenes) ends with two models
+//! and names the break's frames; a run killed mid-round resumes to the same keyframes; bad input
+//! (changed input, another workspace) is refused.
+
+use crate::common::*;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+/// The scene's intrinsics at 320x180 (scene.json), kept fixed as `scripts/experiment.sh` does.
+const CAMERA: [&str; 4] = [
+    "--camera-model",
+    "PINHOLE",
+    "--camera-params",
+    "224,224,160,90",
+];
+
+fn has_colmap() -> bool {
+    keyframer::info::find_on_path("colmap").is_some()
+}
+
+/// A 15 s survey (320x180, 30 fps, two fast turns) and a project over it whose cache holds the
+/// movement and sharpness series (`--spacing 10kf --blur` measured them), made once per run.
+fn survey() -> &'static (PathBuf, PathBuf) {
+    static DIR: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("reconstruct-survey");
+        scene_ok(&[
+            s(&dir),
+            "--force",
+            "--size",
+            "320x180",
+            "--seconds",
+            "15",
+            "--blur-samples",
+            "2",
+            "--seed",
+            "1",
+        ]);
+        let base = dir.join("base.json");
+        let video = dir.join("video.mp4");
+        let _ = std::fs::remove_file(&base);
+        kf_ok(&[
+            "select",
+            s(&video),
+            "-o",
+            s(&base),
+            "--spacing",
+            "10kf",
+            "--blur",
+            "--quiet",
+        ]);
+        (dir, base)
+    })
+}
+
+/// A copy of the survey's project re-selected with `args` (from its cache).
+fn project(name: &str, args: &[&str]) -> PathBuf {
+    let (dir, base) = survey();
+    let p = dir.join(format!("{name}.json"));
+    std::fs::copy(base, &p).unwrap();
+    let mut all = vec!["select", s(&dir.join("video.mp4")), "-o", s(&p), "--force"];
+    all.extend_from_slice(args);
+    all.push("--quiet");
+    kf_ok(&all);
+    p
+}
+
+/// `keyframer reconstruct PROJECT --out WS --json` with the scene's camera and modest features.
+fn reconstruct(project: &Path, ws: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "reconstruct",
+        s(project),
+        "--out",
+        s(ws),
+        "--max-features",
+        "1024",
+        "--json",
+    ];
+    args.extend_from_slice(&CAMERA);
+    args.extend_from_slice(extra);
+    kf_loud(&args)
+}
+
+fn summary(out: &std::process::Output) -> serde_json::Value {
+    let (code, err) = code_and_stderr(out);
+    assert_eq!(code, 0, "reconstruct failed:\n{err}");
+    serde_json::from_slice(&out.stdout).expect("summary JSON")
+}
+
+fn frames(v: &serde_json::Value) -> Vec<usize> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_u64().unwrap() as usize)
+        .collect()
+}
+
+/// Length of the ground-truth camera path from frame `a` to frame `b`.
+fn path_length(dir: &Path, a: usize, b: usize) -> f64 {
+    let poses = crate::scene::poses(dir);
+    poses[a..=b]
+        .windows(2)
+        .map(|w| {
+            let (p, q) = (&w[0].1, &w[1].1);
+            ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+        })
+        .sum()
+}
+
+#[test]
+fn sparse_start_ends_in_one_model_matching_ground_truth() {
+    if !has_colmap() {
+        eprintln!("skipped: colmap is not installed");
+        return;
+    }
+    let (dir, _) = survey();
+    let p = project("every30", &["--every", "30"]);
+    let start = keyframes(&p);
+    let d = tempfile::tempdir().unwrap();
+    let ws = d.path().join("ws");
+    let t0 = Instant::now();
+    let out = reconstruct(&p, &ws, &[]);
+    let wall = t0.elapsed().as_secs_f64();
+    let sum = summary(&out);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    let state = json(&ws.join("reconstruct.json"));
+    let rounds = state["rounds"].as_array().unwrap();
+    // The start fragments: COLMAP's first round leaves keyframes out or splits them.
+    let r1 = &rounds[0];
+    assert!(
+        !r1["breaks"].as_array().unwrap().is_empty(),
+        "the every-30 start should break: {r1}"
+    );
+    assert_eq!(sum["outcome"], "connected", "{err}");
+    let fin = frames(&sum["final_keyframes"]);
+    assert_eq!(sum["registered"], fin.len(), "every final keyframe registered");
+    assert_eq!(sum["models"].as_array().unwrap().len(), 1);
+    let n_rounds = sum["rounds"].as_u64().unwrap();
+    assert!((2..=4).contains(&n_rounds), "{n_rounds} rounds");
+    for k in &start {
+        assert!(fin.contains(k), "starting keyframe {k} kept");
+    }
+    let added = sum["added"].as_array().unwrap();
+    assert_eq!(fin.len(), start.len() + added.len());
+    for a in added {
+        let f = a["frame"].as_u64().unwrap() as usize;
+        assert!(!start.contains(&f));
+        let reason = a["reason"].as_str().unwrap();
+        assert!(
+            reason.contains("repairs keyframes") && reason.contains("accumulated movement"),
+            "{reason}"
+        );
+    }
+    // One progress line per round on stderr.
+    for r in 1..=n_rounds {
+        assert!(
+            err.contains(&format!("round {r}: ")) && err.contains(" registered, "),
+            "{err}"
+        );
+    }
+    // The workspace: an export of the final keyframes and its COLMAP workspace.
+    let manifest = json(&ws.join("manifest.json"));
+    let exported: Vec<usize> = manifest["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["index"].as_u64().unwrap() as usize)
+        .collect();
+    assert_eq!(exported, fin);
+    assert_eq!(keyframes(&ws.join("project.json")), fin);
+    let rec = json(&ws.join("colmap/colmap.json"));
+    assert_eq!(rec["images"], fin.len());
+    // Against the ground truth: the model's camera centres after a Sim(3) alignment.
+    let eval: serde_json::Value = serde_json::from_str(&kf_ok(&[
+        "eval",
+        s(&ws.join("colmap")),
+        "--gt",
+        s(&dir.join("poses.tum")),
+        "--json",
+    ]))
+    .unwrap();
+    let length = path_length(dir, fin[0], *fin.last().unwrap());
+    let max = eval["gt"]["position_max"].as_f64().unwrap();
+    eprintln!(
+        "reconstruct: {} -> {} keyframes in {n_rounds} rounds; max position error {max:.3} m of a {length:.1} m path ({:.2} %); wall {wall:.1} s",
+        start.len(),
+        fin.len(),
+        100.0 * max / length
+    );
+    assert_eq!(eval["gt"]["matched"], fin.len());
+    assert!(max <= 0.01 * length, "{max} m > 1 % of {length} m");
+
+    // The loop's COLMAP time against one COLMAP run on the final keyframe set (same options).
+    let loop_s = sum["colmap_total_s"].as_f64().unwrap();
+    let once = d.path().join("once");
+    let mut args = vec![
+        "colmap",
+        s(&ws),
+        "-o",
+        s(&once),
+        "--sparse",
+        "--max-features",
+        "1024",
+        "--mapper-option",
+        "min_model_size=3",
+        "--mapper-option",
+        "init_min_tri_angle=4",
+        "--json",
+        "--quiet",
+    ];
+    args.extend_from_slice(&CAMERA);
+    let one: serde_json::Value = serde_json::from_str(&kf_ok(&args)).unwrap();
+    let once_s: f64 = one["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|st| st["seconds"].as_f64().unwrap())
+        .sum();
+    eprintln!(
+        "reconstruct: loop COLMAP {loop_s:.1} s against one run on the final {} keyframes {once_s:.1} s (ratio {:.2})",
+        fin.len(),
+        loop_s / once_s
+    );
+    assert!(loop_s <= 2.0 * once_s, "{loop_s} s > 2 x {once_s} s");
+
+    // A second run finds the loop finished and changes nothing.
+    let before = std::fs::read(ws.join("reconstruct.json")).unwrap();
+    let listing_before = listing(&ws);
+    let again = reconstruct(&p, &ws, &[]);
+    let sum2 = summary(&again);
+    assert_eq!(sum2["changed"], false);
+    assert_eq!(sum2["final_keyframes"], sum["final_keyframes"]);
+    let err2 = String::from_utf8_lossy(&again.stderr);
+    assert!(err2.contains("nothing changed"), "{err2}");
+    assert!(!err2.contains("round "), "{err2}");
+    assert_eq!(std::fs::read(ws.join("reconstruct.json")).unwrap(), before);
+    assert_eq!(listing(&ws), listing_before);
+}
+
+#[test]
+fn start_that_reconstructs_is_left_unchanged() {
+    if !has_colmap() {
+        eprintln!("skipped: colmap is not installed");
+        return;
+    }
+    // The first straight leg, every 10th frame.
+    let p = project("leg", &["--end", "150", "--every", "10"]);
+    let start = keyframes(&p);
+    let d = tempfile::tempdir().unwrap();
+    let ws = d.path().join("ws");
+    let sum = summary(&reconstruct(&p, &ws, &[]));
+    assert_eq!(sum["outcome"], "connected");
+    assert_eq!(sum["rounds"], 1);
+    assert!(sum["added"].as_array().unwrap().is_empty());
+    assert_eq!(frames(&sum["final_keyframes"]), start);
+    assert_eq!(sum["registered"], start.len());
+    // No frame added: the project keeps its history as it was.
+    let before = json(&p);
+    let after = json(&ws.join("project.json"));
+    assert_eq!(after["history"], before["history"]);
+}
+
+/// Two unrelated surveys (seeds 1 and 2, 4 s each) with 2 s of black between them.
+fn broken_video() -> PathBuf {
+    static V: OnceLock<PathBuf> = OnceLock::new();
+    V.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("reconstruct-break");
+        for seed in ["1", "2"] {
+            scene_ok(&[
+                s(&dir.join(seed)),
+                "--force",
+                "--size",
+                "320x180",
+                "--seconds",
+                "4",
+                "--blur-samples",
+                "1",
+                "--seed",
+                seed,
+                "--preset",
+                if seed == "1" { "survey" } else { "orbit" },
+            ]);
+        }
+        let out = dir.join("broken.mp4");
+        let _ = std::fs::remove_file(&out);
+        ffmpeg(&[
+            "-i",
+            s(&dir.join("1/video.mp4")),
+            "-f",
+            "lavfi",
+            "-i",
+            "color=c=black:s=320x180:r=30:d=2",
+            "-i",
+            s(&dir.join("2/video.mp4")),
+            "-filter_complex",
+            "[0:v][1:v][2:v]concat=n=3:v=1[v]",
+            "-map",
+            "[v]",
+            "-c:v",
+            "libx264",
+            "-crf",
+            "18",
+            "-pix_fmt",
+            "yuv420p",
+            s(&out),
+        ]);
+        out
+    })
+    .clone()
+}
+
+#[test]
+fn real_break_ends_with_two_models_and_names_it() {
+    if !has_colmap() {
+        eprintln!("skipped: colmap is not installed");
+        return;
+    }
+    let video = broken_video();
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("p.json");
+    kf_ok(&[
+        "select",
+        s(&video),
+        "-o",
+        s(&p),
+        "--every",
+        "15",
+        "--blur",
+        "--quiet",
+    ]);
+    let ws = d.path().join("ws");
+    let out = reconstruct(&p, &ws, &["--max-rounds", "6"]);
+    let sum = summary(&out);
+    let models = sum["models"].as_array().unwrap();
+    assert_eq!(models.len(), 2, "{sum}");
+    assert!(sum["rounds"].as_u64().unwrap() <= 6);
+    assert_ne!(sum["outcome"], "connected");
+    // The black runs over frames 120..=179: the break named lies across it.
+    let breaks = sum["true_breaks"].as_array().unwrap();
+    assert!(!breaks.is_empty(), "{sum}");
+    for b in breaks {
+        let (from, to) = (b["from"].as_u64().unwrap(), b["to"].as_u64().unwrap());
+        assert!(from < 180 && to >= 120, "{b}");
+        assert!(b["times_s"].is_array(), "{b}");
+    }
+    // One model holds the first scene, the other the second.
+    let ranges: Vec<(u64, u64)> = models
+        .iter()
+        .flat_map(|m| m["ranges"].as_array().unwrap().clone())
+        .map(|r| (r[0].as_u64().unwrap(), r[1].as_u64().unwrap()))
+        .collect();
+    assert!(ranges.iter().any(|&(a, b)| b < 120 && a < 60), "{ranges:?}");
+    assert!(ranges.iter().any(|&(a, b)| a >= 180 && b > 240), "{ranges:?}");
+    // The text summary of the finished loop names the break with its frames and times.
+    let mut args = vec![
+        "reconstruct",
+        s(&p),
+        "--out",
+        s(&ws),
+        "--max-features",
+        "1024",
+        "--max-rounds",
+        "6",
+    ];
+    args.extend_from_slice(&CAMERA);
+    let text = kf_ok(&args);
+    assert!(text.contains("break:") && text.contains(" s – "), "{text}");
+}
+
+#[test]
+fn killed_run_resumes_to_the_same_keyframes() {
+    if !has_colmap() {
+        eprintln!("skipped: colmap is not installed");
+        return;
+    }
+    let p = project("every30-kill", &["--every", "30"]);
+    let d = tempfile::tempdir().unwrap();
+    let whole = d.path().join("whole");
+    let uninterrupted = summary(&reconstruct(&p, &whole, &[]));
+    let ws = d.path().join("ws");
+    let mut args: Vec<String> = [
+        "reconstruct",
+        s(&p),
+        "--out",
+        s(&ws),
+        "--max-features",
+        "1024",
+        "--quiet",
+    ]
+    .iter()
+    .map(|a| a.to_string())
+    .collect();
+    args.extend(CAMERA.iter().map(|a| a.to_string()));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args(&args)
+        .spawn()
+        .unwrap();
+    // Kill it once the second round has started (its export or COLMAP running).
+    let state = ws.join("reconstruct.json");
+    let t0 = Instant::now();
+    loop {
+        let rounds = std::fs::read_to_string(&state)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .map_or(0, |v| v["rounds"].as_array().map_or(0, Vec::len));
+        if rounds >= 2 {
+            break;
+        }
+        if let Ok(Some(status)) = child.try_wait() {
+            panic!("finished before round 2 ({status}): nothing to kill");
+        }
+        assert!(t0.elapsed() < Duration::from_secs(300), "round 2 never began");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_millis(1500));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let st = json(&state);
+    assert!(st["outcome"].is_null(), "killed mid-loop: {st}");
+    // No --force: the workspace is this loop's own.
+    let out = reconstruct(&p, &ws, &[]);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(err.contains("resuming"), "{err}");
+    let resumed = summary(&out);
+    assert_eq!(
+        resumed["final_keyframes"], uninterrupted["final_keyframes"],
+        "{err}"
+    );
+    assert_eq!(resumed["outcome"], uninterrupted["outcome"]);
+}
+
+#[test]
+fn changed_input_and_foreign_workspace_are_refused() {
+    if !has_colmap() {
+        eprintln!("skipped: colmap is not installed");
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let (clip, project) = clip_and_project(d.path());
+    // Another keyframer output (an export) is not a reconstruct workspace.
+    let export = d.path().join("export");
+    kf_ok(&["export", s(&project), "--out", s(&export)]);
+    let o = kf(&["reconstruct", s(&project), "--out", s(&export)]);
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("reconstruct.json"), "{err}");
+    // A changed input is refused before anything is written.
+    let ws = d.path().join("ws");
+    let bytes = std::fs::read(&clip).unwrap();
+    std::fs::write(&clip, [bytes.as_slice(), b"x"].concat()).unwrap();
+    let o = kf(&["reconstruct", s(&project), "--out", s(&ws)]);
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("the input changed"), "{err}");
+    assert!(!ws.exists());
+    // --mapper global on a COLMAP without it names what is missing.
+    std::fs::write(&clip, &bytes).unwrap();
+    let help = Command::new("colmap").arg("help").output().unwrap();
+    if !String::from_utf8_lossy(&help.stdout).contains("global_mapper") {
+        let o = kf(&[
+            "reconstruct",
+            s(&project),
+            "--out",
+            s(&ws),
+            "--mapper",
+            "global",
+        ]);
+        let (code, err) = code_and_stderr(&o);
+        assert_eq!(code, 1, "{err}");
+        assert!(err.contains("global_mapper") && err.contains("--mapper"), "{err}");
+        assert!(!ws.exists());
+    }
+}
