@@ -552,9 +552,8 @@ impl Job<'_> {
         let cws = self.ws.join(COLMAP_DIR);
         let mut mapper_option = o.mapper_option.clone();
         for (key, value) in defaults::MAPPER_OPTIONS {
-            let given = |m: &String| {
-                m.trim().trim_start_matches("Mapper.").split('=').next() == Some(key)
-            };
+            let given =
+                |m: &String| m.trim().trim_start_matches("Mapper.").split('=').next() == Some(key);
             if !o.mapper_option.iter().any(given) {
                 mapper_option.push(format!("{key}={value}"));
             }
@@ -610,6 +609,9 @@ impl Job<'_> {
                 ranges,
             })
             .collect();
+        // A model holding only keyframes a larger one holds too (COLMAP may register an image
+        // in two models) tells nothing: it is left out.
+        models.retain(|m| m.registered > 0);
         models.sort_by(|a, b| b.registered.cmp(&a.registered));
         Ok(Round {
             round: n,

@@ -53,7 +53,6 @@ fn survey() -> &'static (PathBuf, PathBuf) {
             "--spacing",
             "10kf",
             "--blur",
-            "--quiet",
         ]);
         (dir, base)
     })
@@ -64,9 +63,9 @@ fn project(name: &str, args: &[&str]) -> PathBuf {
     let (dir, base) = survey();
     let p = dir.join(format!("{name}.json"));
     std::fs::copy(base, &p).unwrap();
-    let mut all = vec!["select", s(&dir.join("video.mp4")), "-o", s(&p), "--force"];
+    let video = dir.join("video.mp4");
+    let mut all = vec!["select", s(&video), "-o", s(&p), "--force"];
     all.extend_from_slice(args);
-    all.push("--quiet");
     kf_ok(&all);
     p
 }
@@ -113,6 +112,35 @@ fn path_length(dir: &Path, a: usize, b: usize) -> f64 {
         .sum()
 }
 
+/// The every-30 start of the survey reconstructed once per run, uninterrupted: its project,
+/// workspace, summary, stderr and wall time (shared by the acceptance and the kill test).
+struct Sparse {
+    project: PathBuf,
+    ws: PathBuf,
+    summary: serde_json::Value,
+    stderr: String,
+    wall_s: f64,
+}
+
+fn sparse() -> &'static Sparse {
+    static RUN: OnceLock<Sparse> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let project = project("every30", &["--every", "30"]);
+        let ws = Path::new(env!("CARGO_TARGET_TMPDIR")).join("reconstruct-every30");
+        let _ = std::fs::remove_dir_all(&ws);
+        let t0 = Instant::now();
+        let out = reconstruct(&project, &ws, &[]);
+        let wall_s = t0.elapsed().as_secs_f64();
+        Sparse {
+            project,
+            ws,
+            summary: summary(&out),
+            stderr: String::from_utf8_lossy(&out.stderr).to_string(),
+            wall_s,
+        }
+    })
+}
+
 #[test]
 fn sparse_start_ends_in_one_model_matching_ground_truth() {
     if !has_colmap() {
@@ -120,15 +148,10 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
         return;
     }
     let (dir, _) = survey();
-    let p = project("every30", &["--every", "30"]);
-    let start = keyframes(&p);
+    let run = sparse();
+    let (p, ws, sum, err, wall) = (&run.project, &run.ws, &run.summary, &run.stderr, run.wall_s);
+    let start = keyframes(p);
     let d = tempfile::tempdir().unwrap();
-    let ws = d.path().join("ws");
-    let t0 = Instant::now();
-    let out = reconstruct(&p, &ws, &[]);
-    let wall = t0.elapsed().as_secs_f64();
-    let sum = summary(&out);
-    let err = String::from_utf8_lossy(&out.stderr).to_string();
     let state = json(&ws.join("reconstruct.json"));
     let rounds = state["rounds"].as_array().unwrap();
     // The start fragments: COLMAP's first round leaves keyframes out or splits them.
@@ -139,7 +162,11 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
     );
     assert_eq!(sum["outcome"], "connected", "{err}");
     let fin = frames(&sum["final_keyframes"]);
-    assert_eq!(sum["registered"], fin.len(), "every final keyframe registered");
+    assert_eq!(
+        sum["registered"],
+        fin.len(),
+        "every final keyframe registered"
+    );
     assert_eq!(sum["models"].as_array().unwrap().len(), 1);
     let n_rounds = sum["rounds"].as_u64().unwrap();
     assert!((2..=4).contains(&n_rounds), "{n_rounds} rounds");
@@ -212,7 +239,6 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
         "--mapper-option",
         "init_min_tri_angle=4",
         "--json",
-        "--quiet",
     ];
     args.extend_from_slice(&CAMERA);
     let one: serde_json::Value = serde_json::from_str(&kf_ok(&args)).unwrap();
@@ -232,7 +258,7 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
     // A second run finds the loop finished and changes nothing.
     let before = std::fs::read(ws.join("reconstruct.json")).unwrap();
     let listing_before = listing(&ws);
-    let again = reconstruct(&p, &ws, &[]);
+    let again = reconstruct(p, ws, &[]);
     let sum2 = summary(&again);
     assert_eq!(sum2["changed"], false);
     assert_eq!(sum2["final_keyframes"], sum["final_keyframes"]);
@@ -324,16 +350,7 @@ fn real_break_ends_with_two_models_and_names_it() {
     let video = broken_video();
     let d = tempfile::tempdir().unwrap();
     let p = d.path().join("p.json");
-    kf_ok(&[
-        "select",
-        s(&video),
-        "-o",
-        s(&p),
-        "--every",
-        "15",
-        "--blur",
-        "--quiet",
-    ]);
+    kf_ok(&["select", s(&video), "-o", s(&p), "--every", "15", "--blur"]);
     let ws = d.path().join("ws");
     let out = reconstruct(&p, &ws, &["--max-rounds", "6"]);
     let sum = summary(&out);
@@ -356,7 +373,10 @@ fn real_break_ends_with_two_models_and_names_it() {
         .map(|r| (r[0].as_u64().unwrap(), r[1].as_u64().unwrap()))
         .collect();
     assert!(ranges.iter().any(|&(a, b)| b < 120 && a < 60), "{ranges:?}");
-    assert!(ranges.iter().any(|&(a, b)| a >= 180 && b > 240), "{ranges:?}");
+    assert!(
+        ranges.iter().any(|&(a, b)| a >= 180 && b > 240),
+        "{ranges:?}"
+    );
     // The text summary of the finished loop names the break with its frames and times.
     let mut args = vec![
         "reconstruct",
@@ -380,9 +400,8 @@ fn killed_run_resumes_to_the_same_keyframes() {
         return;
     }
     let p = project("every30-kill", &["--every", "30"]);
+    let uninterrupted = &sparse().summary;
     let d = tempfile::tempdir().unwrap();
-    let whole = d.path().join("whole");
-    let uninterrupted = summary(&reconstruct(&p, &whole, &[]));
     let ws = d.path().join("ws");
     let mut args: Vec<String> = [
         "reconstruct",
@@ -415,7 +434,10 @@ fn killed_run_resumes_to_the_same_keyframes() {
         if let Ok(Some(status)) = child.try_wait() {
             panic!("finished before round 2 ({status}): nothing to kill");
         }
-        assert!(t0.elapsed() < Duration::from_secs(300), "round 2 never began");
+        assert!(
+            t0.elapsed() < Duration::from_secs(300),
+            "round 2 never began"
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
     std::thread::sleep(Duration::from_millis(1500));
@@ -450,17 +472,8 @@ fn changed_input_and_foreign_workspace_are_refused() {
     let (code, err) = code_and_stderr(&o);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("reconstruct.json"), "{err}");
-    // A changed input is refused before anything is written.
-    let ws = d.path().join("ws");
-    let bytes = std::fs::read(&clip).unwrap();
-    std::fs::write(&clip, [bytes.as_slice(), b"x"].concat()).unwrap();
-    let o = kf(&["reconstruct", s(&project), "--out", s(&ws)]);
-    let (code, err) = code_and_stderr(&o);
-    assert_eq!(code, 1, "{err}");
-    assert!(err.contains("the input changed"), "{err}");
-    assert!(!ws.exists());
     // --mapper global on a COLMAP without it names what is missing.
-    std::fs::write(&clip, &bytes).unwrap();
+    let ws = d.path().join("ws");
     let help = Command::new("colmap").arg("help").output().unwrap();
     if !String::from_utf8_lossy(&help.stdout).contains("global_mapper") {
         let o = kf(&[
@@ -473,7 +486,18 @@ fn changed_input_and_foreign_workspace_are_refused() {
         ]);
         let (code, err) = code_and_stderr(&o);
         assert_eq!(code, 1, "{err}");
-        assert!(err.contains("global_mapper") && err.contains("--mapper"), "{err}");
+        assert!(
+            err.contains("global_mapper") && err.contains("--mapper"),
+            "{err}"
+        );
         assert!(!ws.exists());
     }
+    // A changed input is refused before anything is written.
+    let bytes = std::fs::read(&clip).unwrap();
+    std::fs::write(&clip, [bytes.as_slice(), b"x"].concat()).unwrap();
+    let o = kf(&["reconstruct", s(&project), "--out", s(&ws)]);
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("the input changed"), "{err}");
+    assert!(!ws.exists());
 }
