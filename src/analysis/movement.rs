@@ -337,7 +337,7 @@ impl MovementPass {
             let m = self
                 .pending
                 .pop_front()
-                .ok_or_else(|| Error::Gpu("a movement record without its frame".into()))?;
+                .ok_or_else(|| Error::gpu("a movement record without its frame"))?;
             self.replay(&m, &r)?;
         }
         Ok(())
@@ -351,7 +351,7 @@ impl MovementPass {
         let from_ref = || checked(r.reference);
         let anchored = step(&mut self.stationary, m, consecutive, self.scale, from_ref)?;
         if m.candidate && anchored != (r.decision != 0) {
-            return Err(Error::Gpu(format!(
+            return Err(Error::gpu(format!(
                 "the device's stationary decision at frame {} differs from the host's",
                 m.index
             )));

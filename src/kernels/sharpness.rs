@@ -238,8 +238,8 @@ impl SharpnessGpu {
     /// while submitted scores are still to be taken).
     pub fn scores(&mut self, frames: &[&Mat]) -> Result<Vec<f64>> {
         if !(self.in_flight.is_empty() && self.landed.is_empty()) {
-            return Err(Error::Gpu(
-                "sharpness scores asked while submitted scores are not taken".into(),
+            return Err(Error::gpu(
+                "sharpness scores asked while submitted scores are not taken",
             ));
         }
         self.submit(frames)?;
