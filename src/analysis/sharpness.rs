@@ -2,8 +2,9 @@
 //! in a worker thread that hands `(frame, scores per metric)` back in frame order.
 
 use crate::error::{Error, Result};
-use crate::gpu::{Backend, GpuContext};
-use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
+use crate::gpu::GpuContext;
+use crate::kernels::sharpness::{score_opencv, SharpnessGpu};
+use crate::params::{Backend, Metric};
 use crate::source::{Frame, Metadata};
 use opencv::core::Mat;
 use std::collections::VecDeque;

@@ -7,14 +7,12 @@
 mod choice;
 
 use crate::error::{Error, Result};
-pub use crate::params::{Backend, BackendChoice};
 pub use choice::{auto_backend, or_opencv, resolve_backend, AdapterClass, AutoDecision};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, LazyLock, Mutex};
 
 pub mod readback;
-pub use readback::Readback;
 
 /// Environment variable naming the adapter to use (case-insensitive substring of its name).
 pub const ADAPTER_ENV: &str = "KEYFRAMER_ADAPTER";

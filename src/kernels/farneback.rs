@@ -6,7 +6,7 @@
 
 use crate::error::{CvContext, Error, Result};
 use crate::gpu::{compute_pass, mat_bytes, Gate, GpuContext};
-pub use crate::params::FarnebackParams;
+use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;

@@ -8,7 +8,7 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::{compute_pass, Gate, GpuContext};
-pub use crate::params::{Derotate, Statistic};
+use crate::params::{Derotate, Statistic};
 use bytemuck::{Pod, Zeroable};
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;

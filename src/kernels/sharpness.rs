@@ -13,7 +13,7 @@ use super::{gray, gray_stride, laplacian, tenengrad};
 use crate::error::{Error, Result};
 use crate::gpu::readback::{Readback, Until};
 use crate::gpu::{compute_pass, GpuContext};
-pub use crate::params::Metric;
+use crate::params::Metric;
 use opencv::core::Mat;
 use std::collections::VecDeque;
 use std::sync::Arc;
