@@ -3,8 +3,9 @@
 //! with the time per frame pair. Run: `cargo run --release --example analysis_width -- CLIP`
 //! (default: Debian's opencv-doc Megamind.avi fetched by scripts/setup.sh).
 
-use keyframer::kernels::farneback::{self, FarnebackParams};
-use keyframer::kernels::movement::{self, Statistic};
+use keyframer::kernels::farneback;
+use keyframer::kernels::movement;
+use keyframer::params::{FarnebackParams, Statistic};
 use opencv::core::Size;
 use opencv::prelude::*;
 use std::time::Instant;

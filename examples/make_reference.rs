@@ -3,7 +3,8 @@
 //!
 //! Run from the repository root: `cargo run --release --example make_reference`
 
-use keyframer::kernels::sharpness::{score_opencv, Metric};
+use keyframer::kernels::sharpness::score_opencv;
+use keyframer::params::Metric;
 use opencv::imgcodecs;
 use opencv::prelude::*;
 use std::path::Path;

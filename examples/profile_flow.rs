@@ -3,7 +3,8 @@
 //! lavapipe's threads), at the sizes and parameter sets of
 //! `keyframer bench flow`, plus the whole pair streamed as `bench` runs it and OpenCV's time.
 //! Usage: `cargo run --release --example profile_flow [WIDTHxHEIGHT ...]` (default 640x360).
-use keyframer::kernels::farneback::{self, FarnebackGpu, FarnebackParams};
+use keyframer::kernels::farneback::{self, FarnebackGpu};
+use keyframer::params::FarnebackParams;
 use std::time::Instant;
 
 /// CPU time of all the process's threads (ms): lavapipe runs the dispatches on its own threads,

@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
 
-pub use crate::output::{DONE, MARKER};
+use crate::output::{DONE, MARKER};
 
 /// Which part of a batch this process handles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -115,7 +115,7 @@ pub fn folder_name(input: &Path) -> String {
             |c: char| !(c.is_ascii_alphanumeric() || "-_.".contains(c)),
             "_",
         );
-    let hash = fsutil::fnv1a64(resolved.as_os_str().as_bytes());
+    let hash = crate::output::fnv1a64(resolved.as_os_str().as_bytes());
     // Within NAME_MAX with the hash and the `.NAME.keyframer-new` it is made under (the base is
     // ASCII by now, so any cut is a character boundary).
     let room = crate::output::NAME_MAX - ".-0123456789abcdef.keyframer-new".len();

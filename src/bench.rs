@@ -3,7 +3,8 @@
 
 use crate::error::Result;
 use crate::gpu::{GpuContext, PerFrame};
-use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
+use crate::kernels::sharpness::{score_opencv, SharpnessGpu};
+use crate::params::Metric;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -143,7 +144,8 @@ pub const FLOW_SIZES: [(u32, u32); 3] = [(320, 180), (640, 360), (1280, 720)];
 /// iterations 10, poly_n 5, poly_sigma 1.1) at every size over `pairs` frame pairs; the gpu once
 /// per strip height in `shapes` (empty: the adapter's choice).
 pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<Row>> {
-    use crate::kernels::farneback::{self, FarnebackGpu, FarnebackParams};
+    use crate::kernels::farneback::{self, FarnebackGpu};
+    use crate::params::FarnebackParams;
     let pairs = pairs.max(1);
     let own = [farneback::strip_rows_for(ctx)];
     let shapes = if shapes.is_empty() { &own[..] } else { shapes };

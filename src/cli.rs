@@ -1,14 +1,11 @@
 //! Command-line flags (clap derive) and their conversion into validated settings, in one place.
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use keyframer::analysis::MovementRequest;
 use keyframer::error::{Error, Result};
-use keyframer::export::{ExportSettings, Format};
-use keyframer::gpu::BackendChoice;
-use keyframer::kernels::farneback::FarnebackParams;
-use keyframer::kernels::movement::{Derotate, Statistic};
-use keyframer::kernels::sharpness::Metric;
-use keyframer::segment::{MaskSettings, SegRuntime};
+use keyframer::manifest::{ExportSettings, Format, MaskSettings, SegRuntime, DEFAULT_QUALITY};
+use keyframer::params::{
+    BackendChoice, Derotate, FarnebackParams, Metric, MovementRequest, Statistic,
+};
 use keyframer::select::SelectSettings;
 use keyframer::steps::defaults;
 use std::path::PathBuf;
@@ -490,7 +487,7 @@ pub struct ExportArgs {
     #[arg(long, value_enum)]
     pub format: Option<FormatArg>,
     /// JPEG quality, 1 to 100.
-    #[arg(long, default_value_t = keyframer::export::DEFAULT_QUALITY)]
+    #[arg(long, default_value_t = DEFAULT_QUALITY)]
     pub quality: u8,
     /// Write into a non-empty folder, replacing an earlier export.
     #[arg(long)]

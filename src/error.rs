@@ -81,9 +81,15 @@ pub enum Error {
         msg: String,
     },
 
-    /// GPU set-up or execution failed.
-    #[error("GPU: {0}")]
-    Gpu(String),
+    /// GPU set-up or execution failed: what failed and, where wgpu reported it, wgpu's own
+    /// error (its text is part of the message too, since the binary prints one line).
+    #[error("GPU: {context}{}", source.as_ref().map(|s| format!(": {s}")).unwrap_or_default())]
+    Gpu {
+        /// What failed and on what.
+        context: String,
+        /// wgpu's error, where the failure came from wgpu.
+        source: Option<GpuSource>,
+    },
 
     /// An OpenCV call failed; `context` says which one and on what. OpenCV's own texts that
     /// mean nothing to a user (size limits, allocation failures) get a sentence saying what to
@@ -100,6 +106,28 @@ pub enum Error {
     /// COLMAP is missing, or one of its stages failed (the message names the stage and its log).
     #[error("{0}")]
     Colmap(String),
+}
+
+/// The wgpu errors an [`Error::Gpu`] keeps as its source. (Validation errors and device loss
+/// reach keyframer through callbacks as text, since `wgpu::Error` is not `Sync`; they stay in
+/// the context.)
+#[derive(Debug, thiserror::Error)]
+pub enum GpuSource {
+    /// No device could be made on the adapter.
+    #[error(transparent)]
+    RequestDevice(#[from] wgpu::RequestDeviceError),
+    /// Waiting for the device failed.
+    #[error(transparent)]
+    Poll(#[from] wgpu::PollError),
+    /// Mapping a buffer for reading failed.
+    #[error(transparent)]
+    Map(#[from] wgpu::BufferAsyncError),
+    /// A mapped buffer's range could not be read.
+    #[error(transparent)]
+    MapRange(#[from] wgpu::MapRangeError),
+    /// An OpenCV call on the way to or from the device failed.
+    #[error(transparent)]
+    OpenCv(#[from] opencv::Error),
 }
 
 impl Error {
@@ -158,6 +186,22 @@ impl Error {
         Error::Plugin {
             plugin,
             msg: msg.into(),
+        }
+    }
+
+    /// An [`Error::Gpu`] with no wgpu error behind it (a check of keyframer's own).
+    pub fn gpu(context: impl Into<String>) -> Self {
+        Error::Gpu {
+            context: context.into(),
+            source: None,
+        }
+    }
+
+    /// An [`Error::Gpu`] caused by wgpu's error `source`.
+    pub fn gpu_from(context: impl Into<String>, source: impl Into<GpuSource>) -> Self {
+        Error::Gpu {
+            context: context.into(),
+            source: Some(source.into()),
         }
     }
 

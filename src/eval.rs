@@ -8,7 +8,7 @@ use crate::colmap::align::{self, Vec3};
 use crate::colmap::model::{self, Format, Model};
 use crate::colmap::{self as cm, read_manifest};
 use crate::error::{Error, Result};
-use crate::export::Manifest;
+use crate::manifest::Manifest;
 use crate::output::Inputs;
 use serde::Serialize;
 use std::path::{Path, PathBuf};

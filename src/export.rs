@@ -5,18 +5,17 @@
 //! geotags and the manifest lists them (unless `geotag` is off); byte-copied originals keep their
 //! own EXIF, PNGs get none.
 
-pub use crate::encode::encode;
+use crate::encode::encode;
 use crate::error::{CvContext, Error, Result};
 use crate::fsutil;
 use crate::geotag::{tag_jpeg, GeoTag};
-pub use crate::manifest::{
-    parse_crop, parse_size, read_manifest, Crop, ExportSettings, ExportedFrame, Format, Manifest,
-    MissingFrame, Resize, DEFAULT_QUALITY, IMAGE_DIR, LAYOUT, MANIFEST, MASK_DIR, OVERLAY_DIR,
-    PENDING,
+use crate::manifest::{
+    listed_files, ExportSettings, ExportedFrame, Format, Manifest, MaskSettings, MissingFrame,
+    Resize, IMAGE_DIR, LAYOUT, MANIFEST, MASK_DIR, OVERLAY_DIR, PENDING,
 };
 use crate::output::Inputs;
 use crate::project::Project;
-use crate::segment::{MaskSettings, Segmenter};
+use crate::segment::Segmenter;
 use crate::source::telemetry::{self, Camera, Position};
 use crate::source::{self, OpenOptions, SourceKind};
 use opencv::core::{Mat, Rect};
@@ -104,22 +103,6 @@ fn check_size(settings: &ExportSettings, size: (u32, u32)) -> Result<()> {
         ));
     }
     Ok(())
-}
-
-/// Where the images of an export go, relative to its folder.
-pub fn image_path(out: &Path, f: &ExportedFrame) -> PathBuf {
-    out.join(IMAGE_DIR).join(&f.file)
-}
-
-/// Every file an export lists, relative to its folder (images, masks, overlays).
-pub fn listed_files(frames: &[ExportedFrame]) -> Vec<PathBuf> {
-    let mut v = Vec::new();
-    for f in frames {
-        v.push(Path::new(IMAGE_DIR).join(&f.file));
-        v.extend(f.mask.iter().map(|m| Path::new(MASK_DIR).join(m)));
-        v.extend(f.overlay.iter().map(|o| Path::new(OVERLAY_DIR).join(o)));
-    }
-    v
 }
 
 /// Exports the keyframes of the project at `project_path` into `out` (`out/images/`,

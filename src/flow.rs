@@ -2,9 +2,10 @@
 //! started from a given flow (a `.flo` of the images' size, checked before anything runs).
 
 use crate::error::{Error, Result};
-use crate::gpu::{self, Backend, BackendChoice};
+use crate::gpu;
 use crate::kernels::{farneback, movement};
 use crate::params::FarnebackParams;
+use crate::params::{Backend, BackendChoice, Statistic};
 use opencv::core::Mat;
 use opencv::prelude::*;
 use std::path::Path;
@@ -77,7 +78,7 @@ pub fn between_files(
         })
     })?;
     let mags = movement::magnitudes(&field)?;
-    let median_px = movement::cpu(&mags, movement::Statistic::Median)?;
+    let median_px = movement::cpu(&mags, Statistic::Median)?;
     Ok(FlowResult {
         field,
         backend,

@@ -2,7 +2,7 @@
 //! relative paths and input fingerprints.
 
 use crate::error::{Error, Result};
-pub use crate::output::fnv1a64;
+use crate::output::fnv1a64;
 use serde::{Deserialize, Serialize};
 use std::fs;
 use std::io::{Read, Write};

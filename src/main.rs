@@ -282,7 +282,7 @@ fn export(a: &cli::ExportArgs, quiet: bool) -> Result<ExitCode> {
         eprintln!(
             "masks: {} under {}/ ({:?} backend, {ms:.1} ms per image for the network)",
             m.frames.iter().filter(|f| f.mask.is_some()).count(),
-            keyframer::export::MASK_DIR,
+            keyframer::manifest::MASK_DIR,
             s.backend
         );
     }

@@ -260,6 +260,22 @@ impl Format {
     }
 }
 
+/// Where the images of an export go, relative to its folder.
+pub fn image_path(out: &Path, f: &ExportedFrame) -> PathBuf {
+    out.join(IMAGE_DIR).join(&f.file)
+}
+
+/// Every file an export lists, relative to its folder (images, masks, overlays).
+pub fn listed_files(frames: &[ExportedFrame]) -> Vec<PathBuf> {
+    let mut v = Vec::new();
+    for f in frames {
+        v.push(Path::new(IMAGE_DIR).join(&f.file));
+        v.extend(f.mask.iter().map(|m| Path::new(MASK_DIR).join(m)));
+        v.extend(f.overlay.iter().map(|o| Path::new(OVERLAY_DIR).join(o)));
+    }
+    v
+}
+
 /// Reads an export's manifest, if present and valid.
 pub fn read_manifest(path: &Path) -> Option<Manifest> {
     Manifest::load(path).ok()

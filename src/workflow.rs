@@ -268,7 +268,7 @@ impl Workflow {
         Ok(Workflow {
             path: path.to_path_buf(),
             file: content.clone(),
-            hash: crate::fsutil::fnv1a64(file.text().as_bytes()),
+            hash: crate::output::fnv1a64(file.text().as_bytes()),
             movement,
             backend,
             exports,

@@ -6,7 +6,7 @@
 use super::Request;
 use crate::error::{Error, Result};
 use crate::fsutil::Fingerprint;
-use crate::gpu::Backend;
+use crate::params::Backend;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;

@@ -6,13 +6,13 @@
 
 use super::ingest::Pixels;
 use crate::error::{Error, Result};
+use crate::gpu::readback::Readback;
 use crate::gpu::readback::Until;
-use crate::gpu::{Gate, GpuContext, Readback};
+use crate::gpu::{Gate, GpuContext};
 use crate::kernels::farneback::{FarnebackGpu, SLOTS};
-use crate::kernels::movement::{
-    checked, Destination, FrameParams, MovementGpu, Statistic, RECORD_WORDS,
-};
+use crate::kernels::movement::{checked, Destination, FrameParams, MovementGpu, RECORD_WORDS};
 use crate::kernels::stationary::{StationaryGpu, CANDIDATE, FROM_PREVIOUS};
+use crate::params::Statistic;
 use crate::params::{MovementRequest, StationaryRequest};
 use std::collections::VecDeque;
 use std::sync::Arc;

@@ -17,15 +17,15 @@ mod tests;
 pub use checkpoint::{is_checkpoint, Checkpoint, MovementState, Resume};
 pub use movement::sample_movement;
 
-pub use crate::params::{MovementRequest, MovementSeries, StationaryRequest};
+use crate::params::{MovementRequest, MovementSeries, StationaryRequest};
 use checkpoint::{Collected, Saver};
 use ingest::{Decoded, HandOff, Ready};
 use movement::MovementPass;
 use sharpness::{SharpnessEngine, Worker};
 
 use crate::error::{Error, Result};
-use crate::gpu::{Backend, GpuContext};
-use crate::kernels::sharpness::Metric;
+use crate::gpu::GpuContext;
+use crate::params::{Backend, Metric};
 use crate::source::{self, FrameSource, Metadata, OpenOptions};
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};

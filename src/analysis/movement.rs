@@ -11,10 +11,11 @@ use super::device::{DeviceMovement, Record, Work, REFERENCE};
 use super::ingest::{prepare, Pixels};
 use super::{analysis_size, MovementRequest, StationaryRequest};
 use crate::error::{Error, Result};
-use crate::gpu::{Backend, GpuContext};
-use crate::kernels::farneback::{self, FarnebackParams, SLOTS};
-use crate::kernels::movement::{self, checked, RotationField, Statistic};
+use crate::gpu::GpuContext;
+use crate::kernels::farneback::{self, SLOTS};
+use crate::kernels::movement::{self, checked, RotationField};
 use crate::kernels::resize_area;
+use crate::params::{Backend, FarnebackParams, Statistic};
 use crate::source::{self, Metadata, OpenOptions};
 use crate::steps::Stationary;
 use opencv::core::Mat;
@@ -337,7 +338,7 @@ impl MovementPass {
             let m = self
                 .pending
                 .pop_front()
-                .ok_or_else(|| Error::Gpu("a movement record without its frame".into()))?;
+                .ok_or_else(|| Error::gpu("a movement record without its frame"))?;
             self.replay(&m, &r)?;
         }
         Ok(())
@@ -351,7 +352,7 @@ impl MovementPass {
         let from_ref = || checked(r.reference);
         let anchored = step(&mut self.stationary, m, consecutive, self.scale, from_ref)?;
         if m.candidate && anchored != (r.decision != 0) {
-            return Err(Error::Gpu(format!(
+            return Err(Error::gpu(format!(
                 "the device's stationary decision at frame {} differs from the host's",
                 m.index
             )));

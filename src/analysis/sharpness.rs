@@ -2,8 +2,9 @@
 //! in a worker thread that hands `(frame, scores per metric)` back in frame order.
 
 use crate::error::{Error, Result};
-use crate::gpu::{Backend, GpuContext};
-use crate::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
+use crate::gpu::GpuContext;
+use crate::kernels::sharpness::{score_opencv, SharpnessGpu};
+use crate::params::{Backend, Metric};
 use crate::source::{Frame, Metadata};
 use opencv::core::Mat;
 use std::collections::VecDeque;
@@ -173,7 +174,7 @@ impl<'scope> Worker<'scope> {
         let worked = self
             .thread
             .join()
-            .unwrap_or_else(|_| Err(Error::Gpu("the sharpness worker panicked".into())));
+            .unwrap_or_else(|_| Err(Error::gpu("the sharpness worker panicked")));
         run?;
         worked?;
         drain(&self.rx, scores, upto)
@@ -205,7 +206,7 @@ pub(crate) fn push_scores(scores: &mut [Vec<f64>], frame: Vec<f64>) {
 }
 
 fn stopped() -> Error {
-    Error::Gpu("the sharpness worker stopped".into())
+    Error::gpu("the sharpness worker stopped")
 }
 
 /// The worker's loop: scores frames in batches, in index order, and sends
@@ -236,9 +237,7 @@ fn work(
         }
         for s in engine.take(all)? {
             let Some(index) = queued.pop_front() else {
-                return Err(Error::Gpu(
-                    "the sharpness engine returned extra scores".into(),
-                ));
+                return Err(Error::gpu("the sharpness engine returned extra scores"));
             };
             if tx.send((index, s)).is_err() {
                 return Ok(());

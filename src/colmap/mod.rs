@@ -10,8 +10,8 @@ pub mod extend;
 pub mod model;
 
 use crate::error::{Error, Result};
-use crate::export::{Manifest, MANIFEST};
 use crate::fsutil;
+use crate::manifest::{Manifest, MANIFEST, MASK_DIR};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -321,7 +321,7 @@ fn check_export(a: &ColmapSettings) -> Result<(PathBuf, Manifest, PathBuf)> {
         ));
     }
     for f in &manifest.frames {
-        let from = crate::export::image_path(&export, f);
+        let from = crate::manifest::image_path(&export, f);
         if !from.is_file() {
             let msg = "listed in the export's manifest but missing";
             return Err(Error::input(&from, msg));
@@ -342,13 +342,16 @@ fn fill_workspace(
     let dir = prepare_workspace(ws, export, force)?;
     let images = ws.join("images");
     let masks_dir = ws.join("masks");
-    let export_masks = export.join(crate::export::MASK_DIR);
+    let export_masks = export.join(MASK_DIR);
     let mut masks = 0;
     let linked = (|| -> Result<()> {
         std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
         std::fs::create_dir_all(ws.join("logs")).map_err(|e| Error::io(ws.join("logs"), e))?;
         for f in &manifest.frames {
-            link_or_copy(&crate::export::image_path(export, f), &images.join(&f.file))?;
+            link_or_copy(
+                &crate::manifest::image_path(export, f),
+                &images.join(&f.file),
+            )?;
             if let Some(m) = &f.mask {
                 if masks == 0 {
                     std::fs::create_dir_all(&masks_dir).map_err(|e| Error::io(&masks_dir, e))?;

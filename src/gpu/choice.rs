@@ -69,9 +69,10 @@ impl std::fmt::Display for AutoDecision {
 
 /// The text of `e` (a GPU error's without its "GPU: ").
 fn message(e: Error) -> String {
+    let text = e.to_string();
     match e {
-        Error::Gpu(msg) => msg,
-        other => other.to_string(),
+        Error::Gpu { .. } => text.strip_prefix("GPU: ").unwrap_or(&text).to_string(),
+        _ => text,
     }
 }
 
@@ -162,7 +163,7 @@ pub fn or_opencv<T>(
                 Err(fault) => fault,
             },
             Err(e) => match (c.check(), e) {
-                (Err(fault), _) | (Ok(()), fault @ Error::Gpu(_)) => fault,
+                (Err(fault), _) | (Ok(()), fault @ Error::Gpu { .. }) => fault,
                 (Ok(()), other) => return Err(other),
             },
         };

@@ -7,14 +7,12 @@
 mod choice;
 
 use crate::error::{Error, Result};
-pub use crate::params::{Backend, BackendChoice};
 pub use choice::{auto_backend, or_opencv, resolve_backend, AdapterClass, AutoDecision};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, LazyLock, Mutex};
 
 pub mod readback;
-pub use readback::Readback;
 
 /// Environment variable naming the adapter to use (case-insensitive substring of its name).
 pub const ADAPTER_ENV: &str = "KEYFRAMER_ADAPTER";
@@ -196,9 +194,8 @@ pub fn pick_adapter(wanted: Option<&str>) -> Result<wgpu::Adapter> {
     let wanted = wanted.or(env.as_deref()).filter(|w| !w.is_empty());
     let mut list = adapters();
     if list.is_empty() {
-        return Err(Error::Gpu(
-            "no wgpu adapter found (install mesa-vulkan-drivers for the lavapipe software adapter)"
-                .into(),
+        return Err(Error::gpu(
+            "no wgpu adapter found (install mesa-vulkan-drivers for the lavapipe software adapter)",
         ));
     }
     let Some(w) = wanted else {
@@ -209,7 +206,7 @@ pub fn pick_adapter(wanted: Option<&str>) -> Result<wgpu::Adapter> {
         return Ok(list.swap_remove(i));
     }
     let names: Vec<String> = list.iter().map(|a| a.get_info().name).collect();
-    Err(Error::Gpu(format!(
+    Err(Error::gpu(format!(
         "no adapter matches `{w}`; available: {}",
         names.join(", ")
     )))
@@ -266,7 +263,7 @@ impl GpuContext {
             required_limits: limits.clone(),
             ..Default::default()
         }))
-        .map_err(|e| Error::Gpu(format!("cannot create a device on {}: {e}", info.name)))?;
+        .map_err(|e| Error::gpu_from(format!("cannot create a device on {}", info.name), e))?;
         let faults = Arc::new(Mutex::new(Vec::new()));
         let sink = faults.clone();
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| record(&sink, e.to_string())));
@@ -292,7 +289,7 @@ impl GpuContext {
         let faults = lock(&self.faults, "fault list")?;
         match faults.first() {
             None => Ok(()),
-            Some(first) => Err(Error::Gpu(format!(
+            Some(first) => Err(Error::gpu(format!(
                 "the GPU device on {} reported an error ({} in all); its results are not used: {}",
                 self.info.name,
                 faults.len(),
@@ -324,7 +321,7 @@ impl GpuContext {
     fn poll_device(&self, how: wgpu::PollType) -> Result<()> {
         self.device
             .poll(how)
-            .map_err(|e| Error::Gpu(format!("device poll failed: {e}")))?;
+            .map_err(|e| Error::gpu_from("device poll failed", e))?;
         self.check()
     }
 
@@ -585,7 +582,7 @@ impl GpuContext {
         let out = staging
             .slice(..bytes)
             .get_mapped_range()
-            .map_err(|e| Error::Gpu(format!("mapped range: {e}")))?
+            .map_err(|e| Error::gpu_from("mapped range", e))?
             .to_vec();
         staging.unmap();
         self.counters.read_back.fetch_add(out.len() as u64, Relaxed);
@@ -603,14 +600,14 @@ pub fn mat_bytes<'a>(
 ) -> Result<std::borrow::Cow<'a, [u8]>> {
     use opencv::prelude::*;
     if mat.typ() != typ || mat.cols() as u32 != width || mat.rows() as u32 != height {
-        return Err(Error::Gpu(format!(
+        return Err(Error::gpu(format!(
             "frame is {}x{} of type {}; the {what} runner takes {width}x{height} of type {typ}",
             mat.cols(),
             mat.rows(),
             mat.typ()
         )));
     }
-    let cv = |e: opencv::Error| Error::Gpu(e.to_string());
+    let cv = |e: opencv::Error| Error::gpu_from(format!("reading the {what} frame"), e);
     if mat.is_continuous() {
         return mat.data_bytes().map(std::borrow::Cow::Borrowed).map_err(cv);
     }
@@ -658,7 +655,7 @@ fn record(faults: &Mutex<Vec<String>>, msg: String) {
 /// `m` locked; an error naming it (`what`) when a thread panicked holding it.
 fn lock<'a, T>(m: &'a Mutex<T>, what: &str) -> Result<std::sync::MutexGuard<'a, T>> {
     m.lock()
-        .map_err(|_| Error::Gpu(format!("{what} lock poisoned")))
+        .map_err(|_| Error::gpu(format!("{what} lock poisoned")))
 }
 
 /// The process's context for `adapter` (see [`resolve_backend`]).
@@ -704,7 +701,7 @@ mod tests {
         }
         ctx.queue.submit([enc.finish()]);
         let waited = ctx.wait().expect_err("the over-limit dispatch is reported");
-        assert!(matches!(waited, Error::Gpu(_)), "{waited}");
+        assert!(matches!(waited, Error::Gpu { .. }), "{waited}");
         let msg = waited.to_string();
         assert!(msg.contains(&ctx.info.name), "{msg}");
         assert!(msg.contains("dispatch group size dimension"), "{msg}");

@@ -31,9 +31,9 @@ pub(crate) fn mapped(m: &Mapping, block: bool) -> Result<bool> {
     match r {
         Ok(r) => r
             .map(|_| true)
-            .map_err(|e| Error::Gpu(format!("buffer map failed: {e}"))),
+            .map_err(|e| Error::gpu_from("buffer map failed", e)),
         Err(TryRecvError::Empty) => Ok(false),
-        Err(TryRecvError::Disconnected) => Err(Error::Gpu("readback callback dropped".into())),
+        Err(TryRecvError::Disconnected) => Err(Error::gpu("readback callback dropped")),
     }
 }
 
@@ -94,9 +94,7 @@ impl Readback {
     ) -> Result<()> {
         let bytes = bytes.next_multiple_of(4);
         if bytes > self.size || self.is_full() || self.recorded.is_some() {
-            return Err(Error::Gpu(
-                "no staging buffer free for this readback".into(),
-            ));
+            return Err(Error::gpu("no staging buffer free for this readback"));
         }
         let buffer =
             (self.free.pop()).unwrap_or_else(|| ctx.staging_buffer("readback pool", self.size));

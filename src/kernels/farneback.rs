@@ -6,7 +6,7 @@
 
 use crate::error::{CvContext, Error, Result};
 use crate::gpu::{compute_pass, mat_bytes, Gate, GpuContext};
-pub use crate::params::FarnebackParams;
+use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
@@ -413,7 +413,7 @@ impl PyramidScratch {
         for (k, l) in levels.iter().enumerate() {
             let radius = l.smooth.len() / 2;
             if radius + 2 > MAX_TAPS {
-                return Err(Error::Gpu(format!("Farneback level {k} smooths with {} taps; the shaders hold {MAX_TAPS} (use a smaller analysis resolution)", 2 * radius + 1)));
+                return Err(Error::gpu(format!("Farneback level {k} smooths with {} taps; the shaders hold {MAX_TAPS} (use a smaller analysis resolution)", 2 * radius + 1)));
             }
             let (scale_x, scale_y) = resize_steps((w, h), (l.width, l.height));
             let u = ctx.uniform(
@@ -742,7 +742,7 @@ impl FarnebackGpu {
         let full = u64::from(width) * u64::from(height);
         let max = ctx.limits.max_texture_dimension_2d;
         if full * 20 > ctx.limits.max_storage_buffer_binding_size || width > max || height > max {
-            return Err(Error::Gpu(format!(
+            return Err(Error::gpu(format!(
                 "Farneback at {width}x{height} needs {} MiB buffers and {width}x{height} textures; this adapter binds at most {} MiB and {max}x{max} (use a smaller analysis resolution)",
                 (full * 20) >> 20,
                 ctx.limits.max_storage_buffer_binding_size >> 20
@@ -752,7 +752,7 @@ impl FarnebackGpu {
         let n = texels(width);
         let halo = window_halo(params.winsize);
         if 5 * (n + 2 * halo) > max || 7 * n > max {
-            return Err(Error::Gpu(format!(
+            return Err(Error::gpu(format!(
                 "Farneback at width {width} with winsize {} needs {} texel wide textures; this adapter allows {max}",
                 params.winsize,
                 5 * (n + 2 * halo)
@@ -1046,7 +1046,7 @@ impl FarnebackGpu {
             let top = self
                 .levels
                 .last()
-                .ok_or_else(|| Error::Gpu("no pyramid levels".into()))?;
+                .ok_or_else(|| Error::gpu("no pyramid levels"))?;
             let full = &self.levels[0];
             if init.typ() != opencv::core::CV_32FC2
                 || (init.cols() as u32, init.rows() as u32) != (full.width, full.height)
@@ -1072,7 +1072,7 @@ impl FarnebackGpu {
                 .data_typed::<opencv::core::Vec2f>()
                 .cv(|| "initial flow values".into())?;
             let Some((top_flow, _)) = &self.level_scratch[self.levels.len() - 1].initial else {
-                return Err(Error::Gpu("no initial flow texture".into()));
+                return Err(Error::gpu("no initial flow texture"));
             };
             let bytes = planar_flow(values, top.width as usize);
             self.ctx

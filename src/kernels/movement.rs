@@ -8,7 +8,7 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::{compute_pass, Gate, GpuContext};
-pub use crate::params::{Derotate, Statistic};
+use crate::params::{Derotate, Statistic};
 use bytemuck::{Pod, Zeroable};
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
@@ -541,7 +541,7 @@ impl MovementGpu {
             .get(..8)
             .and_then(|b| <[u8; 8]>::try_from(b).ok())
             .map(f64::from_le_bytes)
-            .ok_or_else(|| Error::Gpu("movement record too short".into()))?;
+            .ok_or_else(|| Error::gpu("movement record too short"))?;
         checked(v)
     }
 }
@@ -550,8 +550,8 @@ impl MovementGpu {
 /// finite).
 pub fn checked(v: f64) -> Result<f64> {
     if v.is_nan() {
-        return Err(Error::Gpu(
-            "movement histogram lost values (non-finite flow?)".into(),
+        return Err(Error::gpu(
+            "movement histogram lost values (non-finite flow?)",
         ));
     }
     Ok(v)

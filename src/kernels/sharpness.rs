@@ -13,7 +13,7 @@ use super::{gray, gray_stride, laplacian, tenengrad};
 use crate::error::{Error, Result};
 use crate::gpu::readback::{Readback, Until};
 use crate::gpu::{compute_pass, GpuContext};
-pub use crate::params::Metric;
+use crate::params::Metric;
 use opencv::core::Mat;
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -238,8 +238,8 @@ impl SharpnessGpu {
     /// while submitted scores are still to be taken).
     pub fn scores(&mut self, frames: &[&Mat]) -> Result<Vec<f64>> {
         if !(self.in_flight.is_empty() && self.landed.is_empty()) {
-            return Err(Error::Gpu(
-                "sharpness scores asked while submitted scores are not taken".into(),
+            return Err(Error::gpu(
+                "sharpness scores asked while submitted scores are not taken",
             ));
         }
         self.submit(frames)?;

@@ -64,7 +64,7 @@ pub fn groups(width: u32, height: u32, strip_rows: u32) -> (u32, u32) {
 pub fn frame_texture(ctx: &GpuContext, width: u32, height: u32) -> Result<wgpu::Texture> {
     let (tw, max) = (texels_per_row(width), ctx.limits.max_texture_dimension_2d);
     if tw > max || height > max {
-        return Err(Error::Gpu(format!(
+        return Err(Error::gpu(format!(
             "a {width}x{height} frame needs a {tw}x{height} texture; this adapter allows {max}x{max}"
         )));
     }

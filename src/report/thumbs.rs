@@ -2,7 +2,7 @@
 //! (bounded memory) or read from an export folder, plus the base64 needed for data: URIs.
 
 use crate::error::{CvContext, Error, Result};
-use crate::export;
+use crate::manifest::{image_path, Manifest, MANIFEST};
 use crate::source;
 use opencv::prelude::*;
 use std::path::Path;
@@ -59,8 +59,8 @@ pub fn from_input(input: &Path, frames: &[usize]) -> Result<(Vec<Thumb>, Vec<usi
 /// Thumbnails of `frames` from the images of the export folder `dir` (its manifest names them);
 /// frames the export does not hold are returned as the second value.
 pub fn from_export(dir: &Path, frames: &[usize]) -> Result<(Vec<Thumb>, Vec<usize>)> {
-    let mpath = dir.join(export::MANIFEST);
-    let manifest = export::Manifest::load(&mpath)?;
+    let mpath = dir.join(MANIFEST);
+    let manifest = Manifest::load(&mpath)?;
     let mut thumbs = Vec::new();
     let mut missing = Vec::new();
     for &f in frames {
@@ -68,7 +68,7 @@ pub fn from_export(dir: &Path, frames: &[usize]) -> Result<(Vec<Thumb>, Vec<usiz
             missing.push(f);
             continue;
         };
-        let path = export::image_path(dir, e);
+        let path = image_path(dir, e);
         let name = path.to_string_lossy().into_owned();
         let image = opencv::imgcodecs::imread(&name, opencv::imgcodecs::IMREAD_COLOR)
             .cv(|| format!("reading {name}"))?;

@@ -2,7 +2,7 @@
 //! images and turns the classes the user hides into COLMAP masks (hidden 0, kept 255), checking
 //! the model against its description before any frame is touched.
 
-pub use crate::model_desc as desc;
+use crate::model_desc as desc;
 pub mod dnn;
 pub mod onnx;
 #[cfg(feature = "onnx")]
@@ -20,7 +20,7 @@ use opencv::prelude::*;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-pub use crate::manifest::{MaskSettings, SegRuntime};
+use crate::manifest::{MaskSettings, SegRuntime};
 
 enum Runner {
     Dnn(dnn::DnnRunner),

@@ -7,13 +7,14 @@
 pub mod preview;
 mod telemetry;
 
-use crate::analysis::{self, MovementRequest, Request, StationaryRequest};
+use crate::analysis::{self, Request};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
-use crate::gpu::{self, Backend, BackendChoice};
+use crate::gpu;
 use crate::output::lock::Lock;
 use crate::output::Inputs;
 use crate::params::Metric;
+use crate::params::{Backend, BackendChoice, MovementRequest, StationaryRequest};
 use crate::project::{
     Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
     SCHEMA_VERSION,
@@ -23,7 +24,7 @@ use crate::steps::{self, Boundaries};
 use crate::steps::{Applied, Need, Step};
 use std::path::{Path, PathBuf};
 
-pub use crate::steps::Threshold;
+use crate::steps::Threshold;
 
 /// The threshold an earlier `select` proposed from its movement sample for `plugin`
 /// (`stationary` or `spacing` with `auto`), measured the way `movement` says on `backend`, as its

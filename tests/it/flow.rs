@@ -1,8 +1,9 @@
 //! Farneback flow: gpu against cv::calcOpticalFlowFarneback with the same parameters.
 
 use crate::common::testdata;
-use keyframer::kernels::farneback::{self, FarnebackGpu, FarnebackParams};
+use keyframer::kernels::farneback::{self, FarnebackGpu};
 use keyframer::kernels::tolerance::{FLOW_EPE_MEAN, FLOW_EPE_P99};
+use keyframer::params::{Derotate, FarnebackParams, Statistic};
 use opencv::core::{Mat, Vec2f};
 use opencv::prelude::*;
 
@@ -89,7 +90,7 @@ fn middlebury_pairs_match_opencv() {
 /// gpu vs opencv movement agrees within MOVEMENT_REL.
 #[test]
 fn movement_statistic_on_device() {
-    use keyframer::kernels::movement::{self, MovementGpu, Statistic};
+    use keyframer::kernels::movement::{self, MovementGpu};
     use keyframer::kernels::tolerance::{rel_err, MOVEMENT_REL};
     let prev = gray_of(&testdata("opencv-doc/rubberwhale1.png"));
     let next = gray_of(&testdata("opencv-doc/rubberwhale2.png"));
@@ -135,7 +136,7 @@ fn movement_statistic_on_device() {
 /// rotation (plus a local bump) is fitted back and leaves (almost) no residual.
 #[test]
 fn derotated_movement_on_device() {
-    use keyframer::kernels::movement::{self, Derotate, MovementGpu, RotationField, Statistic};
+    use keyframer::kernels::movement::{self, MovementGpu, RotationField};
     use keyframer::kernels::tolerance::{
         rel_err, DEROTATED_SAME_FLOW_REL, MOVEMENT_REL, ROTATION_ABS,
     };

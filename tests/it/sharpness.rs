@@ -3,8 +3,9 @@
 
 use keyframer::gpu::GpuContext;
 use keyframer::kernels::gray;
-use keyframer::kernels::sharpness::{score_opencv, Metric, SharpnessGpu};
+use keyframer::kernels::sharpness::{score_opencv, SharpnessGpu};
 use keyframer::kernels::tolerance::{rel_err, SHARPNESS_REL};
+use keyframer::params::Metric;
 use opencv::core::Mat;
 use opencv::prelude::*;
 use std::sync::Arc;

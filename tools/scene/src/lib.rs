@@ -586,7 +586,7 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
         telemetry,
     };
     let json = serde_json::to_string_pretty(&description)
-        .map_err(|e| Error::Gpu(format!("scene.json: {e}")))?;
+        .map_err(|e| Error::gpu(format!("scene.json: {e}")))?;
     keyframer::fsutil::write_atomic(&s.out.join("scene.json"), json.as_bytes())?;
     Ok(SceneReport {
         description,

@@ -269,7 +269,7 @@ impl<'a> Renderer<'a> {
         let lim = &ctx.limits;
         let biggest = data.terrain_tex.size.max(width).max(height);
         if biggest > lim.max_texture_dimension_2d {
-            return Err(Error::Gpu(format!(
+            return Err(Error::gpu(format!(
                 "the scene needs {biggest}-texel textures; the device allows {}",
                 lim.max_texture_dimension_2d
             )));
@@ -586,7 +586,7 @@ impl<'a> Renderer<'a> {
     /// packed RGBA8 rows, top row first.
     pub fn frame(&self, subs: &[SubSample], sun: [f32; 4]) -> Result<Vec<u8>> {
         if subs.is_empty() || subs.len() > self.samples as usize {
-            return Err(Error::Gpu(format!(
+            return Err(Error::gpu(format!(
                 "{} sub-samples given; the renderer takes 1 to {}",
                 subs.len(),
                 self.samples
@@ -598,7 +598,7 @@ impl<'a> Renderer<'a> {
         for (k, sub) in subs.iter().enumerate() {
             let (clip, inst) = (&sub.clip, &sub.instances);
             if inst.len() != n {
-                return Err(Error::Gpu(format!(
+                return Err(Error::gpu(format!(
                     "{} instances given; expected {n}",
                     inst.len()
                 )));
