@@ -987,7 +987,7 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "S")]
     pub scale: Option<f64>,
     /// JPEG quality, 1 to 100.
-    #[arg(long, default_value_t = keyframer::export::DEFAULT_QUALITY)]
+    #[arg(long, default_value_t = DEFAULT_QUALITY)]
     pub quality: u8,
     /// Segmentation masks for every exported image (passed to COLMAP).
     #[command(flatten)]

@@ -173,10 +173,10 @@ pub fn round(
 fn link_new(
     ws: &Path,
     export: &Path,
-    manifest: &crate::export::Manifest,
+    manifest: &crate::manifest::Manifest,
     new: &[String],
 ) -> Result<()> {
-    let export_masks = export.join(crate::export::MASK_DIR);
+    let export_masks = export.join(crate::manifest::MASK_DIR);
     for name in new {
         let f = manifest
             .frames
@@ -185,7 +185,7 @@ fn link_new(
             .ok_or_else(|| Error::input(export, format!("{name}: not in the export's manifest")))?;
         let to = ws.join("images").join(&f.file);
         if !to.is_file() {
-            super::link_or_copy(&crate::export::image_path(export, f), &to)?;
+            super::link_or_copy(&crate::manifest::image_path(export, f), &to)?;
         }
         if let Some(m) = &f.mask {
             let dir = ws.join("masks");

@@ -16,7 +16,7 @@ pub mod repair;
 use crate::colmap::extend::{self, MapperKind, Mapping};
 use crate::colmap::{model, ColmapSettings, Matcher, Record};
 use crate::error::{Error, Result};
-use crate::export::{ExportSettings, Manifest};
+use crate::manifest::{ExportSettings, Manifest};
 use crate::fsutil;
 use crate::output::Inputs;
 use crate::project::Project;
