@@ -16,8 +16,8 @@ pub mod repair;
 use crate::colmap::extend::{self, MapperKind, Mapping};
 use crate::colmap::{model, ColmapSettings, Matcher, Record};
 use crate::error::{Error, Result};
-use crate::manifest::{ExportSettings, Manifest};
 use crate::fsutil;
+use crate::manifest::{ExportSettings, Manifest};
 use crate::output::Inputs;
 use crate::project::Project;
 use breaks::{Break, Limits, Observed};
@@ -612,7 +612,7 @@ impl Job<'_> {
         // A model holding only keyframes a larger one holds too (COLMAP may register an image
         // in two models) tells nothing: it is left out.
         models.retain(|m| m.registered > 0);
-        models.sort_by(|a, b| b.registered.cmp(&a.registered));
+        models.sort_by_key(|m| std::cmp::Reverse(m.registered));
         Ok(Round {
             round: n,
             keyframes: keys.clone(),
@@ -785,7 +785,7 @@ fn observe(
     };
     // Larger models first, so a keyframe registered twice counts in the larger.
     let mut order: Vec<&crate::colmap::ModelSummary> = rec.models.iter().collect();
-    order.sort_by(|a, b| b.registered_images.cmp(&a.registered_images));
+    order.sort_by_key(|m| std::cmp::Reverse(m.registered_images));
     for summary in order {
         let (m, _) = model::read(&cws.join(&summary.path))?;
         let index = obs.models.len();

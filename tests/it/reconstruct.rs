@@ -228,7 +228,7 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
     let once = d.path().join("once");
     let mut args = vec![
         "colmap",
-        s(&ws),
+        s(ws),
         "-o",
         s(&once),
         "--sparse",
@@ -257,7 +257,7 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
 
     // A second run finds the loop finished and changes nothing.
     let before = std::fs::read(ws.join("reconstruct.json")).unwrap();
-    let listing_before = listing(&ws);
+    let listing_before = listing(ws);
     let again = reconstruct(p, ws, &[]);
     let sum2 = summary(&again);
     assert_eq!(sum2["changed"], false);
@@ -266,7 +266,7 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
     assert!(err2.contains("nothing changed"), "{err2}");
     assert!(!err2.contains("round "), "{err2}");
     assert_eq!(std::fs::read(ws.join("reconstruct.json")).unwrap(), before);
-    assert_eq!(listing(&ws), listing_before);
+    assert_eq!(listing(ws), listing_before);
 }
 
 #[test]

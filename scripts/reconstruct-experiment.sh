@@ -1,0 +1,107 @@
+#!/usr/bin/env bash
+# The reconstruction-in-the-loop experiment (issue 31): on keyframer-scene surveys with fast turns
+# and ground truth, for each seed, plain COLMAP on uniform `--every N` selections from the
+# sparsest N up (until one registers every keyframe in one model: the sparsest uniform N that
+# reconstructs), then `keyframer reconstruct` from the sparse start `--every START`: rounds,
+# frames added, final keyframes against the sparsest uniform N's, registration, the largest
+# camera-centre error against the ground truth after a similarity alignment (in % of the path
+# length), and the loop's COLMAP time against one COLMAP run on its final keyframes.
+#
+#   scripts/reconstruct-experiment.sh [--smoke] [--seeds 1,2,3] [--start 30] [--ns 30,20,15,10] [WORK]
+#
+# --smoke: one seed, N 30 only (the test suite's size). Every run uses the scene's intrinsics
+# (PINHOLE, kept fixed), 1024 SIFT features and the loop's mapper options for plain COLMAP too
+# (min_model_size=3, init_min_tri_angle=4), so that only the loop differs. The table goes to
+# stdout and WORK/table.md (default WORK: target/reconstruct-experiment), raw numbers to
+# WORK/results.jsonl. keyframer from $KEYFRAMER (default target/release/keyframer), the scene
+# tool from $KEYFRAMER_SCENE (default target/release/keyframer-scene).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+seeds="1,2,3"
+start=30
+ns="30,20,15,10"
+work=target/reconstruct-experiment
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --smoke) seeds="1"; ns="30" ;;
+    --seeds) seeds="$2"; shift ;;
+    --start) start="$2"; shift ;;
+    --ns) ns="$2"; shift ;;
+    -h|--help) sed -n 2,17p "$0"; exit 0 ;;
+    -*) echo "reconstruct-experiment: unknown flag $1" >&2; exit 2 ;;
+    *) work="$1" ;;
+  esac
+  shift
+done
+for tool in jq colmap ffmpeg; do
+  command -v "$tool" >/dev/null || { echo "reconstruct-experiment: $tool is missing: run scripts/setup.sh" >&2; exit 1; }
+done
+kf="${KEYFRAMER:-target/release/keyframer}"
+[ -x "$kf" ] || cargo build --release --quiet
+scene="${KEYFRAMER_SCENE:-target/release/keyframer-scene}"
+[ -x "$scene" ] || cargo build --release --quiet -p keyframer-scene
+mkdir -p "$work"
+results="$work/results.jsonl"
+: > "$results"
+camera=(--camera-model PINHOLE --camera-params 224,224,160,90 --max-features 1024)
+mapper=(--mapper-option min_model_size=3 --mapper-option init_min_tri_angle=4)
+
+# Path length of the ground truth between frames A and B (poses.tum: one line per frame).
+path_length() {
+  awk -v a="$2" -v b="$3" 'NR-1>=a && NR-1<=b { if (n++) d += sqrt(($2-x)^2+($3-y)^2+($4-z)^2); x=$2; y=$3; z=$4 } END { print d }' "$1"
+}
+
+for seed in ${seeds//,/ }; do
+  dir="$work/seed$seed"
+  mkdir -p "$dir"
+  if [ ! -f "$dir/scene/scene.json" ]; then
+    "$scene" "$dir/scene" --force --quiet --size 320x180 --seconds 15 --blur-samples 2 --seed "$seed"
+  fi
+  base="$dir/base.json"
+  [ -f "$base" ] || "$kf" select "$dir/scene/video.mp4" -o "$base" --spacing 10kf --blur --quiet
+  sparsest=""
+  for n in ${ns//,/ }; do
+    out="$dir/every$n"
+    rm -rf "$out"; mkdir -p "$out"
+    cp "$base" "$out/project.json"
+    "$kf" select "$dir/scene/video.mp4" -o "$out/project.json" --every "$n" --force --quiet
+    "$kf" export "$out/project.json" --out "$out/export" --quiet
+    echo "reconstruct-experiment: seed $seed every $n: plain COLMAP..." >&2
+    "$kf" colmap "$out/export" -o "$out/colmap" --sparse "${camera[@]}" "${mapper[@]}" --quiet --json \
+      > "$out/colmap.json" 2>/dev/null || true
+    frames=$(jq '.keyframes | length' "$out/project.json")
+    largest=$(jq '[.models[].registered_images] | max // 0' "$out/colmap.json" 2>/dev/null || echo 0)
+    models=$(jq '.models | length' "$out/colmap.json" 2>/dev/null || echo 0)
+    secs=$(jq '[.stages[].seconds] | add' "$out/colmap.json" 2>/dev/null || echo 0)
+    jq -cn --arg seed "$seed" --arg n "$n" --argjson frames "$frames" --argjson largest "$largest" \
+      --argjson models "$models" --argjson secs "$secs" \
+      '{seed: $seed, run: ("every " + $n), frames: $frames, registered: $largest, models: $models, colmap_s: $secs}' >> "$results"
+    if [ "$largest" = "$frames" ] && [ "$models" = 1 ]; then sparsest="$n"; sparsest_frames="$frames"; break; fi
+  done
+  out="$dir/loop"
+  rm -rf "$out"; mkdir -p "$out"
+  cp "$base" "$out/start.json"
+  "$kf" select "$dir/scene/video.mp4" -o "$out/start.json" --every "$start" --force --quiet
+  echo "reconstruct-experiment: seed $seed: reconstruct from every $start..." >&2
+  "$kf" reconstruct "$out/start.json" --out "$out/ws" "${camera[@]}" --json > "$out/summary.json"
+  "$kf" eval "$out/ws/colmap" --gt "$dir/scene/poses.tum" --json --quiet > "$out/eval.json" || echo '{}' > "$out/eval.json"
+  first=$(jq '.final_keyframes[0]' "$out/summary.json")
+  last=$(jq '.final_keyframes[-1]' "$out/summary.json")
+  length=$(path_length "$dir/scene/poses.tum" "$first" "$last")
+  "$kf" colmap "$out/ws" -o "$out/once" --sparse "${camera[@]}" "${mapper[@]}" --quiet --json > "$out/once.json" 2>/dev/null || true
+  once=$(jq '[.stages[].seconds] | add' "$out/once.json" 2>/dev/null || echo 0)
+  jq -c --arg seed "$seed" --arg start "$start" --arg sparsest "${sparsest:-none}" \
+    --argjson sparsest_frames "${sparsest_frames:-0}" --argjson length "$length" --argjson once "$once" \
+    --slurpfile e "$out/eval.json" '{seed: $seed, run: ("reconstruct from every " + $start),
+      start: .start_keyframes, frames: (.final_keyframes | length), registered, models: (.models | length),
+      rounds, outcome, colmap_s: .colmap_total_s, once_s: $once,
+      max_error_pct: (if $e[0].gt then 100 * $e[0].gt.position_max / $length else null end),
+      sparsest_uniform: $sparsest, sparsest_frames: $sparsest_frames}' "$out/summary.json" >> "$results"
+done
+
+{
+  echo "| seed | run | keyframes | registered (largest model) | models | rounds | COLMAP s | one run on final set s | max GT error % of path | sparsest uniform N (frames) |"
+  echo "|---|---|---|---|---|---|---|---|---|---|"
+  jq -r '"| \(.seed) | \(.run) | \(if .start then "\(.start) → \(.frames)" else .frames end) | \(.registered) | \(.models) | \(.rounds // "-") | \(.colmap_s * 10 | round / 10) | \(if .once_s then (.once_s * 10 | round / 10) else "-" end) | \(if .max_error_pct then (.max_error_pct * 100 | round / 100) else "-" end) | \(if .sparsest_uniform then "\(.sparsest_uniform) (\(.sparsest_frames))" else "-" end) |"' "$results"
+} | tee "$work/table.md"
