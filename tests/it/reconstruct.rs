@@ -501,3 +501,64 @@ fn changed_input_and_foreign_workspace_are_refused() {
     assert!(err.contains("the input changed"), "{err}");
     assert!(!ws.exists());
 }
+
+/// A stand-in COLMAP that offers the incremental mapper and fails at `sequential_matcher`.
+fn failing_colmap(dir: &Path) -> PathBuf {
+    let p = dir.join("failing-colmap");
+    std::fs::write(
+        &p,
+        r##"#!/bin/sh
+stage="$1"; shift
+out=""
+while [ $# -gt 0 ]; do
+  case "$1" in --output_path) out="$2";; esac
+  shift
+done
+case "$stage" in
+  help|-h) printf 'COLMAP 3.8 -- fake\n  (Commit Unknown on Unknown without CUDA)\nAvailable commands:\n  feature_extractor\n  mapper\n';;
+  project_generator) printf 'database_path=\nimage_path=\n' > "$out";;
+  sequential_matcher) echo "matcher broke" >&2; exit 3;;
+esac
+"##,
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+    p
+}
+
+#[test]
+fn preview_project_falls_back_to_time_and_a_failing_stage_is_named() {
+    let d = tempfile::tempdir().unwrap();
+    let (clip, _) = clip_and_project(d.path());
+    let p = d.path().join("preview.json");
+    kf_ok(&["select", s(&clip), "-o", s(&p), "--preview", "--every", "1"]);
+    let ws = d.path().join("ws");
+    let fake = failing_colmap(d.path());
+    let o = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args(["reconstruct", s(&p), "--out", s(&ws)])
+        .env("KEYFRAMER_COLMAP", &fake)
+        .output()
+        .unwrap();
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("repairs are placed by time"), "{err}");
+    let log = ws.join("colmap/logs/sequential_matcher.log");
+    assert!(
+        err.contains("colmap sequential_matcher failed") && err.contains(s(&log)),
+        "{err}"
+    );
+    assert!(std::fs::read_to_string(&log)
+        .unwrap()
+        .contains("matcher broke"));
+    // The round stays unfinished: the next run resumes it.
+    let st = json(&ws.join("reconstruct.json"));
+    assert_eq!(st["rounds"].as_array().unwrap().len(), 1);
+    assert_eq!(st["rounds"][0]["done"], false);
+    assert!(st["outcome"].is_null());
+    assert_eq!(st["measure"], "time");
+    assert!(json(&ws.join("colmap/colmap.json"))["error"]
+        .as_str()
+        .unwrap()
+        .contains("sequential_matcher"));
+}
