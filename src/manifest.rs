@@ -254,7 +254,7 @@ impl Names for Format {
     const NAMES: &'static [(&'static str, Self, &'static str)] =
         &[("jpg", Format::Jpg, "JPEG"), ("png", Format::Png, "PNG")];
 }
-crate::impl_names!(Format, serde);
+crate::names::impl_names!(Format, serde);
 
 impl Format {
     /// File extension (the format's name).
@@ -322,7 +322,7 @@ impl Names for SegRuntime {
         ),
     ];
 }
-crate::impl_names!(SegRuntime, serde);
+crate::names::impl_names!(SegRuntime, serde);
 
 /// Segmentation masks of an export: the model, the hidden classes and the runtime.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -57,7 +57,6 @@ pub trait Names: Sized + Copy + PartialEq + 'static {
 
 /// `FromStr` and `Display` from the type's [`Names`] table; with `serde`, also `Serialize` and
 /// `Deserialize` as the same strings.
-#[macro_export]
 macro_rules! impl_names {
     ($t:ty) => {
         impl std::str::FromStr for $t {
@@ -74,7 +73,7 @@ macro_rules! impl_names {
         }
     };
     ($t:ty, serde) => {
-        $crate::impl_names!($t);
+        $crate::names::impl_names!($t);
 
         impl serde::Serialize for $t {
             fn serialize<S: serde::Serializer>(
@@ -95,6 +94,8 @@ macro_rules! impl_names {
         }
     };
 }
+
+pub(crate) use impl_names;
 
 #[cfg(test)]
 mod tests {

@@ -24,7 +24,7 @@ impl Names for Backend {
         ("opencv", Backend::Opencv, "OpenCV on the CPU"),
     ];
 }
-crate::impl_names!(Backend, serde);
+crate::names::impl_names!(Backend, serde);
 
 /// The backend a command or workflow asks for. Projects record the [`Backend`] it resolved to
 /// (`crate::gpu::resolve_backend`), never `auto`.
@@ -48,7 +48,7 @@ impl Names for BackendChoice {
         ("opencv", BackendChoice::Opencv, "OpenCV on the CPU"),
     ];
 }
-crate::impl_names!(BackendChoice);
+crate::names::impl_names!(BackendChoice);
 
 /// A sharpness measure.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -87,7 +87,7 @@ impl Names for Metric {
         ),
     ];
 }
-crate::impl_names!(Metric, serde);
+crate::names::impl_names!(Metric, serde);
 
 /// Parameters of cv::calcOpticalFlowFarneback.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -100,7 +100,7 @@ impl Names for Matcher {
         ),
     ];
 }
-crate::impl_names!(Matcher, serde);
+crate::names::impl_names!(Matcher, serde);
 
 /// The COLMAP installation used.
 #[derive(Debug, Clone)]

@@ -79,7 +79,7 @@ impl Names for BlurMode {
         ),
     ];
 }
-crate::impl_names!(BlurMode, serde);
+crate::names::impl_names!(BlurMode, serde);
 
 /// Parameters of the blur sampler.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
