@@ -735,10 +735,8 @@ impl Applied {
     /// names the parameter (`params.fps`).
     pub fn check(&self, frames: usize) -> std::result::Result<(), (String, String)> {
         let bad = |k: &str, msg: String| Err((format!("params.{k}"), msg));
-        let positive = |k: &str, v: Option<f64>| match v {
-            Some(f) if !(f.is_finite() && f > 0.0) => {
-                bad(k, format!("must be a positive number, got {f}"))
-            }
+        let positive = |k: &str, v: Option<f64>| match v.map(positive) {
+            Some(Err(msg)) => bad(k, msg),
             _ => Ok(()),
         };
         let count = |k: &str, v: Option<usize>| match v {
