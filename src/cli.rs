@@ -11,6 +11,7 @@ use keyframer::kernels::farneback::FarnebackParams;
 use keyframer::kernels::movement::{Derotate, Statistic};
 use keyframer::kernels::sharpness::Metric;
 use keyframer::names::Names;
+use keyframer::numbers::non_negative_seconds;
 use keyframer::segment::{MaskSettings, SegRuntime};
 use keyframer::select::SelectSettings;
 use keyframer::steps::defaults;
@@ -717,13 +718,8 @@ impl SelectArgs {
             adapter: self.analysis.adapter.clone(),
             images_fps: self.images_fps,
             force: self.force,
-            checkpoint_every_s: match self.checkpoint_every {
-                x if x.is_finite() && x >= 0.0 => x,
-                x => {
-                    let msg = format!("must be 0 or more seconds, got {x}");
-                    return Err(Error::param("--checkpoint-every", msg));
-                }
-            },
+            checkpoint_every_s: non_negative_seconds(self.checkpoint_every)
+                .map_err(|m| Error::param("--checkpoint-every", m))?,
             preview: self.preview,
             quiet,
         })

@@ -4,7 +4,7 @@
 //! these without depending on the exporter.
 
 use crate::error::{Error, Result};
-use crate::names::Names;
+use crate::names::{Names, Table};
 use crate::numbers::positive;
 use crate::source::telemetry::Position;
 use crate::source::SourceKind;
@@ -251,8 +251,7 @@ pub enum Format {
 
 impl Names for Format {
     const FLAG: &'static str = "format";
-    const NAMES: &'static [(&'static str, Self, &'static str)] =
-        &[("jpg", Format::Jpg, "JPEG"), ("png", Format::Png, "PNG")];
+    const NAMES: Table<Self> = &[("jpg", Format::Jpg, "JPEG"), ("png", Format::Png, "PNG")];
 }
 crate::names::impl_names!(Format, serde);
 
@@ -309,7 +308,7 @@ pub enum SegRuntime {
 
 impl Names for SegRuntime {
     const FLAG: &'static str = "mask-backend";
-    const NAMES: &'static [(&'static str, Self, &'static str)] = &[
+    const NAMES: Table<Self> = &[
         (
             "opencv",
             SegRuntime::Opencv,

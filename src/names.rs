@@ -2,56 +2,53 @@
 //! formats, …): parsing, printing, serde and the command line's possible values all read it, so
 //! each name is spelled once and every reader refuses an unknown one with the same message.
 
+/// `(name, value, help)` of each value, in the order help lists them.
+pub type Table<T> = &'static [(&'static str, T, &'static str)];
+
 /// An enum whose values have names, from one table.
 pub trait Names: Sized + Copy + PartialEq + 'static {
     /// The flag that takes these names, without dashes (`backend`): a refusal names it as clap
     /// does, so the command line, workflows and project files say the same.
     const FLAG: &'static str;
-    /// `(name, value, help)` in the order help lists them. The first entry of a value is its
-    /// name; a later entry of the same value is an alias (read, never written). An entry whose
-    /// value carries data (`trimmed-mean`'s trim) stands for that variant with any data.
-    const NAMES: &'static [(&'static str, Self, &'static str)];
+    /// The first entry of a value is its name; a later entry of the same value is an alias
+    /// (read, never written). An entry whose value carries data (`trimmed-mean`'s trim) stands
+    /// for that variant with any data.
+    const NAMES: Table<Self>;
 
     /// The value's name: the entry equal to it, else the first of its variant.
     fn name(self) -> &'static str {
-        let same = |e: &&(&str, Self, &str)| e.1 == self;
-        let variant =
-            |e: &&(&str, Self, &str)| std::mem::discriminant(&e.1) == std::mem::discriminant(&self);
-        let entry = Self::NAMES.iter().find(same);
+        let variant = |v: &Self| std::mem::discriminant(v) == std::mem::discriminant(&self);
+        let entry = Self::NAMES.iter().find(|e| e.1 == self);
         entry
-            .or_else(|| Self::NAMES.iter().find(variant))
+            .or_else(|| Self::NAMES.iter().find(|e| variant(&e.1)))
             .map_or("", |e| e.0)
     }
 
     /// The value named `s` (a name or an alias).
     fn from_name(s: &str) -> Result<Self, String> {
-        match Self::NAMES.iter().find(|e| e.0 == s) {
-            Some(e) => Ok(e.1),
-            None => {
-                let names: Vec<&str> = Self::choices().iter().map(|c| c.0).collect();
-                let (flag, value) = (Self::FLAG, Self::FLAG.to_uppercase().replace('-', "_"));
-                Err(format!(
-                    "invalid value '{s}' for '--{flag} <{value}>' [possible values: {}]",
-                    names.join(", ")
-                ))
-            }
+        if let Some(e) = Self::NAMES.iter().find(|e| e.0 == s) {
+            return Ok(e.1);
         }
+        let names: Vec<&str> = Self::choices().iter().map(|c| c.0).collect();
+        let (flag, value) = (Self::FLAG, Self::FLAG.to_uppercase().replace('-', "_"));
+        let names = names.join(", ");
+        Err(format!(
+            "invalid value '{s}' for '--{flag} <{value}>' [possible values: {names}]"
+        ))
     }
 
     /// `(name, help)` of each value, aliases left out.
     fn choices() -> Vec<(&'static str, &'static str)> {
-        let named = |e: &&(&'static str, Self, &'static str)| e.1.name() == e.0;
-        Self::NAMES
-            .iter()
-            .filter(named)
-            .map(|e| (e.0, e.2))
-            .collect()
+        let entries = Self::NAMES.iter().filter(|e| e.1.name() == e.0);
+        entries.map(|e| (e.0, e.2)).collect()
     }
 
     /// The aliases of the value named `name`.
     fn aliases(name: &str) -> Vec<&'static str> {
-        let of = |e: &&(&'static str, Self, &'static str)| e.0 != name && e.1.name() == name;
-        Self::NAMES.iter().filter(of).map(|e| e.0).collect()
+        let entries = Self::NAMES
+            .iter()
+            .filter(|e| e.0 != name && e.1.name() == name);
+        entries.map(|e| e.0).collect()
     }
 }
 
@@ -109,7 +106,7 @@ mod tests {
 
     impl Names for Shape {
         const FLAG: &'static str = "shape-kind";
-        const NAMES: &'static [(&'static str, Self, &'static str)] = &[
+        const NAMES: super::Table<Self> = &[
             ("dot", Shape::Dot, "A dot"),
             ("ring-1", Shape::Ring { r: 1 }, "A thin ring"),
             ("ring", Shape::Ring { r: 2 }, "A ring"),

@@ -4,7 +4,7 @@
 //! depend on this module, and the engines re-export its types where they use them.
 
 use crate::error::{Error, Result};
-use crate::names::Names;
+use crate::names::{Names, Table};
 use crate::numbers::{positive, seconds};
 use serde::{Deserialize, Serialize};
 
@@ -19,7 +19,7 @@ pub enum Backend {
 
 impl Names for Backend {
     const FLAG: &'static str = "backend";
-    const NAMES: &'static [(&'static str, Self, &'static str)] = &[
+    const NAMES: Table<Self> = &[
         ("gpu", Backend::Gpu, "WGSL compute shaders through wgpu"),
         ("opencv", Backend::Opencv, "OpenCV on the CPU"),
     ];
@@ -42,7 +42,7 @@ pub enum BackendChoice {
 
 impl Names for BackendChoice {
     const FLAG: &'static str = "backend";
-    const NAMES: &'static [(&'static str, Self, &'static str)] = &[
+    const NAMES: Table<Self> = &[
         ("auto", BackendChoice::Auto, "gpu on a hardware adapter, opencv on a software one (lavapipe, llvmpipe, WARP, SwiftShader) or without an adapter; said once on stderr, shown by `keyframer info`"),
         ("gpu", BackendChoice::Gpu, "WGSL compute shaders through wgpu (opencv, with a warning, without an adapter or after a GPU fault)"),
         ("opencv", BackendChoice::Opencv, "OpenCV on the CPU"),
@@ -64,7 +64,7 @@ pub enum Metric {
 
 impl Names for Metric {
     const FLAG: &'static str = "metric";
-    const NAMES: &'static [(&'static str, Self, &'static str)] = &[
+    const NAMES: Table<Self> = &[
         (
             "tenengrad",
             Metric::Tenengrad,
@@ -72,19 +72,15 @@ impl Names for Metric {
         ),
         (
             "laplacian-k1",
-            Metric::Laplacian { ksize: 1 },
-            "Variance of the 4-neighbour Laplacian",
+            Self::Laplacian { ksize: 1 },
+            "Laplacian variance, 4 neighbours",
         ),
         (
             "laplacian-k3",
-            Metric::Laplacian { ksize: 3 },
-            "Variance of the aperture-3 Laplacian",
+            Self::Laplacian { ksize: 3 },
+            "Laplacian variance, aperture 3",
         ),
-        (
-            "laplacian",
-            Metric::Laplacian { ksize: 1 },
-            "The same as laplacian-k1",
-        ),
+        ("laplacian", Self::Laplacian { ksize: 1 }, "laplacian-k1"),
     ];
 }
 crate::names::impl_names!(Metric, serde);
@@ -178,7 +174,7 @@ pub enum Statistic {
 
 impl Names for Statistic {
     const FLAG: &'static str = "movement";
-    const NAMES: &'static [(&'static str, Self, &'static str)] = &[
+    const NAMES: Table<Self> = &[
         ("median", Statistic::Median, "Median of the flow magnitudes"),
         (
             "trimmed-mean",

@@ -11,7 +11,7 @@ pub mod model;
 use crate::error::{Error, Result};
 use crate::export::{Manifest, MANIFEST};
 use crate::fsutil;
-use crate::names::Names;
+use crate::names::{Names, Table};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -87,7 +87,7 @@ pub enum Matcher {
 
 impl Names for Matcher {
     const FLAG: &'static str = "matcher";
-    const NAMES: &'static [(&'static str, Self, &'static str)] = &[
+    const NAMES: Table<Self> = &[
         (
             "sequential",
             Matcher::Sequential,

@@ -6,7 +6,7 @@
 
 use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
-use crate::names::Names;
+use crate::names::{Names, Table};
 use crate::numbers::positive;
 use crate::params::Metric;
 use serde::{Deserialize, Serialize};
@@ -23,8 +23,9 @@ pub const FLAGS: &[Flag] = &[
     Flag::value::<f64>("blur-ratio", "RATIO", "Filter mode keeps a frame iff its score >= RATIO x the mean score within the window")
         .default("0.8")
         .sets("blur", "ratio"),
-    Flag::named::<BlurMode>("blur-mode", "BLUR_MODE", "filter: drop blurry keyframes; replace: move each keyframe to the sharpest frame in its window (never onto or across another keyframe)")
+    Flag::value::<BlurMode>("blur-mode", "BLUR_MODE", "filter: drop blurry keyframes; replace: move each keyframe to the sharpest frame in its window (never onto or across another keyframe)")
         .default("filter")
+        .choices::<BlurMode>()
         .sets("blur", "mode"),
 ];
 
@@ -70,11 +71,11 @@ pub enum BlurMode {
 
 impl Names for BlurMode {
     const FLAG: &'static str = "blur-mode";
-    const NAMES: &'static [(&'static str, Self, &'static str)] = &[
-        ("filter", BlurMode::Filter, "Drop blurry keyframes"),
+    const NAMES: Table<Self> = &[
+        ("filter", Self::Filter, "Drop blurry keyframes"),
         (
             "replace",
-            BlurMode::Replace,
+            Self::Replace,
             "Move keyframes to the sharpest nearby frame",
         ),
     ];

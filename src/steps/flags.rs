@@ -75,19 +75,10 @@ impl Flag {
         }
     }
 
-    /// A flag taking one of the names of `T`.
-    pub const fn named<T: Names + FromStr>(
-        long: &'static str,
-        name: &'static str,
-        help: &'static str,
-    ) -> Flag
-    where
-        T::Err: Display,
-    {
-        Flag {
-            choices: T::choices,
-            ..Flag::value::<T>(long, name, help)
-        }
+    /// Its values are the names of `T`.
+    pub const fn choices<T: Names>(self) -> Flag {
+        let choices = T::choices;
+        Flag { choices, ..self }
     }
 
     /// Comma-separated and repeatable.
