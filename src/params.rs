@@ -48,7 +48,16 @@ impl Names for BackendChoice {
         ("opencv", BackendChoice::Opencv, "OpenCV on the CPU"),
     ];
 }
-crate::names::impl_names!(BackendChoice);
+crate::names::impl_names!(BackendChoice, serde);
+
+impl From<Backend> for BackendChoice {
+    fn from(b: Backend) -> BackendChoice {
+        match b {
+            Backend::Gpu => BackendChoice::Gpu,
+            Backend::Opencv => BackendChoice::Opencv,
+        }
+    }
+}
 
 /// A sharpness measure.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -22,7 +22,7 @@ pub const VERSION: u32 = 1;
 #[serde(deny_unknown_fields)]
 pub struct AnalysisSection {
     /// `auto` (default), `gpu` or `opencv`.
-    pub backend: Option<String>,
+    pub backend: Option<BackendChoice>,
     /// GPU adapter, part of its name.
     pub adapter: Option<String>,
     /// Width frames are scaled to for movement analysis.
@@ -83,7 +83,7 @@ pub struct Masks {
     /// Grow the hidden area by this many pixels.
     pub dilate: Option<u32>,
     /// `opencv` or `ort`.
-    pub backend: Option<String>,
+    pub backend: Option<SegRuntime>,
     /// Also write colour previews of the classes under `overlays/`.
     pub overlay: Option<bool>,
 }
@@ -95,7 +95,7 @@ pub struct Export {
     /// Output sub-folder name (letters, digits, `-`, `_`, `.`).
     pub name: String,
     /// `jpg` or `png`.
-    pub format: Option<String>,
+    pub format: Option<Format>,
     /// JPEG quality, 1 to 100.
     pub quality: Option<u8>,
     /// `"1280x720"`.
@@ -238,10 +238,6 @@ impl Workflow {
                 crate::params::check_analysis(&m, an.images_fps, offset).map(|()| m)
             })
             .map_err(|e| locate(&file, e))?;
-        let backend = match an.backend.as_deref() {
-            None => BackendChoice::Auto,
-            Some(b) => b.parse().map_err(|e| file.error("analysis.backend", e))?,
-        };
         let mut inputs = Inputs::none();
         if let Some(t) = &an.telemetry {
             let dir = file.path().parent().unwrap_or(Path::new("."));
@@ -268,7 +264,7 @@ impl Workflow {
             file: content.clone(),
             hash: crate::fsutil::fnv1a64(file.text().as_bytes()),
             movement,
-            backend,
+            backend: an.backend.unwrap_or_default(),
             exports,
             inputs,
         })
@@ -417,20 +413,15 @@ fn export_settings(
     if let Some(why) = refusal {
         return Err(file.error(&at("name"), format!("`{name}` {why}")));
     }
-    let format = (e.format.as_deref().map(Format::from_name).transpose())
-        .map_err(|m| file.error(&at("format"), m))?;
     let masks = match &e.masks {
         None => None,
         Some(m) => {
-            let backend = (m.backend.as_deref().map(SegRuntime::from_name).transpose())
-                .map_err(|m| file.error(&at("masks.backend"), m))?
-                .unwrap_or_default();
             let dir = file.path().parent().unwrap_or(Path::new("."));
             Some(MaskSettings {
                 model: crate::fsutil::absolute(&dir.join(&m.model)),
                 classes: m.classes.clone(),
                 dilate: m.dilate.unwrap_or(0),
-                backend,
+                backend: m.backend.unwrap_or_default(),
                 overlay: m.overlay == Some(true),
             })
         }
@@ -439,7 +430,7 @@ fn export_settings(
         e.resize.as_deref(),
         e.scale,
         e.crop.as_deref(),
-        format,
+        e.format,
         e.quality.unwrap_or(crate::manifest::DEFAULT_QUALITY),
         masks,
         e.geotag != Some(false),
@@ -495,7 +486,7 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
             record_movement(&mut analysis, &req);
         }
         if let Some(b) = backend {
-            analysis.backend = Some(b.to_string());
+            analysis.backend = Some(b.into());
         }
         match applied.step() {
             Some(Step::Boundaries {
@@ -564,7 +555,7 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "export".into()),
-        format: s.format.map(|f| f.to_string()),
+        format: s.format,
         quality: Some(s.quality),
         resize,
         scale,
@@ -575,7 +566,7 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             model: crate::fsutil::absolute(&mk.model),
             classes: mk.classes.clone(),
             dilate: Some(mk.dilate),
-            backend: Some(mk.backend.to_string()),
+            backend: Some(mk.backend),
             overlay: Some(mk.overlay),
         }),
         geotag: (!s.geotag).then_some(false),
