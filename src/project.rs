@@ -8,6 +8,7 @@
 
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
+use crate::numbers::{non_negative_seconds, positive, positive_px};
 use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
 use crate::source::telemetry::{Position, TelemetryKind};
 use crate::source::{Metadata, SourceKind};
@@ -252,7 +253,10 @@ impl Project {
         ];
         for (name, b) in ends {
             if let Some(crate::steps::Bound::Seconds(s)) = b {
-                seconds(format!("boundaries.{name}.seconds"), s)?;
+                at_field(
+                    format!("boundaries.{name}.seconds"),
+                    non_negative_seconds(s),
+                )?;
             }
         }
         Ok(())
@@ -306,7 +310,7 @@ impl Project {
             validate_request(&m.request).map_err(under(at("request")))?;
             let s = &m.series;
             analysis_size(at("series.width"), s.width, s.height)?;
-            positive(at("series.scale_to_full"), s.scale_to_full)?;
+            at_field(at("series.scale_to_full"), positive(s.scale_to_full))?;
             per_frame(at("series.values"), "values", s.values.len(), n)?;
             if let Some(j) = s.values.iter().position(|v| !v.is_finite() || *v < 0.0) {
                 let msg = format!(
@@ -325,10 +329,7 @@ impl Project {
             let at = |k: &str| format!("cache.stationary[{i}].{k}");
             validate_request(&r.request).map_err(under(at("request")))?;
             let p = &r.params;
-            if !(p.threshold.is_finite() && p.threshold > 0.0) {
-                let msg = format!("must be a positive number of pixels, got {}", p.threshold);
-                return fail(at("params.threshold"), msg);
-            }
+            at_field(at("params.threshold"), positive_px(p.threshold))?;
             if p.reset_delta == 0 {
                 return fail(at("params.reset_delta"), "must be at least 1 frame");
             }
@@ -385,10 +386,10 @@ impl Project {
             return fail(at(k), msg);
         }
         if let Some(f) = m.fps {
-            positive(at("fps"), f)?;
+            at_field(at("fps"), positive(f))?;
         }
         match m.duration_s {
-            Some(d) => seconds(at("duration_s"), d),
+            Some(d) => at_field(at("duration_s"), non_negative_seconds(d)),
             None => Ok(()),
         }
     }
@@ -436,27 +437,15 @@ fn analysis_size(field: String, width: u32, height: u32) -> Checked {
     Ok(())
 }
 
-/// A finite number above 0.
-fn positive(field: String, v: f64) -> Checked {
-    if !(v.is_finite() && v > 0.0) {
-        return fail(field, format!("must be a positive number, got {v}"));
-    }
-    Ok(())
-}
-
-/// A finite, non-negative number of seconds.
-fn seconds(field: String, s: f64) -> Checked {
-    if !(s.is_finite() && s >= 0.0) {
-        let msg = format!("must be a non-negative number of seconds, got {s}");
-        return fail(field, msg);
-    }
-    Ok(())
+/// A number check's outcome for `field`.
+fn at_field(field: String, checked: std::result::Result<f64, String>) -> Checked {
+    checked.map(drop).map_err(|msg| (field, msg))
 }
 
 /// A movement request's fields in the ranges the flags accept; the error's key is relative to
 /// the request (`farneback.pyr_scale`).
 fn validate_request(r: &MovementRequest) -> Checked {
-    crate::steps::check_movement(r).map_err(|e| match e {
+    r.validate().map_err(|e| match e {
         Error::Param { name, msg } => {
             let k = match name.as_str() {
                 "trim" => "statistic.trimmed_mean.trim".to_string(),

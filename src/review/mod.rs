@@ -621,7 +621,7 @@ fn schema() -> Value {
         };
         out.push(json!({
             "plugin": plugin, "key": key, "flag": f.long, "help": f.help, "default": f.default,
-            "choices": f.choices.iter().map(|c| c.0).collect::<Vec<_>>(), "switch": f.value_name.is_none(),
+            "choices": (f.choices)().iter().map(|c| c.0).collect::<Vec<_>>(), "switch": f.value_name.is_none(),
         }));
     }
     Value::Array(out)

@@ -30,6 +30,7 @@ pub use stationary::Stationary;
 pub use values::{BoundArg, NumOrText, Threshold};
 
 use crate::error::{Error, Result};
+use crate::numbers::positive;
 use crate::params::{Backend, Metric, MovementRequest, StationaryRequest};
 use crate::source::telemetry::Position;
 use serde::{Deserialize, Serialize};
@@ -47,7 +48,7 @@ pub mod defaults {
     /// Flow is measured between frames this many apart.
     pub const FLOW_STRIDE: u32 = 2;
     /// Fraction dropped at each end by the trimmed-mean statistic.
-    pub const TRIM: f64 = 0.1;
+    pub const TRIM: f64 = crate::params::Statistic::DEFAULT_TRIM;
 
     /// The movement `select` measures when no movement flag is given.
     pub fn movement() -> crate::params::MovementRequest {
@@ -59,23 +60,6 @@ pub mod defaults {
             derotate: None,
         }
     }
-}
-
-/// Checks how movement is to be measured (every sampler that reads movement shares it); errors
-/// name the parameter (`flow_stride`).
-pub fn check_movement(r: &MovementRequest) -> crate::error::Result<()> {
-    r.statistic.validate()?;
-    if r.stride == 0 {
-        return Err(Error::param("flow_stride", "must be at least 1"));
-    }
-    if r.analysis_width < 16 {
-        let msg = format!("must be at least 16 pixels, got {}", r.analysis_width);
-        return Err(Error::param("analysis_width", msg));
-    }
-    if let Some(d) = &r.derotate {
-        d.validate()?;
-    }
-    r.farneback.validate()
 }
 
 /// What the steps read besides the candidates: the input's frames and the series `select`
@@ -502,8 +486,8 @@ impl Step {
                             "give pixels or `auto` (a keyframe count is for spacing)".into(),
                         )
                     }
-                    Some(Threshold::Px(t)) if !(t.is_finite() && *t > 0.0) => {
-                        return bad("threshold", format!("must be a positive number, got {t}"))
+                    Some(Threshold::Px(t)) => {
+                        positive(*t).map(drop).or_else(|m| bad("threshold", m))?
                     }
                     _ => {}
                 }
@@ -512,8 +496,8 @@ impl Step {
                 }
             }
             Step::EveryNth { n: 0 } => return bad("n", "must be at least 1".into()),
-            Step::GeoDistance { metres } if !(metres.is_finite() && *metres > 0.0) => {
-                return bad("metres", format!("must be a positive number, got {metres}"))
+            Step::GeoDistance { metres } => {
+                return positive(*metres).map(drop).or_else(|m| bad("metres", m))
             }
             Step::FootprintOverlap { percent, hfov } => {
                 if !(*percent > 0.0 && *percent < 100.0) {
@@ -524,9 +508,7 @@ impl Step {
                     return bad("hfov", format!("{h} must be between 1 and 179 degrees"));
                 }
             }
-            Step::Fps { fps } if !(fps.is_finite() && *fps > 0.0) => {
-                return bad("fps", format!("must be a positive number, got {fps}"))
-            }
+            Step::Fps { fps } => return positive(*fps).map(drop).or_else(|m| bad("fps", m)),
             Step::Blur { .. } => {
                 if let Some(p) = self.blur_params() {
                     if let Err(e) = p.validate() {
@@ -753,10 +735,8 @@ impl Applied {
     /// names the parameter (`params.fps`).
     pub fn check(&self, frames: usize) -> std::result::Result<(), (String, String)> {
         let bad = |k: &str, msg: String| Err((format!("params.{k}"), msg));
-        let positive = |k: &str, v: Option<f64>| match v {
-            Some(f) if !(f.is_finite() && f > 0.0) => {
-                bad(k, format!("must be a positive number, got {f}"))
-            }
+        let positive = |k: &str, v: Option<f64>| match v.map(positive) {
+            Some(Err(msg)) => bad(k, msg),
             _ => Ok(()),
         };
         let count = |k: &str, v: Option<usize>| match v {

@@ -50,10 +50,8 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, given: Threshold) -> Result<App
 /// frame i-1 to frame i.
 pub fn spacing(candidates: &[usize], movement: &[f64], threshold: f64) -> Result<Vec<usize>> {
     let err = |msg: String| Err(Error::plugin("spacing", msg));
-    if !(threshold.is_finite() && threshold > 0.0) {
-        return err(format!(
-            "threshold must be a positive number of pixels, got {threshold}"
-        ));
+    if let Err(m) = crate::numbers::positive_px(threshold) {
+        return err(format!("threshold {m}"));
     }
     if let Some(&bad) = candidates.iter().find(|&&c| c >= movement.len()) {
         return err(format!("frame {bad} has no movement value"));

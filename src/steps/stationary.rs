@@ -59,10 +59,7 @@ pub fn request(
         }
     };
     let threshold = threshold.unwrap_or(f64::from(meta.width) * 0.01);
-    if !(threshold.is_finite() && threshold > 0.0) {
-        let msg = format!("threshold must be a positive number of pixels, got {threshold}");
-        return Err(err(msg));
-    }
+    crate::numbers::positive_px(threshold).map_err(|m| err(format!("threshold {m}")))?;
     if reset_delta == 0 {
         return Err(err("reset delta must be at least 1 frame".into()));
     }

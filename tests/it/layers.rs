@@ -182,6 +182,8 @@ const LAYERS: [(&str, &[&str]); 4] = [
             "tomlfile",
             "progress",
             "synthetic",
+            "names",
+            "numbers",
         ],
     ),
 ];
