@@ -11,11 +11,9 @@ use crate::fsutil::{self, Fingerprint};
 use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
 use crate::source::telemetry::{Position, TelemetryKind};
 use crate::source::{Metadata, SourceKind};
-use crate::steps::Boundaries;
+use crate::steps::{Boundaries, Recorded};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-
-pub use crate::steps::HistoryEntry;
 
 /// Version of the project file layout this build writes.
 pub const SCHEMA_VERSION: u32 = 2;
@@ -39,7 +37,7 @@ pub struct Project {
     /// Selected frame indices, sorted and distinct.
     pub keyframes: Vec<usize>,
     /// The steps that produced `keyframes`, in order.
-    pub history: Vec<HistoryEntry>,
+    pub history: Vec<Recorded>,
     /// Per-frame data computed from the pixels, reused by later selections.
     pub cache: Cache,
     /// Problems met while decoding the input (damaged streams, damaged images).
@@ -479,17 +477,15 @@ fn check_frames(frames: &[usize], n: usize) -> std::result::Result<(), String> {
     Ok(())
 }
 
-/// One history step: a known plugin, a known backend, and the parameters `workflow save` reads
-/// in their ranges. The error's key is relative to the step (`params.fps`).
-fn validate_step(step: &HistoryEntry, n: usize) -> Checked {
-    use crate::steps::Applied;
+/// One history step (its step id and backend were checked as it was read): the parameters
+/// `workflow save` reads in their ranges. The error's key is relative to the step (`params.fps`).
+fn validate_step(step: &Recorded, n: usize) -> Checked {
     if step.kept > n {
         let msg = format!("{} kept frames of an input of {n} frames", step.kept);
         return fail("kept", msg);
     }
-    let applied = Applied::from_entry(step)?;
-    if let (_, Some(r)) = applied.analysis() {
+    if let (_, Some(r)) = step.applied.analysis() {
         validate_request(&r).map_err(under("params.movement".into()))?;
     }
-    applied.check(n)
+    step.applied.check(n)
 }

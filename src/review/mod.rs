@@ -14,11 +14,11 @@ use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::manifest::Manifest;
 use crate::params::MovementRequest;
-use crate::project::{HistoryEntry, Project, SCHEMA_VERSION};
+use crate::project::{Project, SCHEMA_VERSION};
 use crate::report::timeline::Timeline;
 use crate::select::{self, Resolved};
 use crate::source::{FrameReader, FrameSize, DEFAULT_BUDGET_BYTES};
-use crate::steps::{self, Applied, Step};
+use crate::steps::{self, Recorded, Step};
 use serde::Serialize;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -91,7 +91,7 @@ pub struct Selection {
     /// Selected frame indices.
     pub keyframes: Vec<usize>,
     /// What each step that ran did, as a project's history records it.
-    pub history: Vec<HistoryEntry>,
+    pub history: Vec<Recorded>,
     /// One per step given, in order.
     pub steps_state: Vec<StepState>,
 }
@@ -201,7 +201,7 @@ impl Review {
     /// The project's own steps, as its history records them.
     pub fn steps_of(project: &Project) -> Vec<Step> {
         (project.history.iter())
-            .filter_map(|e| Applied::from_entry(e).ok()?.step())
+            .filter_map(|e| e.applied.step())
             .filter(|s| {
                 *s != Step::Boundaries {
                     start: None,
@@ -215,7 +215,7 @@ impl Review {
     /// series, else `select`'s default.
     fn movement_of(&self, project: &Project) -> MovementRequest {
         (project.history.iter())
-            .find_map(|e| Applied::from_entry(e).ok()?.analysis().1)
+            .find_map(|e| e.applied.analysis().1)
             .or_else(|| project.cache.movement.first().map(|m| m.request))
             .unwrap_or(self.movement)
     }
@@ -284,7 +284,7 @@ impl Review {
         let kept = |s: &Step| match s {
             Step::Boundaries { .. } => history.first().map(|e| e.kept),
             s => (history.iter().skip(1))
-                .find(|e| e.plugin == s.id())
+                .find(|e| e.applied.id() == s.id())
                 .map(|e| e.kept),
         };
         let steps_state = (steps.iter())

@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use crate::project::Cache;
 use crate::source::codec_keyframes::{self, CodecKeyframeIndex};
 use crate::source::{OpenOptions, SourceKind};
-use crate::steps::{Applied, BoundArg, Step};
+use crate::steps::{Applied, BoundArg, Recorded, Step};
 use crate::steps::{Bound, Boundaries};
 use std::sync::Arc;
 
@@ -78,7 +78,10 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
         codec_keyframes: n_key,
         frames: n_all,
     };
-    let mut history = vec![preview.entry(n_key)];
+    let mut history = vec![Recorded {
+        applied: preview,
+        kept: n_key,
+    }];
     history.append(&mut p.history);
     // Added and removed frames are the video's own indices: applied after the mapping.
     select::manual_step(&mut keys, &mut history, &s.steps, n_all)?;

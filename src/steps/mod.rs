@@ -14,6 +14,7 @@ pub mod flags;
 pub mod footprint;
 mod fps;
 pub mod geo_distance;
+mod history;
 mod manual;
 pub mod spacing;
 pub mod stationary;
@@ -24,6 +25,7 @@ pub use boundaries::{Bound, Boundaries};
 pub use every_nth::every_nth;
 pub use flags::{Flag, FlagValues};
 pub use fps::fps;
+pub use history::Recorded;
 pub use manual::manual;
 pub use spacing::{spacing, spacing_for_count};
 pub use stationary::Stationary;
@@ -621,6 +623,7 @@ pub enum Applied {
         #[serde(default)]
         auto: bool,
         /// Backend that measured the movement.
+        #[serde(default, deserialize_with = "history::known_backend")]
         backend: Option<Backend>,
         /// How the movement was measured.
         movement: Option<MovementRequest>,
@@ -635,6 +638,7 @@ pub enum Applied {
         #[serde(default)]
         auto: bool,
         /// Backend that measured the movement.
+        #[serde(default, deserialize_with = "history::known_backend")]
         backend: Option<Backend>,
         /// Keyframe count asked for (`--spacing Nkf`), if any.
         count: Option<usize>,
@@ -668,6 +672,7 @@ pub enum Applied {
     /// The blur sampler.
     Blur {
         /// Backend that measured the sharpness.
+        #[serde(default, deserialize_with = "history::known_backend")]
         backend: Option<Backend>,
         /// Sharpness measure.
         metric: Option<Metric>,
@@ -690,6 +695,11 @@ pub enum Applied {
 }
 
 impl Applied {
+    /// The step's id (`plugin` in a project file; `preview` for `select --preview`'s record).
+    pub fn id(&self) -> &'static str {
+        self.step().map_or("preview", |s| s.id())
+    }
+
     /// The step that repeats this one on another input (resolved thresholds, not `auto`).
     pub fn step(&self) -> Option<Step> {
         Some(match self {
@@ -805,45 +815,6 @@ impl Applied {
             }
             Applied::Preview { .. } => Ok(()),
         }
-    }
-
-    /// The history entry recording this step and how many frames it kept. Parameters are
-    /// written in key order, as every project so far has them.
-    pub fn entry(&self, kept: usize) -> HistoryEntry {
-        let value = serde_json::to_value(self).unwrap_or_default();
-        HistoryEntry {
-            plugin: value["plugin"].as_str().unwrap_or_default().to_string(),
-            params: value["params"].clone(),
-            kept,
-        }
-    }
-
-    /// Reads a history entry; the error names the parameter (`params.fps`).
-    pub fn from_entry(e: &HistoryEntry) -> std::result::Result<Applied, (String, String)> {
-        let ids = || STEPS.iter().map(|k| k.id);
-        let plugins: Vec<&str> = (ids().take(1).chain(["preview"]))
-            .chain(ids().skip(1))
-            .collect();
-        if !plugins.contains(&e.plugin.as_str()) {
-            let known = plugins.join(", ");
-            let msg = format!("unknown plugin `{}` (known: {known})", e.plugin);
-            return Err(("plugin".into(), msg));
-        }
-        if let Some(b) = e.params.get("backend").filter(|b| !b.is_null()) {
-            if serde_json::from_value::<Backend>(b.clone()).is_err() {
-                let msg = format!("unknown backend {b} (known: \"gpu\", \"opencv\")");
-                return Err(("params.backend".into(), msg));
-            }
-        }
-        let v = serde_json::json!({ "plugin": e.plugin, "params": e.params });
-        serde_path_to_error::deserialize(v).map_err(|err| {
-            let path = err.path().to_string();
-            let key = match path.as_str() {
-                "." | "" => "plugin".to_string(),
-                p => p.to_string(),
-            };
-            (key, err.into_inner().to_string())
-        })
     }
 }
 
@@ -1046,31 +1017,4 @@ mod tests {
         };
         assert_eq!(count.to_flags(), ["--spacing", "60kf"]);
     }
-
-    #[test]
-    fn history_entries_round_trip_with_sorted_parameters() {
-        let a = Applied::Blur {
-            backend: Some(Backend::Opencv),
-            metric: Some(Metric::Tenengrad),
-            mode: Some(BlurMode::Replace),
-            ratio: Some(0.8),
-            window: Some(2),
-        };
-        let e = a.entry(4);
-        assert_eq!(e.plugin, "blur");
-        let keys: Vec<_> = e.params.as_object().unwrap().keys().cloned().collect();
-        assert_eq!(keys, ["backend", "metric", "mode", "ratio", "window"]);
-        assert_eq!(Applied::from_entry(&e).unwrap(), a);
-    }
-}
-
-/// One step of the selection history, as stored (typed by [`Applied`]; the project file stores a list of these).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HistoryEntry {
-    /// Stable plugin id (`boundaries`, `every-nth`, `fps`, `manual`, ...).
-    pub plugin: String,
-    /// The step's parameters as given.
-    pub params: serde_json::Value,
-    /// Number of frames the step kept.
-    pub kept: usize,
 }
