@@ -25,7 +25,7 @@ pub use boundaries::{Bound, Boundaries};
 pub use every_nth::every_nth;
 pub use flags::{Flag, FlagValues};
 pub use fps::fps;
-pub use history::Recorded;
+pub use history::{Recorded, Stored};
 pub use manual::manual;
 pub use spacing::{spacing, spacing_for_count};
 pub use stationary::Stationary;
@@ -623,7 +623,6 @@ pub enum Applied {
         #[serde(default)]
         auto: bool,
         /// Backend that measured the movement.
-        #[serde(default, deserialize_with = "history::known_backend")]
         backend: Option<Backend>,
         /// How the movement was measured.
         movement: Option<MovementRequest>,
@@ -638,7 +637,6 @@ pub enum Applied {
         #[serde(default)]
         auto: bool,
         /// Backend that measured the movement.
-        #[serde(default, deserialize_with = "history::known_backend")]
         backend: Option<Backend>,
         /// Keyframe count asked for (`--spacing Nkf`), if any.
         count: Option<usize>,
@@ -672,7 +670,6 @@ pub enum Applied {
     /// The blur sampler.
     Blur {
         /// Backend that measured the sharpness.
-        #[serde(default, deserialize_with = "history::known_backend")]
         backend: Option<Backend>,
         /// Sharpness measure.
         metric: Option<Metric>,
