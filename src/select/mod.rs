@@ -264,10 +264,7 @@ pub(crate) fn manual_step(
     };
     for step in steps.iter().filter(|s| matches!(s, Step::Manual { .. })) {
         if let Some(applied) = step.apply(&at, keys)? {
-            history.push(Recorded {
-                applied,
-                kept: keys.len(),
-            });
+            history.push(Recorded::new(applied, keys.len()));
         }
     }
     Ok(())
@@ -699,17 +696,14 @@ pub fn run_steps(
     let mut keys = range;
     keys.retain(|k| damaged.binary_search(k).is_err());
     let boundaries = steps::boundaries(steps);
-    let mut history = vec![Recorded {
-        applied: Applied::Boundaries {
-            end: boundaries.end,
-            start: boundaries.start,
-        },
-        kept: keys.len(),
-    }];
+    let (end, start) = (boundaries.end, boundaries.start);
+    let mut history = vec![Recorded::new(
+        Applied::Boundaries { end, start },
+        keys.len(),
+    )];
     for step in steps {
         if let Some(applied) = step.apply(&at, &mut keys)? {
-            let kept = keys.len();
-            history.push(Recorded { applied, kept });
+            history.push(Recorded::new(applied, keys.len()));
         }
     }
     Ok((drop_damaged(input, keys, damaged), history))

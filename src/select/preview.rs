@@ -78,10 +78,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
         codec_keyframes: n_key,
         frames: n_all,
     };
-    let mut history = vec![Recorded {
-        applied: preview,
-        kept: n_key,
-    }];
+    let mut history = vec![Recorded::new(preview, n_key)];
     history.append(&mut p.history);
     // Added and removed frames are the video's own indices: applied after the mapping.
     select::manual_step(&mut keys, &mut history, &s.steps, n_all)?;

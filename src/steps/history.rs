@@ -45,6 +45,11 @@ impl Serialize for Recorded {
 }
 
 impl Recorded {
+    /// The record of `applied`, which kept `kept` frames.
+    pub fn new(applied: Applied, kept: usize) -> Recorded {
+        Recorded { applied, kept }
+    }
+
     /// Reads a stored entry: a known step id and backend, parameters of the step's types; the
     /// error names the key (`plugin`, `params.fps`).
     pub fn from_stored(e: Stored) -> Result<Recorded, (String, String)> {
@@ -72,10 +77,7 @@ impl Recorded {
             };
             (key, err.into_inner().to_string())
         })?;
-        Ok(Recorded {
-            applied,
-            kept: e.kept,
-        })
+        Ok(Recorded::new(applied, e.kept))
     }
 }
 
@@ -94,11 +96,7 @@ mod tests {
             ratio: Some(0.8),
             window: Some(2),
         };
-        let e = serde_json::to_value(Recorded {
-            applied: a.clone(),
-            kept: 4,
-        })
-        .unwrap();
+        let e = serde_json::to_value(Recorded::new(a.clone(), 4)).unwrap();
         assert_eq!(e["plugin"], "blur");
         assert_eq!(a.id(), "blur");
         let keys: Vec<_> = e["params"].as_object().unwrap().keys().cloned().collect();
