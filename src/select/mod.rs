@@ -24,14 +24,14 @@ use std::path::{Path, PathBuf};
 
 pub use crate::steps::Threshold;
 
-/// The threshold an earlier `select` proposed from its movement sample for `plugin`
+/// The threshold an earlier `select` proposed from its movement sample for `step`
 /// (`stationary` or `spacing` with `auto`), measured the way `movement` says on `backend`, as its
 /// project's `history` records it. The sample is a function of the input (unchanged: its
 /// fingerprint matched) and of those two, so re-selecting reuses it instead of decoding the
 /// sample again; the selection then stays the one the cache was made for.
 pub fn recorded_auto(
     history: &[Recorded],
-    plugin: &str,
+    step: &str,
     movement: &MovementRequest,
     backend: Backend,
 ) -> Option<f64> {
@@ -42,14 +42,14 @@ pub fn recorded_auto(
             movement: Some(m),
             threshold_px: Some(t),
             ..
-        } if plugin == "stationary" && b == backend && m == *movement => Some(t),
+        } if step == "stationary" && b == backend && m == *movement => Some(t),
         Applied::Spacing {
             auto: true,
             backend: Some(b),
             movement: Some(m),
             threshold_px,
             ..
-        } if plugin == "spacing" && b == backend && m == *movement => Some(threshold_px),
+        } if step == "spacing" && b == backend && m == *movement => Some(threshold_px),
         _ => None,
     })
 }
@@ -548,9 +548,9 @@ impl AutoThresholds {
             return Ok(t);
         }
         let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
-        let recorded = |plugin: &str, wanted: bool| {
+        let recorded = |step: &str, wanted: bool| {
             wanted
-                .then(|| recorded_auto(&known.history, plugin, &s.movement, backend))
+                .then(|| recorded_auto(&known.history, step, &s.movement, backend))
                 .flatten()
         };
         let reused = |what: &str, t: f64| {

@@ -18,7 +18,7 @@ use std::sync::Arc;
 /// keyframes carry the video's timestamps).
 pub fn keyframe_bounds(b: &Boundaries, index: &CodecKeyframeIndex) -> Result<Boundaries> {
     let k = &index.keyframes;
-    let none = |msg: String| Err(Error::plugin("preview", msg));
+    let none = |msg: String| Err(Error::step("preview", msg));
     let start = match b.start {
         Some(Bound::Frame(i)) => match k.partition_point(|&f| f < i) {
             pos if pos == k.len() => {

@@ -114,12 +114,12 @@ pub struct Inputs<'a> {
 /// when some of the candidates `keys` have none (they are never kept).
 fn positions<'a>(
     at: &Inputs<'a>,
-    plugin: &'static str,
+    step: &'static str,
     keys: &[usize],
 ) -> Result<&'a [Option<Position>]> {
     let refuse = || {
-        Error::plugin(
-            plugin,
+        Error::step(
+            step,
             "needs each frame's position, and the input has no telemetry: give --telemetry \
               FILE (DJI SRT or GPX), put the DJI .SRT beside the video, or use images with EXIF \
               GPS tags",
@@ -134,11 +134,11 @@ fn positions<'a>(
             "none of the {without} candidates has a position (they lie outside the \
              telemetry's time span; check --telemetry-offset)"
         );
-        return Err(Error::plugin(plugin, msg));
+        return Err(Error::step(step, msg));
     }
     if without > 0 {
         log::warn!(
-            "{plugin}: {without} of {} candidates have no position and are not kept",
+            "{step}: {without} of {} candidates have no position and are not kept",
             keys.len()
         );
     }
@@ -152,7 +152,7 @@ type FlagReader = fn(&FlagValues) -> Result<Option<Step>>;
 /// new step of it must be given, and the step whose place it shares (a chain has one of them).
 #[derive(Debug, Clone, Copy)]
 pub struct Kind {
-    /// The stable plugin id.
+    /// The stable step id.
     pub id: &'static str,
     /// Its command-line flags.
     pub flags: &'static [Flag],
@@ -190,7 +190,7 @@ impl Kind {
 }
 
 /// Every kind of step in keyframer's chain order. The flags, the order [`check_order`] enforces,
-/// the history's plugin ids and the review page's step list come from here; what a step reads
+/// the history's step ids and the review page's step list come from here; what a step reads
 /// from the analysis is its [`Step::needs`], which `select`'s plan and `review` read.
 pub static STEPS: [Kind; 9] = [
     Kind::new("boundaries", boundaries::FLAGS, boundaries::from_flags),
@@ -266,7 +266,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
 impl Step {
     /// The command-line flags that give this step, the inverse of [`from_flags`]: each
     /// parameter goes through the flag that [`Flag::sets`] it (a switch that sets it stands for
-    /// the value that is its name: `--auto`), `--{plugin}` when that is a switch, and `--{key}`
+    /// the value that is its name: `--auto`), `--{id}` when that is a switch, and `--{key}`
     /// for a parameter no step flag sets (`--hfov`, which `select` reads as a movement flag).
     /// Unset parameters are left out, so `select` gives them its defaults.
     pub fn to_flags(&self) -> Vec<String> {
@@ -312,9 +312,9 @@ impl Step {
 
 /// A step's parameter error, naming the flag that sets the parameter when there is one.
 fn flag_error(e: StepError) -> Error {
-    match flags().find(|f| f.sets == Some((e.plugin, e.key))) {
+    match flags().find(|f| f.sets == Some((e.step, e.key))) {
         Some(f) => Error::param(f.long, e.msg),
-        None => Error::plugin(e.plugin, e.msg),
+        None => Error::step(e.step, e.msg),
     }
 }
 
@@ -392,16 +392,16 @@ pub enum Step {
 /// A step's parameter that is out of range: `key` is the parameter's name in the step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StepError {
-    /// Stable plugin id.
-    pub plugin: &'static str,
-    /// The parameter (`window`), or `plugin` for the step as a whole.
+    /// Stable step id.
+    pub step: &'static str,
+    /// The parameter (`window`), or `plugin` (a workflow's key for it) for the step as a whole.
     pub key: &'static str,
     /// What is wrong, starting with the parameter's name as a user reads it.
     pub msg: String,
 }
 
 impl Step {
-    /// The stable plugin id.
+    /// The stable step id (`plugin` in project and workflow files).
     pub fn id(&self) -> &'static str {
         match self {
             Step::Boundaries { .. } => "boundaries",
@@ -490,8 +490,8 @@ impl Step {
 
     /// Checks the parameters' ranges (the input is not needed).
     pub fn validate(&self) -> std::result::Result<(), StepError> {
-        let plugin = self.id();
-        let bad = |key: &'static str, msg: String| Err(StepError { plugin, key, msg });
+        let step = self.id();
+        let bad = |key: &'static str, msg: String| Err(StepError { step, key, msg });
         match self {
             Step::Stationary {
                 threshold,
