@@ -12,11 +12,9 @@ use crate::numbers::{non_negative_seconds, positive, positive_px};
 use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
 use crate::source::telemetry::{Position, TelemetryKind};
 use crate::source::{Metadata, SourceKind};
-use crate::steps::Boundaries;
+use crate::steps::{Boundaries, Recorded, Stored};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-
-pub use crate::steps::HistoryEntry;
 
 /// Version of the project file layout this build writes.
 pub const SCHEMA_VERSION: u32 = 2;
@@ -24,9 +22,10 @@ pub const SCHEMA_VERSION: u32 = 2;
 /// Versions this build reads: 1 is 2 without `cache.telemetry`.
 const READS: [u32; 2] = [1, SCHEMA_VERSION];
 
-/// A keyframe selection and everything needed to reproduce and export it.
+/// A keyframe selection and everything needed to reproduce and export it. `H` is one step of its
+/// history: [`Recorded`], or [`Stored`] (as the file has it) while [`Project::load`] reads it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Project {
+pub struct Project<H = Recorded> {
     /// Layout version; see [`SCHEMA_VERSION`].
     pub schema_version: u32,
     /// keyframer version that wrote the file.
@@ -40,7 +39,7 @@ pub struct Project {
     /// Selected frame indices, sorted and distinct.
     pub keyframes: Vec<usize>,
     /// The steps that produced `keyframes`, in order.
-    pub history: Vec<HistoryEntry>,
+    pub history: Vec<H>,
     /// Per-frame data computed from the pixels, reused by later selections.
     pub cache: Cache,
     /// Problems met while decoding the input (damaged streams, damaged images).
@@ -189,7 +188,7 @@ impl Cache {
     }
 }
 
-impl Project {
+impl<H> Project<H> {
     /// The input's path resolved against the folder of the project file at `project_path`.
     pub fn input_path(&self, project_path: &Path) -> PathBuf {
         if self.input.path.is_absolute() {
@@ -201,21 +200,12 @@ impl Project {
             .unwrap_or_else(|| self.input.path.clone())
     }
 
-    /// Reads and validates a project file.
-    pub fn load(path: &Path) -> Result<Project> {
-        let project: Project = crate::output::read_json(path, "project file")?;
-        let bad = |(field, msg)| Error::file(path, None, "project file", field, msg);
-        project.validate().map_err(bad)?;
-        Ok(project)
-    }
-
-    /// Checks the invariants serde cannot: version; positive sizes and rates; the frame count
-    /// against every per-frame series; finite, strictly increasing timestamps; sorted keyframes
-    /// within the input; cache keys (Farneback parameters, statistic, analysis width, stride,
-    /// derotation, stationary parameters) in the ranges the flags accept; and the history's
-    /// plugins, backends and parameters, so that everything that reads a loaded project (export,
-    /// report, `workflow save`) can trust it. The error is (field path, message).
-    pub fn validate(&self) -> Checked {
+    /// Checks the invariants serde cannot but the history's: version; positive sizes and rates;
+    /// the frame count against every per-frame series; finite, strictly increasing timestamps;
+    /// sorted keyframes within the input; cache keys (Farneback parameters, statistic, analysis
+    /// width, stride, derotation, stationary parameters) in the ranges the flags accept. The
+    /// error is (field path, message).
+    fn validate(&self) -> Checked {
         if !READS.contains(&self.schema_version) {
             let v = self.schema_version;
             let msg = format!("version {v} is not supported by this build (reads {READS:?})");
@@ -228,11 +218,7 @@ impl Project {
         self.validate_sharpness(n)?;
         self.validate_movement(n)?;
         self.validate_stationary(n)?;
-        self.validate_telemetry(n)?;
-        for (i, step) in self.history.iter().enumerate() {
-            validate_step(step, n).map_err(under(format!("history[{i}]")))?;
-        }
-        Ok(())
+        self.validate_telemetry(n)
     }
 
     /// Keyframes, damaged frames and boundaries: within the input, sorted and distinct.
@@ -395,12 +381,45 @@ impl Project {
     }
 
     /// Writes the project file atomically, refusing to replace an existing one unless `force`.
-    pub fn save(&self, path: &Path, force: bool) -> Result<()> {
+    pub fn save(&self, path: &Path, force: bool) -> Result<()>
+    where
+        H: Serialize,
+    {
         let _held = fsutil::check_overwrite(path, force)?;
         let mut text = serde_json::to_string_pretty(self)
             .map_err(|e| Error::file(path, None, "project file", "", e.to_string()))?;
         text.push('\n');
         fsutil::write_atomic(path, text.as_bytes())
+    }
+}
+
+impl Project {
+    /// Reads and validates a project file, its history read once into [`Recorded`] steps: known
+    /// step ids and backends, the parameters `workflow save` reads in their ranges. Everything
+    /// that reads a loaded project (export, report, `workflow save`) can trust it.
+    pub fn load(path: &Path) -> Result<Project> {
+        let stored: Project<Stored> = crate::output::read_json(path, "project file")?;
+        let bad = |(field, msg)| Error::file(path, None, "project file", field, msg);
+        stored.validate().map_err(bad)?;
+        let n = stored.metadata.frame_count;
+        let read = |(i, e)| read_step(e, n).map_err(under(format!("history[{i}]")));
+        let history = (stored.history.into_iter().enumerate())
+            .map(read)
+            .collect::<std::result::Result<_, _>>()
+            .map_err(bad)?;
+        Ok(Project {
+            schema_version: stored.schema_version,
+            tool_version: stored.tool_version,
+            input: stored.input,
+            metadata: stored.metadata,
+            boundaries: stored.boundaries,
+            keyframes: stored.keyframes,
+            history,
+            cache: stored.cache,
+            decode_problems: stored.decode_problems,
+            damaged_frames: stored.damaged_frames,
+            preview: stored.preview,
+        })
     }
 }
 
@@ -468,17 +487,17 @@ fn check_frames(frames: &[usize], n: usize) -> std::result::Result<(), String> {
     Ok(())
 }
 
-/// One history step: a known plugin, a known backend, and the parameters `workflow save` reads
+/// One history step: a known step id, a known backend, and the parameters `workflow save` reads
 /// in their ranges. The error's key is relative to the step (`params.fps`).
-fn validate_step(step: &HistoryEntry, n: usize) -> Checked {
-    use crate::steps::Applied;
+fn read_step(step: Stored, n: usize) -> std::result::Result<Recorded, (String, String)> {
     if step.kept > n {
         let msg = format!("{} kept frames of an input of {n} frames", step.kept);
-        return fail("kept", msg);
+        return Err(("kept".into(), msg));
     }
-    let applied = Applied::from_entry(step)?;
-    if let (_, Some(r)) = applied.analysis() {
+    let step = Recorded::from_stored(step)?;
+    if let (_, Some(r)) = step.applied.analysis() {
         validate_request(&r).map_err(under("params.movement".into()))?;
     }
-    applied.check(n)
+    step.applied.check(n)?;
+    Ok(step)
 }

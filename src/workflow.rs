@@ -8,7 +8,7 @@ use crate::names::Names;
 use crate::output::Inputs;
 use crate::params::{BackendChoice, Derotate, FarnebackParams, MovementRequest, Statistic};
 use crate::project::Project;
-use crate::steps::{Applied, Step};
+use crate::steps::Step;
 use crate::tomlfile::{self, TomlFile};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -478,9 +478,7 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
     let mut analysis = AnalysisSection::default();
     let mut sample = Vec::new();
     for (k, entry) in p.history.iter().enumerate() {
-        // Project::load checked every entry.
-        let applied = Applied::from_entry(entry)
-            .map_err(|(key, msg)| bad(format!("step {k}: {key}: {msg}")))?;
+        let applied = &entry.applied;
         let (backend, movement) = applied.analysis();
         if let Some(req) = movement {
             record_movement(&mut analysis, &req);

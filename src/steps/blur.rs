@@ -49,7 +49,7 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, b: &BlurParams) -> Result<Appli
         .iter()
         .find(|s| s.0 == b.metric)
         .map(|s| (s.1, s.2))
-        .ok_or_else(|| Error::plugin("blur", format!("no {} scores were computed", b.metric)))?;
+        .ok_or_else(|| Error::step("blur", format!("no {} scores were computed", b.metric)))?;
     *keys = blur(keys, scores, b, at.range.0, at.range.1)?;
     Ok(Applied::Blur {
         backend: Some(backend),
@@ -98,9 +98,9 @@ pub struct BlurParams {
 impl BlurParams {
     /// Checks ranges.
     pub fn validate(&self) -> Result<()> {
-        positive(self.ratio).map_err(|m| Error::plugin("blur", format!("ratio {m}")))?;
+        positive(self.ratio).map_err(|m| Error::step("blur", format!("ratio {m}")))?;
         if self.window == 0 {
-            return Err(Error::plugin("blur", "window must be at least 1 frame"));
+            return Err(Error::step("blur", "window must be at least 1 frame"));
         }
         Ok(())
     }
@@ -118,7 +118,7 @@ pub fn blur(
     if hi >= scores.len() || lo > hi {
         let n = scores.len();
         let msg = format!("range {lo}..={hi} does not fit {n} scored frames");
-        return Err(Error::plugin("blur", msg));
+        return Err(Error::step("blur", msg));
     }
     let window = |k: usize| k.saturating_sub(p.window).max(lo)..=k.saturating_add(p.window).min(hi);
     Ok(match p.mode {

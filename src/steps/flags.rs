@@ -31,7 +31,7 @@ pub struct Flag {
     pub conflicts: Option<&'static str>,
     /// Checks one value, with the message a user sees.
     pub check: Option<Check>,
-    /// The step parameter it sets (plugin id, key): that parameter's errors name this flag.
+    /// The step parameter it sets (step id, key): that parameter's errors name this flag.
     pub sets: Option<(&'static str, &'static str)>,
 }
 
@@ -94,10 +94,10 @@ impl Flag {
         }
     }
 
-    /// Sets the parameter `key` of the step `plugin`.
-    pub const fn sets(self, plugin: &'static str, key: &'static str) -> Flag {
+    /// Sets the parameter `key` of the step `step`.
+    pub const fn sets(self, step: &'static str, key: &'static str) -> Flag {
         Flag {
-            sets: Some((plugin, key)),
+            sets: Some((step, key)),
             ..self
         }
     }

@@ -14,6 +14,7 @@ pub mod flags;
 pub mod footprint;
 mod fps;
 pub mod geo_distance;
+mod history;
 mod manual;
 pub mod spacing;
 pub mod stationary;
@@ -24,6 +25,7 @@ pub use boundaries::{Bound, Boundaries};
 pub use every_nth::every_nth;
 pub use flags::{Flag, FlagValues};
 pub use fps::fps;
+pub use history::{Recorded, Stored};
 pub use manual::manual;
 pub use spacing::{spacing, spacing_for_count};
 pub use stationary::Stationary;
@@ -96,12 +98,12 @@ pub struct Inputs<'a> {
 /// when some of the candidates `keys` have none (they are never kept).
 fn positions<'a>(
     at: &Inputs<'a>,
-    plugin: &'static str,
+    step: &'static str,
     keys: &[usize],
 ) -> Result<&'a [Option<Position>]> {
     let refuse = || {
-        Error::plugin(
-            plugin,
+        Error::step(
+            step,
             "needs each frame's position, and the input has no telemetry: give --telemetry \
               FILE (DJI SRT or GPX), put the DJI .SRT beside the video, or use images with EXIF \
               GPS tags",
@@ -116,11 +118,11 @@ fn positions<'a>(
             "none of the {without} candidates has a position (they lie outside the \
              telemetry's time span; check --telemetry-offset)"
         );
-        return Err(Error::plugin(plugin, msg));
+        return Err(Error::step(step, msg));
     }
     if without > 0 {
         log::warn!(
-            "{plugin}: {without} of {} candidates have no position and are not kept",
+            "{step}: {without} of {} candidates have no position and are not kept",
             keys.len()
         );
     }
@@ -134,7 +136,7 @@ type FlagReader = fn(&FlagValues) -> Result<Option<Step>>;
 /// new step of it must be given, and the step whose place it shares (a chain has one of them).
 #[derive(Debug, Clone, Copy)]
 pub struct Kind {
-    /// The stable plugin id.
+    /// The stable step id.
     pub id: &'static str,
     /// Its command-line flags.
     pub flags: &'static [Flag],
@@ -172,7 +174,7 @@ impl Kind {
 }
 
 /// Every kind of step in keyframer's chain order. The flags, the order [`check_order`] enforces,
-/// the history's plugin ids and the review page's step list come from here; what a step reads
+/// the history's step ids and the review page's step list come from here; what a step reads
 /// from the analysis is its [`Step::needs`], which `select`'s plan and `review` read.
 pub static STEPS: [Kind; 9] = [
     Kind::new("boundaries", boundaries::FLAGS, boundaries::from_flags),
@@ -248,7 +250,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
 impl Step {
     /// The command-line flags that give this step, the inverse of [`from_flags`]: each
     /// parameter goes through the flag that [`Flag::sets`] it (a switch that sets it stands for
-    /// the value that is its name: `--auto`), `--{plugin}` when that is a switch, and `--{key}`
+    /// the value that is its name: `--auto`), `--{id}` when that is a switch, and `--{key}`
     /// for a parameter no step flag sets (`--hfov`, which `select` reads as a movement flag).
     /// Unset parameters are left out, so `select` gives them its defaults.
     pub fn to_flags(&self) -> Vec<String> {
@@ -294,9 +296,9 @@ impl Step {
 
 /// A step's parameter error, naming the flag that sets the parameter when there is one.
 fn flag_error(e: StepError) -> Error {
-    match flags().find(|f| f.sets == Some((e.plugin, e.key))) {
+    match flags().find(|f| f.sets == Some((e.step, e.key))) {
         Some(f) => Error::param(f.long, e.msg),
-        None => Error::plugin(e.plugin, e.msg),
+        None => Error::step(e.step, e.msg),
     }
 }
 
@@ -374,16 +376,16 @@ pub enum Step {
 /// A step's parameter that is out of range: `key` is the parameter's name in the step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StepError {
-    /// Stable plugin id.
-    pub plugin: &'static str,
-    /// The parameter (`window`), or `plugin` for the step as a whole.
+    /// Stable step id.
+    pub step: &'static str,
+    /// The parameter (`window`), or `plugin` (a workflow's key for it) for the step as a whole.
     pub key: &'static str,
     /// What is wrong, starting with the parameter's name as a user reads it.
     pub msg: String,
 }
 
 impl Step {
-    /// The stable plugin id.
+    /// The stable step id (`plugin` in project and workflow files).
     pub fn id(&self) -> &'static str {
         match self {
             Step::Boundaries { .. } => "boundaries",
@@ -472,8 +474,8 @@ impl Step {
 
     /// Checks the parameters' ranges (the input is not needed).
     pub fn validate(&self) -> std::result::Result<(), StepError> {
-        let plugin = self.id();
-        let bad = |key: &'static str, msg: String| Err(StepError { plugin, key, msg });
+        let step = self.id();
+        let bad = |key: &'static str, msg: String| Err(StepError { step, key, msg });
         match self {
             Step::Stationary {
                 threshold,
@@ -672,6 +674,11 @@ pub enum Applied {
 }
 
 impl Applied {
+    /// The step's id (`plugin` in a project file; `preview` for `select --preview`'s record).
+    pub fn id(&self) -> &'static str {
+        self.step().map_or("preview", |s| s.id())
+    }
+
     /// The step that repeats this one on another input (resolved thresholds, not `auto`).
     pub fn step(&self) -> Option<Step> {
         Some(match self {
@@ -785,45 +792,6 @@ impl Applied {
             }
             Applied::Preview { .. } => Ok(()),
         }
-    }
-
-    /// The history entry recording this step and how many frames it kept. Parameters are
-    /// written in key order, as every project so far has them.
-    pub fn entry(&self, kept: usize) -> HistoryEntry {
-        let value = serde_json::to_value(self).unwrap_or_default();
-        HistoryEntry {
-            plugin: value["plugin"].as_str().unwrap_or_default().to_string(),
-            params: value["params"].clone(),
-            kept,
-        }
-    }
-
-    /// Reads a history entry; the error names the parameter (`params.fps`).
-    pub fn from_entry(e: &HistoryEntry) -> std::result::Result<Applied, (String, String)> {
-        let ids = || STEPS.iter().map(|k| k.id);
-        let plugins: Vec<&str> = (ids().take(1).chain(["preview"]))
-            .chain(ids().skip(1))
-            .collect();
-        if !plugins.contains(&e.plugin.as_str()) {
-            let known = plugins.join(", ");
-            let msg = format!("unknown plugin `{}` (known: {known})", e.plugin);
-            return Err(("plugin".into(), msg));
-        }
-        if let Some(b) = e.params.get("backend").filter(|b| !b.is_null()) {
-            if serde_json::from_value::<Backend>(b.clone()).is_err() {
-                let msg = format!("unknown backend {b} (known: \"gpu\", \"opencv\")");
-                return Err(("params.backend".into(), msg));
-            }
-        }
-        let v = serde_json::json!({ "plugin": e.plugin, "params": e.params });
-        serde_path_to_error::deserialize(v).map_err(|err| {
-            let path = err.path().to_string();
-            let key = match path.as_str() {
-                "." | "" => "plugin".to_string(),
-                p => p.to_string(),
-            };
-            (key, err.into_inner().to_string())
-        })
     }
 }
 
@@ -1026,31 +994,4 @@ mod tests {
         };
         assert_eq!(count.to_flags(), ["--spacing", "60kf"]);
     }
-
-    #[test]
-    fn history_entries_round_trip_with_sorted_parameters() {
-        let a = Applied::Blur {
-            backend: Some(Backend::Opencv),
-            metric: Some(Metric::Tenengrad),
-            mode: Some(BlurMode::Replace),
-            ratio: Some(0.8),
-            window: Some(2),
-        };
-        let e = a.entry(4);
-        assert_eq!(e.plugin, "blur");
-        let keys: Vec<_> = e.params.as_object().unwrap().keys().cloned().collect();
-        assert_eq!(keys, ["backend", "metric", "mode", "ratio", "window"]);
-        assert_eq!(Applied::from_entry(&e).unwrap(), a);
-    }
-}
-
-/// One step of the selection history, as stored (typed by [`Applied`]; the project file stores a list of these).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HistoryEntry {
-    /// Stable plugin id (`boundaries`, `every-nth`, `fps`, `manual`, ...).
-    pub plugin: String,
-    /// The step's parameters as given.
-    pub params: serde_json::Value,
-    /// Number of frames the step kept.
-    pub kept: usize,
 }
