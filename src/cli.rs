@@ -1,8 +1,12 @@
 //! Command-line flags (clap derive) and their conversion into validated settings, in one place.
 
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use keyframer::colmap::Matcher;
 use keyframer::error::{Error, Result};
 use keyframer::manifest::{ExportSettings, Format, MaskSettings, SegRuntime, DEFAULT_QUALITY};
+use keyframer::names::Names;
+use keyframer::numbers::non_negative_seconds;
 use keyframer::params::{
     BackendChoice, Derotate, FarnebackParams, Metric, MovementRequest, Statistic,
 };
@@ -134,7 +138,7 @@ pub struct ScoreArgs {
     /// Video file, image file or image folder.
     pub input: PathBuf,
     /// Sharpness metric: tenengrad, laplacian (= laplacian-k1) or laplacian-k3.
-    #[arg(long, default_value = "tenengrad")]
+    #[arg(long, value_parser = named::<Metric>(), hide_possible_values = true, default_value = "tenengrad")]
     pub metric: Metric,
     /// Print one JSON object instead of `index<TAB>timestamp<TAB>score` lines.
     #[arg(long)]
@@ -292,35 +296,12 @@ pub enum BenchWhat {
     Review,
 }
 
-/// Which kernels implementation to use.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum BackendArg {
-    /// gpu on a hardware adapter, opencv on a software one (lavapipe, llvmpipe, WARP,
-    /// SwiftShader) or without an adapter; said once on stderr, shown by `keyframer info`.
-    Auto,
-    /// WGSL compute shaders through wgpu (opencv, with a warning, without an adapter or after a
-    /// GPU fault).
-    Gpu,
-    /// OpenCV on the CPU.
-    Opencv,
-}
-
-impl From<BackendArg> for BackendChoice {
-    fn from(b: BackendArg) -> Self {
-        match b {
-            BackendArg::Auto => BackendChoice::Auto,
-            BackendArg::Gpu => BackendChoice::Gpu,
-            BackendArg::Opencv => BackendChoice::Opencv,
-        }
-    }
-}
-
 /// Flags of analysing commands.
 #[derive(Debug, Args)]
 pub struct AnalysisArgs {
     /// Kernel backend.
-    #[arg(long, value_enum, default_value = "auto")]
-    pub backend: BackendArg,
+    #[arg(long, value_parser = named::<BackendChoice>(), default_value = "auto")]
+    pub backend: BackendChoice,
     /// GPU adapter to use: a case-insensitive part of its name (default: hardware first, then
     /// software; also KEYFRAMER_ADAPTER).
     #[arg(long)]
@@ -407,8 +388,8 @@ pub struct SelectArgs {
 pub struct MovementArgs {
     /// Statistic of the per-pixel flow magnitudes: median (iVS3D's code) or trimmed-mean (the
     /// paper).
-    #[arg(long, value_enum, default_value = "median")]
-    pub movement: StatisticArg,
+    #[arg(long, value_parser = named::<Statistic>(), default_value = "median")]
+    pub movement: Statistic,
     /// Fraction dropped at each end by --movement trimmed-mean.
     #[arg(long, default_value_t = defaults::TRIM)]
     pub trim: f64,
@@ -435,34 +416,19 @@ pub struct MovementArgs {
     pub farneback: FarnebackArgs,
 }
 
-/// Movement statistics.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum StatisticArg {
-    /// Median of the flow magnitudes.
-    Median,
-    /// Trimmed mean of the flow magnitudes (--trim at each end).
-    TrimmedMean,
-}
-
 impl MovementArgs {
-    /// How movement is measured.
-    pub fn request(&self) -> Result<MovementRequest> {
-        let statistic = match self.movement {
-            StatisticArg::Median => Statistic::Median,
-            StatisticArg::TrimmedMean => Statistic::TrimmedMean { trim: self.trim },
-        };
+    /// How movement is measured (unchecked).
+    pub fn request(&self) -> MovementRequest {
         let derotate = self.derotate.then(|| Derotate {
             hfov_deg: self.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
         });
-        let request = MovementRequest {
+        MovementRequest {
             farneback: self.farneback.params(),
-            statistic,
+            statistic: self.movement.with_trim(self.trim),
             analysis_width: self.analysis_width,
             stride: self.flow_stride,
             derotate,
-        };
-        keyframer::steps::check_movement(&request)?;
-        Ok(request)
+        }
     }
 }
 
@@ -484,8 +450,8 @@ pub struct ExportArgs {
     #[arg(long, value_name = "X,Y,W,H")]
     pub crop: Option<String>,
     /// Image format (default: jpg for video, the original files for image folders).
-    #[arg(long, value_enum)]
-    pub format: Option<FormatArg>,
+    #[arg(long, value_parser = named::<Format>())]
+    pub format: Option<Format>,
     /// JPEG quality, 1 to 100.
     #[arg(long, default_value_t = DEFAULT_QUALITY)]
     pub quality: u8,
@@ -515,29 +481,11 @@ pub struct MaskArgs {
     #[arg(long, value_name = "PX", default_value_t = 0, requires = "masks")]
     pub mask_dilate: u32,
     /// Runtime for the network.
-    #[arg(long, value_enum, default_value = "opencv", requires = "masks")]
-    pub mask_backend: SegRuntimeArg,
+    #[arg(long, value_parser = named::<SegRuntime>(), default_value = "opencv", requires = "masks")]
+    pub mask_backend: SegRuntime,
     /// Also write colour previews of the classes under `overlays/`.
     #[arg(long, requires = "masks")]
     pub mask_overlay: bool,
-}
-
-/// Segmentation runtimes.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum SegRuntimeArg {
-    /// OpenCV DNN (every format OpenCV reads).
-    Opencv,
-    /// ONNX Runtime (ONNX models; library from ORT_DYLIB_PATH).
-    Ort,
-}
-
-impl From<SegRuntimeArg> for SegRuntime {
-    fn from(b: SegRuntimeArg) -> SegRuntime {
-        match b {
-            SegRuntimeArg::Opencv => SegRuntime::Opencv,
-            SegRuntimeArg::Ort => SegRuntime::Ort,
-        }
-    }
 }
 
 /// `segment` flags.
@@ -561,8 +509,8 @@ pub struct SegmentArgs {
     #[arg(long, value_name = "PX", default_value_t = 0)]
     pub dilate: u32,
     /// Runtime for the network.
-    #[arg(long, value_enum, default_value = "opencv")]
-    pub backend: SegRuntimeArg,
+    #[arg(long, value_parser = named::<SegRuntime>(), default_value = "opencv")]
+    pub backend: SegRuntime,
     /// Replace existing output files.
     #[arg(long)]
     pub force: bool,
@@ -575,7 +523,7 @@ impl SegmentArgs {
             model: self.model.clone(),
             classes: self.classes.clone(),
             dilate: self.dilate,
-            backend: self.backend.into(),
+            backend: self.backend,
             overlay: self.overlay.is_some(),
         }
     }
@@ -659,15 +607,6 @@ pub struct WorkflowCheckArgs {
     pub workflow: PathBuf,
 }
 
-/// Export formats.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum FormatArg {
-    /// JPEG.
-    Jpg,
-    /// PNG.
-    Png,
-}
-
 /// The steps' flags, built from each step's [`keyframer::steps::Flag`]s.
 #[derive(Debug, Clone)]
 pub struct StepArgs(pub keyframer::steps::FlagValues);
@@ -709,7 +648,6 @@ impl clap::Args for StepArgs {
 
 /// One step flag as a clap argument.
 fn step_arg(f: &keyframer::steps::Flag) -> clap::Arg {
-    use clap::builder::{PossibleValue, PossibleValuesParser};
     let arg = clap::Arg::new(f.long).long(f.long).help(f.help);
     let Some(name) = f.value_name else {
         return arg.action(clap::ArgAction::SetTrue);
@@ -724,11 +662,9 @@ fn step_arg(f: &keyframer::steps::Flag) -> clap::Arg {
     if f.list {
         arg = arg.value_delimiter(',').action(clap::ArgAction::Append);
     }
-    if !f.choices.is_empty() {
-        let values = f
-            .choices
-            .iter()
-            .map(|(v, h)| PossibleValue::new(*v).help(*h));
+    let choices = (f.choices)();
+    if !choices.is_empty() {
+        let values = choices.iter().map(|(v, h)| PossibleValue::new(*v).help(*h));
         return arg.value_parser(PossibleValuesParser::new(values));
     }
     match f.check {
@@ -737,14 +673,15 @@ fn step_arg(f: &keyframer::steps::Flag) -> clap::Arg {
     }
 }
 
-fn positive(name: &str, v: Option<f64>) -> Result<Option<f64>> {
-    match v {
-        Some(x) if !(x.is_finite() && x > 0.0) => Err(Error::param(
-            name,
-            format!("must be a positive number, got {x}"),
-        )),
-        other => Ok(other),
-    }
+/// The value parser of a flag taking the names of `T`: its possible values (with their help and
+/// aliases) come from `T`'s table.
+fn named<T: Names + Send + Sync>() -> impl TypedValueParser<Value = T> {
+    let values = T::choices().into_iter().map(|(name, help)| {
+        PossibleValue::new(name)
+            .help(help)
+            .aliases(T::aliases(name))
+    });
+    PossibleValuesParser::new(values).try_map(|name| T::from_name(&name))
 }
 
 impl SelectArgs {
@@ -768,28 +705,21 @@ impl SelectArgs {
         for s in steps.iter().filter(|s| s.id() == "footprint-overlap") {
             s.validate().map_err(|e| Error::param("--hfov", e.msg))?;
         }
-        if !self.telemetry_offset.is_finite() {
-            let msg = format!("must be a number of seconds, got {}", self.telemetry_offset);
-            return Err(Error::param("--telemetry-offset", msg));
-        }
+        let movement = self.movement.request();
+        keyframer::params::check_analysis(&movement, self.images_fps, self.telemetry_offset)?;
         Ok(SelectSettings {
             input: self.input.clone(),
             output: self.output.clone(),
             steps,
             telemetry: self.telemetry.clone(),
             telemetry_offset_s: self.telemetry_offset,
-            movement: self.movement.request()?,
-            backend: self.analysis.backend.into(),
+            movement,
+            backend: self.analysis.backend,
             adapter: self.analysis.adapter.clone(),
-            images_fps: positive("--images-fps", self.images_fps)?,
+            images_fps: self.images_fps,
             force: self.force,
-            checkpoint_every_s: match self.checkpoint_every {
-                x if x.is_finite() && x >= 0.0 => x,
-                x => {
-                    let msg = format!("must be 0 or more seconds, got {x}");
-                    return Err(Error::param("--checkpoint-every", msg));
-                }
-            },
+            checkpoint_every_s: non_negative_seconds(self.checkpoint_every)
+                .map_err(|m| Error::param("--checkpoint-every", m))?,
             preview: self.preview,
             quiet,
         })
@@ -839,16 +769,13 @@ impl ExportArgs {
             self.resize.as_deref(),
             self.scale,
             self.crop.as_deref(),
-            self.format.map(|f| match f {
-                FormatArg::Jpg => Format::Jpg,
-                FormatArg::Png => Format::Png,
-            }),
+            self.format,
             self.quality,
             self.masks.masks.as_ref().map(|model| MaskSettings {
                 model: model.clone(),
                 classes: self.masks.mask_classes.clone(),
                 dilate: self.masks.mask_dilate,
-                backend: self.masks.mask_backend.into(),
+                backend: self.masks.mask_backend,
                 overlay: self.masks.mask_overlay,
             }),
             !self.no_geotag,
@@ -871,8 +798,8 @@ pub struct ColmapArgs {
     #[arg(long)]
     pub dense: bool,
     /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
-    #[arg(long, value_enum, default_value = "sequential")]
-    pub matcher: MatcherArg,
+    #[arg(long, value_parser = named::<Matcher>(), default_value = "sequential")]
+    pub matcher: Matcher,
     /// Sequential matching: match each image with this many following images.
     #[arg(long, default_value_t = 10)]
     pub overlap: u32,
@@ -898,28 +825,15 @@ pub struct ColmapArgs {
     pub json: bool,
 }
 
-/// Feature matching strategies.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum MatcherArg {
-    /// `sequential_matcher`: neighbours in file-name (video) order.
-    Sequential,
-    /// `exhaustive_matcher`: every pair.
-    Exhaustive,
-}
-
 impl ColmapArgs {
     /// The library's settings.
     pub fn settings(&self) -> keyframer::colmap::ColmapSettings {
-        use keyframer::colmap::Matcher;
         keyframer::colmap::ColmapSettings {
             export: self.export.clone(),
             output: self.output.clone(),
             sparse: self.sparse,
             dense: self.dense,
-            matcher: match self.matcher {
-                MatcherArg::Sequential => Matcher::Sequential,
-                MatcherArg::Exhaustive => Matcher::Exhaustive,
-            },
+            matcher: self.matcher,
             overlap: self.overlap,
             camera_model: self.camera_model.clone(),
             camera_params: self.camera_params.clone(),

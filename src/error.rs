@@ -1,4 +1,4 @@
-//! The library's error type: every message names the file, frame index, parameter or plugin it is about.
+//! The library's error type: every message names the file, frame index, parameter or step it is about.
 
 use std::path::PathBuf;
 
@@ -64,10 +64,10 @@ pub enum Error {
     },
 
     /// A step (sampler, export masks) refused its input or parameters.
-    #[error("plugin `{plugin}`: {msg}")]
-    Plugin {
+    #[error("plugin `{step}`: {msg}")]
+    Step {
         /// The step's name.
-        plugin: &'static str,
+        step: &'static str,
         /// Why it refused.
         msg: String,
     },
@@ -181,10 +181,10 @@ impl Error {
         }
     }
 
-    /// Shorthand for [`Error::Plugin`].
-    pub fn plugin(plugin: &'static str, msg: impl Into<String>) -> Self {
-        Error::Plugin {
-            plugin,
+    /// Shorthand for [`Error::Step`].
+    pub fn step(step: &'static str, msg: impl Into<String>) -> Self {
+        Error::Step {
+            step,
             msg: msg.into(),
         }
     }
@@ -213,10 +213,10 @@ impl Error {
         }
     }
 
-    /// A parameter's or plugin's message without its name; any other error in full.
+    /// A parameter's or step's message without its name; any other error in full.
     pub fn into_msg(self) -> String {
         match self {
-            Error::Param { msg, .. } | Error::Plugin { msg, .. } => msg,
+            Error::Param { msg, .. } | Error::Step { msg, .. } => msg,
             other => other.to_string(),
         }
     }

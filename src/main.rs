@@ -375,8 +375,7 @@ fn probe(a: &cli::ProbeArgs, quiet: bool) -> Result<ExitCode> {
 }
 
 fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<ExitCode> {
-    let (backend, ctx) =
-        gpu::resolve_backend(a.analysis.backend.into(), a.analysis.adapter.as_deref());
+    let (backend, ctx) = gpu::resolve_backend(a.analysis.backend, a.analysis.adapter.as_deref());
     let request = analysis::Request {
         sharpness: vec![a.metric],
         ..Default::default()
@@ -428,7 +427,7 @@ fn flow(a: &cli::FlowArgs) -> Result<ExitCode> {
         &a.b,
         a.initial.as_deref(),
         &params,
-        a.analysis.backend.into(),
+        a.analysis.backend,
         a.analysis.adapter.as_deref(),
     )?;
     keyframer::flo::write(&a.output, &r.field)?;

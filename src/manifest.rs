@@ -4,6 +4,8 @@
 //! these without depending on the exporter.
 
 use crate::error::{Error, Result};
+use crate::names::{Names, Table};
+use crate::numbers::positive;
 use crate::source::telemetry::Position;
 use crate::source::SourceKind;
 use serde::{Deserialize, Serialize};
@@ -111,11 +113,9 @@ impl ExportSettings {
                 let (width, height) = parse_size(s)?;
                 Some(Resize::Size { width, height })
             }
-            (None, Some(f)) if !(f.is_finite() && f > 0.0) => {
-                let msg = format!("must be a positive number, got {f}");
-                return Err(Error::param("scale", msg));
-            }
-            (None, Some(f)) => Some(Resize::Scale(f)),
+            (None, Some(f)) => Some(Resize::Scale(
+                positive(f).map_err(|m| Error::param("scale", m))?,
+            )),
             (None, None) => None,
         };
         let crop = crop.map(parse_crop).transpose()?;
@@ -241,8 +241,7 @@ pub struct MissingFrame {
 }
 
 /// Image file format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
     /// JPEG with a quality setting.
     Jpg,
@@ -250,13 +249,16 @@ pub enum Format {
     Png,
 }
 
+impl Names for Format {
+    const FLAG: &'static str = "format";
+    const NAMES: Table<Self> = &[("jpg", Format::Jpg, "JPEG"), ("png", Format::Png, "PNG")];
+}
+crate::names::impl_names!(Format, serde);
+
 impl Format {
-    /// File extension.
+    /// File extension (the format's name).
     pub fn ext(self) -> &'static str {
-        match self {
-            Format::Jpg => "jpg",
-            Format::Png => "png",
-        }
+        self.name()
     }
 }
 
@@ -311,8 +313,7 @@ impl Manifest {
 }
 
 /// Which runtime executes the network.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum SegRuntime {
     /// OpenCV DNN on the CPU (every format OpenCV reads).
     #[default]
@@ -320,6 +321,23 @@ pub enum SegRuntime {
     /// ONNX Runtime through the `ort` crate (ONNX models only; library loaded at run time).
     Ort,
 }
+
+impl Names for SegRuntime {
+    const FLAG: &'static str = "mask-backend";
+    const NAMES: Table<Self> = &[
+        (
+            "opencv",
+            SegRuntime::Opencv,
+            "OpenCV DNN (every format OpenCV reads)",
+        ),
+        (
+            "ort",
+            SegRuntime::Ort,
+            "ONNX Runtime (ONNX models; library from ORT_DYLIB_PATH)",
+        ),
+    ];
+}
+crate::names::impl_names!(SegRuntime, serde);
 
 /// Segmentation masks of an export: the model, the hidden classes and the runtime.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

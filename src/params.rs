@@ -4,13 +4,12 @@
 //! depend on this module, and the engines re-export its types where they use them.
 
 use crate::error::{Error, Result};
+use crate::names::{Names, Table};
+use crate::numbers::{positive, seconds};
 use serde::{Deserialize, Serialize};
-use std::fmt;
-use std::str::FromStr;
 
 /// Which implementation runs the per-frame kernels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Backend {
     /// WGSL compute shaders through wgpu.
     Gpu,
@@ -18,14 +17,14 @@ pub enum Backend {
     Opencv,
 }
 
-impl std::fmt::Display for Backend {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Backend::Gpu => "gpu",
-            Backend::Opencv => "opencv",
-        })
-    }
+impl Names for Backend {
+    const FLAG: &'static str = "backend";
+    const NAMES: Table<Self> = &[
+        ("gpu", Backend::Gpu, "WGSL compute shaders through wgpu"),
+        ("opencv", Backend::Opencv, "OpenCV on the CPU"),
+    ];
 }
+crate::names::impl_names!(Backend, serde);
 
 /// The backend a command or workflow asks for. Projects record the [`Backend`] it resolved to
 /// (`crate::gpu::resolve_backend`), never `auto`.
@@ -41,25 +40,27 @@ pub enum BackendChoice {
     Opencv,
 }
 
-impl FromStr for BackendChoice {
-    type Err = String;
+impl Names for BackendChoice {
+    const FLAG: &'static str = "backend";
+    const NAMES: Table<Self> = &[
+        ("auto", BackendChoice::Auto, "gpu on a hardware adapter, opencv on a software one (lavapipe, llvmpipe, WARP, SwiftShader) or without an adapter; said once on stderr, shown by `keyframer info`"),
+        ("gpu", BackendChoice::Gpu, "WGSL compute shaders through wgpu (opencv, with a warning, without an adapter or after a GPU fault)"),
+        ("opencv", BackendChoice::Opencv, "OpenCV on the CPU"),
+    ];
+}
+crate::names::impl_names!(BackendChoice, serde);
 
-    /// `auto`, `gpu` or `opencv`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "auto" => Ok(BackendChoice::Auto),
-            "gpu" => Ok(BackendChoice::Gpu),
-            "opencv" => Ok(BackendChoice::Opencv),
-            _ => Err(format!(
-                "invalid value '{s}' for '--backend <BACKEND>' [possible values: auto, gpu, opencv]"
-            )),
+impl From<Backend> for BackendChoice {
+    fn from(b: Backend) -> BackendChoice {
+        match b {
+            Backend::Gpu => BackendChoice::Gpu,
+            Backend::Opencv => BackendChoice::Opencv,
         }
     }
 }
 
 /// A sharpness measure.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(try_from = "String", into = "String")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Metric {
     /// Mean of Gx² + Gy² of the 3x3 Sobel gradients.
     Tenengrad,
@@ -70,43 +71,28 @@ pub enum Metric {
     },
 }
 
-impl fmt::Display for Metric {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Metric::Tenengrad => f.write_str("tenengrad"),
-            Metric::Laplacian { ksize } => write!(f, "laplacian-k{ksize}"),
-        }
-    }
+impl Names for Metric {
+    const FLAG: &'static str = "metric";
+    const NAMES: Table<Self> = &[
+        (
+            "tenengrad",
+            Metric::Tenengrad,
+            "Mean squared Sobel gradient",
+        ),
+        (
+            "laplacian-k1",
+            Self::Laplacian { ksize: 1 },
+            "Laplacian variance, 4 neighbours",
+        ),
+        (
+            "laplacian-k3",
+            Self::Laplacian { ksize: 3 },
+            "Laplacian variance, aperture 3",
+        ),
+        ("laplacian", Self::Laplacian { ksize: 1 }, "laplacian-k1"),
+    ];
 }
-
-impl FromStr for Metric {
-    type Err = String;
-
-    /// `tenengrad`, `laplacian` (ksize 1), `laplacian-k1`, `laplacian-k3`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "tenengrad" => Ok(Metric::Tenengrad),
-            "laplacian" | "laplacian-k1" => Ok(Metric::Laplacian { ksize: 1 }),
-            "laplacian-k3" => Ok(Metric::Laplacian { ksize: 3 }),
-            _ => Err(format!(
-                "unknown metric `{s}` (tenengrad, laplacian, laplacian-k1, laplacian-k3)"
-            )),
-        }
-    }
-}
-
-impl TryFrom<String> for Metric {
-    type Error = String;
-    fn try_from(s: String) -> Result<Self, String> {
-        s.parse()
-    }
-}
-
-impl From<Metric> for String {
-    fn from(m: Metric) -> String {
-        m.to_string()
-    }
-}
+crate::names::impl_names!(Metric, serde);
 
 /// Parameters of cv::calcOpticalFlowFarneback.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -175,11 +161,9 @@ impl FarnebackParams {
         if self.poly_n != 5 && self.poly_n != 7 {
             return bad("poly_n", format!("must be 5 or 7, got {}", self.poly_n));
         }
-        if !(self.poly_sigma.is_finite() && self.poly_sigma > 0.0) {
-            let msg = format!("must be a positive number, got {}", self.poly_sigma);
-            return bad("poly_sigma", msg);
-        }
-        Ok(())
+        positive(self.poly_sigma)
+            .map(drop)
+            .or_else(|msg| bad("poly_sigma", msg))
     }
 }
 
@@ -197,12 +181,37 @@ pub enum Statistic {
     },
 }
 
+impl Names for Statistic {
+    const FLAG: &'static str = "movement";
+    const NAMES: Table<Self> = &[
+        ("median", Statistic::Median, "Median of the flow magnitudes"),
+        (
+            "trimmed-mean",
+            Statistic::TrimmedMean {
+                trim: Statistic::DEFAULT_TRIM,
+            },
+            "Trimmed mean of the flow magnitudes (--trim at each end)",
+        ),
+    ];
+}
+
 impl Statistic {
+    /// Fraction dropped at each end by `trimmed-mean` when none is given.
+    pub const DEFAULT_TRIM: f64 = 0.1;
+
     /// The `--movement` flag value and `--trim` for this statistic.
     pub fn to_flag(self) -> (&'static str, Option<f64>) {
         match self {
-            Statistic::Median => ("median", None),
-            Statistic::TrimmedMean { trim } => ("trimmed-mean", Some(trim)),
+            Statistic::Median => (self.name(), None),
+            Statistic::TrimmedMean { trim } => (self.name(), Some(trim)),
+        }
+    }
+
+    /// The same statistic, trimming `trim` at each end if it trims.
+    pub fn with_trim(self, trim: f64) -> Statistic {
+        match self {
+            Statistic::TrimmedMean { .. } => Statistic::TrimmedMean { trim },
+            median => median,
         }
     }
 
@@ -279,6 +288,23 @@ pub struct MovementRequest {
 }
 
 impl MovementRequest {
+    /// Checks how movement is to be measured (every sampler that reads movement shares it);
+    /// errors name the parameter (`flow_stride`).
+    pub fn validate(&self) -> Result<()> {
+        self.statistic.validate()?;
+        if self.stride == 0 {
+            return Err(Error::param("flow_stride", "must be at least 1"));
+        }
+        if self.analysis_width < 16 {
+            let msg = format!("must be at least 16 pixels, got {}", self.analysis_width);
+            return Err(Error::param("analysis_width", msg));
+        }
+        if let Some(d) = &self.derotate {
+            d.validate()?;
+        }
+        self.farneback.validate()
+    }
+
     /// The `select` flags that measure movement this way (Farnebäck parameters only where they
     /// differ from the defaults). `--hfov` is shared with the footprint step's field of view.
     pub fn to_flags(&self) -> Vec<String> {
@@ -319,6 +345,23 @@ impl MovementRequest {
         );
         out
     }
+}
+
+/// The one check of what `select`'s flags and a workflow's `[analysis]` both give: how movement
+/// is measured, the frame rate assumed for an image folder and the telemetry clock offset.
+/// Errors name the parameter by its key (`images_fps`; the binary shows its flag).
+pub fn check_analysis(
+    movement: &MovementRequest,
+    images_fps: Option<f64>,
+    telemetry_offset_s: f64,
+) -> Result<()> {
+    movement.validate()?;
+    images_fps
+        .map(positive)
+        .transpose()
+        .map_err(|m| Error::param("images_fps", m))?;
+    seconds(telemetry_offset_s).map_err(|m| Error::param("telemetry_offset", m))?;
+    Ok(())
 }
 
 fn one() -> u32 {

@@ -8,14 +8,13 @@
 
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
+use crate::numbers::{non_negative_seconds, positive, positive_px};
 use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
 use crate::source::telemetry::{Position, TelemetryKind};
 use crate::source::{Metadata, SourceKind};
-use crate::steps::Boundaries;
+use crate::steps::{Boundaries, Recorded, Stored};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-
-pub use crate::steps::HistoryEntry;
 
 /// Version of the project file layout this build writes.
 pub const SCHEMA_VERSION: u32 = 2;
@@ -23,9 +22,10 @@ pub const SCHEMA_VERSION: u32 = 2;
 /// Versions this build reads: 1 is 2 without `cache.telemetry`.
 const READS: [u32; 2] = [1, SCHEMA_VERSION];
 
-/// A keyframe selection and everything needed to reproduce and export it.
+/// A keyframe selection and everything needed to reproduce and export it. `H` is one step of its
+/// history: [`Recorded`], or [`Stored`] (as the file has it) while [`Project::load`] reads it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Project {
+pub struct Project<H = Recorded> {
     /// Layout version; see [`SCHEMA_VERSION`].
     pub schema_version: u32,
     /// keyframer version that wrote the file.
@@ -39,7 +39,7 @@ pub struct Project {
     /// Selected frame indices, sorted and distinct.
     pub keyframes: Vec<usize>,
     /// The steps that produced `keyframes`, in order.
-    pub history: Vec<HistoryEntry>,
+    pub history: Vec<H>,
     /// Per-frame data computed from the pixels, reused by later selections.
     pub cache: Cache,
     /// Problems met while decoding the input (damaged streams, damaged images).
@@ -188,7 +188,7 @@ impl Cache {
     }
 }
 
-impl Project {
+impl<H> Project<H> {
     /// The input's path resolved against the folder of the project file at `project_path`.
     pub fn input_path(&self, project_path: &Path) -> PathBuf {
         if self.input.path.is_absolute() {
@@ -200,21 +200,12 @@ impl Project {
             .unwrap_or_else(|| self.input.path.clone())
     }
 
-    /// Reads and validates a project file.
-    pub fn load(path: &Path) -> Result<Project> {
-        let project: Project = crate::output::read_json(path, "project file")?;
-        let bad = |(field, msg)| Error::file(path, None, "project file", field, msg);
-        project.validate().map_err(bad)?;
-        Ok(project)
-    }
-
-    /// Checks the invariants serde cannot: version; positive sizes and rates; the frame count
-    /// against every per-frame series; finite, strictly increasing timestamps; sorted keyframes
-    /// within the input; cache keys (Farneback parameters, statistic, analysis width, stride,
-    /// derotation, stationary parameters) in the ranges the flags accept; and the history's
-    /// plugins, backends and parameters, so that everything that reads a loaded project (export,
-    /// report, `workflow save`) can trust it. The error is (field path, message).
-    pub fn validate(&self) -> Checked {
+    /// Checks the invariants serde cannot but the history's: version; positive sizes and rates;
+    /// the frame count against every per-frame series; finite, strictly increasing timestamps;
+    /// sorted keyframes within the input; cache keys (Farneback parameters, statistic, analysis
+    /// width, stride, derotation, stationary parameters) in the ranges the flags accept. The
+    /// error is (field path, message).
+    fn validate(&self) -> Checked {
         if !READS.contains(&self.schema_version) {
             let v = self.schema_version;
             let msg = format!("version {v} is not supported by this build (reads {READS:?})");
@@ -227,11 +218,7 @@ impl Project {
         self.validate_sharpness(n)?;
         self.validate_movement(n)?;
         self.validate_stationary(n)?;
-        self.validate_telemetry(n)?;
-        for (i, step) in self.history.iter().enumerate() {
-            validate_step(step, n).map_err(under(format!("history[{i}]")))?;
-        }
-        Ok(())
+        self.validate_telemetry(n)
     }
 
     /// Keyframes, damaged frames and boundaries: within the input, sorted and distinct.
@@ -252,7 +239,10 @@ impl Project {
         ];
         for (name, b) in ends {
             if let Some(crate::steps::Bound::Seconds(s)) = b {
-                seconds(format!("boundaries.{name}.seconds"), s)?;
+                at_field(
+                    format!("boundaries.{name}.seconds"),
+                    non_negative_seconds(s),
+                )?;
             }
         }
         Ok(())
@@ -306,7 +296,7 @@ impl Project {
             validate_request(&m.request).map_err(under(at("request")))?;
             let s = &m.series;
             analysis_size(at("series.width"), s.width, s.height)?;
-            positive(at("series.scale_to_full"), s.scale_to_full)?;
+            at_field(at("series.scale_to_full"), positive(s.scale_to_full))?;
             per_frame(at("series.values"), "values", s.values.len(), n)?;
             if let Some(j) = s.values.iter().position(|v| !v.is_finite() || *v < 0.0) {
                 let msg = format!(
@@ -325,10 +315,7 @@ impl Project {
             let at = |k: &str| format!("cache.stationary[{i}].{k}");
             validate_request(&r.request).map_err(under(at("request")))?;
             let p = &r.params;
-            if !(p.threshold.is_finite() && p.threshold > 0.0) {
-                let msg = format!("must be a positive number of pixels, got {}", p.threshold);
-                return fail(at("params.threshold"), msg);
-            }
+            at_field(at("params.threshold"), positive_px(p.threshold))?;
             if p.reset_delta == 0 {
                 return fail(at("params.reset_delta"), "must be at least 1 frame");
             }
@@ -385,21 +372,54 @@ impl Project {
             return fail(at(k), msg);
         }
         if let Some(f) = m.fps {
-            positive(at("fps"), f)?;
+            at_field(at("fps"), positive(f))?;
         }
         match m.duration_s {
-            Some(d) => seconds(at("duration_s"), d),
+            Some(d) => at_field(at("duration_s"), non_negative_seconds(d)),
             None => Ok(()),
         }
     }
 
     /// Writes the project file atomically, refusing to replace an existing one unless `force`.
-    pub fn save(&self, path: &Path, force: bool) -> Result<()> {
+    pub fn save(&self, path: &Path, force: bool) -> Result<()>
+    where
+        H: Serialize,
+    {
         let _held = fsutil::check_overwrite(path, force)?;
         let mut text = serde_json::to_string_pretty(self)
             .map_err(|e| Error::file(path, None, "project file", "", e.to_string()))?;
         text.push('\n');
         fsutil::write_atomic(path, text.as_bytes())
+    }
+}
+
+impl Project {
+    /// Reads and validates a project file, its history read once into [`Recorded`] steps: known
+    /// step ids and backends, the parameters `workflow save` reads in their ranges. Everything
+    /// that reads a loaded project (export, report, `workflow save`) can trust it.
+    pub fn load(path: &Path) -> Result<Project> {
+        let stored: Project<Stored> = crate::output::read_json(path, "project file")?;
+        let bad = |(field, msg)| Error::file(path, None, "project file", field, msg);
+        stored.validate().map_err(bad)?;
+        let n = stored.metadata.frame_count;
+        let read = |(i, e)| read_step(e, n).map_err(under(format!("history[{i}]")));
+        let history = (stored.history.into_iter().enumerate())
+            .map(read)
+            .collect::<std::result::Result<_, _>>()
+            .map_err(bad)?;
+        Ok(Project {
+            schema_version: stored.schema_version,
+            tool_version: stored.tool_version,
+            input: stored.input,
+            metadata: stored.metadata,
+            boundaries: stored.boundaries,
+            keyframes: stored.keyframes,
+            history,
+            cache: stored.cache,
+            decode_problems: stored.decode_problems,
+            damaged_frames: stored.damaged_frames,
+            preview: stored.preview,
+        })
     }
 }
 
@@ -436,27 +456,15 @@ fn analysis_size(field: String, width: u32, height: u32) -> Checked {
     Ok(())
 }
 
-/// A finite number above 0.
-fn positive(field: String, v: f64) -> Checked {
-    if !(v.is_finite() && v > 0.0) {
-        return fail(field, format!("must be a positive number, got {v}"));
-    }
-    Ok(())
-}
-
-/// A finite, non-negative number of seconds.
-fn seconds(field: String, s: f64) -> Checked {
-    if !(s.is_finite() && s >= 0.0) {
-        let msg = format!("must be a non-negative number of seconds, got {s}");
-        return fail(field, msg);
-    }
-    Ok(())
+/// A number check's outcome for `field`.
+fn at_field(field: String, checked: std::result::Result<f64, String>) -> Checked {
+    checked.map(drop).map_err(|msg| (field, msg))
 }
 
 /// A movement request's fields in the ranges the flags accept; the error's key is relative to
 /// the request (`farneback.pyr_scale`).
 fn validate_request(r: &MovementRequest) -> Checked {
-    crate::steps::check_movement(r).map_err(|e| match e {
+    r.validate().map_err(|e| match e {
         Error::Param { name, msg } => {
             let k = match name.as_str() {
                 "trim" => "statistic.trimmed_mean.trim".to_string(),
@@ -479,17 +487,17 @@ fn check_frames(frames: &[usize], n: usize) -> std::result::Result<(), String> {
     Ok(())
 }
 
-/// One history step: a known plugin, a known backend, and the parameters `workflow save` reads
+/// One history step: a known step id, a known backend, and the parameters `workflow save` reads
 /// in their ranges. The error's key is relative to the step (`params.fps`).
-fn validate_step(step: &HistoryEntry, n: usize) -> Checked {
-    use crate::steps::Applied;
+fn read_step(step: Stored, n: usize) -> std::result::Result<Recorded, (String, String)> {
     if step.kept > n {
         let msg = format!("{} kept frames of an input of {n} frames", step.kept);
-        return fail("kept", msg);
+        return Err(("kept".into(), msg));
     }
-    let applied = Applied::from_entry(step)?;
-    if let (_, Some(r)) = applied.analysis() {
+    let step = Recorded::from_stored(step)?;
+    if let (_, Some(r)) = step.applied.analysis() {
         validate_request(&r).map_err(under("params.movement".into()))?;
     }
-    applied.check(n)
+    step.applied.check(n)?;
+    Ok(step)
 }

@@ -4,10 +4,11 @@
 
 use crate::error::{Error, Result};
 use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
+use crate::names::Names;
 use crate::output::Inputs;
 use crate::params::{BackendChoice, Derotate, FarnebackParams, MovementRequest, Statistic};
 use crate::project::Project;
-use crate::steps::{Applied, Step};
+use crate::steps::Step;
 use crate::tomlfile::{self, TomlFile};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -21,7 +22,7 @@ pub const VERSION: u32 = 1;
 #[serde(deny_unknown_fields)]
 pub struct AnalysisSection {
     /// `auto` (default), `gpu` or `opencv`.
-    pub backend: Option<String>,
+    pub backend: Option<BackendChoice>,
     /// GPU adapter, part of its name.
     pub adapter: Option<String>,
     /// Width frames are scaled to for movement analysis.
@@ -82,7 +83,7 @@ pub struct Masks {
     /// Grow the hidden area by this many pixels.
     pub dilate: Option<u32>,
     /// `opencv` or `ort`.
-    pub backend: Option<String>,
+    pub backend: Option<SegRuntime>,
     /// Also write colour previews of the classes under `overlays/`.
     pub overlay: Option<bool>,
 }
@@ -94,7 +95,7 @@ pub struct Export {
     /// Output sub-folder name (letters, digits, `-`, `_`, `.`).
     pub name: String,
     /// `jpg` or `png`.
-    pub format: Option<String>,
+    pub format: Option<Format>,
     /// JPEG quality, 1 to 100.
     pub quality: Option<u8>,
     /// `"1280x720"`.
@@ -231,11 +232,12 @@ impl Workflow {
         check_relations(&file, w)?;
         check_steps(&file, &w.sample)?;
         let an = w.analysis.clone().unwrap_or_default();
-        let movement = movement_request(&an).map_err(|e| locate(&file, e))?;
-        let backend = match an.backend.as_deref() {
-            None => BackendChoice::Auto,
-            Some(b) => b.parse().map_err(|e| file.error("analysis.backend", e))?,
-        };
+        let movement = movement_request(&an)
+            .and_then(|m| {
+                let offset = an.telemetry_offset.unwrap_or(0.0);
+                crate::params::check_analysis(&m, an.images_fps, offset).map(|()| m)
+            })
+            .map_err(|e| locate(&file, e))?;
         let mut inputs = Inputs::none();
         if let Some(t) = &an.telemetry {
             let dir = file.path().parent().unwrap_or(Path::new("."));
@@ -244,14 +246,6 @@ impl Workflow {
                 return Err(file.error("analysis.telemetry", msg));
             }
             inputs.add("telemetry", dir.join(t));
-        }
-        if let Some(o) = an.telemetry_offset.filter(|o| !o.is_finite()) {
-            let msg = format!("must be a number of seconds, got {o}");
-            return Err(file.error("analysis.telemetry_offset", msg));
-        }
-        if let Some(f) = an.images_fps.filter(|f| !(f.is_finite() && *f > 0.0)) {
-            let msg = format!("must be a positive number, got {f}");
-            return Err(file.error("analysis.images_fps", msg));
         }
         let mut exports = Vec::new();
         for (i, e) in w.export.iter().enumerate() {
@@ -270,7 +264,7 @@ impl Workflow {
             file: content.clone(),
             hash: crate::output::fnv1a64(file.text().as_bytes()),
             movement,
-            backend,
+            backend: an.backend.unwrap_or_default(),
             exports,
             inputs,
         })
@@ -325,13 +319,10 @@ fn check_steps(file: &TomlFile<RawFile>, steps: &[Step]) -> Result<()> {
 fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
     let d = FarnebackParams::default();
     let fb = an.farneback.clone().unwrap_or_default();
-    let trimmed = Statistic::TrimmedMean {
-        trim: an.trim.unwrap_or(crate::steps::defaults::TRIM),
+    let statistic = match an.movement.as_deref() {
+        Some(name) => Statistic::from_name(name).map_err(|m| Error::param("movement", m))?,
+        None => Statistic::Median,
     };
-    let statistics = [("median", Statistic::Median), ("trimmed-mean", trimmed)];
-    let statistic = choice(an.movement.as_deref(), &statistics)
-        .map_err(|m| Error::param("movement", m))?
-        .unwrap_or(Statistic::Median);
     let request = MovementRequest {
         farneback: FarnebackParams {
             pyr_scale: fb.pyr_scale.unwrap_or(d.pyr_scale),
@@ -342,7 +333,7 @@ fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
             poly_sigma: fb.poly_sigma.unwrap_or(d.poly_sigma),
             gaussian: fb.gaussian.unwrap_or(d.gaussian),
         },
-        statistic,
+        statistic: statistic.with_trim(an.trim.unwrap_or(crate::steps::defaults::TRIM)),
         analysis_width: an
             .analysis_width
             .unwrap_or(crate::steps::defaults::ANALYSIS_WIDTH),
@@ -353,29 +344,7 @@ fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
             hfov_deg: an.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
         }),
     };
-    crate::steps::check_movement(&request)?;
     Ok(request)
-}
-
-/// `value` when it is one of `choices` (absent: None), else the message clap gives for a value
-/// not among them.
-fn choice<T: Copy>(
-    value: Option<&str>,
-    choices: &[(&str, T)],
-) -> std::result::Result<Option<T>, String> {
-    let Some(v) = value else {
-        return Ok(None);
-    };
-    match choices.iter().find(|c| c.0 == v) {
-        Some(&(_, t)) => Ok(Some(t)),
-        None => {
-            let names: Vec<&str> = choices.iter().map(|c| c.0).collect();
-            Err(format!(
-                "invalid value '{v}' [possible values: {}]",
-                names.join(", ")
-            ))
-        }
-    }
 }
 
 /// Relations between keys that clap would report without naming the key that caused them.
@@ -444,21 +413,15 @@ fn export_settings(
     if let Some(why) = refusal {
         return Err(file.error(&at("name"), format!("`{name}` {why}")));
     }
-    let formats = [("jpg", Format::Jpg), ("png", Format::Png)];
-    let format = choice(e.format.as_deref(), &formats).map_err(|m| file.error(&at("format"), m))?;
     let masks = match &e.masks {
         None => None,
         Some(m) => {
-            let runtimes = [("opencv", SegRuntime::Opencv), ("ort", SegRuntime::Ort)];
-            let backend = choice(m.backend.as_deref(), &runtimes)
-                .map_err(|m| file.error(&at("masks.backend"), m))?
-                .unwrap_or_default();
             let dir = file.path().parent().unwrap_or(Path::new("."));
             Some(MaskSettings {
                 model: crate::fsutil::absolute(&dir.join(&m.model)),
                 classes: m.classes.clone(),
                 dilate: m.dilate.unwrap_or(0),
-                backend,
+                backend: m.backend.unwrap_or_default(),
                 overlay: m.overlay == Some(true),
             })
         }
@@ -467,7 +430,7 @@ fn export_settings(
         e.resize.as_deref(),
         e.scale,
         e.crop.as_deref(),
-        format,
+        e.format,
         e.quality.unwrap_or(crate::manifest::DEFAULT_QUALITY),
         masks,
         e.geotag != Some(false),
@@ -515,15 +478,13 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
     let mut analysis = AnalysisSection::default();
     let mut sample = Vec::new();
     for (k, entry) in p.history.iter().enumerate() {
-        // Project::load checked every entry.
-        let applied = Applied::from_entry(entry)
-            .map_err(|(key, msg)| bad(format!("step {k}: {key}: {msg}")))?;
+        let applied = &entry.applied;
         let (backend, movement) = applied.analysis();
         if let Some(req) = movement {
             record_movement(&mut analysis, &req);
         }
         if let Some(b) = backend {
-            analysis.backend = Some(b.to_string());
+            analysis.backend = Some(b.into());
         }
         match applied.step() {
             Some(Step::Boundaries {
@@ -592,7 +553,7 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "export".into()),
-        format: s.format.map(|f| f.ext().to_string()),
+        format: s.format,
         quality: Some(s.quality),
         resize,
         scale,
@@ -603,10 +564,7 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             model: crate::fsutil::absolute(&mk.model),
             classes: mk.classes.clone(),
             dilate: Some(mk.dilate),
-            backend: Some(match mk.backend {
-                SegRuntime::Opencv => "opencv".into(),
-                SegRuntime::Ort => "ort".into(),
-            }),
+            backend: Some(mk.backend),
             overlay: Some(mk.overlay),
         }),
         geotag: (!s.geotag).then_some(false),

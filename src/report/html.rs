@@ -59,7 +59,7 @@ struct ThumbView {
 
 struct StepRow {
     number: usize,
-    plugin: String,
+    step: &'static str,
     kept: usize,
     params: String,
 }
@@ -168,9 +168,9 @@ fn steps(pr: &Project) -> Vec<StepRow> {
         .enumerate()
         .map(|(i, st)| StepRow {
             number: i + 1,
-            plugin: st.plugin.clone(),
+            step: st.applied.id(),
             kept: st.kept,
-            params: st.params.to_string(),
+            params: serde_json::to_value(st).unwrap_or_default()["params"].to_string(),
         })
         .collect()
 }

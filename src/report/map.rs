@@ -45,13 +45,10 @@ impl FlightMap {
             .filter_map(|(i, p)| p.as_ref().map(|p| (i, en(p))))
             .map(|(i, (e, n))| (i, e, n))
             .collect();
-        let hfov = pr
-            .history
-            .iter()
-            .find_map(|h| match Applied::from_entry(h) {
-                Ok(Applied::FootprintOverlap { hfov, .. }) => hfov,
-                _ => None,
-            });
+        let hfov = pr.history.iter().find_map(|h| match h.applied {
+            Applied::FootprintOverlap { hfov, .. } => hfov,
+            _ => None,
+        });
         let camera = pr
             .cache
             .telemetry

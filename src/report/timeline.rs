@@ -4,7 +4,7 @@
 use crate::error::{Error, Result};
 use crate::params::Metric;
 use crate::project::{MovementCache, Project};
-use crate::steps::{blur, geo_distance, spacing, Applied, BlurMode, HistoryEntry};
+use crate::steps::{blur, geo_distance, spacing, Applied, BlurMode, Recorded};
 use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
@@ -182,7 +182,7 @@ impl Timeline {
     pub fn from_selection(
         project: &Project,
         keyframes: &[usize],
-        history: &[HistoryEntry],
+        history: &[Recorded],
     ) -> Timeline {
         let n = project.metadata.frame_count;
         let cache = &project.cache;
@@ -191,7 +191,7 @@ impl Timeline {
             .candidates(n, cache.timestamps_s.as_deref())
             .ok()
             .and_then(|c| Some((*c.first()?, *c.last()?)));
-        let recorded = Recorded::of(history);
+        let recorded = Thresholds::of(history);
         let mut panels = Vec::new();
         let mut missing = Vec::new();
         let how = |what: &str| match project.preview {
@@ -493,10 +493,9 @@ impl Timeline {
     }
 }
 
-/// The thresholds the last recorded steps used (a project is validated when loaded, so every
-/// history entry reads as an `Applied`).
+/// The thresholds the last recorded steps used.
 #[derive(Default)]
-struct Recorded {
+struct Thresholds {
     blur: Option<RecordedBlur>,
     spacing: Option<Option<f64>>,
     stationary: Option<Option<f64>>,
@@ -506,11 +505,11 @@ struct Recorded {
 /// A blur step's metric, mode, ratio and window as recorded.
 type RecordedBlur = (Option<Metric>, Option<BlurMode>, Option<f64>, Option<usize>);
 
-impl Recorded {
-    fn of(history: &[HistoryEntry]) -> Recorded {
-        let mut r = Recorded::default();
-        for a in history.iter().filter_map(|e| Applied::from_entry(e).ok()) {
-            match a {
+impl Thresholds {
+    fn of(history: &[Recorded]) -> Thresholds {
+        let mut r = Thresholds::default();
+        for e in history {
+            match e.applied {
                 Applied::Blur {
                     metric,
                     mode,
@@ -530,7 +529,7 @@ impl Recorded {
 
 /// Every cached sharpness series (each divided by its maximum when there are several), with the
 /// blur threshold the last blur step used where it applies.
-fn sharpness_panel(project: &Project, r: &Recorded, range: Option<(usize, usize)>) -> Panel {
+fn sharpness_panel(project: &Project, r: &Thresholds, range: Option<(usize, usize)>) -> Panel {
     let cache = &project.cache;
     let several = cache.sharpness.len() > 1;
     let mut curves = Vec::new();
@@ -583,7 +582,7 @@ fn sharpness_panel(project: &Project, r: &Recorded, range: Option<(usize, usize)
 fn movement_panels(
     m: &MovementCache,
     keyframes: &[usize],
-    r: &Recorded,
+    r: &Thresholds,
     (n, range): (usize, Option<(usize, usize)>),
 ) -> [Panel; 2] {
     let v = &m.series.values;
@@ -647,7 +646,7 @@ fn threshold_curve(
 fn telemetry_panel(
     positions: &[Option<crate::source::telemetry::Position>],
     keyframes: &[usize],
-    r: &Recorded,
+    r: &Thresholds,
     (n, range): (usize, Option<(usize, usize)>),
 ) -> Panel {
     let mut curves = vec![Curve {

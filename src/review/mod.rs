@@ -14,11 +14,11 @@ use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::manifest::Manifest;
 use crate::params::MovementRequest;
-use crate::project::{HistoryEntry, Project, SCHEMA_VERSION};
+use crate::project::{Project, SCHEMA_VERSION};
 use crate::report::timeline::Timeline;
 use crate::select::{self, Resolved};
 use crate::source::{FrameReader, FrameSize, DEFAULT_BUDGET_BYTES};
-use crate::steps::{self, Applied, Step};
+use crate::steps::{self, Recorded, Step};
 use serde::Serialize;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -91,7 +91,7 @@ pub struct Selection {
     /// Selected frame indices.
     pub keyframes: Vec<usize>,
     /// What each step that ran did, as a project's history records it.
-    pub history: Vec<HistoryEntry>,
+    pub history: Vec<Recorded>,
     /// One per step given, in order.
     pub steps_state: Vec<StepState>,
 }
@@ -99,8 +99,9 @@ pub struct Selection {
 /// Whether a step ran, and if not, what would compute what it lacks.
 #[derive(Debug, Clone, Serialize)]
 pub struct StepState {
-    /// The step's name.
-    pub plugin: &'static str,
+    /// The step's id (`plugin` on the page).
+    #[serde(rename = "plugin")]
+    pub step: &'static str,
     /// Whether it ran.
     pub enabled: bool,
     /// Frames kept after it (when it ran).
@@ -201,7 +202,7 @@ impl Review {
     /// The project's own steps, as its history records them.
     pub fn steps_of(project: &Project) -> Vec<Step> {
         (project.history.iter())
-            .filter_map(|e| Applied::from_entry(e).ok()?.step())
+            .filter_map(|e| e.applied.step())
             .filter(|s| {
                 *s != Step::Boundaries {
                     start: None,
@@ -215,7 +216,7 @@ impl Review {
     /// series, else `select`'s default.
     fn movement_of(&self, project: &Project) -> MovementRequest {
         (project.history.iter())
-            .find_map(|e| Applied::from_entry(e).ok()?.analysis().1)
+            .find_map(|e| e.applied.analysis().1)
             .or_else(|| project.cache.movement.first().map(|m| m.request))
             .unwrap_or(self.movement)
     }
@@ -225,8 +226,8 @@ impl Review {
         let movement = self.movement_of(project);
         let mut r = Resolved::given(steps, movement);
         let backend = project.cache.movement(&movement).map(|m| m.backend);
-        let recorded = |plugin| {
-            backend.and_then(|b| select::recorded_auto(&project.history, plugin, &movement, b))
+        let recorded = |step| {
+            backend.and_then(|b| select::recorded_auto(&project.history, step, &movement, b))
         };
         if r.stationary_auto {
             if let Some(st) = r.stationary.as_mut() {
@@ -249,17 +250,17 @@ impl Review {
         let project = self.project();
         let (meta, cache) = (&project.metadata, &project.cache);
         let refused = |e: Error| {
-            let step = match &e {
-                Error::Plugin { plugin, .. } => steps.iter().position(|s| s.id() == *plugin),
+            let at = match &e {
+                Error::Step { step, .. } => steps.iter().position(|s| s.id() == *step),
                 _ => None,
             };
-            ApiError::step(step, None, e.to_string())
+            ApiError::step(at, None, e.to_string())
         };
         let lacking =
             select::lacking(steps, &self.resolve(&project, steps), cache, meta).map_err(refused)?;
-        let lacks = |plugin: &str| {
+        let lacks = |step: &str| {
             let mut all = steps.iter().zip(&lacking);
-            all.find(|(s, _)| s.id() == plugin).map(|(_, l)| l)
+            all.find(|(s, _)| s.id() == step).map(|(_, l)| l)
         };
         let mut active: Vec<Step> = steps.to_vec();
         // Each step left out: its id, its refusal, whether `select` computes what it lacks.
@@ -269,13 +270,11 @@ impl Review {
             let damaged = &project.damaged_frames;
             match select::run_steps(&self.input, &active, &resolved, cache, meta, damaged) {
                 Ok(done) => break done,
-                Err(Error::Plugin { plugin, msg })
-                    if lacks(plugin).is_some_and(|l| !l.is_empty()) =>
-                {
+                Err(Error::Step { step, msg }) if lacks(step).is_some_and(|l| !l.is_empty()) => {
                     let measured =
-                        lacks(plugin).is_some_and(|l| l.iter().all(|n| n.measured_by_select()));
-                    active.retain(|s| s.id() != plugin);
-                    disabled.push((plugin, msg, measured));
+                        lacks(step).is_some_and(|l| l.iter().all(|n| n.measured_by_select()));
+                    active.retain(|s| s.id() != step);
+                    disabled.push((step, msg, measured));
                 }
                 Err(e) => return Err(refused(e)),
             }
@@ -284,14 +283,14 @@ impl Review {
         let kept = |s: &Step| match s {
             Step::Boundaries { .. } => history.first().map(|e| e.kept),
             s => (history.iter().skip(1))
-                .find(|e| e.plugin == s.id())
+                .find(|e| e.applied.id() == s.id())
                 .map(|e| e.kept),
         };
         let steps_state = (steps.iter())
             .map(|s| {
                 let off = disabled.iter().find(|d| d.0 == s.id());
                 StepState {
-                    plugin: s.id(),
+                    step: s.id(),
                     enabled: off.is_none(),
                     kept: kept(s),
                     reason: off.map(|d| d.1.clone()),
@@ -352,10 +351,10 @@ impl Review {
     pub fn reselect(&self, steps: &[Step]) -> ApiResult<Project> {
         let selection = self.select(steps)?;
         if let Some(s) = selection.steps_state.iter().find(|s| !s.enabled) {
-            let (plugin, reason) = (s.plugin, s.reason.as_deref().unwrap_or_default());
+            let (step, reason) = (s.step, s.reason.as_deref().unwrap_or_default());
             let msg = match &s.command {
-                Some(c) => format!("`{plugin}` needs analysis the project lacks; run: {c}"),
-                None => format!("`{plugin}` cannot run on this project: {reason}"),
+                Some(c) => format!("`{step}` needs analysis the project lacks; run: {c}"),
+                None => format!("`{step}` cannot run on this project: {reason}"),
             };
             return Err(ApiError::new(409, msg));
         }
@@ -611,17 +610,18 @@ pub fn parse_steps(v: &Value) -> ApiResult<Vec<Step>> {
     })
 }
 
-/// Every step's parameters for the page's editor: plugin, key, flag, help, default, choices.
+/// Every step's parameters for the page's editor: step id (`plugin`), key, flag, help, default,
+/// choices.
 fn schema() -> Value {
     let mut out: Vec<Value> = Vec::new();
     for f in steps::flags() {
         // Switches (`--blur`, `--auto`) turn a step or a value on; the editor has its own.
-        let Some((plugin, key)) = f.sets.filter(|_| f.value_name.is_some()) else {
+        let Some((step, key)) = f.sets.filter(|_| f.value_name.is_some()) else {
             continue;
         };
         out.push(json!({
-            "plugin": plugin, "key": key, "flag": f.long, "help": f.help, "default": f.default,
-            "choices": f.choices.iter().map(|c| c.0).collect::<Vec<_>>(), "switch": f.value_name.is_none(),
+            "plugin": step, "key": key, "flag": f.long, "help": f.help, "default": f.default,
+            "choices": (f.choices)().iter().map(|c| c.0).collect::<Vec<_>>(), "switch": f.value_name.is_none(),
         }));
     }
     Value::Array(out)

@@ -49,7 +49,7 @@ fn environment() -> Result<&'static ort::environment::Environment> {
             .map_err(|e| format!("ONNX Runtime from {}: {e}", lib.display()))
     })
     .as_ref()
-    .map_err(|msg| Error::plugin("segment", msg.clone()))
+    .map_err(|msg| Error::step("segment", msg.clone()))
 }
 
 /// An ONNX Runtime session ready to run.

@@ -11,7 +11,7 @@ pub enum OrtRunner {}
 impl OrtRunner {
     /// Fails: keyframer was built without ONNX Runtime.
     pub fn load(desc: &ModelDesc) -> Result<OrtRunner> {
-        Err(Error::plugin(
+        Err(Error::step(
             "segment",
             format!(
                 "cannot run {} with ONNX Runtime: keyframer was built without the `onnx` cargo \

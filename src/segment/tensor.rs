@@ -152,7 +152,7 @@ pub fn decode_output(
 
 /// An error saying the description does not fit the model.
 pub fn mismatch(desc: &ModelDesc, msg: String) -> Error {
-    Error::plugin(
+    Error::step(
         "segment",
         format!(
             "{} does not match {}: {msg}",

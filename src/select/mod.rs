@@ -16,46 +16,43 @@ use crate::output::Inputs;
 use crate::params::Metric;
 use crate::params::{Backend, BackendChoice, MovementRequest, StationaryRequest};
 use crate::project::{
-    Cache, HistoryEntry, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
-    SCHEMA_VERSION,
+    Cache, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache, SCHEMA_VERSION,
 };
 use crate::source::{self, Metadata, OpenOptions, SourceKind};
 use crate::steps::{self, Boundaries};
-use crate::steps::{Applied, Need, Step};
+use crate::steps::{Applied, Need, Recorded, Step};
 use std::path::{Path, PathBuf};
 
 use crate::steps::Threshold;
 
-/// The threshold an earlier `select` proposed from its movement sample for `plugin`
+/// The threshold an earlier `select` proposed from its movement sample for `step`
 /// (`stationary` or `spacing` with `auto`), measured the way `movement` says on `backend`, as its
 /// project's `history` records it. The sample is a function of the input (unchanged: its
 /// fingerprint matched) and of those two, so re-selecting reuses it instead of decoding the
 /// sample again; the selection then stays the one the cache was made for.
 pub fn recorded_auto(
-    history: &[HistoryEntry],
-    plugin: &str,
+    history: &[Recorded],
+    step: &str,
     movement: &MovementRequest,
     backend: Backend,
 ) -> Option<f64> {
-    history
-        .iter()
-        .find_map(|e| match Applied::from_entry(e).ok()? {
-            Applied::Stationary {
-                auto: true,
-                backend: Some(b),
-                movement: Some(m),
-                threshold_px: Some(t),
-                ..
-            } if plugin == "stationary" && b == backend && m == *movement => Some(t),
-            Applied::Spacing {
-                auto: true,
-                backend: Some(b),
-                movement: Some(m),
-                threshold_px,
-                ..
-            } if plugin == "spacing" && b == backend && m == *movement => Some(threshold_px),
-            _ => None,
-        })
+    history.iter().find_map(|e| match e.applied {
+        Applied::Stationary {
+            auto: true,
+            backend: Some(b),
+            movement: Some(m),
+            threshold_px: Some(t),
+            ..
+        } if step == "stationary" && b == backend && m == *movement => Some(t),
+        Applied::Spacing {
+            auto: true,
+            backend: Some(b),
+            movement: Some(m),
+            threshold_px,
+            ..
+        } if step == "spacing" && b == backend && m == *movement => Some(threshold_px),
+        _ => None,
+    })
 }
 
 /// The stationary step's threshold (`auto` resolved; None: 1 % of the frame width) and reset
@@ -258,7 +255,7 @@ pub fn write(project: &Project, output: &Path) -> Result<()> {
 /// The manual step of `steps` (frames added and removed by index), when there is one.
 pub(crate) fn manual_step(
     keys: &mut Vec<usize>,
-    history: &mut Vec<HistoryEntry>,
+    history: &mut Vec<Recorded>,
     steps: &[Step],
     frame_count: usize,
 ) -> Result<()> {
@@ -268,7 +265,7 @@ pub(crate) fn manual_step(
     };
     for step in steps.iter().filter(|s| matches!(s, Step::Manual { .. })) {
         if let Some(applied) = step.apply(&at, keys)? {
-            history.push(applied.entry(keys.len()));
+            history.push(Recorded::new(applied, keys.len()));
         }
     }
     Ok(())
@@ -383,7 +380,7 @@ struct Known {
     metadata: Option<Metadata>,
     cache: Cache,
     /// The history of the project being replaced (its `--auto` thresholds are reused).
-    history: Vec<HistoryEntry>,
+    history: Vec<Recorded>,
     problems: Vec<String>,
     damaged: Vec<usize>,
     decoded: bool,
@@ -552,9 +549,9 @@ impl AutoThresholds {
             return Ok(t);
         }
         let (backend, ctx) = gpu::resolve_backend(s.backend, s.adapter.as_deref());
-        let recorded = |plugin: &str, wanted: bool| {
+        let recorded = |step: &str, wanted: bool| {
             wanted
-                .then(|| recorded_auto(&known.history, plugin, &s.movement, backend))
+                .then(|| recorded_auto(&known.history, step, &s.movement, backend))
                 .flatten()
         };
         let reused = |what: &str, t: f64| {
@@ -695,19 +692,19 @@ pub fn run_steps(
     cache: &Cache,
     metadata: &Metadata,
     damaged: &[usize],
-) -> Result<(Vec<usize>, Vec<HistoryEntry>)> {
+) -> Result<(Vec<usize>, Vec<Recorded>)> {
     let (range, at) = inputs(steps, resolved, cache, metadata)?;
     let mut keys = range;
     keys.retain(|k| damaged.binary_search(k).is_err());
     let boundaries = steps::boundaries(steps);
-    let mut history = vec![Applied::Boundaries {
-        end: boundaries.end,
-        start: boundaries.start,
-    }
-    .entry(keys.len())];
+    let (end, start) = (boundaries.end, boundaries.start);
+    let mut history = vec![Recorded::new(
+        Applied::Boundaries { end, start },
+        keys.len(),
+    )];
     for step in steps {
         if let Some(applied) = step.apply(&at, &mut keys)? {
-            history.push(applied.entry(keys.len()));
+            history.push(Recorded::new(applied, keys.len()));
         }
     }
     Ok((drop_damaged(input, keys, damaged), history))

@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use crate::project::Cache;
 use crate::source::codec_keyframes::{self, CodecKeyframeIndex};
 use crate::source::{OpenOptions, SourceKind};
-use crate::steps::{Applied, BoundArg, Step};
+use crate::steps::{Applied, BoundArg, Recorded, Step};
 use crate::steps::{Bound, Boundaries};
 use std::sync::Arc;
 
@@ -18,7 +18,7 @@ use std::sync::Arc;
 /// keyframes carry the video's timestamps).
 pub fn keyframe_bounds(b: &Boundaries, index: &CodecKeyframeIndex) -> Result<Boundaries> {
     let k = &index.keyframes;
-    let none = |msg: String| Err(Error::plugin("preview", msg));
+    let none = |msg: String| Err(Error::step("preview", msg));
     let start = match b.start {
         Some(Bound::Frame(i)) => match k.partition_point(|&f| f < i) {
             pos if pos == k.len() => {
@@ -78,7 +78,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
         codec_keyframes: n_key,
         frames: n_all,
     };
-    let mut history = vec![preview.entry(n_key)];
+    let mut history = vec![Recorded::new(preview, n_key)];
     history.append(&mut p.history);
     // Added and removed frames are the video's own indices: applied after the mapping.
     select::manual_step(&mut keys, &mut history, &s.steps, n_all)?;

@@ -29,7 +29,7 @@ impl CodecKeyframeIndex {
 }
 
 fn missing_tool(tool: &str, e: std::io::Error) -> Error {
-    Error::plugin(
+    Error::step(
         "preview",
         format!(
             "cannot run `{tool}` ({e}); the keyframe-only preview needs FFmpeg's command-line \
@@ -136,7 +136,7 @@ impl CodecKeyframeSource {
         let pipe = child
             .stdout
             .take()
-            .ok_or_else(|| Error::plugin("preview", "ffmpeg started without an output pipe"))?;
+            .ok_or_else(|| Error::step("preview", "ffmpeg started without an output pipe"))?;
         // The packet list ends where the data does: a stream cut short lists fewer packets than
         // the container declares frames (the full decode reports the same).
         let failure = super::video::short_stream(

@@ -6,6 +6,8 @@
 
 use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
+use crate::names::{Names, Table};
+use crate::numbers::positive;
 use crate::params::Metric;
 use serde::{Deserialize, Serialize};
 
@@ -23,10 +25,7 @@ pub const FLAGS: &[Flag] = &[
         .sets("blur", "ratio"),
     Flag::value::<BlurMode>("blur-mode", "BLUR_MODE", "filter: drop blurry keyframes; replace: move each keyframe to the sharpest frame in its window (never onto or across another keyframe)")
         .default("filter")
-        .choices(&[
-            ("filter", "Drop blurry keyframes"),
-            ("replace", "Move keyframes to the sharpest nearby frame"),
-        ])
+        .choices::<BlurMode>()
         .sets("blur", "mode"),
 ];
 
@@ -43,17 +42,6 @@ pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
     }))
 }
 
-impl std::str::FromStr for BlurMode {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "filter" => Ok(BlurMode::Filter),
-            "replace" => Ok(BlurMode::Replace),
-            _ => Err(format!("`{s}`: give filter or replace")),
-        }
-    }
-}
-
 /// The step on `keys`, within the candidates' range.
 pub fn apply(at: &Inputs, keys: &mut Vec<usize>, b: &BlurParams) -> Result<Applied> {
     let (scores, backend) = at
@@ -61,7 +49,7 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, b: &BlurParams) -> Result<Appli
         .iter()
         .find(|s| s.0 == b.metric)
         .map(|s| (s.1, s.2))
-        .ok_or_else(|| Error::plugin("blur", format!("no {} scores were computed", b.metric)))?;
+        .ok_or_else(|| Error::step("blur", format!("no {} scores were computed", b.metric)))?;
     *keys = blur(keys, scores, b, at.range.0, at.range.1)?;
     Ok(Applied::Blur {
         backend: Some(backend),
@@ -73,14 +61,26 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, b: &BlurParams) -> Result<Appli
 }
 
 /// What to do with blurry keyframes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BlurMode {
     /// Drop keyframes that are blurrier than their neighbourhood.
     Filter,
     /// Move keyframes to the sharpest nearby frame.
     Replace,
 }
+
+impl Names for BlurMode {
+    const FLAG: &'static str = "blur-mode";
+    const NAMES: Table<Self> = &[
+        ("filter", Self::Filter, "Drop blurry keyframes"),
+        (
+            "replace",
+            Self::Replace,
+            "Move keyframes to the sharpest nearby frame",
+        ),
+    ];
+}
+crate::names::impl_names!(BlurMode, serde);
 
 /// Parameters of the blur sampler.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -98,12 +98,9 @@ pub struct BlurParams {
 impl BlurParams {
     /// Checks ranges.
     pub fn validate(&self) -> Result<()> {
-        if !(self.ratio.is_finite() && self.ratio > 0.0) {
-            let msg = format!("ratio must be a positive number, got {}", self.ratio);
-            return Err(Error::plugin("blur", msg));
-        }
+        positive(self.ratio).map_err(|m| Error::step("blur", format!("ratio {m}")))?;
         if self.window == 0 {
-            return Err(Error::plugin("blur", "window must be at least 1 frame"));
+            return Err(Error::step("blur", "window must be at least 1 frame"));
         }
         Ok(())
     }
@@ -121,7 +118,7 @@ pub fn blur(
     if hi >= scores.len() || lo > hi {
         let n = scores.len();
         let msg = format!("range {lo}..={hi} does not fit {n} scored frames");
-        return Err(Error::plugin("blur", msg));
+        return Err(Error::step("blur", msg));
     }
     let window = |k: usize| k.saturating_sub(p.window).max(lo)..=k.saturating_add(p.window).min(hi);
     Ok(match p.mode {

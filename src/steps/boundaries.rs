@@ -91,7 +91,7 @@ impl Boundaries {
         frame_count: usize,
         timestamps_s: Option<&[f64]>,
     ) -> Result<Vec<usize>> {
-        let err = |msg: String| Error::plugin("boundaries", msg);
+        let err = |msg: String| Error::step("boundaries", msg);
         if frame_count == 0 {
             return Err(err("the input has no frames".into()));
         }

@@ -16,7 +16,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
 /// Every `n`th element of `candidates`, starting with the first.
 pub fn every_nth(candidates: &[usize], n: usize) -> Result<Vec<usize>> {
     if n == 0 {
-        return Err(Error::plugin("every-nth", "N must be at least 1"));
+        return Err(Error::step("every-nth", "N must be at least 1"));
     }
     Ok(candidates.iter().step_by(n).copied().collect())
 }

@@ -3,6 +3,7 @@
 //! knows nothing of clap.
 
 use crate::error::{Error, Result};
+use crate::names::Names;
 use std::collections::BTreeMap;
 use std::fmt::Display;
 use std::str::FromStr;
@@ -23,14 +24,14 @@ pub struct Flag {
     /// The value when the flag is not given.
     pub default: Option<&'static str>,
     /// The values allowed, each with its help (empty: any value `check` accepts).
-    pub choices: &'static [(&'static str, &'static str)],
+    pub choices: fn() -> Vec<(&'static str, &'static str)>,
     /// Comma-separated values, the flag repeatable.
     pub list: bool,
     /// A flag this one cannot be given with.
     pub conflicts: Option<&'static str>,
     /// Checks one value, with the message a user sees.
     pub check: Option<Check>,
-    /// The step parameter it sets (plugin id, key): that parameter's errors name this flag.
+    /// The step parameter it sets (step id, key): that parameter's errors name this flag.
     pub sets: Option<(&'static str, &'static str)>,
 }
 
@@ -42,7 +43,7 @@ impl Flag {
             value_name: None,
             help,
             default: None,
-            choices: &[],
+            choices: Vec::new,
             list: false,
             conflicts: None,
             check: None,
@@ -74,8 +75,9 @@ impl Flag {
         }
     }
 
-    /// With a closed set of values.
-    pub const fn choices(self, choices: &'static [(&'static str, &'static str)]) -> Flag {
+    /// Its values are the names of `T`.
+    pub const fn choices<T: Names>(self) -> Flag {
+        let choices = T::choices;
         Flag { choices, ..self }
     }
 
@@ -92,10 +94,10 @@ impl Flag {
         }
     }
 
-    /// Sets the parameter `key` of the step `plugin`.
-    pub const fn sets(self, plugin: &'static str, key: &'static str) -> Flag {
+    /// Sets the parameter `key` of the step `step`.
+    pub const fn sets(self, step: &'static str, key: &'static str) -> Flag {
         Flag {
-            sets: Some((plugin, key)),
+            sets: Some((step, key)),
             ..self
         }
     }

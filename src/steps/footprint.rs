@@ -107,7 +107,7 @@ pub(crate) fn footprints(
     let ground = origin.abs_alt_m;
     if placed.iter().any(|(_, p)| p.rel_alt_m.is_none()) {
         if ground.is_none() {
-            return Err(Error::plugin(
+            return Err(Error::step(
                 ID,
                 "the telemetry gives no height above take-off (rel_alt) nor altitude",
             ));
@@ -139,7 +139,7 @@ pub(crate) fn footprints(
             (Some(h), _) => (0.5 * h.to_radians()).tan(),
             (None, Some(f)) => 18.0 / f,
             (None, None) => {
-                return Err(Error::plugin(
+                return Err(Error::step(
                     ID,
                     format!(
                         "frame {k}: no field of view: the telemetry has no focal length and the \
@@ -178,7 +178,7 @@ pub(crate) fn footprints(
             frame_runs(keys, &low)
         );
         if by_frame.is_empty() {
-            return Err(Error::plugin(
+            return Err(Error::step(
                 ID,
                 format!(
                     "no candidate has a ground footprint: {what} (a flight below its take-off \

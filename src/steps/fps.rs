@@ -26,7 +26,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
 /// The step on `keys`.
 pub fn apply(at: &Inputs, keys: &mut Vec<usize>, target_fps: f64) -> Result<Applied> {
     let ts = at.timestamps_s.ok_or_else(|| {
-        Error::plugin(
+        Error::step(
             "fps",
             "the input has no timestamps (an image folder: give its rate with --images-fps)",
         )
@@ -92,12 +92,8 @@ pub fn fps(candidates: &[usize], timestamps_s: &[f64], target_fps: f64) -> Resul
 
 /// The rate is positive and every candidate has a finite timestamp.
 fn check(candidates: &[usize], timestamps_s: &[f64], target_fps: f64) -> Result<()> {
-    let err = |msg: String| Error::plugin("fps", msg);
-    if !(target_fps.is_finite() && target_fps > 0.0) {
-        return Err(err(format!(
-            "target fps must be positive, got {target_fps}"
-        )));
-    }
+    let err = |msg: String| Error::step("fps", msg);
+    crate::numbers::positive(target_fps).map_err(|m| err(format!("target fps {m}")))?;
     if let Some(&bad) = candidates.iter().find(|&&c| c >= timestamps_s.len()) {
         return Err(err(format!(
             "frame {bad} has no timestamp ({} known)",

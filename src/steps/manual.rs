@@ -50,7 +50,7 @@ pub fn manual(
 ) -> Result<Vec<usize>> {
     if let Some(&bad) = add.iter().find(|&&i| i >= frame_count) {
         let msg = format!("cannot add frame {bad}: the input has {frame_count} frames");
-        return Err(Error::plugin("manual", msg));
+        return Err(Error::step("manual", msg));
     }
     let mut out: Vec<usize> = keyframes
         .iter()

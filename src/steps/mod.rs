@@ -14,6 +14,7 @@ pub mod flags;
 pub mod footprint;
 mod fps;
 pub mod geo_distance;
+mod history;
 mod manual;
 pub mod spacing;
 pub mod stationary;
@@ -24,12 +25,14 @@ pub use boundaries::{Bound, Boundaries};
 pub use every_nth::every_nth;
 pub use flags::{Flag, FlagValues};
 pub use fps::fps;
+pub use history::{Recorded, Stored};
 pub use manual::manual;
 pub use spacing::{spacing, spacing_for_count};
 pub use stationary::Stationary;
 pub use values::{BoundArg, NumOrText, Threshold};
 
 use crate::error::{Error, Result};
+use crate::numbers::positive;
 use crate::params::{Backend, Metric, MovementRequest, StationaryRequest};
 use crate::source::telemetry::Position;
 use serde::{Deserialize, Serialize};
@@ -47,7 +50,7 @@ pub mod defaults {
     /// Flow is measured between frames this many apart.
     pub const FLOW_STRIDE: u32 = 2;
     /// Fraction dropped at each end by the trimmed-mean statistic.
-    pub const TRIM: f64 = 0.1;
+    pub const TRIM: f64 = crate::params::Statistic::DEFAULT_TRIM;
 
     /// The movement `select` measures when no movement flag is given.
     pub fn movement() -> crate::params::MovementRequest {
@@ -59,23 +62,6 @@ pub mod defaults {
             derotate: None,
         }
     }
-}
-
-/// Checks how movement is to be measured (every sampler that reads movement shares it); errors
-/// name the parameter (`flow_stride`).
-pub fn check_movement(r: &MovementRequest) -> crate::error::Result<()> {
-    r.statistic.validate()?;
-    if r.stride == 0 {
-        return Err(Error::param("flow_stride", "must be at least 1"));
-    }
-    if r.analysis_width < 16 {
-        let msg = format!("must be at least 16 pixels, got {}", r.analysis_width);
-        return Err(Error::param("analysis_width", msg));
-    }
-    if let Some(d) = &r.derotate {
-        d.validate()?;
-    }
-    r.farneback.validate()
 }
 
 /// What the steps read besides the candidates: the input's frames and the series `select`
@@ -112,12 +98,12 @@ pub struct Inputs<'a> {
 /// when some of the candidates `keys` have none (they are never kept).
 fn positions<'a>(
     at: &Inputs<'a>,
-    plugin: &'static str,
+    step: &'static str,
     keys: &[usize],
 ) -> Result<&'a [Option<Position>]> {
     let refuse = || {
-        Error::plugin(
-            plugin,
+        Error::step(
+            step,
             "needs each frame's position, and the input has no telemetry: give --telemetry \
               FILE (DJI SRT or GPX), put the DJI .SRT beside the video, or use images with EXIF \
               GPS tags",
@@ -132,11 +118,11 @@ fn positions<'a>(
             "none of the {without} candidates has a position (they lie outside the \
              telemetry's time span; check --telemetry-offset)"
         );
-        return Err(Error::plugin(plugin, msg));
+        return Err(Error::step(step, msg));
     }
     if without > 0 {
         log::warn!(
-            "{plugin}: {without} of {} candidates have no position and are not kept",
+            "{step}: {without} of {} candidates have no position and are not kept",
             keys.len()
         );
     }
@@ -150,7 +136,7 @@ type FlagReader = fn(&FlagValues) -> Result<Option<Step>>;
 /// new step of it must be given, and the step whose place it shares (a chain has one of them).
 #[derive(Debug, Clone, Copy)]
 pub struct Kind {
-    /// The stable plugin id.
+    /// The stable step id.
     pub id: &'static str,
     /// Its command-line flags.
     pub flags: &'static [Flag],
@@ -188,7 +174,7 @@ impl Kind {
 }
 
 /// Every kind of step in keyframer's chain order. The flags, the order [`check_order`] enforces,
-/// the history's plugin ids and the review page's step list come from here; what a step reads
+/// the history's step ids and the review page's step list come from here; what a step reads
 /// from the analysis is its [`Step::needs`], which `select`'s plan and `review` read.
 pub static STEPS: [Kind; 9] = [
     Kind::new("boundaries", boundaries::FLAGS, boundaries::from_flags),
@@ -264,7 +250,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
 impl Step {
     /// The command-line flags that give this step, the inverse of [`from_flags`]: each
     /// parameter goes through the flag that [`Flag::sets`] it (a switch that sets it stands for
-    /// the value that is its name: `--auto`), `--{plugin}` when that is a switch, and `--{key}`
+    /// the value that is its name: `--auto`), `--{id}` when that is a switch, and `--{key}`
     /// for a parameter no step flag sets (`--hfov`, which `select` reads as a movement flag).
     /// Unset parameters are left out, so `select` gives them its defaults.
     pub fn to_flags(&self) -> Vec<String> {
@@ -310,9 +296,9 @@ impl Step {
 
 /// A step's parameter error, naming the flag that sets the parameter when there is one.
 fn flag_error(e: StepError) -> Error {
-    match flags().find(|f| f.sets == Some((e.plugin, e.key))) {
+    match flags().find(|f| f.sets == Some((e.step, e.key))) {
         Some(f) => Error::param(f.long, e.msg),
-        None => Error::plugin(e.plugin, e.msg),
+        None => Error::step(e.step, e.msg),
     }
 }
 
@@ -390,16 +376,16 @@ pub enum Step {
 /// A step's parameter that is out of range: `key` is the parameter's name in the step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StepError {
-    /// Stable plugin id.
-    pub plugin: &'static str,
-    /// The parameter (`window`), or `plugin` for the step as a whole.
+    /// Stable step id.
+    pub step: &'static str,
+    /// The parameter (`window`), or `plugin` (a workflow's key for it) for the step as a whole.
     pub key: &'static str,
     /// What is wrong, starting with the parameter's name as a user reads it.
     pub msg: String,
 }
 
 impl Step {
-    /// The stable plugin id.
+    /// The stable step id (`plugin` in project and workflow files).
     pub fn id(&self) -> &'static str {
         match self {
             Step::Boundaries { .. } => "boundaries",
@@ -488,8 +474,8 @@ impl Step {
 
     /// Checks the parameters' ranges (the input is not needed).
     pub fn validate(&self) -> std::result::Result<(), StepError> {
-        let plugin = self.id();
-        let bad = |key: &'static str, msg: String| Err(StepError { plugin, key, msg });
+        let step = self.id();
+        let bad = |key: &'static str, msg: String| Err(StepError { step, key, msg });
         match self {
             Step::Stationary {
                 threshold,
@@ -502,8 +488,8 @@ impl Step {
                             "give pixels or `auto` (a keyframe count is for spacing)".into(),
                         )
                     }
-                    Some(Threshold::Px(t)) if !(t.is_finite() && *t > 0.0) => {
-                        return bad("threshold", format!("must be a positive number, got {t}"))
+                    Some(Threshold::Px(t)) => {
+                        positive(*t).map(drop).or_else(|m| bad("threshold", m))?
                     }
                     _ => {}
                 }
@@ -512,8 +498,8 @@ impl Step {
                 }
             }
             Step::EveryNth { n: 0 } => return bad("n", "must be at least 1".into()),
-            Step::GeoDistance { metres } if !(metres.is_finite() && *metres > 0.0) => {
-                return bad("metres", format!("must be a positive number, got {metres}"))
+            Step::GeoDistance { metres } => {
+                return positive(*metres).map(drop).or_else(|m| bad("metres", m))
             }
             Step::FootprintOverlap { percent, hfov } => {
                 if !(*percent > 0.0 && *percent < 100.0) {
@@ -524,9 +510,7 @@ impl Step {
                     return bad("hfov", format!("{h} must be between 1 and 179 degrees"));
                 }
             }
-            Step::Fps { fps } if !(fps.is_finite() && *fps > 0.0) => {
-                return bad("fps", format!("must be a positive number, got {fps}"))
-            }
+            Step::Fps { fps } => return positive(*fps).map(drop).or_else(|m| bad("fps", m)),
             Step::Blur { .. } => {
                 if let Some(p) = self.blur_params() {
                     if let Err(e) = p.validate() {
@@ -690,6 +674,11 @@ pub enum Applied {
 }
 
 impl Applied {
+    /// The step's id (`plugin` in a project file; `preview` for `select --preview`'s record).
+    pub fn id(&self) -> &'static str {
+        self.step().map_or("preview", |s| s.id())
+    }
+
     /// The step that repeats this one on another input (resolved thresholds, not `auto`).
     pub fn step(&self) -> Option<Step> {
         Some(match self {
@@ -753,10 +742,8 @@ impl Applied {
     /// names the parameter (`params.fps`).
     pub fn check(&self, frames: usize) -> std::result::Result<(), (String, String)> {
         let bad = |k: &str, msg: String| Err((format!("params.{k}"), msg));
-        let positive = |k: &str, v: Option<f64>| match v {
-            Some(f) if !(f.is_finite() && f > 0.0) => {
-                bad(k, format!("must be a positive number, got {f}"))
-            }
+        let positive = |k: &str, v: Option<f64>| match v.map(positive) {
+            Some(Err(msg)) => bad(k, msg),
             _ => Ok(()),
         };
         let count = |k: &str, v: Option<usize>| match v {
@@ -805,45 +792,6 @@ impl Applied {
             }
             Applied::Preview { .. } => Ok(()),
         }
-    }
-
-    /// The history entry recording this step and how many frames it kept. Parameters are
-    /// written in key order, as every project so far has them.
-    pub fn entry(&self, kept: usize) -> HistoryEntry {
-        let value = serde_json::to_value(self).unwrap_or_default();
-        HistoryEntry {
-            plugin: value["plugin"].as_str().unwrap_or_default().to_string(),
-            params: value["params"].clone(),
-            kept,
-        }
-    }
-
-    /// Reads a history entry; the error names the parameter (`params.fps`).
-    pub fn from_entry(e: &HistoryEntry) -> std::result::Result<Applied, (String, String)> {
-        let ids = || STEPS.iter().map(|k| k.id);
-        let plugins: Vec<&str> = (ids().take(1).chain(["preview"]))
-            .chain(ids().skip(1))
-            .collect();
-        if !plugins.contains(&e.plugin.as_str()) {
-            let known = plugins.join(", ");
-            let msg = format!("unknown plugin `{}` (known: {known})", e.plugin);
-            return Err(("plugin".into(), msg));
-        }
-        if let Some(b) = e.params.get("backend").filter(|b| !b.is_null()) {
-            if serde_json::from_value::<Backend>(b.clone()).is_err() {
-                let msg = format!("unknown backend {b} (known: \"gpu\", \"opencv\")");
-                return Err(("params.backend".into(), msg));
-            }
-        }
-        let v = serde_json::json!({ "plugin": e.plugin, "params": e.params });
-        serde_path_to_error::deserialize(v).map_err(|err| {
-            let path = err.path().to_string();
-            let key = match path.as_str() {
-                "." | "" => "plugin".to_string(),
-                p => p.to_string(),
-            };
-            (key, err.into_inner().to_string())
-        })
     }
 }
 
@@ -1046,31 +994,4 @@ mod tests {
         };
         assert_eq!(count.to_flags(), ["--spacing", "60kf"]);
     }
-
-    #[test]
-    fn history_entries_round_trip_with_sorted_parameters() {
-        let a = Applied::Blur {
-            backend: Some(Backend::Opencv),
-            metric: Some(Metric::Tenengrad),
-            mode: Some(BlurMode::Replace),
-            ratio: Some(0.8),
-            window: Some(2),
-        };
-        let e = a.entry(4);
-        assert_eq!(e.plugin, "blur");
-        let keys: Vec<_> = e.params.as_object().unwrap().keys().cloned().collect();
-        assert_eq!(keys, ["backend", "metric", "mode", "ratio", "window"]);
-        assert_eq!(Applied::from_entry(&e).unwrap(), a);
-    }
-}
-
-/// One step of the selection history, as stored (typed by [`Applied`]; the project file stores a list of these).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HistoryEntry {
-    /// Stable plugin id (`boundaries`, `every-nth`, `fps`, `manual`, ...).
-    pub plugin: String,
-    /// The step's parameters as given.
-    pub params: serde_json::Value,
-    /// Number of frames the step kept.
-    pub kept: usize,
 }

@@ -22,7 +22,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
 
 /// The step on `keys`, with the threshold as `given` (`auto` resolved in `at`).
 pub fn apply(at: &Inputs, keys: &mut Vec<usize>, given: Threshold) -> Result<Applied> {
-    let err = |msg: &str| Error::plugin("spacing", msg);
+    let err = |msg: &str| Error::step("spacing", msg);
     let (movement, backend) = at.movement.ok_or_else(|| err("no movement was computed"))?;
     let threshold = match (given, at.spacing_px) {
         (Threshold::Count(n), _) => {
@@ -49,11 +49,9 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, given: Threshold) -> Result<App
 /// Candidates spaced by `threshold` of accumulated movement; `movement[i]` is the movement from
 /// frame i-1 to frame i.
 pub fn spacing(candidates: &[usize], movement: &[f64], threshold: f64) -> Result<Vec<usize>> {
-    let err = |msg: String| Err(Error::plugin("spacing", msg));
-    if !(threshold.is_finite() && threshold > 0.0) {
-        return err(format!(
-            "threshold must be a positive number of pixels, got {threshold}"
-        ));
+    let err = |msg: String| Err(Error::step("spacing", msg));
+    if let Err(m) = crate::numbers::positive_px(threshold) {
+        return err(format!("threshold {m}"));
     }
     if let Some(&bad) = candidates.iter().find(|&&c| c >= movement.len()) {
         return err(format!("frame {bad} has no movement value"));
@@ -83,7 +81,7 @@ pub fn spacing_for_count(candidates: &[usize], movement: &[f64], count: usize) -
         _ => 0.0,
     };
     if total.is_nan() || total <= 0.0 {
-        return Err(Error::plugin(
+        return Err(Error::step(
             "spacing",
             "the camera does not move over the candidate frames",
         ));

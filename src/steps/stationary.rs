@@ -44,7 +44,7 @@ pub fn request(
     meta: &Metadata,
     timestamps_s: Option<&[f64]>,
 ) -> KfResult<StationaryRequest> {
-    let err = |msg: String| Error::plugin("stationary", msg);
+    let err = |msg: String| Error::step("stationary", msg);
     let (first, last) = match meta.frame_count_exact {
         true => {
             let c = b.candidates(meta.frame_count, timestamps_s)?;
@@ -59,10 +59,7 @@ pub fn request(
         }
     };
     let threshold = threshold.unwrap_or(f64::from(meta.width) * 0.01);
-    if !(threshold.is_finite() && threshold > 0.0) {
-        let msg = format!("threshold must be a positive number of pixels, got {threshold}");
-        return Err(err(msg));
-    }
+    crate::numbers::positive_px(threshold).map_err(|m| err(format!("threshold {m}")))?;
     if reset_delta == 0 {
         return Err(err("reset delta must be at least 1 frame".into()));
     }
@@ -78,7 +75,7 @@ pub fn request(
 pub fn apply(at: &Inputs, keys: &mut Vec<usize>) -> KfResult<Applied> {
     let (req, run, backend) = at
         .stationary
-        .ok_or_else(|| Error::plugin("stationary", "no stationary run was computed"))?;
+        .ok_or_else(|| Error::step("stationary", "no stationary run was computed"))?;
     keys.retain(|k| run.binary_search(k).is_ok());
     Ok(Applied::Stationary {
         auto: at.stationary_auto,

@@ -183,6 +183,8 @@ const LAYERS: [(&str, &[&str]); 4] = [
             "tomlfile",
             "progress",
             "synthetic",
+            "names",
+            "numbers",
         ],
     ),
 ];

@@ -290,11 +290,7 @@ fn to_flags_give_select_the_same_request_and_steps() {
     args.extend(flags.iter().map(String::as_str));
     kf_ok(&args);
     let p = keyframer::project::Project::load(&project).unwrap();
-    let applied: Vec<Applied> = p
-        .history
-        .iter()
-        .map(|e| Applied::from_entry(e).unwrap())
-        .collect();
+    let applied: Vec<Applied> = p.history.iter().map(|e| e.applied.clone()).collect();
     let spacing = applied.iter().find(|a| a.step() == Some(steps[0].clone()));
     assert_eq!(spacing.unwrap().analysis().1, Some(request), "{flags:?}");
     assert!(applied.iter().any(|a| a.step() == Some(steps[1].clone())));
