@@ -2,6 +2,7 @@
 
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use keyframer::colmap::extend::{MapperKind, Mapping};
 use keyframer::colmap::Matcher;
 use keyframer::error::{Error, Result};
 use keyframer::manifest::{ExportSettings, Format, MaskSettings, SegRuntime, DEFAULT_QUALITY};
@@ -868,15 +869,15 @@ pub struct ReconstructArgs {
     #[arg(long, default_value_t = keyframer::reconstruct::defaults::MIN_INLIERS, value_name = "N")]
     pub min_inliers: usize,
     /// Mapper: incremental (COLMAP's `mapper`) or global (`global_mapper`, recent COLMAP only).
-    #[arg(long, value_enum, default_value = "incremental")]
-    pub mapper: MapperArg,
-    /// How later rounds map: continue the largest model with the new images, or map afresh
+    #[arg(long, value_parser = named::<MapperKind>(), default_value = "incremental")]
+    pub mapper: MapperKind,
+    /// How later rounds map: afresh, or continuing the largest model with the new images
     /// (features and matches are reused either way).
-    #[arg(long, value_enum, default_value = "fresh")]
-    pub mapping: MappingArg,
+    #[arg(long, value_parser = named::<Mapping>(), default_value = "fresh")]
+    pub mapping: Mapping,
     /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
-    #[arg(long, value_enum, default_value = "sequential")]
-    pub matcher: MatcherArg,
+    #[arg(long, value_parser = named::<Matcher>(), default_value = "sequential")]
+    pub matcher: Matcher,
     /// Sequential matching: match each image with this many following images.
     #[arg(long, default_value_t = 10)]
     pub overlap: u32,
@@ -915,29 +916,9 @@ pub struct ReconstructArgs {
     pub json: bool,
 }
 
-/// Mappers.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum MapperArg {
-    /// COLMAP's incremental `mapper`.
-    Incremental,
-    /// COLMAP's `global_mapper`.
-    Global,
-}
-
-/// How later rounds map.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum MappingArg {
-    /// `mapper --input_path` the largest model.
-    Continue,
-    /// Map every image afresh.
-    Fresh,
-}
-
 impl ReconstructArgs {
     /// The library's settings.
     pub fn settings(&self) -> Result<keyframer::reconstruct::ReconstructSettings> {
-        use keyframer::colmap::extend::{MapperKind, Mapping};
-        use keyframer::colmap::Matcher;
         use keyframer::reconstruct::{breaks::Limits, Budget, Options, ReconstructSettings};
         let export = ExportSettings::from_parts(
             self.resize.as_deref(),
@@ -965,23 +946,14 @@ impl ReconstructArgs {
                     min_shared: self.min_shared,
                     min_inliers: self.min_inliers,
                 },
-                matcher: match self.matcher {
-                    MatcherArg::Sequential => Matcher::Sequential,
-                    MatcherArg::Exhaustive => Matcher::Exhaustive,
-                },
+                matcher: self.matcher,
                 overlap: self.overlap,
                 camera_model: self.camera_model.clone(),
                 camera_params: self.camera_params.clone(),
                 max_features: self.max_features,
                 mapper_option: self.mapper_option.clone(),
-                mapper: match self.mapper {
-                    MapperArg::Incremental => MapperKind::Incremental,
-                    MapperArg::Global => MapperKind::Global,
-                },
-                mapping: match self.mapping {
-                    MappingArg::Continue => Mapping::Continue,
-                    MappingArg::Fresh => Mapping::Fresh,
-                },
+                mapper: self.mapper,
+                mapping: self.mapping,
                 export,
             },
         })

@@ -492,6 +492,11 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
                 end: None,
             }) => {}
             Some(step) => sample.push((k, step)),
+            None if matches!(applied, crate::steps::Applied::Reconstruct { .. }) => {
+                log::warn!(
+                    "history[{k}] (reconstruct) is not part of the workflow: workflows do not run `reconstruct` yet; run it on the result"
+                );
+            }
             None => analysis.preview = Some(true),
         }
     }

@@ -461,12 +461,12 @@ fn blur_params(p: &Project) -> crate::steps::BlurParams {
         mode: BlurMode::Filter,
     };
     for e in &p.history {
-        if let Ok(crate::steps::Applied::Blur {
+        if let crate::steps::Applied::Blur {
             metric,
             ratio,
             window,
             ..
-        }) = crate::steps::Applied::from_entry(e)
+        } = &e.applied
         {
             b.metric = metric.unwrap_or(b.metric);
             b.ratio = ratio.unwrap_or(b.ratio);
@@ -733,24 +733,33 @@ impl Job<'_> {
     }
 
     /// Writes the project of the final keyframes (`project.json`): the starting project with
-    /// the added frames as a `manual` step of its history; its input path made absolute.
+    /// a `reconstruct` step in its history (the added frames with their reasons, the rounds,
+    /// COLMAP's version and the options) when frames were added; its input path made absolute.
     fn write_project(&self, state: &State) -> Result<()> {
         let mut p = self.project.clone();
         let Some(last) = state.rounds.last() else {
             return Ok(());
         };
         p.keyframes = last.keyframes.clone();
-        let added: Vec<usize> = state
+        let added: Vec<crate::steps::AddedFrame> = state
             .rounds
             .iter()
-            .flat_map(|r| r.added.iter().map(|a| a.frame))
+            .flat_map(|r| r.added.iter())
+            .map(|a| crate::steps::AddedFrame {
+                frame: a.frame,
+                round: a.round,
+                reason: a.reason.clone(),
+            })
             .collect();
         if !added.is_empty() {
-            let step = crate::steps::Applied::Manual {
-                add: added,
-                remove: Vec::new(),
+            let step = crate::steps::Applied::Reconstruct {
+                rounds: state.rounds.len(),
+                added,
+                colmap_version: state.colmap_version.clone(),
+                options: options_as_flags(&state.options),
             };
-            p.history.push(step.entry(p.keyframes.len()));
+            p.history
+                .push(crate::steps::Recorded::new(step, p.keyframes.len()));
         }
         p.input.path = self.project.input_path(&self.s.project);
         if let Some(t) = &mut p.cache.telemetry {
@@ -763,6 +772,28 @@ impl Job<'_> {
         }
         p.save(&self.ws.join(PROJECT), true)
     }
+}
+
+/// The options as the flags that give them (for the project's history).
+fn options_as_flags(o: &Options) -> Vec<String> {
+    let mut f = vec![
+        format!("--max-rounds {}", o.max_rounds),
+        match o.max_added {
+            Budget::Frames(n) => format!("--max-added {n}"),
+            Budget::Percent(p) => format!("--max-added {p}%"),
+        },
+        format!("--min-shared {}", o.limits.min_shared),
+        format!("--min-inliers {}", o.limits.min_inliers),
+        format!("--mapper {}", o.mapper),
+        format!("--mapping {}", o.mapping),
+        format!("--matcher {}", o.matcher),
+        format!("--overlap {}", o.overlap),
+        format!("--camera-model {}", o.camera_model),
+    ];
+    f.extend(o.camera_params.iter().map(|p| format!("--camera-params {p}")));
+    f.extend(o.max_features.iter().map(|n| format!("--max-features {n}")));
+    f.extend(o.mapper_option.iter().map(|m| format!("--mapper-option {m}")));
+    f
 }
 
 /// Reads the models of a round: which keyframe (position in `keys`) each registered, the 3D

@@ -56,6 +56,7 @@ impl Recorded {
         let ids = || STEPS.iter().map(|k| k.id);
         let known: Vec<&str> = (ids().take(1).chain(["preview"]))
             .chain(ids().skip(1))
+            .chain(["reconstruct"])
             .collect();
         if !known.contains(&e.step.as_str()) {
             let known = known.join(", ");

@@ -581,6 +581,17 @@ pub fn boundaries(steps: &[Step]) -> Boundaries {
 }
 
 /// A step as `select` applied it: one entry of a project's history (`plugin`, `params`).
+/// A frame `reconstruct` added.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AddedFrame {
+    /// Frame index.
+    pub frame: usize,
+    /// The round whose model it repairs.
+    pub round: usize,
+    /// Why and how it was chosen.
+    pub reason: String,
+}
+
 /// Parameters absent from projects of older versions are optional.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "plugin", content = "params", rename_all = "kebab-case")]
@@ -598,6 +609,18 @@ pub enum Applied {
         codec_keyframes: usize,
         /// Frames in the input.
         frames: usize,
+    },
+    /// `keyframer reconstruct`: frames added where COLMAP's model broke (not a sampler: a
+    /// workflow does not replay it as a step).
+    Reconstruct {
+        /// COLMAP runs, the first on the starting keyframes.
+        rounds: usize,
+        /// The frames added, each with the round it repairs and why.
+        added: Vec<AddedFrame>,
+        /// COLMAP's version line.
+        colmap_version: String,
+        /// The loop's options as flags (`--max-rounds 4`, ...).
+        options: Vec<String>,
     },
     /// The stationary sampler with its resolved threshold.
     Stationary {
@@ -676,7 +699,10 @@ pub enum Applied {
 impl Applied {
     /// The step's id (`plugin` in a project file; `preview` for `select --preview`'s record).
     pub fn id(&self) -> &'static str {
-        self.step().map_or("preview", |s| s.id())
+        match self {
+            Applied::Reconstruct { .. } => "reconstruct",
+            _ => self.step().map_or("preview", |s| s.id()),
+        }
     }
 
     /// The step that repeats this one on another input (resolved thresholds, not `auto`).
@@ -686,7 +712,7 @@ impl Applied {
                 start: start.map(BoundArg),
                 end: end.map(BoundArg),
             },
-            Applied::Preview { .. } => return None,
+            Applied::Preview { .. } | Applied::Reconstruct { .. } => return None,
             Applied::Stationary {
                 threshold_px,
                 reset_delta,
@@ -791,6 +817,12 @@ impl Applied {
                 Ok(())
             }
             Applied::Preview { .. } => Ok(()),
+            Applied::Reconstruct { added, .. } => {
+                if added.iter().any(|a| a.frame >= frames) {
+                    return bad("added", format!("must list frames below {frames}"));
+                }
+                Ok(())
+            }
         }
     }
 }
