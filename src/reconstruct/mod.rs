@@ -790,9 +790,17 @@ fn options_as_flags(o: &Options) -> Vec<String> {
         format!("--overlap {}", o.overlap),
         format!("--camera-model {}", o.camera_model),
     ];
-    f.extend(o.camera_params.iter().map(|p| format!("--camera-params {p}")));
+    f.extend(
+        o.camera_params
+            .iter()
+            .map(|p| format!("--camera-params {p}")),
+    );
     f.extend(o.max_features.iter().map(|n| format!("--max-features {n}")));
-    f.extend(o.mapper_option.iter().map(|m| format!("--mapper-option {m}")));
+    f.extend(
+        o.mapper_option
+            .iter()
+            .map(|m| format!("--mapper-option {m}")),
+    );
     f
 }
 

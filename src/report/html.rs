@@ -34,6 +34,8 @@ struct Page<'a> {
     timeline_svg: String,
     keyframe_colour: String,
     keyframes: usize,
+    added_colour: String,
+    added: usize,
     shaded: bool,
     legend: Vec<Legend>,
     timeline_png: Option<String>,
@@ -92,6 +94,8 @@ pub fn page(p: &PageInput) -> Result<String> {
         timeline_svg: tl.svg()?,
         keyframe_colour: hex(timeline::KEYFRAME_RGB),
         keyframes: pr.keyframes.len(),
+        added_colour: hex(timeline::ADDED_RGB),
+        added: tl.added.len(),
         shaded: tl
             .range
             .is_some_and(|(lo, hi)| lo > 0 || hi + 1 < tl.frames),

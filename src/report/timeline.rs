@@ -27,6 +27,8 @@ pub const GAP: u32 = 30;
 pub const BOTTOM: u32 = 40;
 /// Colour of the keyframe bars (used by nothing else on the page or the PNG).
 pub const KEYFRAME_RGB: [u8; 3] = [221, 0, 170];
+/// Colour of the bars of keyframes `reconstruct` added (on the page).
+pub const ADDED_RGB: [u8; 3] = [0, 150, 60];
 
 const BOUNDARY_RGB: [u8; 3] = [225, 225, 225];
 const AXIS_RGB: [u8; 3] = [90, 90, 90];
@@ -85,6 +87,8 @@ pub struct Timeline {
     pub panels: Vec<Panel>,
     /// Keyframe indices.
     pub keyframes: Vec<usize>,
+    /// The keyframes `reconstruct` added, with the reason for each.
+    pub added: std::collections::BTreeMap<usize, String>,
     /// Sampled range `first..=last` (frames outside it are shaded).
     pub range: Option<(usize, usize)>,
     /// What the project does not contain (shown on the page).
@@ -224,11 +228,20 @@ impl Timeline {
                 curves: Vec::new(),
             });
         }
+        let mut added = std::collections::BTreeMap::new();
+        for r in history {
+            if let crate::steps::Applied::Reconstruct { added: frames, .. } = &r.applied {
+                for a in frames.iter().filter(|a| keyframes.contains(&a.frame)) {
+                    added.insert(a.frame, a.reason.clone());
+                }
+            }
+        }
         Timeline {
             frames: n,
             timestamps_s: cache.timestamps_s.clone(),
             panels,
             keyframes: keyframes.to_vec(),
+            added,
             range,
             missing,
             view: (0, n.saturating_sub(1)),
@@ -346,10 +359,21 @@ impl Timeline {
         );
         s.push('\n');
         s.push_str(&svg_layer(h, |root| self.draw(root))?);
-        let (mut last, layout, fill) = (None, self.layout(), hex(KEYFRAME_RGB));
+        let (mut last, layout) = (None, self.layout());
         for k in self.keyframes_shown() {
             let x = layout.x(k);
-            s.push_str(&format!(r#"<g class="kf" data-frame="{k}" fill="{fill}">"#));
+            match self.added.get(&k) {
+                // Added by `reconstruct`: its own colour, the reason on hover.
+                Some(reason) => s.push_str(&format!(
+                    r#"<g class="kf added" data-frame="{k}" fill="{}"><title>frame {k} added by reconstruct: {}</title>"#,
+                    hex(ADDED_RGB),
+                    xml_escape(reason)
+                )),
+                None => s.push_str(&format!(
+                    r#"<g class="kf" data-frame="{k}" fill="{}">"#,
+                    hex(KEYFRAME_RGB)
+                )),
+            }
             s.push('\n');
             // Keyframes closer than a pixel share one column: drawn once, each still has its group.
             if last != Some(x) {
@@ -796,10 +820,24 @@ mod tests {
                 curves: vec![curve],
             }],
             keyframes,
+            added: Default::default(),
             range: Some((2, frames - 3)),
             missing: Vec::new(),
             view: (0, frames - 1),
         }
+    }
+
+    #[test]
+    fn added_keyframes_have_their_colour_and_reason() {
+        let mut t = timeline(40, vec![5, 10, 20]);
+        t.added.insert(10, "repairs keyframes 5–20 <split>".into());
+        let svg = t.svg().unwrap();
+        assert_eq!(svg.matches(r#"class="kf""#).count(), 2);
+        let added = format!(
+            r#"<g class="kf added" data-frame="10" fill="{}"><title>frame 10 added by reconstruct: repairs keyframes 5–20 &lt;split&gt;</title>"#,
+            hex(ADDED_RGB)
+        );
+        assert!(svg.contains(&added), "{svg}");
     }
 
     #[test]
@@ -827,4 +865,12 @@ mod tests {
         assert_eq!(svg.matches("class=\"kf\"").count(), 2);
         assert_eq!(timeline(100, Vec::new()).view(90, 500).view, (90, 99));
     }
+}
+
+/// `text` escaped for XML character data.
+fn xml_escape(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
 }

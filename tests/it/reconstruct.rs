@@ -201,6 +201,28 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
         .collect();
     assert_eq!(exported, fin);
     assert_eq!(keyframes(&ws.join("project.json")), fin);
+    // The project's history ends with the typed `reconstruct` step, and the report draws the
+    // added frames in their own colour with the reason on hover.
+    let proj = json(&ws.join("project.json"));
+    let step = proj["history"].as_array().unwrap().last().unwrap().clone();
+    assert_eq!(step["plugin"], "reconstruct", "{step}");
+    assert_eq!(
+        step["params"]["added"].as_array().unwrap().len(),
+        added.len()
+    );
+    assert_eq!(step["params"]["rounds"], n_rounds);
+    let page = d.path().join("report.html");
+    kf_ok(&[
+        "report",
+        s(&ws.join("project.json")),
+        "-o",
+        s(&page),
+        "--thumbs",
+        "0",
+    ]);
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert_eq!(html.matches(r#"<g class="kf added""#).count(), added.len());
+    assert!(html.contains("added by reconstruct: repairs keyframes"));
     let rec = json(&ws.join("colmap/colmap.json"));
     assert_eq!(rec["images"], fin.len());
     // Against the ground truth: the model's camera centres after a Sim(3) alignment.
