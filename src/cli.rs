@@ -930,7 +930,7 @@ impl ReconstructArgs {
                 model: model.clone(),
                 classes: self.masks.mask_classes.clone(),
                 dilate: self.masks.mask_dilate,
-                backend: self.masks.mask_backend.into(),
+                backend: self.masks.mask_backend,
                 overlay: self.masks.mask_overlay,
             }),
             true,

@@ -799,6 +799,14 @@ pub fn number(v: f64) -> String {
     }
 }
 
+/// `text` escaped for XML character data.
+fn xml_escape(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -865,12 +873,4 @@ mod tests {
         assert_eq!(svg.matches("class=\"kf\"").count(), 2);
         assert_eq!(timeline(100, Vec::new()).view(90, 500).view, (90, 99));
     }
-}
-
-/// `text` escaped for XML character data.
-fn xml_escape(text: &str) -> String {
-    text.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
 }
