@@ -784,20 +784,9 @@ impl ExportArgs {
     }
 }
 
-/// `colmap` flags.
+/// COLMAP's flags shared by `colmap` and `reconstruct`.
 #[derive(Debug, Args)]
-pub struct ColmapArgs {
-    /// Export folder made by `keyframer export` (holds manifest.json).
-    pub export: PathBuf,
-    /// Workspace folder (default: EXPORT/colmap).
-    #[arg(short, long, value_name = "WORKSPACE")]
-    pub output: Option<PathBuf>,
-    /// Run feature extraction, matching and the mapper (sparse model under sparse/N).
-    #[arg(long)]
-    pub sparse: bool,
-    /// Then densify (image_undistorter, patch_match_stereo, stereo_fusion); needs a CUDA COLMAP.
-    #[arg(long)]
-    pub dense: bool,
+pub struct ColmapFlags {
     /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
     #[arg(long, value_parser = named::<Matcher>(), default_value = "sequential")]
     pub matcher: Matcher,
@@ -818,6 +807,25 @@ pub struct ColmapArgs {
     /// `init_min_tri_angle=4` for short baselines.
     #[arg(long, value_name = "KEY=VALUE")]
     pub mapper_option: Vec<String>,
+}
+
+/// `colmap` flags.
+#[derive(Debug, Args)]
+pub struct ColmapArgs {
+    /// Export folder made by `keyframer export` (holds manifest.json).
+    pub export: PathBuf,
+    /// Workspace folder (default: EXPORT/colmap).
+    #[arg(short, long, value_name = "WORKSPACE")]
+    pub output: Option<PathBuf>,
+    /// Run feature extraction, matching and the mapper (sparse model under sparse/N).
+    #[arg(long)]
+    pub sparse: bool,
+    /// Then densify (image_undistorter, patch_match_stereo, stereo_fusion); needs a CUDA COLMAP.
+    #[arg(long)]
+    pub dense: bool,
+    /// COLMAP's options.
+    #[command(flatten)]
+    pub colmap: ColmapFlags,
     /// Replace the keyframer-made content of an existing workspace.
     #[arg(long)]
     pub force: bool,
@@ -834,12 +842,12 @@ impl ColmapArgs {
             output: self.output.clone(),
             sparse: self.sparse,
             dense: self.dense,
-            matcher: self.matcher,
-            overlap: self.overlap,
-            camera_model: self.camera_model.clone(),
-            camera_params: self.camera_params.clone(),
-            max_features: self.max_features,
-            mapper_option: self.mapper_option.clone(),
+            matcher: self.colmap.matcher,
+            overlap: self.colmap.overlap,
+            camera_model: self.colmap.camera_model.clone(),
+            camera_params: self.colmap.camera_params.clone(),
+            max_features: self.colmap.max_features,
+            mapper_option: self.colmap.mapper_option.clone(),
             force: self.force,
         }
     }
@@ -875,26 +883,10 @@ pub struct ReconstructArgs {
     /// (features and matches are reused either way).
     #[arg(long, value_parser = named::<Mapping>(), default_value = "fresh")]
     pub mapping: Mapping,
-    /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
-    #[arg(long, value_parser = named::<Matcher>(), default_value = "sequential")]
-    pub matcher: Matcher,
-    /// Sequential matching: match each image with this many following images.
-    #[arg(long, default_value_t = 10)]
-    pub overlap: u32,
-    /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
-    #[arg(long, default_value = "SIMPLE_RADIAL")]
-    pub camera_model: String,
-    /// Known intrinsics for the camera model, comma-separated in COLMAP's order (PINHOLE:
-    /// `fx,fy,cx,cy`); the mapper then keeps them fixed.
-    #[arg(long, value_name = "P1,P2,..")]
-    pub camera_params: Option<String>,
-    /// Maximum SIFT features per image (COLMAP's default 8192 when not given).
-    #[arg(long, value_name = "N")]
-    pub max_features: Option<u32>,
-    /// Extra mapper option `KEY=VALUE`, passed as `--Mapper.KEY VALUE` (repeatable); the loop
-    /// adds `min_model_size=3` and `init_min_tri_angle=4` unless given.
-    #[arg(long, value_name = "KEY=VALUE")]
-    pub mapper_option: Vec<String>,
+    /// COLMAP's options (the loop adds `min_model_size=3` and `init_min_tri_angle=4` to the
+    /// mapper options unless given).
+    #[command(flatten)]
+    pub colmap: ColmapFlags,
     /// Output size WxH of the exported images.
     #[arg(long, value_name = "WxH", conflicts_with = "scale")]
     pub resize: Option<String>,
@@ -946,12 +938,12 @@ impl ReconstructArgs {
                     min_shared: self.min_shared,
                     min_inliers: self.min_inliers,
                 },
-                matcher: self.matcher,
-                overlap: self.overlap,
-                camera_model: self.camera_model.clone(),
-                camera_params: self.camera_params.clone(),
-                max_features: self.max_features,
-                mapper_option: self.mapper_option.clone(),
+                matcher: self.colmap.matcher,
+                overlap: self.colmap.overlap,
+                camera_model: self.colmap.camera_model.clone(),
+                camera_params: self.colmap.camera_params.clone(),
+                max_features: self.colmap.max_features,
+                mapper_option: self.colmap.mapper_option.clone(),
                 mapper: self.mapper,
                 mapping: self.mapping,
                 export,
