@@ -11,7 +11,7 @@ use crate::gpu::readback::Until;
 use crate::gpu::{Gate, GpuContext};
 use crate::kernels::farneback::{FarnebackGpu, SLOTS};
 use crate::kernels::movement::{checked, Destination, FrameParams, MovementGpu, RECORD_WORDS};
-use crate::kernels::stationary::{StationaryGpu, CANDIDATE, FROM_PREVIOUS};
+use crate::kernels::stationary::{StationarySamplerGpu, CANDIDATE, FROM_PREVIOUS};
 use crate::params::Statistic;
 use crate::params::{MovementRequest, StationaryRequest};
 use std::collections::VecDeque;
@@ -65,7 +65,7 @@ pub(crate) struct DeviceMovement {
     statistic: Statistic,
     /// The sharpness engine's resized-gray buffers (empty unless frames stay on the device).
     staged: Vec<wgpu::Buffer>,
-    stationary: Option<StationaryGpu>,
+    stationary: Option<StationarySamplerGpu>,
     /// Records of the batch being filled, one per frame submitted.
     results: wgpu::Buffer,
     frame: wgpu::Buffer,
@@ -101,7 +101,7 @@ impl DeviceMovement {
         shapes.extend(flow.copy_shapes());
         let views = (&frame, &results);
         let stationary = stationary
-            .map(|st| StationaryGpu::new(ctx.clone(), st, scale, views, &shapes, gates[1]))
+            .map(|st| StationarySamplerGpu::new(ctx.clone(), st, scale, views, &shapes, gates[1]))
             .transpose()?;
         Ok(DeviceMovement {
             ctx: ctx.clone(),

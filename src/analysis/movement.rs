@@ -17,7 +17,7 @@ use crate::kernels::movement::{self, checked, RotationField};
 use crate::kernels::resize_area;
 use crate::params::{Backend, FarnebackParams, Statistic};
 use crate::source::{self, Metadata, OpenOptions};
-use crate::steps::Stationary;
+use crate::steps::StationarySampler;
 use opencv::core::Mat;
 use std::collections::VecDeque;
 use std::path::Path;
@@ -147,7 +147,7 @@ pub(crate) struct MovementPass {
     /// The last frame, when it is not a stride point: loaded in a slot, or its pixels kept.
     last: Option<(Option<usize>, usize, Option<Pixels>)>,
     /// The stationary sampler's step, when requested.
-    pub stationary: Option<Stationary>,
+    pub stationary: Option<StationarySampler>,
     /// Frames submitted to the device engine whose records are still to come, in order.
     pending: VecDeque<Measured>,
 }
@@ -199,8 +199,7 @@ impl MovementPass {
             anchor: None,
             reference,
             last: None,
-            stationary: stationary
-                .map(|s| Stationary::new(s.threshold, s.reset_delta, s.first, s.last)),
+            stationary: stationary.map(StationarySampler::new),
             pending: VecDeque::new(),
         }
     }
@@ -239,8 +238,8 @@ impl MovementPass {
         Some(MovementState {
             values: self.values.clone(),
             anchor,
-            reference: st.and_then(Stationary::reference),
-            accumulated: st.map_or(0.0, Stationary::accumulated),
+            reference: st.and_then(StationarySampler::reference),
+            accumulated: st.map_or(0.0, StationarySampler::accumulated),
             keys: st.map(|s| s.keys().to_vec()).unwrap_or_default(),
         })
     }
@@ -420,7 +419,7 @@ fn push_values(values: &mut Vec<f64>, scale: f64, m: &Measured, consecutive: Opt
 /// reference is the consecutive one when that starts at the reference, else `from_reference`
 /// (analysis pixels, asked only when needed). Returns whether `m` is now the reference.
 fn step(
-    stationary: &mut Option<Stationary>,
+    stationary: &mut Option<StationarySampler>,
     m: &Measured,
     consecutive: Option<f64>,
     scale: f64,

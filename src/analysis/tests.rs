@@ -10,7 +10,7 @@ use crate::fsutil::Fingerprint;
 use crate::kernels::farneback::SLOTS;
 use crate::params::Statistic;
 use crate::source::{Frame, SourceKind};
-use crate::steps::Stationary;
+use crate::steps::StationarySampler;
 use opencv::core::{Scalar, Vec3b, CV_8UC3};
 use opencv::prelude::*;
 use std::path::PathBuf;
@@ -234,7 +234,7 @@ fn expected_movement(n: usize, stride: usize, damaged: &[usize]) -> Vec<f64> {
 
 /// The stationary step's keyframes when fed directly from the fake engine.
 fn expected_keys(st: &StationaryRequest, n: usize, damaged: &[usize]) -> Vec<usize> {
-    let mut step = Stationary::new(st.threshold, st.reset_delta, st.first, st.last);
+    let mut step = StationarySampler::new(*st);
     for i in 0..n {
         step.step(i, |r| {
             Ok::<_, ()>(fake_flow(value(r, damaged), value(i, damaged)) * 2.0)

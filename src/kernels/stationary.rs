@@ -1,5 +1,5 @@
 //! `stationary` on the device (shaders/stationary.wgsl): the stationary step's decision per frame,
-//! in the f64 arithmetic of its twin `steps::Stationary` (emulated exactly, shaders/f64.wgsl), and
+//! in the f64 arithmetic of its twin `steps::StationarySampler` (emulated exactly, shaders/f64.wgsl), and
 //! the gates that run the flow from the reference frame only when the step asks for it and keep
 //! a frame as the new reference only when it becomes one. So a run of frames is measured and
 //! decided without the host reading anything back in between.
@@ -41,7 +41,7 @@ fn words(v: f64) -> [u32; 2] {
 }
 
 /// The decision and gating passes over one results buffer, and the step's state on the device.
-pub struct StationaryGpu {
+pub struct StationarySamplerGpu {
     ctx: Arc<GpuContext>,
     plan: (Arc<wgpu::ComputePipeline>, wgpu::BindGroup),
     decide: (Arc<wgpu::ComputePipeline>, wgpu::BindGroup),
@@ -49,7 +49,7 @@ pub struct StationaryGpu {
     args: wgpu::Buffer,
 }
 
-impl StationaryGpu {
+impl StationarySamplerGpu {
     /// The step of `req` on movements (analysis pixels) times `scale`; frames name their record
     /// in `results` through `frame`. The gated dispatches have the sizes `shapes`: the first
     /// `plan` of them measure from the reference, the rest keep a frame as the reference.
@@ -60,7 +60,7 @@ impl StationaryGpu {
         (frame, results): (&wgpu::Buffer, &wgpu::Buffer),
         shapes: &[(u32, u32)],
         plan: usize,
-    ) -> crate::error::Result<StationaryGpu> {
+    ) -> crate::error::Result<StationarySamplerGpu> {
         let table: Vec<u32> = shapes.iter().flat_map(|&(x, y)| [x, y, 1]).collect();
         let words_of = |n: usize| (3 * n) as u32;
         let consts = Consts {
@@ -96,7 +96,7 @@ impl StationaryGpu {
             let bg = ctx.bind(entry, &p, &used);
             Ok((p, bg))
         };
-        Ok(StationaryGpu {
+        Ok(StationarySamplerGpu {
             // `plan` reads no record.
             plan: with("plan", Some(2))?,
             decide: with("decide", None)?,

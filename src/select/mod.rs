@@ -55,10 +55,10 @@ pub fn recorded_auto(
     })
 }
 
-/// The stationary step's threshold (`auto` resolved; None: 1 % of the frame width) and reset
-/// delta.
+/// The stationary step's settings: its threshold (`auto` resolved; None: 1 % of the frame width)
+/// and reset delta, before the input gives its [`StationaryRequest`] (threshold and frame range).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Stationary {
+pub struct StationarySettings {
     /// Pixels of movement at full resolution.
     pub threshold: Option<f64>,
     /// Frames after which the reference is re-anchored.
@@ -72,7 +72,7 @@ pub struct Resolved {
     /// How movement is measured.
     pub movement: MovementRequest,
     /// The stationary step's parameters, when the chain has one.
-    pub stationary: Option<Stationary>,
+    pub stationary: Option<StationarySettings>,
     /// The stationary threshold was asked for as `auto`.
     pub stationary_auto: bool,
     /// The spacing threshold in pixels (given, or proposed for `auto`); None for `Nkf` or none.
@@ -664,7 +664,7 @@ impl Resolved {
                     reset_delta,
                 } => {
                     stationary_auto = *threshold == Some(Threshold::Auto);
-                    stationary = Some(Stationary {
+                    stationary = Some(StationarySettings {
                         threshold: px(*threshold),
                         reset_delta: reset_delta.unwrap_or(steps::defaults::RESET_DELTA),
                     });

@@ -28,7 +28,7 @@ pub use fps::fps;
 pub use history::{Recorded, Stored};
 pub use manual::manual;
 pub use spacing::{spacing, spacing_for_count};
-pub use stationary::Stationary;
+pub use stationary::StationarySampler;
 pub use values::{BoundArg, NumOrText, Threshold};
 
 use crate::error::{Error, Result};

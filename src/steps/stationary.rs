@@ -86,37 +86,31 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>) -> KfResult<Applied> {
     })
 }
 
-/// The reference-mode state: its parameters, the reference frame, the movement accumulated since
-/// the last keyframe and the keyframes so far.
+/// The stationary sampler's reference-mode state machine: its run's parameters, the reference
+/// frame, the movement accumulated since the last keyframe and the keyframes so far.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Stationary {
-    threshold: f64,
-    reset_delta: usize,
-    first: usize,
-    last: usize,
+pub struct StationarySampler {
+    params: StationaryRequest,
     reference: Option<usize>,
     accumulated: f64,
     keys: Vec<usize>,
 }
 
-impl Stationary {
-    /// A frame becomes a keyframe when the movement since the last keyframe reaches `threshold`;
-    /// after `reset_delta` frames without one the reference moves to the current frame, carrying
-    /// the movement accumulated so far. Candidates are frames `first..=last`.
-    pub fn new(threshold: f64, reset_delta: usize, first: usize, last: usize) -> Stationary {
-        Stationary {
-            threshold,
-            reset_delta,
-            first,
-            last,
+impl StationarySampler {
+    /// A frame becomes a keyframe when the movement since the last keyframe reaches the
+    /// threshold; after `reset_delta` frames without one the reference moves to the current frame,
+    /// carrying the movement accumulated so far. Candidates are frames `first..=last`.
+    pub fn new(params: StationaryRequest) -> StationarySampler {
+        StationarySampler {
+            params,
             reference: None,
             accumulated: 0.0,
             keys: Vec::new(),
         }
     }
 
-    /// Continues from a saved state (see [`Stationary::reference`], [`Stationary::accumulated`],
-    /// [`Stationary::keys`]).
+    /// Continues from a saved state (see [`StationarySampler::reference`], [`StationarySampler::accumulated`],
+    /// [`StationarySampler::keys`]).
     pub fn restore(&mut self, reference: Option<usize>, accumulated: f64, keys: Vec<usize>) {
         self.reference = reference;
         self.accumulated = accumulated;
@@ -125,7 +119,7 @@ impl Stationary {
 
     /// Whether frame `i` is a candidate (the step must then be fed it).
     pub fn wants(&self, i: usize) -> bool {
-        (self.first..=self.last).contains(&i)
+        (self.params.first..=self.params.last).contains(&i)
     }
 
     /// The frame movement is measured from.
@@ -159,10 +153,10 @@ impl Stationary {
             return Ok(true);
         };
         let total = self.accumulated + measure(reference)?;
-        if total >= self.threshold {
+        if total >= self.params.threshold {
             self.keyframe(i);
             Ok(true)
-        } else if i - reference >= self.reset_delta {
+        } else if i - reference >= self.params.reset_delta {
             self.reference = Some(i);
             self.accumulated = total;
             Ok(true)
@@ -180,12 +174,22 @@ impl Stationary {
 
 #[cfg(test)]
 mod tests {
-    use super::Stationary;
+    use super::StationarySampler;
+    use crate::params::StationaryRequest;
     use std::convert::Infallible;
+
+    fn sampler(threshold: f64, reset_delta: usize, first: usize, last: usize) -> StationarySampler {
+        StationarySampler::new(StationaryRequest {
+            threshold,
+            reset_delta,
+            first,
+            last,
+        })
+    }
 
     /// Feeds frames `0..n` with movement `per_frame[r..=i]` summed from the reference `r`;
     /// returns the keys and the references asked for.
-    fn run(st: &mut Stationary, per_frame: &[f64]) -> (Vec<usize>, Vec<(usize, usize)>) {
+    fn run(st: &mut StationarySampler, per_frame: &[f64]) -> (Vec<usize>, Vec<(usize, usize)>) {
         let mut asked = Vec::new();
         for i in 0..per_frame.len() {
             st.step(i, |r| {
@@ -199,7 +203,7 @@ mod tests {
 
     #[test]
     fn keyframe_when_threshold_reached() {
-        let mut st = Stationary::new(3.0, 100, 0, 9);
+        let mut st = sampler(3.0, 100, 0, 9);
         let (keys, asked) = run(&mut st, &[0.0, 1.0, 1.0, 1.0, 0.5, 2.9, 0.1, 0.0, 5.0, 0.0]);
         // 1+1+1 = 3 reaches 3 at frame 3; 0.5+2.9 = 3.4 at 5; 0.1+0+5 at 8.
         assert_eq!(keys, vec![0, 3, 5, 8]);
@@ -211,7 +215,7 @@ mod tests {
 
     #[test]
     fn reset_delta_reanchors_carrying_the_movement() {
-        let mut st = Stationary::new(10.0, 3, 0, 9);
+        let mut st = sampler(10.0, 3, 0, 9);
         let (keys, asked) = run(&mut st, &[0.0; 10].map(|_| 1.0));
         // Frame 3 is 3 frames from 0: re-anchored there with 3 px carried; frame 6 carries 6;
         // frame 9 has 6 + 3 = 9 < 10 and is re-anchored again.
@@ -222,7 +226,7 @@ mod tests {
         );
         assert_eq!(st.reference(), Some(9));
         assert_eq!(st.accumulated(), 9.0);
-        let mut more = Stationary::new(10.0, 3, 0, 10);
+        let mut more = sampler(10.0, 3, 0, 10);
         let (keys, _) = run(&mut more, &[1.0; 11]);
         assert_eq!(
             keys,
@@ -233,7 +237,7 @@ mod tests {
 
     #[test]
     fn only_frames_in_range_are_candidates() {
-        let mut st = Stationary::new(2.0, 100, 3, 7);
+        let mut st = sampler(2.0, 100, 3, 7);
         let (keys, asked) = run(&mut st, &[5.0; 12]);
         assert_eq!(keys, vec![3, 4, 5, 6, 7]);
         assert!(asked
@@ -244,7 +248,7 @@ mod tests {
 
     #[test]
     fn below_threshold_and_reset_keeps_the_reference() {
-        let mut st = Stationary::new(1.0, 2, 0, 5);
+        let mut st = sampler(1.0, 2, 0, 5);
         let ok = |m: f64| move |_: usize| Ok::<_, Infallible>(m);
         assert_eq!(st.step(0, ok(9.0)), Ok(true), "first frame: no measurement");
         assert_eq!(st.step(1, ok(0.25)), Ok(false));
@@ -257,11 +261,11 @@ mod tests {
     #[test]
     fn restored_state_goes_on_as_an_uninterrupted_one() {
         let per_frame = [0.0, 0.4, 0.7, 0.2, 0.9, 0.1, 0.3, 1.2, 0.05, 0.6, 0.6, 0.0];
-        let mut whole = Stationary::new(1.0, 3, 1, 11);
+        let mut whole = sampler(1.0, 3, 1, 11);
         run(&mut whole, &per_frame);
-        let mut first = Stationary::new(1.0, 3, 1, 11);
+        let mut first = sampler(1.0, 3, 1, 11);
         run(&mut first, &per_frame[..6]);
-        let mut resumed = Stationary::new(1.0, 3, 1, 11);
+        let mut resumed = sampler(1.0, 3, 1, 11);
         resumed.restore(
             first.reference(),
             first.accumulated(),
@@ -279,7 +283,7 @@ mod tests {
 
     #[test]
     fn a_failed_measurement_changes_nothing() {
-        let mut st = Stationary::new(1.0, 2, 0, 5);
+        let mut st = sampler(1.0, 2, 0, 5);
         st.step(0, |_| Ok::<_, ()>(0.0)).unwrap();
         let before = st.clone();
         assert_eq!(st.step(1, |_| Err("flow failed")), Err("flow failed"));
