@@ -50,15 +50,6 @@ impl Names for BackendChoice {
 }
 crate::names::impl_names!(BackendChoice, serde);
 
-impl From<Backend> for BackendChoice {
-    fn from(b: Backend) -> BackendChoice {
-        match b {
-            Backend::Gpu => BackendChoice::Gpu,
-            Backend::Opencv => BackendChoice::Opencv,
-        }
-    }
-}
-
 /// A sharpness measure.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Metric {

@@ -6,7 +6,9 @@ use crate::error::{Error, Result};
 use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
 use crate::names::Names;
 use crate::output::Inputs;
-use crate::params::{BackendChoice, Derotate, FarnebackParams, MovementRequest, Statistic};
+use crate::params::{
+    Backend, BackendChoice, Derotate, FarnebackParams, MovementRequest, Statistic,
+};
 use crate::project::Project;
 use crate::steps::Step;
 use crate::tomlfile::{self, TomlFile};
@@ -484,7 +486,10 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
             record_movement(&mut analysis, &req);
         }
         if let Some(b) = backend {
-            analysis.backend = Some(b.into());
+            analysis.backend = Some(match b {
+                Backend::Gpu => BackendChoice::Gpu,
+                Backend::Opencv => BackendChoice::Opencv,
+            });
         }
         match applied.step() {
             Some(Step::Boundaries {

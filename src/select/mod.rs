@@ -19,6 +19,7 @@ use crate::project::{
     Cache, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache, SCHEMA_VERSION,
 };
 use crate::source::{self, Metadata, OpenOptions, SourceKind};
+use crate::steps::stationary::StationarySettings;
 use crate::steps::{self, Boundaries};
 use crate::steps::{Applied, Need, Recorded, Step};
 use std::path::{Path, PathBuf};
@@ -53,16 +54,6 @@ pub fn recorded_auto(
         } if step == "spacing" && b == backend && m == *movement => Some(threshold_px),
         _ => None,
     })
-}
-
-/// The stationary step's settings: its threshold (`auto` resolved; None: 1 % of the frame width)
-/// and reset delta, before the input gives its [`StationaryRequest`] (threshold and frame range).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StationarySettings {
-    /// Pixels of movement at full resolution.
-    pub threshold: Option<f64>,
-    /// Frames after which the reference is re-anchored.
-    pub reset_delta: usize,
 }
 
 /// The chain's thresholds with `auto` resolved, and the movement measurement they apply to: what
@@ -281,14 +272,9 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;
     let auto = AutoThresholds::find(s, open, &known)?;
+    let ts = known.cache.timestamps_s.as_deref();
     let stationary_req = match auto.resolved.stationary {
-        Some(st) => Some(steps::stationary::request(
-            st.threshold,
-            st.reset_delta,
-            &boundaries,
-            &known.metadata(s, open)?,
-            known.cache.timestamps_s.as_deref(),
-        )?),
+        Some(st) => Some(st.request(&boundaries, &known.metadata(s, open)?, ts)?),
         None => None,
     };
     let plan = Plan::of(s, &known, stationary_req);
@@ -735,8 +721,7 @@ fn inputs<'a>(
     let movement = &resolved.movement;
     let stationary = match resolved.stationary {
         Some(st) => {
-            let (t, delta) = (st.threshold, st.reset_delta);
-            let req = steps::stationary::request(t, delta, &boundaries, metadata, ts)?;
+            let req = st.request(&boundaries, metadata, ts)?;
             let run = cache.stationary(movement, &req);
             run.map(|r| (req, r.keyframes.as_slice(), r.backend))
         }

@@ -35,40 +35,50 @@ pub fn from_flags(v: &FlagValues) -> KfResult<Option<Step>> {
     }))
 }
 
-/// The stationary run for this input: `threshold` (None: 1 % of the frame width) and the
-/// candidate range resolved.
-pub fn request(
-    threshold: Option<f64>,
-    reset_delta: usize,
-    b: &Boundaries,
-    meta: &Metadata,
-    timestamps_s: Option<&[f64]>,
-) -> KfResult<StationaryRequest> {
-    let err = |msg: String| Error::step("stationary", msg);
-    let (first, last) = match meta.frame_count_exact {
-        true => {
-            let c = b.candidates(meta.frame_count, timestamps_s)?;
-            (c[0], *c.last().unwrap_or(&c[0]))
+/// The stationary step's settings: its threshold (`auto` resolved; None: 1 % of the frame width)
+/// and reset delta, before an input gives its [`StationaryRequest`] (threshold and frame range).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StationarySettings {
+    /// Pixels of movement at full resolution.
+    pub threshold: Option<f64>,
+    /// Frames after which the reference is re-anchored.
+    pub reset_delta: usize,
+}
+
+impl StationarySettings {
+    /// The stationary run for this input: the threshold and the candidate range resolved.
+    pub fn request(
+        self,
+        b: &Boundaries,
+        meta: &Metadata,
+        timestamps_s: Option<&[f64]>,
+    ) -> KfResult<StationaryRequest> {
+        let err = |msg: String| Error::step("stationary", msg);
+        let (first, last) = match meta.frame_count_exact {
+            true => {
+                let c = b.candidates(meta.frame_count, timestamps_s)?;
+                (c[0], *c.last().unwrap_or(&c[0]))
+            }
+            false => {
+                let frame = |b: Option<Bound>, or: usize| match b {
+                    Some(Bound::Frame(i)) => i,
+                    _ => or,
+                };
+                (frame(b.start, 0), frame(b.end, usize::MAX))
+            }
+        };
+        let threshold = self.threshold.unwrap_or(f64::from(meta.width) * 0.01);
+        crate::numbers::positive_px(threshold).map_err(|m| err(format!("threshold {m}")))?;
+        if self.reset_delta == 0 {
+            return Err(err("reset delta must be at least 1 frame".into()));
         }
-        false => {
-            let frame = |b: Option<Bound>, or: usize| match b {
-                Some(Bound::Frame(i)) => i,
-                _ => or,
-            };
-            (frame(b.start, 0), frame(b.end, usize::MAX))
-        }
-    };
-    let threshold = threshold.unwrap_or(f64::from(meta.width) * 0.01);
-    crate::numbers::positive_px(threshold).map_err(|m| err(format!("threshold {m}")))?;
-    if reset_delta == 0 {
-        return Err(err("reset delta must be at least 1 frame".into()));
+        Ok(StationaryRequest {
+            threshold,
+            reset_delta: self.reset_delta,
+            first,
+            last,
+        })
     }
-    Ok(StationaryRequest {
-        threshold,
-        reset_delta,
-        first,
-        last,
-    })
 }
 
 /// The step on `keys`: the keyframes of the stationary run in `at`.
