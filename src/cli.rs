@@ -489,6 +489,19 @@ pub struct MaskArgs {
     pub mask_overlay: bool,
 }
 
+impl MaskArgs {
+    /// The masks' settings, when `--masks` is given.
+    pub fn settings(&self) -> Option<MaskSettings> {
+        self.masks.as_ref().map(|model| MaskSettings {
+            model: model.clone(),
+            classes: self.mask_classes.clone(),
+            dilate: self.mask_dilate,
+            backend: self.mask_backend,
+            overlay: self.mask_overlay,
+        })
+    }
+}
+
 /// `segment` flags.
 #[derive(Debug, Args)]
 pub struct SegmentArgs {
@@ -772,13 +785,7 @@ impl ExportArgs {
             self.crop.as_deref(),
             self.format,
             self.quality,
-            self.masks.masks.as_ref().map(|model| MaskSettings {
-                model: model.clone(),
-                classes: self.masks.mask_classes.clone(),
-                dilate: self.masks.mask_dilate,
-                backend: self.masks.mask_backend,
-                overlay: self.masks.mask_overlay,
-            }),
+            self.masks.settings(),
             !self.no_geotag,
         )
     }
@@ -918,13 +925,7 @@ impl ReconstructArgs {
             None,
             None,
             self.quality,
-            self.masks.masks.as_ref().map(|model| MaskSettings {
-                model: model.clone(),
-                classes: self.masks.mask_classes.clone(),
-                dilate: self.masks.mask_dilate,
-                backend: self.masks.mask_backend,
-                overlay: self.masks.mask_overlay,
-            }),
+            self.masks.settings(),
             true,
         )?;
         Ok(ReconstructSettings {
