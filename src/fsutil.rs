@@ -65,12 +65,6 @@ fn temp_sibling(path: &Path) -> PathBuf {
     ))
 }
 
-/// Refuses to replace an existing file unless `force`, and anything that is not a regular file
-/// (the output rule of [`crate::output::check_file`], without inputs to compare); returns its lock.
-pub fn check_overwrite(path: &Path, force: bool) -> Result<crate::output::lock::Lock> {
-    crate::output::check_file(path, force, &crate::output::Inputs::none())
-}
-
 /// `target` expressed relative to the folder `base`, when both are absolute paths on the same root;
 /// otherwise `target` made absolute.
 pub fn relative_to(target: &Path, base: &Path) -> PathBuf {

@@ -385,7 +385,7 @@ impl<H> Project<H> {
     where
         H: Serialize,
     {
-        let _held = fsutil::check_overwrite(path, force)?;
+        let _held = crate::output::check_file(path, force, &crate::output::Inputs::none())?;
         let mut text = serde_json::to_string_pretty(self)
             .map_err(|e| Error::file(path, None, "project file", "", e.to_string()))?;
         text.push('\n');
