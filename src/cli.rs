@@ -816,6 +816,20 @@ pub struct ColmapFlags {
     pub mapper_option: Vec<String>,
 }
 
+impl ColmapFlags {
+    /// The library's options.
+    pub fn options(&self) -> keyframer::colmap::SparseOptions {
+        keyframer::colmap::SparseOptions {
+            matcher: self.matcher,
+            overlap: self.overlap,
+            camera_model: self.camera_model.clone(),
+            camera_params: self.camera_params.clone(),
+            max_features: self.max_features,
+            mapper_option: self.mapper_option.clone(),
+        }
+    }
+}
+
 /// `colmap` flags.
 #[derive(Debug, Args)]
 pub struct ColmapArgs {
@@ -849,12 +863,7 @@ impl ColmapArgs {
             output: self.output.clone(),
             sparse: self.sparse,
             dense: self.dense,
-            matcher: self.colmap.matcher,
-            overlap: self.colmap.overlap,
-            camera_model: self.colmap.camera_model.clone(),
-            camera_params: self.colmap.camera_params.clone(),
-            max_features: self.colmap.max_features,
-            mapper_option: self.colmap.mapper_option.clone(),
+            options: self.colmap.options(),
             force: self.force,
         }
     }
@@ -939,12 +948,7 @@ impl ReconstructArgs {
                     min_shared: self.min_shared,
                     min_inliers: self.min_inliers,
                 },
-                matcher: self.colmap.matcher,
-                overlap: self.colmap.overlap,
-                camera_model: self.colmap.camera_model.clone(),
-                camera_params: self.colmap.camera_params.clone(),
-                max_features: self.colmap.max_features,
-                mapper_option: self.colmap.mapper_option.clone(),
+                colmap: self.colmap.options(),
                 mapper: self.mapper,
                 mapping: self.mapping,
                 export,

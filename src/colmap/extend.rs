@@ -9,9 +9,9 @@
 //! mapper has finished (it is written to `sparse.next/` first).
 
 use super::{
-    check_export, check_settings, extract_and_match, fill_workspace, locate, mapper_args, ours_now,
-    p, read_models, read_record, remove_ours, write_project_ini, write_record, Colmap,
-    ColmapSettings, Record, Runner,
+    check_export, extract_and_match, fill_workspace, locate, mapper_args, ours_now, p, read_models,
+    read_record, remove_ours, write_project_ini, write_record, Colmap, ColmapSettings, Record,
+    Runner,
 };
 use crate::error::{Error, Result};
 use crate::fsutil;
@@ -129,7 +129,7 @@ pub fn round(
     new_images: Option<&[String]>,
     quiet: bool,
 ) -> Result<Record> {
-    check_settings(a)?;
+    a.options.check()?;
     let colmap = locate_with(kind)?;
     let (export, manifest, ws) = check_export(a)?;
     // The workspace stays locked until its record is written last.
@@ -148,7 +148,7 @@ pub fn round(
                 workspace: ws.clone(),
                 images: manifest.frames.len(),
                 masks,
-                camera_model: a.camera_model.clone(),
+                camera_model: a.options.camera_model.clone(),
                 ..Record::default()
             };
             _dir = Some(held);

@@ -49,6 +49,16 @@ pub struct ColmapSettings {
     pub sparse: bool,
     /// Then densify (needs a CUDA COLMAP).
     pub dense: bool,
+    /// COLMAP's options for the sparse model.
+    pub options: SparseOptions,
+    /// Replace the keyframer-made content of an existing workspace.
+    pub force: bool,
+}
+
+/// COLMAP's options that decide a sparse model, shared by `colmap` and `reconstruct`; each
+/// field is the flag of the same name.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SparseOptions {
     /// Feature matching strategy.
     pub matcher: Matcher,
     /// Sequential matching: how many following images each image is matched with.
@@ -61,8 +71,28 @@ pub struct ColmapSettings {
     pub max_features: Option<u32>,
     /// Extra mapper options `KEY=VALUE`, passed as `--Mapper.KEY VALUE`.
     pub mapper_option: Vec<String>,
-    /// Replace the keyframer-made content of an existing workspace.
-    pub force: bool,
+}
+
+impl SparseOptions {
+    /// Checks the options COLMAP would otherwise refuse only after the workspace is made.
+    pub fn check(&self) -> Result<()> {
+        if self.overlap == 0 {
+            return Err(Error::param("overlap", "must be at least 1"));
+        }
+        if !model::CAMERA_MODELS
+            .iter()
+            .any(|m| m.1 == self.camera_model)
+        {
+            let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
+            let msg = format!("`{}` is not one of {}", self.camera_model, names.join(", "));
+            return Err(Error::param("camera_model", msg));
+        }
+        mapper_keys(&self.mapper_option)?;
+        if let Some(params) = &self.camera_params {
+            camera_params(params)?;
+        }
+        Ok(())
+    }
 }
 
 /// Checks `--camera-params`: comma-separated finite numbers.
@@ -260,7 +290,7 @@ pub fn read_manifest(export: &Path) -> Result<Manifest> {
 
 /// Runs `keyframer colmap`; returns the record as written.
 pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
-    check_settings(a)?;
+    a.options.check()?;
     let colmap = locate()?;
     let (export, manifest, ws) = check_export(a)?;
     // The workspace stays locked until its record is written last.
@@ -275,7 +305,7 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         workspace: ws.clone(),
         images: manifest.frames.len(),
         masks,
-        camera_model: a.camera_model.clone(),
+        camera_model: a.options.camera_model.clone(),
         files: ours_now(&ws),
         started_unix_s: fsutil::now_unix_s(),
         // The record comes first, marked unfinished: a kill during a stage leaves a workspace
@@ -298,23 +328,6 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
     rec.files = ours_now(&ws);
     write_record(&ws, &rec)?;
     result.map(|()| rec)
-}
-
-/// The options COLMAP would otherwise refuse only after the workspace is made.
-fn check_settings(a: &ColmapSettings) -> Result<()> {
-    if a.overlap == 0 {
-        return Err(Error::param("overlap", "must be at least 1"));
-    }
-    if !model::CAMERA_MODELS.iter().any(|m| m.1 == a.camera_model) {
-        let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
-        let msg = format!("`{}` is not one of {}", a.camera_model, names.join(", "));
-        return Err(Error::param("camera_model", msg));
-    }
-    mapper_keys(&a.mapper_option)?;
-    if let Some(params) = &a.camera_params {
-        camera_params(params)?;
-    }
-    Ok(())
 }
 
 /// The export (absolute), its manifest (every listed image present) and the workspace folder,
@@ -428,16 +441,16 @@ fn extract_and_match(
         ("--database_path", p(&db)),
         ("--image_path", p(&ws.join("images"))),
         ("--ImageReader.single_camera", "1".into()),
-        ("--ImageReader.camera_model", a.camera_model.clone()),
+        ("--ImageReader.camera_model", a.options.camera_model.clone()),
         ("--SiftExtraction.use_gpu", gpu.into()),
     ];
     if rec.masks > 0 {
         fe.push(("--ImageReader.mask_path", p(&ws.join("masks"))));
     }
-    if let Some(n) = a.max_features {
+    if let Some(n) = a.options.max_features {
         fe.push(("--SiftExtraction.max_num_features", n.to_string()));
     }
-    if let Some(params) = &a.camera_params {
+    if let Some(params) = &a.options.camera_params {
         fe.push(("--ImageReader.camera_params", params.clone()));
     }
     if let Some(list) = image_list {
@@ -446,13 +459,16 @@ fn extract_and_match(
         fe.push(("--ImageReader.existing_camera_id", "1".into()));
     }
     rec.stages.push(runner.stage("feature_extractor", &fe)?);
-    rec.matcher = Some(a.matcher);
-    let (name, mut args) = match a.matcher {
+    rec.matcher = Some(a.options.matcher);
+    let (name, mut args) = match a.options.matcher {
         Matcher::Sequential => {
-            rec.overlap = Some(a.overlap);
+            rec.overlap = Some(a.options.overlap);
             (
                 "sequential_matcher",
-                vec![("--SequentialMatching.overlap", a.overlap.to_string())],
+                vec![(
+                    "--SequentialMatching.overlap",
+                    a.options.overlap.to_string(),
+                )],
             )
         }
         Matcher::Exhaustive => ("exhaustive_matcher", Vec::new()),
@@ -499,8 +515,8 @@ fn mapper_args(ws: &Path, output: &Path, a: &ColmapSettings) -> Result<Vec<(Stri
         ("--image_path".to_string(), p(&ws.join("images"))),
         ("--output_path".to_string(), p(output)),
     ];
-    let keys = mapper_keys(&a.mapper_option)?;
-    if a.camera_params.is_some() {
+    let keys = mapper_keys(&a.options.mapper_option)?;
+    if a.options.camera_params.is_some() {
         for k in [
             "--Mapper.ba_refine_focal_length",
             "--Mapper.ba_refine_extra_params",
@@ -848,16 +864,24 @@ fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> R
         ("", "database_path", p("database.db")),
         ("", "image_path", p("images")),
         ("ImageReader", "single_camera", "true".into()),
-        ("ImageReader", "camera_model", a.camera_model.clone()),
-        ("SequentialMatching", "overlap", a.overlap.to_string()),
+        (
+            "ImageReader",
+            "camera_model",
+            a.options.camera_model.clone(),
+        ),
+        (
+            "SequentialMatching",
+            "overlap",
+            a.options.overlap.to_string(),
+        ),
     ];
     if rec.masks > 0 {
         set.push(("ImageReader", "mask_path", p("masks")));
     }
-    if let Some(params) = &a.camera_params {
+    if let Some(params) = &a.options.camera_params {
         set.push(("ImageReader", "camera_params", params.clone()));
     }
-    if let Some(n) = a.max_features {
+    if let Some(n) = a.options.max_features {
         set.push(("SiftExtraction", "max_num_features", n.to_string()));
     }
     for (section, key, value) in set {

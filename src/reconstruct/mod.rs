@@ -14,7 +14,7 @@ pub mod db;
 pub mod repair;
 
 use crate::colmap::extend::{self, MapperKind, Mapping};
-use crate::colmap::{model, ColmapSettings, Matcher, Record};
+use crate::colmap::{model, ColmapSettings, Record, SparseOptions};
 use crate::error::{Error, Result};
 use crate::fsutil;
 use crate::manifest::{ExportSettings, Manifest};
@@ -96,18 +96,9 @@ pub struct Options {
     pub max_added: Budget,
     /// What makes a link weak.
     pub limits: Limits,
-    /// Feature matching strategy.
-    pub matcher: Matcher,
-    /// Sequential matching: how many following images each image is matched with.
-    pub overlap: u32,
-    /// COLMAP camera model shared by all images.
-    pub camera_model: String,
-    /// Known intrinsics, kept fixed by the mapper.
-    pub camera_params: Option<String>,
-    /// Maximum SIFT features per image.
-    pub max_features: Option<u32>,
-    /// Extra mapper options `KEY=VALUE`.
-    pub mapper_option: Vec<String>,
+    /// COLMAP's options (recorded inline, as the flags of the same names).
+    #[serde(flatten)]
+    pub colmap: SparseOptions,
     /// Incremental or global mapper.
     pub mapper: MapperKind,
     /// How later rounds map: continuing the largest model, or afresh.
@@ -370,10 +361,7 @@ fn check(o: &Options) -> Result<()> {
     if o.max_rounds == 0 {
         return Err(Error::param("max_rounds", "must be at least 1"));
     }
-    if o.overlap == 0 {
-        return Err(Error::param("overlap", "must be at least 1"));
-    }
-    Ok(())
+    o.colmap.check()
 }
 
 /// The per-frame numbers of the project that repairs read.
@@ -550,12 +538,12 @@ impl Job<'_> {
             .collect();
         let keys: Vec<usize> = by_frame.keys().copied().collect();
         let cws = self.ws.join(COLMAP_DIR);
-        let mut mapper_option = o.mapper_option.clone();
+        let mut options = o.colmap.clone();
         for (key, value) in defaults::MAPPER_OPTIONS {
             let given =
                 |m: &String| m.trim().trim_start_matches("Mapper.").split('=').next() == Some(key);
-            if !o.mapper_option.iter().any(given) {
-                mapper_option.push(format!("{key}={value}"));
+            if !o.colmap.mapper_option.iter().any(given) {
+                options.mapper_option.push(format!("{key}={value}"));
             }
         }
         let cs = ColmapSettings {
@@ -563,12 +551,7 @@ impl Job<'_> {
             output: Some(cws.clone()),
             sparse: true,
             dense: false,
-            matcher: o.matcher,
-            overlap: o.overlap,
-            camera_model: o.camera_model.clone(),
-            camera_params: o.camera_params.clone(),
-            max_features: o.max_features,
-            mapper_option,
+            options,
             force: true,
         };
         let earlier = crate::colmap::read_record(&cws).ok();
@@ -786,18 +769,25 @@ fn options_as_flags(o: &Options) -> Vec<String> {
         format!("--min-inliers {}", o.limits.min_inliers),
         format!("--mapper {}", o.mapper),
         format!("--mapping {}", o.mapping),
-        format!("--matcher {}", o.matcher),
-        format!("--overlap {}", o.overlap),
-        format!("--camera-model {}", o.camera_model),
+        format!("--matcher {}", o.colmap.matcher),
+        format!("--overlap {}", o.colmap.overlap),
+        format!("--camera-model {}", o.colmap.camera_model),
     ];
     f.extend(
-        o.camera_params
+        o.colmap
+            .camera_params
             .iter()
             .map(|p| format!("--camera-params {p}")),
     );
-    f.extend(o.max_features.iter().map(|n| format!("--max-features {n}")));
     f.extend(
-        o.mapper_option
+        o.colmap
+            .max_features
+            .iter()
+            .map(|n| format!("--max-features {n}")),
+    );
+    f.extend(
+        o.colmap
+            .mapper_option
             .iter()
             .map(|m| format!("--mapper-option {m}")),
     );
