@@ -175,15 +175,15 @@ pub fn round(
     let result = (|| -> Result<()> {
         match new_images {
             None => {
-                write_project_ini(&runner, &mut rec, a)?;
-                extract_and_match(&runner, &mut rec, a, None)?;
+                write_project_ini(&runner, &mut rec, &a.options)?;
+                extract_and_match(&runner, &mut rec, &a.options, None)?;
             }
             Some(new) => {
                 let list = ws.join(NEW_LIST);
                 let mut text = new.join("\n");
                 text.push('\n');
                 fsutil::write_atomic(&list, text.as_bytes())?;
-                extract_and_match(&runner, &mut rec, a, Some(&list))?;
+                extract_and_match(&runner, &mut rec, &a.options, Some(&list))?;
             }
         }
         let continue_from = match (new_images, mapping) {
@@ -249,7 +249,7 @@ fn map_into_sparse(
         None => next.clone(),
     };
     std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
-    let mut args = mapper_args(ws, &output, a)?;
+    let mut args = mapper_args(ws, &output, &a.options)?;
     if let Some(from) = continue_from {
         args.push(("--input_path".into(), p(from)));
     }

@@ -407,14 +407,14 @@ fn fill_workspace(
 /// `project.ini`, then the database alone, or the sparse stages (and the dense ones).
 fn run_stages(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
     let ws = runner.ws;
-    write_project_ini(runner, rec, a)?;
+    write_project_ini(runner, rec, &a.options)?;
     let db = ws.join("database.db");
     if !(a.sparse || a.dense) {
         rec.stages
             .push(runner.stage("database_creator", &[("--database_path", p(&db))])?);
         return Ok(());
     }
-    extract_and_match(runner, rec, a, None)?;
+    extract_and_match(runner, rec, &a.options, None)?;
     let best = map(runner, rec, a)?;
     if a.dense {
         densify(runner, rec, &ws.join(&best))?;
@@ -431,7 +431,7 @@ fn p(path: &Path) -> String {
 fn extract_and_match(
     runner: &Runner,
     rec: &mut Record,
-    a: &ColmapSettings,
+    o: &SparseOptions,
     image_list: Option<&Path>,
 ) -> Result<()> {
     let ws = runner.ws;
@@ -441,16 +441,16 @@ fn extract_and_match(
         ("--database_path", p(&db)),
         ("--image_path", p(&ws.join("images"))),
         ("--ImageReader.single_camera", "1".into()),
-        ("--ImageReader.camera_model", a.options.camera_model.clone()),
+        ("--ImageReader.camera_model", o.camera_model.clone()),
         ("--SiftExtraction.use_gpu", gpu.into()),
     ];
     if rec.masks > 0 {
         fe.push(("--ImageReader.mask_path", p(&ws.join("masks"))));
     }
-    if let Some(n) = a.options.max_features {
+    if let Some(n) = o.max_features {
         fe.push(("--SiftExtraction.max_num_features", n.to_string()));
     }
-    if let Some(params) = &a.options.camera_params {
+    if let Some(params) = &o.camera_params {
         fe.push(("--ImageReader.camera_params", params.clone()));
     }
     if let Some(list) = image_list {
@@ -459,16 +459,13 @@ fn extract_and_match(
         fe.push(("--ImageReader.existing_camera_id", "1".into()));
     }
     rec.stages.push(runner.stage("feature_extractor", &fe)?);
-    rec.matcher = Some(a.options.matcher);
-    let (name, mut args) = match a.options.matcher {
+    rec.matcher = Some(o.matcher);
+    let (name, mut args) = match o.matcher {
         Matcher::Sequential => {
-            rec.overlap = Some(a.options.overlap);
+            rec.overlap = Some(o.overlap);
             (
                 "sequential_matcher",
-                vec![(
-                    "--SequentialMatching.overlap",
-                    a.options.overlap.to_string(),
-                )],
+                vec![("--SequentialMatching.overlap", o.overlap.to_string())],
             )
         }
         Matcher::Exhaustive => ("exhaustive_matcher", Vec::new()),
@@ -485,7 +482,7 @@ fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> 
     let ws = runner.ws;
     let sparse = ws.join("sparse");
     std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
-    let margs = mapper_args(ws, &sparse, a)?;
+    let margs = mapper_args(ws, &sparse, &a.options)?;
     let margs: Vec<(&str, String)> = margs.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
     rec.stages.push(runner.stage("mapper", &margs)?);
     rec.models = read_models(ws, &sparse)?;
@@ -509,14 +506,14 @@ fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> 
 
 /// The mapper's arguments writing into `output` (known intrinsics kept fixed unless a mapper
 /// option says otherwise).
-fn mapper_args(ws: &Path, output: &Path, a: &ColmapSettings) -> Result<Vec<(String, String)>> {
+fn mapper_args(ws: &Path, output: &Path, o: &SparseOptions) -> Result<Vec<(String, String)>> {
     let mut margs = vec![
         ("--database_path".to_string(), p(&ws.join("database.db"))),
         ("--image_path".to_string(), p(&ws.join("images"))),
         ("--output_path".to_string(), p(output)),
     ];
-    let keys = mapper_keys(&a.options.mapper_option)?;
-    if a.options.camera_params.is_some() {
+    let keys = mapper_keys(&o.mapper_option)?;
+    if o.camera_params.is_some() {
         for k in [
             "--Mapper.ba_refine_focal_length",
             "--Mapper.ba_refine_extra_params",
@@ -845,7 +842,7 @@ impl Runner<'_> {
 
 /// Writes `project.ini` from `colmap project_generator`'s defaults with this workspace's paths
 /// (absolute) and settings filled in.
-fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
+fn write_project_ini(runner: &Runner, rec: &mut Record, o: &SparseOptions) -> Result<()> {
     let ws = runner.ws;
     let tmp = ws.join(crate::output::temp_name("project.ini".as_ref()));
     let stage = runner.stage(
@@ -864,24 +861,16 @@ fn write_project_ini(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> R
         ("", "database_path", p("database.db")),
         ("", "image_path", p("images")),
         ("ImageReader", "single_camera", "true".into()),
-        (
-            "ImageReader",
-            "camera_model",
-            a.options.camera_model.clone(),
-        ),
-        (
-            "SequentialMatching",
-            "overlap",
-            a.options.overlap.to_string(),
-        ),
+        ("ImageReader", "camera_model", o.camera_model.clone()),
+        ("SequentialMatching", "overlap", o.overlap.to_string()),
     ];
     if rec.masks > 0 {
         set.push(("ImageReader", "mask_path", p("masks")));
     }
-    if let Some(params) = &a.options.camera_params {
+    if let Some(params) = &o.camera_params {
         set.push(("ImageReader", "camera_params", params.clone()));
     }
-    if let Some(n) = a.options.max_features {
+    if let Some(n) = o.max_features {
         set.push(("SiftExtraction", "max_num_features", n.to_string()));
     }
     for (section, key, value) in set {
