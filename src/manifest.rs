@@ -4,7 +4,7 @@
 //! these without depending on the exporter.
 
 use crate::error::{Error, Result};
-use crate::names::{Names, Table};
+use crate::names::Names;
 use crate::numbers::positive;
 use crate::source::telemetry::Position;
 use crate::source::SourceKind;
@@ -240,20 +240,16 @@ pub struct MissingFrame {
     pub reason: String,
 }
 
-/// Image file format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Format {
-    /// JPEG with a quality setting.
-    Jpg,
-    /// Lossless PNG.
-    Png,
+crate::names::named_enum! {
+    /// Image file format.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum Format: "format" {
+        /// JPEG with a quality setting.
+        Jpg = "jpg": "JPEG",
+        /// Lossless PNG.
+        Png = "png": "PNG",
+    }
 }
-
-impl Names for Format {
-    const FLAG: &'static str = "format";
-    const NAMES: Table<Self> = &[("jpg", Format::Jpg, "JPEG"), ("png", Format::Png, "PNG")];
-}
-crate::names::impl_names!(Format, serde);
 
 impl Format {
     /// File extension (the format's name).
@@ -312,32 +308,17 @@ impl Manifest {
     }
 }
 
-/// Which runtime executes the network.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum SegRuntime {
-    /// OpenCV DNN on the CPU (every format OpenCV reads).
-    #[default]
-    Opencv,
-    /// ONNX Runtime through the `ort` crate (ONNX models only; library loaded at run time).
-    Ort,
+crate::names::named_enum! {
+    /// Which runtime executes the network.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+    pub enum SegRuntime: "mask-backend" {
+        /// OpenCV DNN on the CPU (every format OpenCV reads).
+        #[default]
+        Opencv = "opencv": "OpenCV DNN (every format OpenCV reads)",
+        /// ONNX Runtime through the `ort` crate (ONNX models only; library loaded at run time).
+        Ort = "ort": "ONNX Runtime (ONNX models; library from ORT_DYLIB_PATH)",
+    }
 }
-
-impl Names for SegRuntime {
-    const FLAG: &'static str = "mask-backend";
-    const NAMES: Table<Self> = &[
-        (
-            "opencv",
-            SegRuntime::Opencv,
-            "OpenCV DNN (every format OpenCV reads)",
-        ),
-        (
-            "ort",
-            SegRuntime::Ort,
-            "ONNX Runtime (ONNX models; library from ORT_DYLIB_PATH)",
-        ),
-    ];
-}
-crate::names::impl_names!(SegRuntime, serde);
 
 /// Segmentation masks of an export: the model, the hidden classes and the runtime.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

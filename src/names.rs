@@ -94,6 +94,31 @@ macro_rules! impl_names {
 
 pub(crate) use impl_names;
 
+/// An enum of unit values declared with its [`Names`] table, each value once:
+/// `Variant = "name": "help",` (its doc comment and attributes pass through); with
+/// [`impl_names!`]'s impls, serde included.
+macro_rules! named_enum {
+    (
+        $(#[$m:meta])*
+        pub enum $t:ident: $flag:literal {
+            $($(#[$vm:meta])* $v:ident = $name:literal: $help:literal,)+
+        }
+    ) => {
+        $(#[$m])*
+        pub enum $t {
+            $($(#[$vm])* $v,)+
+        }
+
+        impl $crate::names::Names for $t {
+            const FLAG: &'static str = $flag;
+            const NAMES: $crate::names::Table<Self> = &[$(($name, $t::$v, $help)),+];
+        }
+        $crate::names::impl_names!($t, serde);
+    };
+}
+
+pub(crate) use named_enum;
+
 #[cfg(test)]
 mod tests {
     use super::Names;

@@ -8,47 +8,34 @@ use crate::names::{Names, Table};
 use crate::numbers::{positive, seconds};
 use serde::{Deserialize, Serialize};
 
-/// Which implementation runs the per-frame kernels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Backend {
-    /// WGSL compute shaders through wgpu.
-    Gpu,
-    /// OpenCV's CPU functions (the reference).
-    Opencv,
+crate::names::named_enum! {
+    /// Which implementation runs the per-frame kernels.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum Backend: "backend" {
+        /// WGSL compute shaders through wgpu.
+        Gpu = "gpu": "WGSL compute shaders through wgpu",
+        /// OpenCV's CPU functions (the reference).
+        Opencv = "opencv": "OpenCV on the CPU",
+    }
 }
 
-impl Names for Backend {
-    const FLAG: &'static str = "backend";
-    const NAMES: Table<Self> = &[
-        ("gpu", Backend::Gpu, "WGSL compute shaders through wgpu"),
-        ("opencv", Backend::Opencv, "OpenCV on the CPU"),
-    ];
+crate::names::named_enum! {
+    /// The backend a command or workflow asks for. Projects record the [`Backend`] it resolved
+    /// to (`crate::gpu::resolve_backend`), never `auto`.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+    pub enum BackendChoice: "backend" {
+        /// The gpu backend where it pays off on this machine's adapter, else opencv
+        /// (`crate::gpu::auto_backend`).
+        #[default]
+        Auto = "auto": "gpu on a hardware adapter, opencv on a software one (lavapipe, llvmpipe, \
+            WARP, SwiftShader) or without an adapter; said once on stderr, shown by `keyframer info`",
+        /// The gpu backend (opencv when there is no usable adapter).
+        Gpu = "gpu": "WGSL compute shaders through wgpu (opencv, with a warning, without an \
+            adapter or after a GPU fault)",
+        /// The opencv backend.
+        Opencv = "opencv": "OpenCV on the CPU",
+    }
 }
-crate::names::impl_names!(Backend, serde);
-
-/// The backend a command or workflow asks for. Projects record the [`Backend`] it resolved to
-/// (`crate::gpu::resolve_backend`), never `auto`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum BackendChoice {
-    /// The gpu backend where it pays off on this machine's adapter, else opencv
-    /// (`crate::gpu::auto_backend`).
-    #[default]
-    Auto,
-    /// The gpu backend (opencv when there is no usable adapter).
-    Gpu,
-    /// The opencv backend.
-    Opencv,
-}
-
-impl Names for BackendChoice {
-    const FLAG: &'static str = "backend";
-    const NAMES: Table<Self> = &[
-        ("auto", BackendChoice::Auto, "gpu on a hardware adapter, opencv on a software one (lavapipe, llvmpipe, WARP, SwiftShader) or without an adapter; said once on stderr, shown by `keyframer info`"),
-        ("gpu", BackendChoice::Gpu, "WGSL compute shaders through wgpu (opencv, with a warning, without an adapter or after a GPU fault)"),
-        ("opencv", BackendChoice::Opencv, "OpenCV on the CPU"),
-    ];
-}
-crate::names::impl_names!(BackendChoice, serde);
 
 /// A sharpness measure.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -12,7 +12,6 @@ pub mod model;
 use crate::error::{Error, Result};
 use crate::fsutil;
 use crate::manifest::{Manifest, MANIFEST, MASK_DIR};
-use crate::names::{Names, Table};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -108,31 +107,16 @@ fn camera_params(text: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
-/// Feature matching strategy.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Matcher {
-    /// `sequential_matcher`: neighbours in file-name (video) order.
-    Sequential,
-    /// `exhaustive_matcher`: every pair.
-    Exhaustive,
+crate::names::named_enum! {
+    /// Feature matching strategy.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum Matcher: "matcher" {
+        /// `sequential_matcher`: neighbours in file-name (video) order.
+        Sequential = "sequential": "`sequential_matcher`: neighbours in file-name (video) order",
+        /// `exhaustive_matcher`: every pair.
+        Exhaustive = "exhaustive": "`exhaustive_matcher`: every pair",
+    }
 }
-
-impl Names for Matcher {
-    const FLAG: &'static str = "matcher";
-    const NAMES: Table<Self> = &[
-        (
-            "sequential",
-            Matcher::Sequential,
-            "`sequential_matcher`: neighbours in file-name (video) order",
-        ),
-        (
-            "exhaustive",
-            Matcher::Exhaustive,
-            "`exhaustive_matcher`: every pair",
-        ),
-    ];
-}
-crate::names::impl_names!(Matcher, serde);
 
 /// The COLMAP installation used.
 #[derive(Debug, Clone)]

@@ -6,7 +6,6 @@
 
 use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
-use crate::names::{Names, Table};
 use crate::numbers::positive;
 use crate::params::Metric;
 use serde::{Deserialize, Serialize};
@@ -60,27 +59,16 @@ pub fn apply(at: &Inputs, keys: &mut Vec<usize>, b: &BlurParams) -> Result<Appli
     })
 }
 
-/// What to do with blurry keyframes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BlurMode {
-    /// Drop keyframes that are blurrier than their neighbourhood.
-    Filter,
-    /// Move keyframes to the sharpest nearby frame.
-    Replace,
+crate::names::named_enum! {
+    /// What to do with blurry keyframes.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum BlurMode: "blur-mode" {
+        /// Drop keyframes that are blurrier than their neighbourhood.
+        Filter = "filter": "Drop blurry keyframes",
+        /// Move keyframes to the sharpest nearby frame.
+        Replace = "replace": "Move keyframes to the sharpest nearby frame",
+    }
 }
-
-impl Names for BlurMode {
-    const FLAG: &'static str = "blur-mode";
-    const NAMES: Table<Self> = &[
-        ("filter", Self::Filter, "Drop blurry keyframes"),
-        (
-            "replace",
-            Self::Replace,
-            "Move keyframes to the sharpest nearby frame",
-        ),
-    ];
-}
-crate::names::impl_names!(BlurMode, serde);
 
 /// Parameters of the blur sampler.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
