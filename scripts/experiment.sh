@@ -32,16 +32,8 @@ while [ $# -gt 0 ]; do
   esac
   shift
 done
-for tool in jq colmap ffmpeg; do
-  command -v "$tool" >/dev/null || { echo "experiment: $tool is missing: run scripts/setup.sh" >&2; exit 1; }
-done
-kf="${KEYFRAMER:-target/release/keyframer}"
-[ -x "$kf" ] || cargo build --release --quiet
-scene="${KEYFRAMER_SCENE:-target/release/keyframer-scene}"
-[ -x "$scene" ] || cargo build --release --quiet -p keyframer-scene
-mkdir -p "$work"
-results="$work/results.jsonl"
-: > "$results"
+name=experiment
+source scripts/experiment-setup.sh
 
 scene_args=(--size 640x360)
 if [ $smoke = 1 ]; then scene_args=(--size 320x180 --seconds 10 --blur-samples 2); fi

@@ -34,16 +34,8 @@ while [ $# -gt 0 ]; do
   esac
   shift
 done
-for tool in jq colmap ffmpeg; do
-  command -v "$tool" >/dev/null || { echo "reconstruct-experiment: $tool is missing: run scripts/setup.sh" >&2; exit 1; }
-done
-kf="${KEYFRAMER:-target/release/keyframer}"
-[ -x "$kf" ] || cargo build --release --quiet
-scene="${KEYFRAMER_SCENE:-target/release/keyframer-scene}"
-[ -x "$scene" ] || cargo build --release --quiet -p keyframer-scene
-mkdir -p "$work"
-results="$work/results.jsonl"
-: > "$results"
+name=reconstruct-experiment
+source scripts/experiment-setup.sh
 camera=(--camera-model PINHOLE --camera-params 224,224,160,90 --max-features 1024)
 mapper=(--mapper-option min_model_size=3 --mapper-option init_min_tri_angle=4)
 
