@@ -54,27 +54,15 @@ pub fn mapper_command(kind: MapperKind) -> &'static str {
 }
 
 /// Whether the installed COLMAP offers `command` (listed by `colmap help`).
-pub fn offers(colmap: &Colmap, command: &str) -> Result<bool> {
-    let out = std::process::Command::new(&colmap.bin)
-        .arg("help")
-        .stdin(std::process::Stdio::null())
-        .output()
-        .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", colmap.bin.display())))?;
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Ok(text
-        .lines()
-        .any(|l| l.split_whitespace().any(|w| w == command)))
+pub fn offers(colmap: &Colmap, command: &str) -> bool {
+    (colmap.help.lines()).any(|l| l.split_whitespace().any(|w| w == command))
 }
 
 /// Finds COLMAP and checks that it offers the mapper `kind`, saying what is missing.
 pub fn locate_with(kind: MapperKind) -> Result<Colmap> {
     let colmap = locate()?;
     let command = mapper_command(kind);
-    if !offers(&colmap, command)? {
+    if !offers(&colmap, command) {
         return Err(Error::param(
             "mapper",
             format!(
@@ -107,21 +95,8 @@ pub fn round(
     let mut rec = match new_images {
         None => {
             let (masks, held) = fill_workspace(&ws, &export, &manifest, a.force)?;
-            let rec = Record {
-                tool: "keyframer".into(),
-                tool_version: env!("CARGO_PKG_VERSION").into(),
-                colmap: colmap.bin.clone(),
-                colmap_version: colmap.version.clone(),
-                cuda: colmap.cuda,
-                export: export.clone(),
-                workspace: ws.clone(),
-                images: manifest.frames.len(),
-                masks,
-                camera_model: a.options.camera_model.clone(),
-                ..Record::default()
-            };
             _dir = Some(held);
-            rec
+            Record::new(&colmap, &export, &ws, manifest.frames.len(), masks, a)
         }
         Some(new) => {
             _lock = Some(crate::output::lock::folder(&ws)?);

@@ -127,6 +127,8 @@ pub struct Colmap {
     pub version: String,
     /// Whether the build has CUDA (dense stereo).
     pub cuda: bool,
+    /// What `colmap help` printed (its header and the commands it offers).
+    pub help: String,
 }
 
 /// Finds COLMAP (`KEYFRAMER_COLMAP`, else `colmap` on PATH) and reads its version and CUDA
@@ -172,7 +174,12 @@ pub fn locate() -> Result<Colmap> {
         "{name} ({})",
         if cuda { "with CUDA" } else { "without CUDA" }
     );
-    Ok(Colmap { bin, version, cuda })
+    Ok(Colmap {
+        bin,
+        version,
+        cuda,
+        help: text,
+    })
 }
 
 /// One COLMAP stage as run.
@@ -253,6 +260,33 @@ fn finished_default() -> bool {
     true
 }
 
+impl Record {
+    /// The record of a new workspace `ws` of `images` images and `masks` masks from `export`,
+    /// before any stage.
+    fn new(
+        colmap: &Colmap,
+        export: &Path,
+        ws: &Path,
+        images: usize,
+        masks: usize,
+        a: &ColmapSettings,
+    ) -> Record {
+        Record {
+            tool: "keyframer".into(),
+            tool_version: env!("CARGO_PKG_VERSION").into(),
+            colmap: colmap.bin.clone(),
+            colmap_version: colmap.version.clone(),
+            cuda: colmap.cuda,
+            export: export.to_path_buf(),
+            workspace: ws.to_path_buf(),
+            images,
+            masks,
+            camera_model: a.options.camera_model.clone(),
+            ..Record::default()
+        }
+    }
+}
+
 /// Reads a workspace's `colmap.json`.
 pub fn read_record(workspace: &Path) -> Result<Record> {
     let p = workspace.join(RECORD);
@@ -280,23 +314,13 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
     // The workspace stays locked until its record is written last.
     let (masks, _held) = fill_workspace(&ws, &export, &manifest, a.force)?;
     let mut rec = Record {
-        tool: "keyframer".into(),
-        tool_version: env!("CARGO_PKG_VERSION").into(),
-        colmap: colmap.bin.clone(),
-        colmap_version: colmap.version.clone(),
-        cuda: colmap.cuda,
-        export: export.clone(),
-        workspace: ws.clone(),
-        images: manifest.frames.len(),
-        masks,
-        camera_model: a.options.camera_model.clone(),
         files: ours_now(&ws),
         started_unix_s: fsutil::now_unix_s(),
         // The record comes first, marked unfinished: a kill during a stage leaves a workspace
         // that a later `--force` knows as keyframer's (files appearing after `started_unix_s`
         // are COLMAP's).
         finished: false,
-        ..Record::default()
+        ..Record::new(&colmap, &export, &ws, manifest.frames.len(), masks, a)
     };
     write_record(&ws, &rec)?;
     rec.finished = true;

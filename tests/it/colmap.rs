@@ -113,40 +113,6 @@ fn workspace_refused_without_force_and_replaced_with_it() {
     );
 }
 
-/// A stand-in for COLMAP: says it has no CUDA, writes a project file, and for `mapper` a text
-/// model of three images under OUTPUT/0; fails the stage named in $FAIL_STAGE with status 3 and
-/// sleeps (printing its pid) in the stage named in $SLEEP_STAGE.
-fn fake_colmap(dir: &Path) -> PathBuf {
-    let p = dir.join("fake-colmap");
-    std::fs::write(
-        &p,
-        r##"#!/bin/sh
-stage="$1"; shift
-out=""
-while [ $# -gt 0 ]; do
-  case "$1" in --output_path) out="$2";; esac
-  shift
-done
-echo "fake $stage"
-if [ "$stage" = "$FAIL_STAGE" ]; then echo "boom" >&2; exit 3; fi
-if [ "$stage" = "$SLEEP_STAGE" ]; then echo "pid $$"; exec sleep 120; fi
-case "$stage" in
-  help|-h) printf 'COLMAP 3.8 -- fake\n  (Commit Unknown on Unknown without CUDA)\n';;
-  project_generator) printf 'database_path=\nimage_path=\n[ImageReader]\nmask_path=\n' > "$out";;
-  mapper)
-    mkdir -p "$out/0"
-    echo "1 SIMPLE_RADIAL 320 240 380 160 120 0" > "$out/0/cameras.txt"
-    printf '1 1 0 0 0 0 0 0 1 frame_000000.jpg\n\n2 1 0 0 0 -1 0 0 1 frame_000005.jpg\n\n3 1 0 0 0 -2 0 0 1 frame_000010.jpg\n\n' > "$out/0/images.txt"
-    echo "# no points" > "$out/0/points3D.txt";;
-esac
-"##,
-    )
-    .unwrap();
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
-    p
-}
-
 #[test]
 fn dense_without_cuda_explains_and_keeps_sparse_and_failed_stage_named() {
     let d = tempfile::tempdir().unwrap();

@@ -70,8 +70,8 @@ fn project(name: &str, args: &[&str]) -> PathBuf {
     p
 }
 
-/// `keyframer reconstruct PROJECT --out WS --json` with the scene's camera and modest features.
-fn reconstruct(project: &Path, ws: &Path, extra: &[&str]) -> std::process::Output {
+/// `reconstruct PROJECT --out WS` with the scene's camera, modest features and `extra`.
+fn reconstruct_args<'a>(project: &'a Path, ws: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
     let mut args = vec![
         "reconstruct",
         s(project),
@@ -79,11 +79,19 @@ fn reconstruct(project: &Path, ws: &Path, extra: &[&str]) -> std::process::Outpu
         s(ws),
         "--max-features",
         "1024",
-        "--json",
     ];
     args.extend_from_slice(&CAMERA);
     args.extend_from_slice(extra);
-    kf_loud(&args)
+    args
+}
+
+/// `keyframer reconstruct PROJECT --out WS --json` with the scene's camera and modest features.
+fn reconstruct(project: &Path, ws: &Path, extra: &[&str]) -> std::process::Output {
+    kf_loud(&reconstruct_args(
+        project,
+        ws,
+        &[&["--json"], extra].concat(),
+    ))
 }
 
 fn summary(out: &std::process::Output) -> serde_json::Value {
@@ -105,10 +113,7 @@ fn path_length(dir: &Path, a: usize, b: usize) -> f64 {
     let poses = crate::scene::poses(dir);
     poses[a..=b]
         .windows(2)
-        .map(|w| {
-            let (p, q) = (&w[0].1, &w[1].1);
-            ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
-        })
+        .map(|w| crate::scene::distance(&w[0].1, &w[1].1))
         .sum()
 }
 
@@ -400,18 +405,7 @@ fn real_break_ends_with_two_models_and_names_it() {
         "{ranges:?}"
     );
     // The text summary of the finished loop names the break with its frames and times.
-    let mut args = vec![
-        "reconstruct",
-        s(&p),
-        "--out",
-        s(&ws),
-        "--max-features",
-        "1024",
-        "--max-rounds",
-        "6",
-    ];
-    args.extend_from_slice(&CAMERA);
-    let text = kf_ok(&args);
+    let text = kf_ok(&reconstruct_args(&p, &ws, &["--max-rounds", "6"]));
     assert!(text.contains("break:") && text.contains(" s – "), "{text}");
 }
 
@@ -425,21 +419,8 @@ fn killed_run_resumes_to_the_same_keyframes() {
     let uninterrupted = &sparse().summary;
     let d = tempfile::tempdir().unwrap();
     let ws = d.path().join("ws");
-    let mut args: Vec<String> = [
-        "reconstruct",
-        s(&p),
-        "--out",
-        s(&ws),
-        "--max-features",
-        "1024",
-        "--quiet",
-    ]
-    .iter()
-    .map(|a| a.to_string())
-    .collect();
-    args.extend(CAMERA.iter().map(|a| a.to_string()));
     let mut child = Command::new(env!("CARGO_BIN_EXE_keyframer"))
-        .args(&args)
+        .args(reconstruct_args(&p, &ws, &["--quiet"]))
         .spawn()
         .unwrap();
     // Kill it once the second round has started (its export or COLMAP running).
@@ -524,31 +505,6 @@ fn changed_input_and_foreign_workspace_are_refused() {
     assert!(!ws.exists());
 }
 
-/// A stand-in COLMAP that offers the incremental mapper and fails at `sequential_matcher`.
-fn failing_colmap(dir: &Path) -> PathBuf {
-    let p = dir.join("failing-colmap");
-    std::fs::write(
-        &p,
-        r##"#!/bin/sh
-stage="$1"; shift
-out=""
-while [ $# -gt 0 ]; do
-  case "$1" in --output_path) out="$2";; esac
-  shift
-done
-case "$stage" in
-  help|-h) printf 'COLMAP 3.8 -- fake\n  (Commit Unknown on Unknown without CUDA)\nAvailable commands:\n  feature_extractor\n  mapper\n';;
-  project_generator) printf 'database_path=\nimage_path=\n' > "$out";;
-  sequential_matcher) echo "matcher broke" >&2; exit 3;;
-esac
-"##,
-    )
-    .unwrap();
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
-    p
-}
-
 #[test]
 fn preview_project_falls_back_to_time_and_a_failing_stage_is_named() {
     let d = tempfile::tempdir().unwrap();
@@ -556,10 +512,11 @@ fn preview_project_falls_back_to_time_and_a_failing_stage_is_named() {
     let p = d.path().join("preview.json");
     kf_ok(&["select", s(&clip), "-o", s(&p), "--preview", "--every", "1"]);
     let ws = d.path().join("ws");
-    let fake = failing_colmap(d.path());
+    let fake = fake_colmap(d.path());
     let o = Command::new(env!("CARGO_BIN_EXE_keyframer"))
         .args(["reconstruct", s(&p), "--out", s(&ws)])
         .env("KEYFRAMER_COLMAP", &fake)
+        .env("FAIL_STAGE", "sequential_matcher")
         .output()
         .unwrap();
     let (code, err) = code_and_stderr(&o);

@@ -66,6 +66,11 @@ pub fn poses(dir: &Path) -> Vec<(f64, [f64; 7])> {
         .collect()
 }
 
+/// Distance between the camera centres of two poses.
+pub fn distance(p: &[f64; 7], q: &[f64; 7]) -> f64 {
+    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+}
+
 /// Camera-to-world rotation matrix (rows) of a quaternion (x, y, z, w).
 pub fn rotation(q: &[f64]) -> [[f64; 3]; 3] {
     let (x, y, z, w) = (q[0], q[1], q[2], q[3]);
@@ -489,10 +494,7 @@ fn scene_same_seed_same_output() {
 fn spacing_std(poses: &[(f64, [f64; 7])], keys: &[usize]) -> f64 {
     let d: Vec<f64> = keys
         .windows(2)
-        .map(|w| {
-            let (a, b) = (&poses[w[0]].1, &poses[w[1]].1);
-            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-        })
+        .map(|w| distance(&poses[w[0]].1, &poses[w[1]].1))
         .collect();
     let m = d.iter().sum::<f64>() / d.len() as f64;
     (d.iter().map(|x| (x - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt()
