@@ -218,12 +218,14 @@ impl Workflow {
             let msg = format!("version {v} is not supported (this build reads {VERSION})");
             return Err(file.error("version", msg));
         }
-        let sample = raw
+        let mut sample = raw
             .sample
             .iter()
             .enumerate()
             .map(|(i, t)| sample_from_table(&file, i, t))
             .collect::<Result<Vec<_>>>()?;
+        let dir = file.path().parent().unwrap_or(Path::new("."));
+        sample.iter_mut().for_each(|s| s.resolve_files(dir));
         let content = WorkflowFile {
             version: raw.version,
             analysis: raw.analysis.clone(),
@@ -241,8 +243,14 @@ impl Workflow {
             })
             .map_err(|e| locate(&file, e))?;
         let mut inputs = Inputs::none();
+        for (i, step) in w.sample.iter().enumerate() {
+            for (key, f) in step.files() {
+                step.check_files()
+                    .map_err(|e| file.error(&format!("sample[{i}].{key}"), e.to_string()))?;
+                inputs.add("area file", f);
+            }
+        }
         if let Some(t) = &an.telemetry {
-            let dir = file.path().parent().unwrap_or(Path::new("."));
             if !dir.join(t).is_file() {
                 let msg = format!("{}: no such telemetry file", dir.join(t).display());
                 return Err(file.error("analysis.telemetry", msg));
