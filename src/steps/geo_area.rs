@@ -275,12 +275,12 @@ fn polygon(rings: &[RawRing]) -> std::result::Result<Polygon, String> {
         let at = &ring.at;
         let mut pts = ring.lon_lat.clone();
         for (i, &(lon, lat)) in pts.iter().enumerate() {
-            if !(lat.abs() <= 90.0) {
+            if !(-90.0..=90.0).contains(&lat) {
                 return Err(format!(
                     "{at}, coordinate {i}: latitude {lat} is outside -90..90"
                 ));
             }
-            if !(lon.abs() <= 540.0) {
+            if !(-540.0..=540.0).contains(&lon) {
                 return Err(format!(
                     "{at}, coordinate {i}: longitude {lon} is outside -540..540"
                 ));
