@@ -1103,4 +1103,22 @@ mod tests {
         );
         assert!((d - 111.1709).abs() < 1e-4, "{d}");
     }
+
+    #[test]
+    fn across_the_antimeridian_positions_and_distances_take_the_short_way() {
+        let fix = |t_s: f64, lon_deg: f64| Fix {
+            t_s,
+            lat_deg: 0.0,
+            lon_deg,
+            ..Fix::default()
+        };
+        let fixes = [fix(0.0, 179.9999), fix(1.0, -179.9997)];
+        let lon = |t: f64| at(&fixes, t).unwrap().lon_deg;
+        assert!((lon(0.125) - 179.99995).abs() < 1e-9, "{}", lon(0.125));
+        assert!((lon(0.25).abs() - 180.0).abs() < 1e-9, "{}", lon(0.25));
+        assert!((lon(0.75) + 179.9998).abs() < 1e-9, "{}", lon(0.75));
+        // 0.0004° of longitude on the equator: 44.53 m, not the globe's circumference.
+        let d = distance_m(&fixes[0], &fixes[1]);
+        assert!((d - 44.528).abs() < 0.01, "{d}");
+    }
 }

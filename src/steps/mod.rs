@@ -1031,6 +1031,31 @@ mod tests {
     }
 
     #[test]
+    fn geo_area_goes_through_its_flags_and_reads_its_file_with_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("area.geojson");
+        let square = r#"{"type":"Polygon","coordinates":[[[8,47],[8.1,47],[8.1,47.1],[8,47]]]}"#;
+        std::fs::write(&file, square).unwrap();
+        let step = Step::GeoArea {
+            file: file.clone(),
+            buffer_m: Some(-12.5),
+        };
+        let flags = step.to_flags();
+        let pair = |a: &str, b: &str| flags.windows(2).any(|w| w[0] == a && w[1] == b);
+        assert!(pair("--geo-area", &file.display().to_string()), "{flags:?}");
+        assert!(pair("--geo-area-buffer", "-12.5"), "{flags:?}");
+        assert_eq!(parse_flags(&flags), [step]);
+        std::fs::write(&file, "{").unwrap();
+        let mut v = FlagValues::default();
+        v.set("geo-area", vec![file.display().to_string()]);
+        let e = from_flags(&v).unwrap_err().to_string();
+        assert!(
+            e.contains("area.geojson: not a usable area file: line 1"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn to_flags_gives_the_step_back_through_the_flags() {
         use crate::params::Metric;
         let bound = |t: &str| Some(BoundArg(t.parse().unwrap()));

@@ -559,4 +559,17 @@ fn geo_area_workflow_report_and_review() {
     assert_eq!(code, 0, "{err}");
     assert_eq!(got, keyframes(&p));
     srv.stop();
+    // Without positions in the cache the step is offered disabled, saying why, with no
+    // `select` command (select reads the same telemetry).
+    let pan = crate::review::pan_copy(&tmp.path().join("pan"));
+    let srv = Served::start(&pan, &[]);
+    let (code, v) = srv.call("POST", "/api/apply", Some(&body));
+    assert_eq!(code, 200, "{v}");
+    let state = &v["steps_state"][0];
+    assert_eq!(state["enabled"], false, "{state}");
+    assert!(
+        state["reason"].as_str().unwrap().contains("--telemetry"),
+        "{state}"
+    );
+    assert!(state["command"].is_null(), "{state}");
 }
