@@ -187,7 +187,8 @@ pub struct Workflow {
     pub path: PathBuf,
     /// The parsed file.
     pub file: WorkflowFile,
-    /// FNV-1a hash of the file's text: a changed workflow redoes finished inputs.
+    /// FNV-1a hash of the file's text and its steps' files (`geo-area`): a changed workflow
+    /// redoes finished inputs.
     pub hash: u64,
     /// How movement is measured (from `[analysis]`, defaults filled in).
     pub movement: MovementRequest,
@@ -243,10 +244,13 @@ impl Workflow {
             })
             .map_err(|e| locate(&file, e))?;
         let mut inputs = Inputs::none();
+        // The steps' files count as the workflow's text: a changed area redoes finished inputs.
+        let mut hashed = file.text().as_bytes().to_vec();
         for (i, step) in w.sample.iter().enumerate() {
             for (key, f) in step.files() {
-                step.check_files()
-                    .map_err(|e| file.error(&format!("sample[{i}].{key}"), e.to_string()))?;
+                let bad = |e: Error| file.error(&format!("sample[{i}].{key}"), e.to_string());
+                step.check_files().map_err(bad)?;
+                hashed.extend(std::fs::read(f).map_err(|e| bad(Error::io(f, e)))?);
                 inputs.add("area file", f);
             }
         }
@@ -272,7 +276,7 @@ impl Workflow {
         Ok(Workflow {
             path: path.to_path_buf(),
             file: content.clone(),
-            hash: crate::output::fnv1a64(file.text().as_bytes()),
+            hash: crate::output::fnv1a64(&hashed),
             movement,
             backend: an.backend.unwrap_or_default(),
             exports,

@@ -498,6 +498,23 @@ fn geo_area_workflow_report_and_review() {
         .join(keyframer::batch::folder_name(&clip))
         .join("project.json");
     assert_eq!(keyframes(&ran), keys);
+    // A changed area file redoes the finished input: the hole filled, more frames kept.
+    let filled = format!(
+        "{{\"type\": \"Polygon\", \"coordinates\": {}}}",
+        polygon_json(&vec![holed[0].clone()])
+    );
+    std::fs::write(&area, filled).unwrap();
+    kf_ok(&["run", s(&rel), s(&clip), "--out", s(&runs)]);
+    let more = keyframes(&ran);
+    assert!(more.len() > keys.len(), "{more:?} vs {keys:?}");
+    std::fs::write(
+        &area,
+        format!(
+            "{{\"type\": \"Polygon\", \"coordinates\": {}}}",
+            polygon_json(&holed)
+        ),
+    )
+    .unwrap();
     // A workflow naming a broken area is refused at its key.
     let bad = tmp.path().join("bad.geojson");
     std::fs::write(&bad, "{\"type\": \"Polygon\"}").unwrap();
