@@ -666,7 +666,8 @@ fn step_arg(f: &keyframer::steps::Flag) -> clap::Arg {
     let Some(name) = f.value_name else {
         return arg.action(clap::ArgAction::SetTrue);
     };
-    let mut arg = arg.value_name(name);
+    // Negative numbers are values (`--geo-area-buffer -5`), not flags.
+    let mut arg = arg.value_name(name).allow_negative_numbers(true);
     if let Some(d) = f.default {
         arg = arg.default_value(d);
     }

@@ -187,7 +187,8 @@ pub struct Workflow {
     pub path: PathBuf,
     /// The parsed file.
     pub file: WorkflowFile,
-    /// FNV-1a hash of the file's text: a changed workflow redoes finished inputs.
+    /// FNV-1a hash of the file's text and its steps' files (`geo-area`): a changed workflow
+    /// redoes finished inputs.
     pub hash: u64,
     /// How movement is measured (from `[analysis]`, defaults filled in).
     pub movement: MovementRequest,
@@ -218,12 +219,14 @@ impl Workflow {
             let msg = format!("version {v} is not supported (this build reads {VERSION})");
             return Err(file.error("version", msg));
         }
-        let sample = raw
+        let mut sample = raw
             .sample
             .iter()
             .enumerate()
             .map(|(i, t)| sample_from_table(&file, i, t))
             .collect::<Result<Vec<_>>>()?;
+        let dir = file.path().parent().unwrap_or(Path::new("."));
+        sample.iter_mut().for_each(|s| s.resolve_files(dir));
         let content = WorkflowFile {
             version: raw.version,
             analysis: raw.analysis.clone(),
@@ -241,8 +244,17 @@ impl Workflow {
             })
             .map_err(|e| locate(&file, e))?;
         let mut inputs = Inputs::none();
+        // The steps' files count as the workflow's text: a changed area redoes finished inputs.
+        let mut hashed = file.text().as_bytes().to_vec();
+        for (i, step) in w.sample.iter().enumerate() {
+            for (key, f) in step.files() {
+                let bad = |e: Error| file.error(&format!("sample[{i}].{key}"), e.to_string());
+                step.check_files().map_err(bad)?;
+                hashed.extend(std::fs::read(f).map_err(|e| bad(Error::io(f, e)))?);
+                inputs.add("area file", f);
+            }
+        }
         if let Some(t) = &an.telemetry {
-            let dir = file.path().parent().unwrap_or(Path::new("."));
             if !dir.join(t).is_file() {
                 let msg = format!("{}: no such telemetry file", dir.join(t).display());
                 return Err(file.error("analysis.telemetry", msg));
@@ -264,7 +276,7 @@ impl Workflow {
         Ok(Workflow {
             path: path.to_path_buf(),
             file: content.clone(),
-            hash: crate::output::fnv1a64(file.text().as_bytes()),
+            hash: crate::output::fnv1a64(&hashed),
             movement,
             backend: an.backend.unwrap_or_default(),
             exports,

@@ -1,11 +1,12 @@
 //! Flight map for the report: the telemetry path on a local east/north plane (metres, north up,
 //! one scale on both axes; no tile server, so it works offline), the keyframes marked, and each
-//! keyframe's ground footprint drawn while the pointer is on its mark (CSS only).
+//! keyframe's ground footprint drawn while the pointer is on its mark (CSS only), and the
+//! outline of a `geo-area` step's area (holes too) when its file still holds what it held.
 
 use super::camera::{bounds, plot_transform};
 use crate::project::Project;
 use crate::source::telemetry::{east_north_m, known_camera};
-use crate::steps::{footprint, Applied};
+use crate::steps::{footprint, geo_area, Applied};
 use std::fmt::{self, Write};
 
 const SIZE: f64 = 520.0;
@@ -27,6 +28,8 @@ pub struct FlightMap {
     pub path: Vec<(usize, f64, f64)>,
     /// The keyframes with a position.
     pub keys: Vec<MapKey>,
+    /// The geo-area step's polygons, each as its rings (outer first, then holes), east/north.
+    pub area: Vec<Vec<Vec<(f64, f64)>>>,
 }
 
 impl FlightMap {
@@ -85,7 +88,8 @@ impl FlightMap {
                 })
             })
             .collect();
-        Some(FlightMap { path, keys })
+        let area = area_rings(pr, origin);
+        Some(FlightMap { path, keys, area })
     }
 
     /// The inline SVG (`id="flight-map"`).
@@ -103,6 +107,8 @@ impl FlightMap {
             extent.push((k.frame, k.at.0, k.at.1));
             extent.extend(k.footprint.iter().map(|&(e, n)| (k.frame, e, n)));
         }
+        let area = self.area.iter().flatten().flatten();
+        extent.extend(area.map(|&(e, n)| (0, e, n)));
         let to = plot_transform(&extent);
         let keys = self.keys.len();
         writeln!(
@@ -113,6 +119,18 @@ impl FlightMap {
             let (x, y) = to(e, n);
             format!("{x:.1},{y:.1}")
         };
+        if !self.area.is_empty() {
+            // One path, even-odd filled: holes stay open.
+            let rings = self.area.iter().flatten();
+            let d: Vec<String> = rings
+                .map(|r| format!("M{}Z", r.iter().map(point).collect::<Vec<_>>().join(" L")))
+                .collect();
+            writeln!(
+                s,
+                r##"<path id="geo-area" d="{}" fill="#1f6fd1" fill-opacity="0.08" fill-rule="evenodd" stroke="#1f6fd1" stroke-width="1.5" stroke-dasharray="5 3"><title>geo-area</title></path>"##,
+                d.join(" ")
+            )?;
+        }
         let line: Vec<String> = self.path.iter().map(|&(_, e, n)| point(&(e, n))).collect();
         writeln!(
             s,
@@ -136,6 +154,38 @@ impl FlightMap {
             x = SIZE - 20.0
         )
     }
+}
+
+/// The rings of the geo-area step in the history (east/north metres from `origin`), read again
+/// from its file; none (logged) when the file is gone or no longer holds what it held.
+fn area_rings(pr: &Project, origin: (f64, f64)) -> Vec<Vec<Vec<(f64, f64)>>> {
+    let Some((path, fnv)) = pr.history.iter().find_map(|h| match &h.applied {
+        Applied::GeoArea { path, fnv1a64, .. } => Some((path, fnv1a64)),
+        _ => None,
+    }) else {
+        return Vec::new();
+    };
+    let area = match geo_area::Area::load(path) {
+        Ok(a) if a.checksum() == *fnv => a,
+        Ok(_) => {
+            log::warn!(
+                "flight map without the geo-area: {} changed since the selection",
+                path.display()
+            );
+            return Vec::new();
+        }
+        Err(e) => {
+            log::warn!("flight map without the geo-area: {e}");
+            return Vec::new();
+        }
+    };
+    (area.polygons.iter())
+        .map(|p| {
+            (p.rings_lat_lon().into_iter())
+                .map(|r| r.into_iter().map(|v| east_north_m(origin, v)).collect())
+                .collect()
+        })
+        .collect()
 }
 
 /// A scale bar of a round length (1, 2 or 5 × 10^k metres) about a fifth of the plot wide.
@@ -193,6 +243,7 @@ mod tests {
                 at: (0.0, 100.0),
                 footprint: vec![(-10.0, 90.0), (10.0, 90.0), (10.0, 110.0), (-10.0, 110.0)],
             }],
+            area: Vec::new(),
         };
         let svg = map.svg();
         assert!(svg.contains(r#"data-keyframes="1""#) && svg.contains(r#"data-frame="2""#));

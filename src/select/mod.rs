@@ -146,6 +146,9 @@ impl SelectSettings {
             };
             inputs.add(what, file);
         }
+        for (_, file) in self.steps.iter().flat_map(Step::files) {
+            inputs.add("area file", file);
+        }
         inputs
     }
 
@@ -305,6 +308,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         &metadata,
         &known.damaged,
     )?;
+    steps::geo_area::note_changes(&known.history, &history);
     let project = Project {
         schema_version: SCHEMA_VERSION,
         tool_version: env!("CARGO_PKG_VERSION").into(),

@@ -652,13 +652,23 @@ pub fn distance_m(a: &Fix, b: &Fix) -> f64 {
 }
 
 /// East and north metres from `a` to `b` (latitude, longitude in degrees), on the tangent plane
-/// with the ellipsoid's radii at their mean latitude (see [`distance_m`]).
+/// with the ellipsoid's radii at their mean latitude (see [`distance_m`]); east the short way
+/// round (across the antimeridian when that is shorter).
 pub fn east_north_m(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
     let lat = 0.5 * (a.0 + b.0);
     let (meridian, prime) = wgs84_radii(lat);
     let north = (b.0 - a.0).to_radians() * meridian;
-    let east = (b.1 - a.1).to_radians() * prime * lat.to_radians().cos();
+    let east = short_deg(b.1 - a.1).to_radians() * prime * lat.to_radians().cos();
     (east, north)
+}
+
+/// An angle difference in degrees the short way round, in -180..180.
+pub(crate) fn short_deg(d: f64) -> f64 {
+    if d.abs() <= 180.0 {
+        d
+    } else {
+        (d + 540.0).rem_euclid(360.0) - 180.0
+    }
 }
 
 /// The fix at time `t_s`, linear between the two entries around it (positions, altitudes and
@@ -686,13 +696,17 @@ pub fn at(fixes: &[Fix], t_s: f64) -> Option<Fix> {
     Some(Fix {
         t_s,
         lat_deg: mix(a.lat_deg, b.lat_deg),
-        lon_deg: mix(a.lon_deg, b.lon_deg),
+        // The short way round, back into -180..180: across the antimeridian, not the globe.
+        lon_deg: {
+            let lon = mix(a.lon_deg, a.lon_deg + short_deg(b.lon_deg - a.lon_deg));
+            lon - 360.0 * (lon / 360.0).round()
+        },
         rel_alt_m: mix_opt(a.rel_alt_m, b.rel_alt_m),
         abs_alt_m: mix_opt(a.abs_alt_m, b.abs_alt_m),
         gimbal_pitch_deg: mix_opt(a.gimbal_pitch_deg, b.gimbal_pitch_deg),
         gimbal_yaw_deg: match (a.gimbal_yaw_deg, b.gimbal_yaw_deg) {
             // The short way round: 350° to 10° passes north.
-            (Some(x), Some(y)) => Some(mix(x, x + (y - x + 540.0).rem_euclid(360.0) - 180.0)),
+            (Some(x), Some(y)) => Some(mix(x, x + short_deg(y - x))),
             (x, y) => x.or(y),
         },
         ..a.clone()
@@ -1088,5 +1102,23 @@ mod tests {
             },
         );
         assert!((d - 111.1709).abs() < 1e-4, "{d}");
+    }
+
+    #[test]
+    fn across_the_antimeridian_positions_and_distances_take_the_short_way() {
+        let fix = |t_s: f64, lon_deg: f64| Fix {
+            t_s,
+            lat_deg: 0.0,
+            lon_deg,
+            ..Fix::default()
+        };
+        let fixes = [fix(0.0, 179.9999), fix(1.0, -179.9997)];
+        let lon = |t: f64| at(&fixes, t).unwrap().lon_deg;
+        assert!((lon(0.125) - 179.99995).abs() < 1e-9, "{}", lon(0.125));
+        assert!((lon(0.25).abs() - 180.0).abs() < 1e-9, "{}", lon(0.25));
+        assert!((lon(0.75) + 179.9998).abs() < 1e-9, "{}", lon(0.75));
+        // 0.0004° of longitude on the equator: 44.53 m, not the globe's circumference.
+        let d = distance_m(&fixes[0], &fixes[1]);
+        assert!((d - 44.528).abs() < 0.01, "{d}");
     }
 }

@@ -13,6 +13,7 @@ mod every_nth;
 pub mod flags;
 pub mod footprint;
 mod fps;
+pub mod geo_area;
 pub mod geo_distance;
 mod history;
 mod manual;
@@ -176,10 +177,11 @@ impl Kind {
 /// Every kind of step in keyframer's chain order. The flags, the order [`check_order`] enforces,
 /// the history's step ids and the review page's step list come from here; what a step reads
 /// from the analysis is its [`Step::needs`], which `select`'s plan and `review` read.
-pub static STEPS: [Kind; 9] = [
+pub static STEPS: [Kind; 10] = [
     Kind::new("boundaries", boundaries::FLAGS, boundaries::from_flags),
     Kind::new("stationary", stationary::FLAGS, stationary::from_flags),
     Kind::new("spacing", spacing::FLAGS, spacing::from_flags),
+    Kind::new("geo-area", geo_area::FLAGS, geo_area::from_flags).required("file"),
     Kind::new(
         "geo-distance",
         geo_distance::FLAGS,
@@ -241,6 +243,7 @@ pub fn from_flags(v: &FlagValues) -> Result<Vec<Step>> {
     for kind in &STEPS {
         if let Some(step) = (kind.read)(v)? {
             step.validate().map_err(flag_error)?;
+            step.check_files()?;
             steps.push(step);
         }
     }
@@ -327,6 +330,14 @@ pub enum Step {
         /// Pixels of accumulated movement per keyframe, `auto`, or a keyframe count (`60kf`).
         threshold: Threshold,
     },
+    /// Keep the candidates whose telemetry position lies inside the area of `file` (GeoJSON
+    /// or KML polygons), grown or shrunk by `buffer_m` metres.
+    GeoArea {
+        /// The area's file; in a workflow relative to the workflow's folder.
+        file: std::path::PathBuf,
+        /// Metres the area grows (> 0) or shrinks (< 0) by.
+        buffer_m: Option<f64>,
+    },
     /// A keyframe each time the camera has moved `metres` (telemetry positions).
     GeoDistance {
         /// Metres of travel between keyframes.
@@ -391,6 +402,7 @@ impl Step {
             Step::Boundaries { .. } => "boundaries",
             Step::Stationary { .. } => "stationary",
             Step::Spacing { .. } => "spacing",
+            Step::GeoArea { .. } => "geo-area",
             Step::GeoDistance { .. } => "geo-distance",
             Step::FootprintOverlap { .. } => "footprint-overlap",
             Step::EveryNth { .. } => "every-nth",
@@ -407,6 +419,7 @@ impl Step {
             Step::Boundaries { .. } => return Ok(None),
             Step::Stationary { .. } => stationary::apply(at, keys)?,
             Step::Spacing { threshold } => spacing::apply(at, keys, *threshold)?,
+            Step::GeoArea { file, buffer_m } => geo_area::apply(at, keys, file, *buffer_m)?,
             Step::GeoDistance { metres } => geo_distance::apply(at, keys, *metres)?,
             Step::FootprintOverlap { percent, hfov } => {
                 footprint::apply(at, keys, *percent, *hfov)?
@@ -429,7 +442,9 @@ impl Step {
                 threshold: Threshold::Auto,
             } => vec![Need::Movement, Need::SpacingProposal],
             Step::Spacing { .. } => vec![Need::Movement],
-            Step::GeoDistance { .. } | Step::FootprintOverlap { .. } => vec![Need::Positions],
+            Step::GeoArea { .. } | Step::GeoDistance { .. } | Step::FootprintOverlap { .. } => {
+                vec![Need::Positions]
+            }
             Step::Blur { .. } => (self.blur_params().into_iter())
                 .map(|b| Need::Sharpness(b.metric))
                 .collect(),
@@ -438,6 +453,33 @@ impl Step {
             | Step::Fps { .. }
             | Step::Manual { .. } => Vec::new(),
         }
+    }
+
+    /// The files the step reads, each with its parameter (`file`): `select` and workflows
+    /// count them among their inputs.
+    pub fn files(&self) -> Vec<(&'static str, &std::path::Path)> {
+        match self {
+            Step::GeoArea { file, .. } => vec![("file", file.as_path())],
+            _ => Vec::new(),
+        }
+    }
+
+    /// The step with its relative files taken relative to `base` (a workflow's folder).
+    pub fn resolve_files(&mut self, base: &std::path::Path) {
+        if let Step::GeoArea { file, .. } = self {
+            if file.is_relative() {
+                *file = base.join(&*file);
+            }
+        }
+    }
+
+    /// Reads the files the step names, so that a bad one is refused before any frame is
+    /// decoded (the error names the file and the place in it).
+    pub fn check_files(&self) -> Result<()> {
+        if let Step::GeoArea { file, .. } = self {
+            geo_area::Area::load(file)?;
+        }
+        Ok(())
     }
 
     /// What the step needs that `at` lacks.
@@ -500,6 +542,12 @@ impl Step {
             Step::EveryNth { n: 0 } => return bad("n", "must be at least 1".into()),
             Step::GeoDistance { metres } => {
                 return positive(*metres).map(drop).or_else(|m| bad("metres", m))
+            }
+            Step::GeoArea { file, buffer_m } => {
+                if file.as_os_str().is_empty() {
+                    return bad("file", "must name a GeoJSON or KML file".into());
+                }
+                return geo_area::check_buffer(*buffer_m).or_else(|m| bad("buffer_m", m));
             }
             Step::FootprintOverlap { percent, hfov } => {
                 if !(*percent > 0.0 && *percent < 100.0) {
@@ -650,6 +698,23 @@ pub enum Applied {
         /// Threshold in pixels as applied.
         threshold_px: f64,
     },
+    /// The geo-area step: the file as given and as an absolute path (which `workflow save` and
+    /// the review replay), with what identifies its content: the polygons, their vertices and
+    /// the FNV-1a hash of the file's bytes (a changed file is noticed on re-selection).
+    GeoArea {
+        /// The area's file as given.
+        file: std::path::PathBuf,
+        /// The same file as an absolute path.
+        path: std::path::PathBuf,
+        /// Metres the area grew (> 0) or shrank (< 0) by.
+        buffer_m: Option<f64>,
+        /// Polygons in the file.
+        polygons: usize,
+        /// Vertices over all their rings.
+        vertices: usize,
+        /// FNV-1a (64 bit) of the file's bytes, 16 hex digits.
+        fnv1a64: String,
+    },
     /// The geo-distance sampler.
     GeoDistance {
         /// Metres of travel between keyframes.
@@ -723,6 +788,10 @@ impl Applied {
             },
             Applied::Spacing { threshold_px, .. } => Step::Spacing {
                 threshold: Threshold::Px(*threshold_px),
+            },
+            Applied::GeoArea { path, buffer_m, .. } => Step::GeoArea {
+                file: path.clone(),
+                buffer_m: *buffer_m,
             },
             Applied::GeoDistance { metres } => Step::GeoDistance { metres: *metres },
             Applied::FootprintOverlap { percent, hfov } => Step::FootprintOverlap {
@@ -798,6 +867,7 @@ impl Applied {
             Applied::Spacing { threshold_px, .. } => positive("threshold_px", Some(*threshold_px)),
             // The step's own check says the same for these (`fps`: "must be a positive number").
             Applied::GeoDistance { .. }
+            | Applied::GeoArea { .. }
             | Applied::FootprintOverlap { .. }
             | Applied::Fps { .. } => match self.step().map(|s| s.validate()) {
                 Some(Err(e)) => bad(e.key, e.msg),
@@ -884,7 +954,7 @@ mod tests {
         assert_eq!(
             msg,
             "`stationary` cannot follow `fps`: keyframer applies boundaries → stationary → \
-             spacing → geo-distance → footprint-overlap → every-nth/fps → blur → manual"
+             spacing → geo-area → geo-distance → footprint-overlap → every-nth/fps → blur → manual"
         );
         let (_, msg) = check_order(&[Step::EveryNth { n: 2 }, Step::Fps { fps: 1.0 }]).unwrap_err();
         assert_eq!(
@@ -958,6 +1028,31 @@ mod tests {
             }
         }
         steps
+    }
+
+    #[test]
+    fn geo_area_goes_through_its_flags_and_reads_its_file_with_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("area.geojson");
+        let square = r#"{"type":"Polygon","coordinates":[[[8,47],[8.1,47],[8.1,47.1],[8,47]]]}"#;
+        std::fs::write(&file, square).unwrap();
+        let step = Step::GeoArea {
+            file: file.clone(),
+            buffer_m: Some(-12.5),
+        };
+        let flags = step.to_flags();
+        let pair = |a: &str, b: &str| flags.windows(2).any(|w| w[0] == a && w[1] == b);
+        assert!(pair("--geo-area", &file.display().to_string()), "{flags:?}");
+        assert!(pair("--geo-area-buffer", "-12.5"), "{flags:?}");
+        assert_eq!(parse_flags(&flags), [step]);
+        std::fs::write(&file, "{").unwrap();
+        let mut v = FlagValues::default();
+        v.set("geo-area", vec![file.display().to_string()]);
+        let e = from_flags(&v).unwrap_err().to_string();
+        assert!(
+            e.contains("area.geojson: not a usable area file: line 1"),
+            "{e}"
+        );
     }
 
     #[test]

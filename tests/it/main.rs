@@ -12,6 +12,7 @@ mod experiment;
 mod fixtures;
 mod flow;
 mod foundation;
+mod geo_area;
 mod geotag;
 mod inputs;
 mod layers;
