@@ -78,6 +78,16 @@ fn camera_params(text: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
+/// Defaults of COLMAP's options (the `colmap` and `reconstruct` flags' defaults too).
+pub mod defaults {
+    /// Feature matching strategy.
+    pub const MATCHER: super::Matcher = super::Matcher::Sequential;
+    /// Sequential matching: how many following images each image is matched with.
+    pub const OVERLAP: u32 = 10;
+    /// COLMAP camera model shared by all images.
+    pub const CAMERA_MODEL: &str = "SIMPLE_RADIAL";
+}
+
 /// Feature matching strategy.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Matcher {
@@ -301,7 +311,7 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
 }
 
 /// The options COLMAP would otherwise refuse only after the workspace is made.
-fn check_settings(a: &ColmapSettings) -> Result<()> {
+pub(crate) fn check_settings(a: &ColmapSettings) -> Result<()> {
     if a.overlap == 0 {
         return Err(Error::param("overlap", "must be at least 1"));
     }

@@ -118,8 +118,13 @@ pub struct Options {
 
 /// Defaults of the options (the flags' defaults too).
 pub mod defaults {
+    use crate::colmap::extend::{MapperKind, Mapping};
     /// Rounds of COLMAP at most.
     pub const MAX_ROUNDS: usize = 4;
+    /// The mapper.
+    pub const MAPPER: MapperKind = MapperKind::Incremental;
+    /// How later rounds map.
+    pub const MAPPING: Mapping = Mapping::Fresh;
     /// Frames added at most: twice the starting keyframes.
     pub const MAX_ADDED: &str = "200%";
     /// Fewest 3D points consecutive keyframes must share.
@@ -365,15 +370,31 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
     Ok(summary(&state, &ws, true))
 }
 
-/// Checks the options before anything runs.
-fn check(o: &Options) -> Result<()> {
+/// Checks the options before anything runs: the one check of `reconstruct`'s flags and of a
+/// workflow's `[[reconstruct]]` table. Errors name the option's key (`max_rounds`,
+/// `camera_model`, ...); COLMAP's options are checked as `keyframer colmap` checks them.
+pub fn check(o: &Options) -> Result<()> {
     if o.max_rounds == 0 {
         return Err(Error::param("max_rounds", "must be at least 1"));
     }
-    if o.overlap == 0 {
-        return Err(Error::param("overlap", "must be at least 1"));
+    crate::colmap::check_settings(&colmap_settings(o, Path::new(""), o.mapper_option.clone()))
+}
+
+/// COLMAP's settings for the loop's workspace `ws` (an export with its workspace in `colmap/`).
+fn colmap_settings(o: &Options, ws: &Path, mapper_option: Vec<String>) -> ColmapSettings {
+    ColmapSettings {
+        export: ws.to_path_buf(),
+        output: Some(ws.join(COLMAP_DIR)),
+        sparse: true,
+        dense: false,
+        matcher: o.matcher,
+        overlap: o.overlap,
+        camera_model: o.camera_model.clone(),
+        camera_params: o.camera_params.clone(),
+        max_features: o.max_features,
+        mapper_option,
+        force: true,
     }
-    Ok(())
 }
 
 /// The per-frame numbers of the project that repairs read.
@@ -558,19 +579,7 @@ impl Job<'_> {
                 mapper_option.push(format!("{key}={value}"));
             }
         }
-        let cs = ColmapSettings {
-            export: self.ws.to_path_buf(),
-            output: Some(cws.clone()),
-            sparse: true,
-            dense: false,
-            matcher: o.matcher,
-            overlap: o.overlap,
-            camera_model: o.camera_model.clone(),
-            camera_params: o.camera_params.clone(),
-            max_features: o.max_features,
-            mapper_option,
-            force: true,
-        };
+        let cs = colmap_settings(o, self.ws, mapper_option);
         let earlier = crate::colmap::read_record(&cws).ok();
         let extend_it = !first && earlier.is_some();
         let before = match (&earlier, extend_it) {
@@ -757,6 +766,7 @@ impl Job<'_> {
                 added,
                 colmap_version: state.colmap_version.clone(),
                 options: options_as_flags(&state.options),
+                settings: Some(Box::new(state.options.clone())),
             };
             p.history
                 .push(crate::steps::Recorded::new(step, p.keyframes.len()));
