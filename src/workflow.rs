@@ -838,3 +838,47 @@ pub fn save_loaded(
     crate::fsutil::write_atomic(output, text.as_bytes())?;
     Ok(output.to_path_buf())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `[[reconstruct]]` written from a loop's options reads back as the same options.
+    #[test]
+    fn a_reconstruct_table_round_trips_the_loops_options() {
+        let text = "version = 1\n[[reconstruct]]\nname = \"rec\"\nmax_added = \"50%\"\n\
+                    mapping = \"continue\"\ncamera_model = \"PINHOLE\"\n\
+                    camera_params = \"224,224,160,90\"\nmax_features = 1024\n\
+                    mapper_option = [\"init_min_tri_angle=8\"]\nscale = 0.5\nquality = 80\n";
+        let w = Workflow::from_text(Path::new("/tmp/w.toml"), text.into()).unwrap();
+        let (name, o) = &w.reconstructs[0];
+        assert_eq!(name, "rec");
+        assert_eq!(o.max_added, crate::reconstruct::Budget::Percent(50.0));
+        assert_eq!(o.mapping, Mapping::Continue);
+        assert_eq!(o.max_rounds, crate::reconstruct::defaults::MAX_ROUNDS);
+        assert_eq!(o.matcher, crate::colmap::defaults::MATCHER);
+        assert_eq!(o.export.quality, 80);
+        let raw = RawFile {
+            version: VERSION,
+            analysis: None,
+            sample: Vec::new(),
+            export: Vec::new(),
+            reconstruct: vec![reconstruct_table(o)],
+        };
+        let saved = toml::to_string(&raw).unwrap();
+        let again = Workflow::from_text(Path::new("/tmp/w.toml"), saved.clone()).unwrap();
+        assert_eq!(&again.reconstructs[0].1, o, "{saved}");
+        assert_eq!(again.reconstructs[0].0, RECONSTRUCT_NAME);
+        // A frame count is written as an integer and read back.
+        let mut counted = o.clone();
+        counted.max_added = crate::reconstruct::Budget::Frames(7);
+        let raw = RawFile {
+            reconstruct: vec![reconstruct_table(&counted)],
+            ..raw
+        };
+        let saved = toml::to_string(&raw).unwrap();
+        assert!(saved.contains("max_added = 7"), "{saved}");
+        let again = Workflow::from_text(Path::new("/tmp/w.toml"), saved).unwrap();
+        assert_eq!(again.reconstructs[0].1, counted);
+    }
+}
