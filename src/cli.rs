@@ -592,7 +592,8 @@ impl RunArgs {
 /// `workflow` subcommands.
 #[derive(Debug, Subcommand)]
 pub enum WorkflowCommand {
-    /// Write the workflow that reproduces a project's selection (and the given exports).
+    /// Write the workflow that reproduces a project's selection (and the given exports, and its
+    /// `reconstruct` loop as a `[[reconstruct]]` table).
     Save(WorkflowSaveArgs),
     /// Check a workflow file without running it.
     Check(WorkflowCheckArgs),
