@@ -84,10 +84,26 @@ pub struct InputReport {
     pub keyframes: Option<usize>,
     /// Images written per export, in workflow order.
     pub exported: Vec<usize>,
+    /// What each `[[reconstruct]]` made, in workflow order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub reconstructed: Vec<Reconstructed>,
     /// Wall time in seconds.
     pub seconds: f64,
     /// Problem, for failed and partial inputs.
     pub error: Option<String>,
+}
+
+/// What a `[[reconstruct]]` made of one input.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Reconstructed {
+    /// Its folder (in the input's folder).
+    pub name: String,
+    /// Keyframes at the end of the loop.
+    pub keyframes: usize,
+    /// Frames the loop added.
+    pub added: usize,
+    /// How the loop ended.
+    pub outcome: crate::reconstruct::Outcome,
 }
 
 /// Contents of `done.json`.
@@ -173,6 +189,10 @@ pub fn run(workflow: &Workflow, s: &RunSettings) -> Result<Vec<InputReport>> {
         return Err(Error::param("INPUT", "an input is listed twice"));
     }
     crate::output::check_not_input(&s.out, &read_by(workflow, s))?;
+    // A workflow that reconstructs needs COLMAP (and its mapper): said before any input is read.
+    for (_, o) in &workflow.reconstructs {
+        crate::colmap::extend::locate_with(o.mapper)?;
+    }
     let names = folder_names(&s.inputs)?;
     std::fs::create_dir_all(&s.out).map_err(|e| Error::io(&s.out, e))?;
     let mine = shard_of(&s.inputs, s.shard);
@@ -218,9 +238,15 @@ fn read_by(workflow: &Workflow, s: &RunSettings) -> Inputs {
 fn log_line(n: usize, total: usize, r: &InputReport) {
     let what = match r.status {
         Status::Done | Status::Partial => format!(
-            "{} keyframes, exports {:?} ({:.1} s)",
+            "{} keyframes, exports {:?}{} ({:.1} s)",
             r.keyframes.unwrap_or(0),
             r.exported,
+            (r.reconstructed.iter())
+                .map(|c| format!(
+                    ", {}: {} keyframes (+{}), {}",
+                    c.name, c.keyframes, c.added, c.outcome
+                ))
+                .collect::<String>(),
             r.seconds
         ),
         Status::Skipped => "already done".into(),
@@ -237,6 +263,7 @@ fn run_one(w: &Workflow, input: &Path, folder: &Path, s: &RunSettings) -> InputR
         status: Status::Failed,
         keyframes: None,
         exported: Vec::new(),
+        reconstructed: Vec::new(),
         seconds: 0.0,
         error: None,
     };
@@ -284,7 +311,7 @@ fn process(
     }
     claim_folder(input, folder, s.force)?;
     let _ = std::fs::remove_file(&done_path);
-    select_and_export(w, input, folder, report)
+    select_and_export(w, input, folder, s.quiet, report)
 }
 
 /// Whether `done_path` records this workflow finished on this unchanged input (its counts are
@@ -297,6 +324,7 @@ fn finished_before(w: &Workflow, input: &Path, done_path: &Path, report: &mut In
     if done.workflow_hash == format!("{:016x}", w.hash) && same_input {
         report.keyframes = done.report.keyframes;
         report.exported = done.report.exported.clone();
+        report.reconstructed = done.report.reconstructed.clone();
         return true;
     }
     false
@@ -354,11 +382,12 @@ fn claim_folder(input: &Path, folder: &Path, force: bool) -> Result<()> {
     Ok(())
 }
 
-/// The workflow's select, then each export, into `folder`.
+/// The workflow's select, then each export, then each reconstruction loop, into `folder`.
 fn select_and_export(
     w: &Workflow,
     input: &Path,
     folder: &Path,
+    quiet: bool,
     report: &mut InputReport,
 ) -> Result<Status> {
     let project = folder.join("project.json");
@@ -380,6 +409,23 @@ fn select_and_export(
                 .iter()
                 .map(|m| format!("{name}: frame {} not exported: {}", m.index, m.reason)),
         );
+    }
+    // Each loop's workspace is keyframer's own (the folder is this input's): a loop killed
+    // earlier resumes from its state file, another one's content is replaced.
+    for (name, options) in &w.reconstructs {
+        let rs = crate::reconstruct::ReconstructSettings {
+            project: project.clone(),
+            out: folder.join(name),
+            options: options.clone(),
+            force: true,
+        };
+        let sum = crate::reconstruct::run(&rs, quiet)?;
+        report.reconstructed.push(Reconstructed {
+            name: name.clone(),
+            keyframes: sum.final_keyframes.len(),
+            added: sum.added.len(),
+            outcome: sum.outcome,
+        });
     }
     if partial.is_empty() {
         Ok(Status::Done)

@@ -592,7 +592,8 @@ impl RunArgs {
 /// `workflow` subcommands.
 #[derive(Debug, Subcommand)]
 pub enum WorkflowCommand {
-    /// Write the workflow that reproduces a project's selection (and the given exports).
+    /// Write the workflow that reproduces a project's selection (and the given exports, and its
+    /// `reconstruct` loop as a `[[reconstruct]]` table).
     Save(WorkflowSaveArgs),
     /// Check a workflow file without running it.
     Check(WorkflowCheckArgs),
@@ -796,13 +797,13 @@ impl ExportArgs {
 #[derive(Debug, Args)]
 pub struct ColmapFlags {
     /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
-    #[arg(long, value_parser = named::<Matcher>(), default_value = "sequential")]
+    #[arg(long, value_parser = named::<Matcher>(), default_value_t = keyframer::colmap::defaults::MATCHER)]
     pub matcher: Matcher,
     /// Sequential matching: match each image with this many following images.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = keyframer::colmap::defaults::OVERLAP)]
     pub overlap: u32,
     /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
-    #[arg(long, default_value = "SIMPLE_RADIAL")]
+    #[arg(long, default_value = keyframer::colmap::defaults::CAMERA_MODEL)]
     pub camera_model: String,
     /// Known intrinsics for the camera model, comma-separated in COLMAP's order (PINHOLE:
     /// `fx,fy,cx,cy`), e.g. from a synthetic scene's scene.json; the mapper then keeps them fixed.
@@ -894,11 +895,11 @@ pub struct ReconstructArgs {
     #[arg(long, default_value_t = keyframer::reconstruct::defaults::MIN_INLIERS, value_name = "N")]
     pub min_inliers: usize,
     /// Mapper: incremental (COLMAP's `mapper`) or global (`global_mapper`, recent COLMAP only).
-    #[arg(long, value_parser = named::<MapperKind>(), default_value = "incremental")]
+    #[arg(long, value_parser = named::<MapperKind>(), default_value_t = keyframer::reconstruct::defaults::MAPPER)]
     pub mapper: MapperKind,
     /// How later rounds map: afresh, or continuing the largest model with the new images
     /// (features and matches are reused either way).
-    #[arg(long, value_parser = named::<Mapping>(), default_value = "fresh")]
+    #[arg(long, value_parser = named::<Mapping>(), default_value_t = keyframer::reconstruct::defaults::MAPPING)]
     pub mapping: Mapping,
     /// COLMAP's options (the loop adds `min_model_size=3` and `init_min_tri_angle=4` to the
     /// mapper options unless given).

@@ -260,10 +260,11 @@ fn workflow_save(a: &cli::WorkflowSaveArgs) -> Result<ExitCode> {
 fn workflow_check(a: &cli::WorkflowCheckArgs) -> Result<ExitCode> {
     let wf = keyframer::workflow::Workflow::load(&a.workflow)?;
     eprintln!(
-        "{}: ok ({} sampler steps, {} exports)",
+        "{}: ok ({} sampler steps, {} exports, {} reconstruct)",
         a.workflow.display(),
         wf.file.sample.len(),
-        wf.exports.len()
+        wf.exports.len(),
+        wf.reconstructs.len()
     );
     Ok(ExitCode::SUCCESS)
 }

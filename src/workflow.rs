@@ -1,7 +1,9 @@
-//! Workflow files (TOML, `version = 1`): an ordered list of sampler steps and any number of
-//! exports, checked completely (file:line and key for every error) before any input is touched,
+//! Workflow files (TOML, `version = 1`): an ordered list of sampler steps, any number of
+//! exports and of reconstruction loops (`[[reconstruct]]`), checked completely (file:line and key for every error) before any input is touched,
 //! and turned into the same validated settings the `select` / `export` flags produce.
 
+use crate::colmap::extend::{MapperKind, Mapping};
+use crate::colmap::Matcher;
 use crate::error::{Error, Result};
 use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
 use crate::names::Names;
@@ -113,6 +115,71 @@ pub struct Export {
     pub geotag: Option<bool>,
 }
 
+/// `max_added` of a `[[reconstruct]]`: a frame count (`40`) or a percentage (`"50%"`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(
+    untagged,
+    expecting = "must be a frame count (`40`) or a percentage (`\"50%\"`)"
+)]
+pub enum MaxAdded {
+    /// At most this many frames.
+    Frames(usize),
+    /// As `--max-added`: `"40"` or `"50%"`.
+    Text(String),
+}
+
+/// One `[[reconstruct]]`: `keyframer reconstruct` on the selection, its keys the flags of the
+/// same name (absent: the flag's default).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Reconstruct {
+    /// Output sub-folder name (default `reconstruct`).
+    pub name: Option<String>,
+    /// Rounds of COLMAP at most.
+    pub max_rounds: Option<usize>,
+    /// Frames the loop may add in all.
+    pub max_added: Option<MaxAdded>,
+    /// Fewest 3D points consecutive keyframes must share.
+    pub min_shared: Option<usize>,
+    /// Fewest inlier matches of consecutive keyframes' two-view geometry.
+    pub min_inliers: Option<usize>,
+    /// `incremental` or `global`.
+    pub mapper: Option<MapperKind>,
+    /// `fresh` or `continue`.
+    pub mapping: Option<Mapping>,
+    /// `sequential` or `exhaustive`.
+    pub matcher: Option<Matcher>,
+    /// Sequential matching: following images each image is matched with.
+    pub overlap: Option<u32>,
+    /// COLMAP camera model.
+    pub camera_model: Option<String>,
+    /// Known intrinsics, comma-separated in COLMAP's order.
+    pub camera_params: Option<String>,
+    /// Maximum SIFT features per image.
+    pub max_features: Option<u32>,
+    /// Extra mapper options `KEY=VALUE`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub mapper_option: Vec<String>,
+    /// `"1280x720"`: size of the exported images.
+    pub resize: Option<String>,
+    /// Scale factor of the exported images.
+    pub scale: Option<f64>,
+    /// JPEG quality, 1 to 100.
+    pub quality: Option<u8>,
+    /// Segmentation masks for every exported image (passed to COLMAP).
+    pub masks: Option<Masks>,
+}
+
+/// The folder of a `[[reconstruct]]` without a `name`.
+pub const RECONSTRUCT_NAME: &str = "reconstruct";
+
+impl Reconstruct {
+    /// Its output sub-folder name.
+    pub fn folder(&self) -> &str {
+        self.name.as_deref().unwrap_or(RECONSTRUCT_NAME)
+    }
+}
+
 /// A workflow's content.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WorkflowFile {
@@ -124,6 +191,8 @@ pub struct WorkflowFile {
     pub sample: Vec<Step>,
     /// `[[export]]`s.
     pub export: Vec<Export>,
+    /// `[[reconstruct]]`s, run after the exports.
+    pub reconstruct: Vec<Reconstruct>,
 }
 
 /// The file as written: sample steps are tables with a `plugin` key.
@@ -136,6 +205,8 @@ struct RawFile {
     sample: Vec<toml::Table>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     export: Vec<Export>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    reconstruct: Vec<Reconstruct>,
 }
 
 /// `{plugin = "fps", fps = 1.0}` -> `Step::Fps`, errors naming `sample[i].<key>`.
@@ -196,6 +267,8 @@ pub struct Workflow {
     pub backend: BackendChoice,
     /// Each `[[export]]`: its folder name and checked settings.
     pub exports: Vec<(String, ExportSettings)>,
+    /// Each `[[reconstruct]]`: its folder name and checked options.
+    pub reconstructs: Vec<(String, crate::reconstruct::Options)>,
     /// The files it names (telemetry, mask model descriptions and their files), which running it
     /// reads; the workflow file itself is not among them.
     pub inputs: Inputs,
@@ -232,6 +305,7 @@ impl Workflow {
             analysis: raw.analysis.clone(),
             sample,
             export: raw.export.clone(),
+            reconstruct: raw.reconstruct.clone(),
         };
         let w = &content;
         check_relations(&file, w)?;
@@ -264,14 +338,19 @@ impl Workflow {
         let mut exports = Vec::new();
         for (i, e) in w.export.iter().enumerate() {
             let settings = export_settings(&file, w, i, e)?;
-            if let Some(m) = &settings.masks {
-                let desc = crate::model_desc::ModelDesc::load(&m.model)
-                    .map_err(|e| file.error(&format!("export[{i}].masks.model"), e.to_string()))?;
-                desc.class_ids(&m.classes)
-                    .map_err(|e| file.error(&format!("export[{i}].masks.classes"), e.into_msg()))?;
-                inputs.extend(&desc.inputs);
-            }
+            check_masks(&file, &format!("export[{i}]"), &settings, &mut inputs)?;
             exports.push((e.name.clone(), settings));
+        }
+        let mut reconstructs = Vec::new();
+        for (i, r) in w.reconstruct.iter().enumerate() {
+            let options = reconstruct_options(&file, w, i, r)?;
+            check_masks(
+                &file,
+                &format!("reconstruct[{i}]"),
+                &options.export,
+                &mut inputs,
+            )?;
+            reconstructs.push((r.folder().to_string(), options));
         }
         Ok(Workflow {
             path: path.to_path_buf(),
@@ -280,6 +359,7 @@ impl Workflow {
             movement,
             backend: an.backend.unwrap_or_default(),
             exports,
+            reconstructs,
             inputs,
         })
     }
@@ -371,13 +451,21 @@ fn check_relations(file: &TomlFile<RawFile>, w: &WorkflowFile) -> Result<()> {
             ));
         }
     }
-    for (i, e) in w.export.iter().enumerate() {
-        if e.resize.is_some() && e.scale.is_some() {
+    let sizes = (w.export.iter().map(|e| ("export", &e.resize, e.scale))).chain(
+        w.reconstruct
+            .iter()
+            .map(|r| ("reconstruct", &r.resize, r.scale)),
+    );
+    let mut counts = std::collections::BTreeMap::new();
+    for (table, resize, scale) in sizes {
+        let i = counts.entry(table).or_insert(0usize);
+        if resize.is_some() && scale.is_some() {
             return Err(file.error(
-                &format!("export[{i}].scale"),
+                &format!("{table}[{i}].scale"),
                 "give either `resize` or `scale`, not both",
             ));
         }
+        *i += 1;
     }
     Ok(())
 }
@@ -403,6 +491,167 @@ fn valid_name(n: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
 }
 
+/// Refuses `name`, the output folder of `at` (`export[i]`), when it is no plain folder name,
+/// is reserved, or is taken by one of `earlier` (the folders of the tables before it).
+fn check_name(file: &TomlFile<RawFile>, at: &str, name: &str, earlier: &[&str]) -> Result<()> {
+    let refusal = if !valid_name(name) {
+        Some("is not a plain folder name (letters, digits, - _ .)".to_string())
+    } else if earlier.contains(&name) {
+        Some("is used by an earlier export or reconstruct".to_string())
+    } else if RESERVED_NAMES.contains(&name) || name.starts_with('.') {
+        Some(format!(
+            "is reserved: `keyframer run` keeps its own files under these names in each input's folder ({}, or any name starting with `.`)",
+            RESERVED_NAMES.join(", ")
+        ))
+    } else {
+        None
+    };
+    match refusal {
+        Some(why) => Err(file.error(&format!("{at}.name"), format!("`{name}` {why}"))),
+        None => Ok(()),
+    }
+}
+
+/// `[masks]` of a table as settings (the model relative to the workflow file).
+fn mask_settings(file: &TomlFile<RawFile>, m: &Option<Masks>) -> Option<MaskSettings> {
+    m.as_ref().map(|m| {
+        let dir = file.path().parent().unwrap_or(Path::new("."));
+        MaskSettings {
+            model: crate::fsutil::absolute(&dir.join(&m.model)),
+            classes: m.classes.clone(),
+            dilate: m.dilate.unwrap_or(0),
+            backend: m.backend.unwrap_or_default(),
+            overlay: m.overlay == Some(true),
+        }
+    })
+}
+
+/// The mask model of the table `at` (`export[i]`) loads and knows the classes; its files are
+/// added to `inputs`.
+fn check_masks(
+    file: &TomlFile<RawFile>,
+    at: &str,
+    settings: &ExportSettings,
+    inputs: &mut Inputs,
+) -> Result<()> {
+    if let Some(m) = &settings.masks {
+        let desc = crate::model_desc::ModelDesc::load(&m.model)
+            .map_err(|e| file.error(&format!("{at}.masks.model"), e.to_string()))?;
+        desc.class_ids(&m.classes)
+            .map_err(|e| file.error(&format!("{at}.masks.classes"), e.into_msg()))?;
+        inputs.extend(&desc.inputs);
+    }
+    Ok(())
+}
+
+/// `[[reconstruct]]` `i` as the loop's checked options (the flags' defaults for what is not
+/// given; checked by [`crate::reconstruct::check`], as the flags are), errors on
+/// `reconstruct[i].<key>`.
+fn reconstruct_options(
+    file: &TomlFile<RawFile>,
+    w: &WorkflowFile,
+    i: usize,
+    r: &Reconstruct,
+) -> Result<crate::reconstruct::Options> {
+    use crate::reconstruct::{breaks::Limits, defaults, Budget, Options};
+    let at = |k: &str| format!("reconstruct[{i}].{k}");
+    let earlier: Vec<&str> = (w.export.iter().map(|e| e.name.as_str()))
+        .chain(w.reconstruct[..i].iter().map(Reconstruct::folder))
+        .collect();
+    check_name(file, &format!("reconstruct[{i}]"), r.folder(), &earlier)?;
+    let located = |err: Error| match err {
+        Error::Param { name, msg } => file.error(&at(&flag_key(&name)), msg),
+        other => other,
+    };
+    let max_added = match &r.max_added {
+        None => Budget::parse(defaults::MAX_ADDED),
+        Some(MaxAdded::Frames(n)) => Ok(Budget::Frames(*n)),
+        Some(MaxAdded::Text(t)) => Budget::parse(t),
+    }
+    .map_err(located)?;
+    let export = ExportSettings::from_parts(
+        r.resize.as_deref(),
+        r.scale,
+        None,
+        None,
+        r.quality.unwrap_or(crate::manifest::DEFAULT_QUALITY),
+        mask_settings(file, &r.masks),
+        true,
+    )
+    .map_err(located)?;
+    let options = Options {
+        max_rounds: r.max_rounds.unwrap_or(defaults::MAX_ROUNDS),
+        max_added,
+        limits: Limits {
+            min_shared: r.min_shared.unwrap_or(defaults::MIN_SHARED),
+            min_inliers: r.min_inliers.unwrap_or(defaults::MIN_INLIERS),
+        },
+        colmap: crate::colmap::SparseOptions {
+            matcher: r.matcher.unwrap_or(crate::colmap::defaults::MATCHER),
+            overlap: r.overlap.unwrap_or(crate::colmap::defaults::OVERLAP),
+            camera_model: (r.camera_model.clone())
+                .unwrap_or_else(|| crate::colmap::defaults::CAMERA_MODEL.into()),
+            camera_params: r.camera_params.clone(),
+            max_features: r.max_features,
+            mapper_option: r.mapper_option.clone(),
+        },
+        mapper: r.mapper.unwrap_or(defaults::MAPPER),
+        mapping: r.mapping.unwrap_or(defaults::MAPPING),
+        export,
+    };
+    crate::reconstruct::check(&options).map_err(located)?;
+    Ok(options)
+}
+
+/// The `[[reconstruct]]` that repeats a loop run with `o`.
+fn reconstruct_table(o: &crate::reconstruct::Options) -> Reconstruct {
+    use crate::reconstruct::Budget;
+    let e = &o.export;
+    let (resize, scale) = resize_keys(e.resize);
+    Reconstruct {
+        name: None,
+        max_rounds: Some(o.max_rounds),
+        max_added: Some(match o.max_added {
+            Budget::Frames(n) => MaxAdded::Frames(n),
+            Budget::Percent(p) => MaxAdded::Text(format!("{p}%")),
+        }),
+        min_shared: Some(o.limits.min_shared),
+        min_inliers: Some(o.limits.min_inliers),
+        mapper: Some(o.mapper),
+        mapping: Some(o.mapping),
+        matcher: Some(o.colmap.matcher),
+        overlap: Some(o.colmap.overlap),
+        camera_model: Some(o.colmap.camera_model.clone()),
+        camera_params: o.colmap.camera_params.clone(),
+        max_features: o.colmap.max_features,
+        mapper_option: o.colmap.mapper_option.clone(),
+        resize,
+        scale,
+        quality: Some(e.quality),
+        masks: e.masks.as_ref().map(masks_table),
+    }
+}
+
+/// `resize` / `scale` keys of a resize.
+fn resize_keys(r: Option<Resize>) -> (Option<String>, Option<f64>) {
+    match r {
+        Some(Resize::Size { width, height }) => (Some(format!("{width}x{height}")), None),
+        Some(Resize::Scale(f)) => (None, Some(f)),
+        None => (None, None),
+    }
+}
+
+/// The `[masks]` table of mask settings (the model's path made absolute).
+fn masks_table(mk: &MaskSettings) -> Masks {
+    Masks {
+        model: crate::fsutil::absolute(&mk.model),
+        classes: mk.classes.clone(),
+        dilate: Some(mk.dilate),
+        backend: Some(mk.backend),
+        overlay: Some(mk.overlay),
+    }
+}
+
 /// `[[export]]` `i` as checked settings, errors on `export[i].<key>`.
 fn export_settings(
     file: &TomlFile<RawFile>,
@@ -411,35 +660,9 @@ fn export_settings(
     e: &Export,
 ) -> Result<ExportSettings> {
     let at = |k: &str| format!("export[{i}].{k}");
-    let name = &e.name;
-    let refusal = if !valid_name(name) {
-        Some("is not a plain folder name (letters, digits, - _ .)".to_string())
-    } else if w.export[..i].iter().any(|x| &x.name == name) {
-        Some("is used by an earlier export".to_string())
-    } else if RESERVED_NAMES.contains(&name.as_str()) || name.starts_with('.') {
-        Some(format!(
-            "is reserved: `keyframer run` keeps its own files under these names in each input's folder ({}, or any name starting with `.`)",
-            RESERVED_NAMES.join(", ")
-        ))
-    } else {
-        None
-    };
-    if let Some(why) = refusal {
-        return Err(file.error(&at("name"), format!("`{name}` {why}")));
-    }
-    let masks = match &e.masks {
-        None => None,
-        Some(m) => {
-            let dir = file.path().parent().unwrap_or(Path::new("."));
-            Some(MaskSettings {
-                model: crate::fsutil::absolute(&dir.join(&m.model)),
-                classes: m.classes.clone(),
-                dilate: m.dilate.unwrap_or(0),
-                backend: m.backend.unwrap_or_default(),
-                overlay: m.overlay == Some(true),
-            })
-        }
-    };
+    let earlier: Vec<&str> = w.export[..i].iter().map(|x| x.name.as_str()).collect();
+    check_name(file, &format!("export[{i}]"), &e.name, &earlier)?;
+    let masks = mask_settings(file, &e.masks);
     ExportSettings::from_parts(
         e.resize.as_deref(),
         e.scale,
@@ -491,6 +714,7 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
     let bad = |msg: String| Error::file(project, None, "project file", "history", msg);
     let mut analysis = AnalysisSection::default();
     let mut sample = Vec::new();
+    let mut reconstruct = None;
     for (k, entry) in p.history.iter().enumerate() {
         let applied = &entry.applied;
         let (backend, movement) = applied.analysis();
@@ -509,12 +733,25 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
                 end: None,
             }) => {}
             Some(step) => sample.push((k, step)),
-            None if matches!(applied, crate::steps::Applied::Reconstruct { .. }) => {
-                log::warn!(
-                    "history[{k}] (reconstruct) is not part of the workflow: workflows do not run `reconstruct` yet; run it on the result"
-                );
-            }
-            None => analysis.preview = Some(true),
+            None => match applied {
+                crate::steps::Applied::Reconstruct { settings, .. } => {
+                    if reconstruct.is_some() {
+                        log::warn!(
+                            "history[{k}] is a second reconstruct step: the workflow's [[reconstruct]] repeats the last one, on the selection"
+                        );
+                    }
+                    reconstruct = Some(match settings {
+                        Some(o) => reconstruct_table(o),
+                        None => {
+                            log::warn!(
+                                "history[{k}] (reconstruct) records no options (an earlier keyframer): the workflow's [[reconstruct]] takes the defaults"
+                            );
+                            Reconstruct::default()
+                        }
+                    });
+                }
+                _ => analysis.preview = Some(true),
+            },
         }
     }
     if p.input.kind == crate::source::SourceKind::Images {
@@ -546,6 +783,7 @@ pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<S
             })
             .collect::<Result<Vec<_>>>()?,
         export,
+        reconstruct: reconstruct.into_iter().collect(),
     };
     let body = toml::to_string(&wf).map_err(|e| bad(e.to_string()))?;
     Ok(format!(
@@ -565,11 +803,7 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             )
         })?;
     let s = &m.settings;
-    let (resize, scale) = match s.resize {
-        Some(Resize::Size { width, height }) => (Some(format!("{width}x{height}")), None),
-        Some(Resize::Scale(f)) => (None, Some(f)),
-        None => (None, None),
-    };
+    let (resize, scale) = resize_keys(s.resize);
     Ok(Export {
         name: dir
             .file_name()
@@ -582,13 +816,7 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
         crop: s
             .crop
             .map(|c| format!("{},{},{},{}", c.x, c.y, c.width, c.height)),
-        masks: s.masks.as_ref().map(|mk| Masks {
-            model: crate::fsutil::absolute(&mk.model),
-            classes: mk.classes.clone(),
-            dilate: Some(mk.dilate),
-            backend: Some(mk.backend),
-            overlay: Some(mk.overlay),
-        }),
+        masks: s.masks.as_ref().map(masks_table),
         geotag: (!s.geotag).then_some(false),
     })
 }
@@ -623,4 +851,48 @@ pub fn save_loaded(
     let _held = crate::output::check_file(output, force, &inputs)?;
     crate::fsutil::write_atomic(output, text.as_bytes())?;
     Ok(output.to_path_buf())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `[[reconstruct]]` written from a loop's options reads back as the same options.
+    #[test]
+    fn a_reconstruct_table_round_trips_the_loops_options() {
+        let text = "version = 1\n[[reconstruct]]\nname = \"rec\"\nmax_added = \"50%\"\n\
+                    mapping = \"continue\"\ncamera_model = \"PINHOLE\"\n\
+                    camera_params = \"224,224,160,90\"\nmax_features = 1024\n\
+                    mapper_option = [\"init_min_tri_angle=8\"]\nscale = 0.5\nquality = 80\n";
+        let w = Workflow::from_text(Path::new("/tmp/w.toml"), text.into()).unwrap();
+        let (name, o) = &w.reconstructs[0];
+        assert_eq!(name, "rec");
+        assert_eq!(o.max_added, crate::reconstruct::Budget::Percent(50.0));
+        assert_eq!(o.mapping, Mapping::Continue);
+        assert_eq!(o.max_rounds, crate::reconstruct::defaults::MAX_ROUNDS);
+        assert_eq!(o.colmap.matcher, crate::colmap::defaults::MATCHER);
+        assert_eq!(o.export.quality, 80);
+        let raw = RawFile {
+            version: VERSION,
+            analysis: None,
+            sample: Vec::new(),
+            export: Vec::new(),
+            reconstruct: vec![reconstruct_table(o)],
+        };
+        let saved = toml::to_string(&raw).unwrap();
+        let again = Workflow::from_text(Path::new("/tmp/w.toml"), saved.clone()).unwrap();
+        assert_eq!(&again.reconstructs[0].1, o, "{saved}");
+        assert_eq!(again.reconstructs[0].0, RECONSTRUCT_NAME);
+        // A frame count is written as an integer and read back.
+        let mut counted = o.clone();
+        counted.max_added = crate::reconstruct::Budget::Frames(7);
+        let raw = RawFile {
+            reconstruct: vec![reconstruct_table(&counted)],
+            ..raw
+        };
+        let saved = toml::to_string(&raw).unwrap();
+        assert!(saved.contains("max_added = 7"), "{saved}");
+        let again = Workflow::from_text(Path::new("/tmp/w.toml"), saved).unwrap();
+        assert_eq!(again.reconstructs[0].1, counted);
+    }
 }

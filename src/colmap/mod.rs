@@ -107,6 +107,16 @@ fn camera_params(text: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
+/// Defaults of COLMAP's options (the `colmap` and `reconstruct` flags' defaults too).
+pub mod defaults {
+    /// Feature matching strategy.
+    pub const MATCHER: super::Matcher = super::Matcher::Sequential;
+    /// Sequential matching: how many following images each image is matched with.
+    pub const OVERLAP: u32 = 10;
+    /// COLMAP camera model shared by all images.
+    pub const CAMERA_MODEL: &str = "SIMPLE_RADIAL";
+}
+
 crate::names::named_enum! {
     /// Feature matching strategy.
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]

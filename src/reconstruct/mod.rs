@@ -109,8 +109,13 @@ pub struct Options {
 
 /// Defaults of the options (the flags' defaults too).
 pub mod defaults {
+    use crate::colmap::extend::{MapperKind, Mapping};
     /// Rounds of COLMAP at most.
     pub const MAX_ROUNDS: usize = 4;
+    /// The mapper.
+    pub const MAPPER: MapperKind = MapperKind::Incremental;
+    /// How later rounds map.
+    pub const MAPPING: Mapping = Mapping::Fresh;
     /// Frames added at most: twice the starting keyframes.
     pub const MAX_ADDED: &str = "200%";
     /// Fewest 3D points consecutive keyframes must share.
@@ -356,8 +361,10 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
     Ok(summary(&state, &ws, true))
 }
 
-/// Checks the options before anything runs.
-fn check(o: &Options) -> Result<()> {
+/// Checks the options before anything runs: the one check of `reconstruct`'s flags and of a
+/// workflow's `[[reconstruct]]` table. Errors name the option's key (`max_rounds`,
+/// `camera_model`, ...); COLMAP's options are checked as `keyframer colmap` checks them.
+pub fn check(o: &Options) -> Result<()> {
     if o.max_rounds == 0 {
         return Err(Error::param("max_rounds", "must be at least 1"));
     }
@@ -740,6 +747,7 @@ impl Job<'_> {
                 added,
                 colmap_version: state.colmap_version.clone(),
                 options: options_as_flags(&state.options),
+                settings: Some(Box::new(state.options.clone())),
             };
             p.history
                 .push(crate::steps::Recorded::new(step, p.keyframes.len()));

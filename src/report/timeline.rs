@@ -27,7 +27,7 @@ pub const GAP: u32 = 30;
 pub const BOTTOM: u32 = 40;
 /// Colour of the keyframe bars (used by nothing else on the page or the PNG).
 pub const KEYFRAME_RGB: [u8; 3] = [221, 0, 170];
-/// Colour of the bars of keyframes `reconstruct` added (on the page).
+/// Colour of the bars of keyframes `reconstruct` added (on the page and the PNG).
 pub const ADDED_RGB: [u8; 3] = [0, 150, 60];
 
 const BOUNDARY_RGB: [u8; 3] = [225, 225, 225];
@@ -273,10 +273,28 @@ impl Timeline {
 
     /// Distinct x pixels of the keyframe bars (keyframes closer than a pixel share one).
     pub fn bar_columns(&self) -> Vec<i32> {
+        self.bars().into_iter().map(|(x, _)| x).collect()
+    }
+
+    /// The keyframe bars: distinct x pixels and their colour, [`ADDED_RGB`] for a keyframe
+    /// `reconstruct` added, else [`KEYFRAME_RGB`] (keyframes closer than a pixel share one
+    /// column, coloured by the first of them, as on the page).
+    pub fn bars(&self) -> Vec<(i32, [u8; 3])> {
         let layout = self.layout();
-        let mut xs: Vec<i32> = self.keyframes_shown().map(|k| layout.x(k)).collect();
-        xs.dedup();
-        xs
+        let mut bars: Vec<(i32, [u8; 3])> = self
+            .keyframes_shown()
+            .map(|k| (layout.x(k), self.colour_of(k)))
+            .collect();
+        bars.dedup_by_key(|b| b.0);
+        bars
+    }
+
+    /// The bar colour of keyframe `k`.
+    fn colour_of(&self, k: usize) -> [u8; 3] {
+        match self.added.contains_key(&k) {
+            true => ADDED_RGB,
+            false => KEYFRAME_RGB,
+        }
     }
 
     /// y pixel of `v` in panel `i` whose axis tops at `max`.
@@ -377,7 +395,8 @@ impl Timeline {
             s.push('\n');
             // Keyframes closer than a pixel share one column: drawn once, each still has its group.
             if last != Some(x) {
-                s.push_str(&svg_layer(h, |root| self.draw_bars(root, &[x]))?);
+                let bar = [(x, self.colour_of(k))];
+                s.push_str(&svg_layer(h, |root| self.draw_bars(root, &bar))?);
             }
             last = Some(x);
             s.push_str("</g>\n");
@@ -398,8 +417,7 @@ impl Timeline {
         {
             let root = BitMapBackend::with_buffer(&mut buf, (WIDTH, h)).into_drawing_area();
             self.draw(&root).map_err(drawing)?;
-            self.draw_bars(&root, &self.bar_columns())
-                .map_err(drawing)?;
+            self.draw_bars(&root, &self.bars()).map_err(drawing)?;
             root.present().map_err(drawing)?;
         }
         image::RgbImage::from_raw(WIDTH, h, buf)
@@ -504,12 +522,16 @@ impl Timeline {
 
     /// Keyframe bars: one pixel column at each x of `columns`, over every panel's plot area, in
     /// [`KEYFRAME_RGB`] (drawn last so that nothing covers them).
-    pub fn draw_bars<DB: DrawingBackend>(&self, root: &Area<DB>, columns: &[i32]) -> Drawn<DB> {
-        for &x in columns {
+    pub fn draw_bars<DB: DrawingBackend>(
+        &self,
+        root: &Area<DB>,
+        bars: &[(i32, [u8; 3])],
+    ) -> Drawn<DB> {
+        for &(x, colour) in bars {
             for (y0, y1) in panel_spans(self.panels.len()) {
                 root.draw(&Rectangle::new(
                     [(x, y0 as i32), (x + 1, y1 as i32)],
-                    rgb(KEYFRAME_RGB).filled(),
+                    rgb(colour).filled(),
                 ))?;
             }
         }
@@ -846,6 +868,34 @@ mod tests {
             hex(ADDED_RGB)
         );
         assert!(svg.contains(&added), "{svg}");
+    }
+
+    #[test]
+    fn the_png_draws_added_keyframes_in_their_colour() {
+        let mut t = timeline(40, vec![5, 10, 20]);
+        t.added.insert(10, "repairs keyframes 5–20".into());
+        let img = t.image().unwrap();
+        let layout = t.layout();
+        let colour_at = |k: usize| {
+            let (y0, y1) = panel_spans(1).next().unwrap();
+            let x = layout.x(k) as u32;
+            // Every row of the panel's bar has one colour.
+            let colours: std::collections::BTreeSet<[u8; 3]> =
+                (y0..y1).map(|y| img.get_pixel(x, y).0).collect();
+            assert_eq!(colours.len(), 1, "frame {k}: {colours:?}");
+            colours.into_iter().next().unwrap()
+        };
+        assert_eq!(colour_at(10), ADDED_RGB);
+        assert_eq!(colour_at(5), KEYFRAME_RGB);
+        assert_eq!(colour_at(20), KEYFRAME_RGB);
+        assert_eq!(
+            t.bars(),
+            [
+                (layout.x(5), KEYFRAME_RGB),
+                (layout.x(10), ADDED_RGB),
+                (layout.x(20), KEYFRAME_RGB)
+            ]
+        );
     }
 
     #[test]

@@ -5,6 +5,8 @@
 //! the answer's error. **Save** writes what `select` with the same steps would write, atomically and only
 //! over the project file it loaded (unchanged since; `/api/state`, asked on a page reload, reads a
 //! changed file again). Frames are decoded on demand for previews.
+//! A `reconstruct` step the project records is no editable step: its frames are kept after the
+//! steps' result and its record stays in the history ([`keep_recorded`]).
 //! The HTTP side and its request checks are in [`http`].
 
 pub mod bench;
@@ -94,6 +96,56 @@ pub struct Selection {
     pub history: Vec<Recorded>,
     /// One per step given, in order.
     pub steps_state: Vec<StepState>,
+    /// The project's recorded steps kept after the given ones ([`keep_recorded`]).
+    pub recorded: Vec<RecordedStep>,
+}
+
+/// A step the page shows but does not run: a `reconstruct` the project records. Its frames stay
+/// in the selection whatever the editable steps do.
+#[derive(Debug, Clone, Serialize)]
+pub struct RecordedStep {
+    /// The step's id (`reconstruct`).
+    pub plugin: &'static str,
+    /// The frames it added, each with the round it repairs and why.
+    pub added: Vec<steps::AddedFrame>,
+    /// Keyframes after it.
+    pub kept: usize,
+    /// What the page says about it.
+    pub note: &'static str,
+}
+
+/// The page's note on a recorded `reconstruct` step.
+pub const RECONSTRUCT_NOTE: &str = "recorded by `keyframer reconstruct`: its frames repair \
+    breaks COLMAP found in the project's selection and stay in it whatever the steps above do \
+    (a manual removal included); the page cannot run the loop again: run `keyframer reconstruct` \
+    on the saved project to check the new selection, or `select` again to drop them";
+
+/// Keeps the recorded `reconstruct` steps of `project` after the editable steps' result: their
+/// frames (those the input has and that are not damaged) join `keyframes`, their records join
+/// `history` as they were, so an edit or a save never loses them.
+pub fn keep_recorded(
+    project: &Project,
+    keyframes: &mut Vec<usize>,
+    history: &mut Vec<Recorded>,
+) -> Vec<RecordedStep> {
+    let n = project.metadata.frame_count;
+    let mut out = Vec::new();
+    for e in &project.history {
+        if let steps::Applied::Reconstruct { added, .. } = &e.applied {
+            let usable = |f: &usize| *f < n && project.damaged_frames.binary_search(f).is_err();
+            keyframes.extend(added.iter().map(|a| a.frame).filter(usable));
+            keyframes.sort_unstable();
+            keyframes.dedup();
+            history.push(Recorded::new(e.applied.clone(), keyframes.len()));
+            out.push(RecordedStep {
+                plugin: "reconstruct",
+                added: added.clone(),
+                kept: keyframes.len(),
+                note: RECONSTRUCT_NOTE,
+            });
+        }
+    }
+    out
 }
 
 /// Whether a step ran, and if not, what would compute what it lacks.
@@ -265,7 +317,7 @@ impl Review {
         let mut active: Vec<Step> = steps.to_vec();
         // Each step left out: its id, its refusal, whether `select` computes what it lacks.
         let mut disabled: Vec<(&'static str, String, bool)> = Vec::new();
-        let (keyframes, history) = loop {
+        let (mut keyframes, mut history) = loop {
             let resolved = self.resolve(&project, &active);
             let damaged = &project.damaged_frames;
             match select::run_steps(&self.input, &active, &resolved, cache, meta, damaged) {
@@ -298,10 +350,12 @@ impl Review {
                 }
             })
             .collect();
+        let recorded = keep_recorded(&project, &mut keyframes, &mut history);
         Ok(Selection {
             keyframes,
             history,
             steps_state,
+            recorded,
         })
     }
 

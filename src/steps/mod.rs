@@ -659,7 +659,7 @@ pub enum Applied {
         frames: usize,
     },
     /// `keyframer reconstruct`: frames added where COLMAP's model broke (not a sampler: a
-    /// workflow does not replay it as a step).
+    /// workflow replays it as its `[[reconstruct]]` table, after the selection).
     Reconstruct {
         /// COLMAP runs, the first on the starting keyframes.
         rounds: usize,
@@ -669,6 +669,10 @@ pub enum Applied {
         colmap_version: String,
         /// The loop's options as flags (`--max-rounds 4`, ...).
         options: Vec<String>,
+        /// The same options as the loop read them, which `workflow save` writes as a
+        /// `[[reconstruct]]` table (absent in projects of earlier builds).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        settings: Option<Box<crate::reconstruct::Options>>,
     },
     /// The stationary sampler with its resolved threshold.
     Stationary {

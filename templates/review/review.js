@@ -164,6 +164,32 @@
       }
       form.append(row);
     }
+    // Recorded steps (a `reconstruct` of the project): shown, never run or edited here.
+    for (const r of (S.sel && S.sel.recorded) || []) {
+      const row = document.createElement("fieldset");
+      row.id = "step-" + r.plugin;
+      row.className = "recorded";
+      const legend = document.createElement("legend");
+      legend.textContent = r.plugin + " (recorded)";
+      const kept = document.createElement("span");
+      kept.className = "kept";
+      kept.textContent = " → " + r.kept + " kept, " + r.added.length + " added";
+      legend.append(kept);
+      const note = document.createElement("p");
+      note.className = "note";
+      note.textContent = r.note;
+      const list = document.createElement("ul");
+      list.className = "added";
+      for (const a of r.added) {
+        const item = document.createElement("li");
+        item.dataset.frame = String(a.frame);
+        item.textContent = "frame " + a.frame + " (round " + a.round + "): " + a.reason;
+        item.addEventListener("click", () => setCursor(a.frame));
+        list.append(item);
+      }
+      row.append(legend, note, list);
+      form.append(row);
+    }
     if (editing) {
       const el = form.querySelector("#" + editing.row + " [name=" + editing.name + "]");
       if (el && !el.disabled) {
@@ -207,6 +233,11 @@
   }
 
   function toggleKeyframe(f) {
+    const by = ((S.sel && S.sel.recorded) || []).find((r) => r.added.some((a) => a.frame === f));
+    if (by) {
+      say("frame " + f + " was added by " + by.plugin + " (recorded): it stays", true);
+      return;
+    }
     const steps = JSON.parse(JSON.stringify(S.steps));
     let m = steps.find((s) => stepId(s) === "manual");
     if (!m) {

@@ -541,3 +541,201 @@ fn preview_project_falls_back_to_time_and_a_failing_stage_is_named() {
         .unwrap()
         .contains("sequential_matcher"));
 }
+
+/// `workflow save` of a reconstructed project writes its loop as a `[[reconstruct]]` table, and
+/// `keyframer run` replays it (made to break) on another survey (seed 2): the loop runs after the selection into
+/// the input's `reconstruct/` folder, its project ends with the `reconstruct` step, and a re-run
+/// (done.json removed) resumes the finished loop without changing it.
+#[test]
+fn a_saved_workflow_replays_the_loop_on_another_input() {
+    if !has_colmap() {
+        eprintln!("skipped: colmap is not installed");
+        return;
+    }
+    let run1 = sparse();
+    let d = tempfile::tempdir().unwrap();
+    let wf = d.path().join("w.toml");
+    kf_ok(&[
+        "workflow",
+        "save",
+        s(&run1.ws.join("project.json")),
+        "-o",
+        s(&wf),
+    ]);
+    let text = std::fs::read_to_string(&wf).unwrap();
+    let table: toml::Table = text.parse().unwrap();
+    let rec = table["reconstruct"].as_array().unwrap();
+    assert_eq!(rec.len(), 1, "{text}");
+    let r = rec[0].as_table().unwrap();
+    // The options the loop ran with, as the flags gave them.
+    assert_eq!(r["camera_model"].as_str(), Some("PINHOLE"), "{text}");
+    assert_eq!(r["camera_params"].as_str(), Some("224,224,160,90"));
+    assert_eq!(r["max_features"].as_integer(), Some(1024));
+    assert_eq!(r["max_rounds"].as_integer(), Some(4));
+    // The steps before it: the selection that started the loop, not its added frames.
+    let plugins: Vec<&str> = table["sample"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["plugin"].as_str().unwrap())
+        .collect();
+    assert!(plugins.contains(&"every-nth"), "{text}");
+    assert!(!plugins.contains(&"manual"), "{text}");
+
+    // COLMAP's result on one start varies from run to run (its threads), so whether a start
+    // breaks is not fixed: the replay is made to break everywhere (no link shares a million
+    // points) and kept short (2 rounds, 3 frames), which also shows the table's values reach
+    // the loop.
+    let mut edited = table.clone();
+    let r = edited["reconstruct"].as_array_mut().unwrap()[0]
+        .as_table_mut()
+        .unwrap();
+    r.insert("min_shared".into(), toml::Value::Integer(1_000_000));
+    r.insert("max_rounds".into(), toml::Value::Integer(2));
+    r.insert("max_added".into(), toml::Value::Integer(3));
+    std::fs::write(&wf, toml::to_string(&edited).unwrap()).unwrap();
+
+    // Another input: an 8 s survey of seed 2.
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("reconstruct-survey-2");
+    scene_ok(&[
+        s(&dir),
+        "--force",
+        "--size",
+        "320x180",
+        "--seconds",
+        "8",
+        "--blur-samples",
+        "2",
+        "--seed",
+        "2",
+    ]);
+    let video = dir.join("video.mp4");
+    let out = d.path().join("out");
+    let go = || kf_loud(&["run", s(&wf), s(&video), "--out", s(&out), "--json"]);
+    let o = go();
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 0, "{err}");
+    let reports: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let r = &reports[0];
+    assert_eq!(r["status"], "done", "{r}\n{err}");
+    let folder = PathBuf::from(r["folder"].as_str().unwrap());
+    let made = &r["reconstructed"][0];
+    assert_eq!(made["name"], "reconstruct", "{r}");
+    // The loop ran: its rounds on stderr, its workspace in the input's folder.
+    assert!(
+        err.contains("round 1: ") && err.contains(" registered, "),
+        "{err}"
+    );
+    let ws = folder.join("reconstruct");
+    let state = json(&ws.join("reconstruct.json"));
+    assert_eq!(state["outcome"], "round-budget", "{state}");
+    assert_eq!(state["options"]["limits"]["min_shared"], 1_000_000);
+    assert_eq!(state["options"]["camera_model"], "PINHOLE");
+    assert_eq!(state["rounds"].as_array().unwrap().len(), 2);
+    let start = keyframes(&folder.join("project.json"));
+    assert_eq!(frames(&state["start"]), start);
+    let fin = keyframes(&ws.join("project.json"));
+    assert_eq!(made["keyframes"], fin.len());
+    let added = made["added"].as_u64().unwrap() as usize;
+    assert_eq!(added, 3, "{state}");
+    assert_eq!(made["outcome"], "round-budget");
+    assert_eq!(fin.len(), start.len() + added);
+    let manifest = json(&ws.join("manifest.json"));
+    assert_eq!(manifest["frames"].as_array().unwrap().len(), fin.len());
+    // The new project's history ends with the loop, with the options it ran with.
+    let proj = json(&ws.join("project.json"));
+    let step = proj["history"].as_array().unwrap().last().unwrap().clone();
+    assert_eq!(step["plugin"], "reconstruct", "{step}");
+    assert_eq!(step["params"]["added"].as_array().unwrap().len(), added);
+    assert_eq!(step["params"]["settings"]["camera_model"], "PINHOLE");
+    assert_eq!(step["params"]["rounds"], 2);
+    assert_eq!(step["params"]["settings"]["max_features"], 1024);
+
+    // Resumable like the rest of `run`: a finished input is skipped; with its done.json gone
+    // the selection is redone and the finished loop is found as it was.
+    let state_before = std::fs::read(ws.join("reconstruct.json")).unwrap();
+    let (code, err) = code_and_stderr(&go());
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("already done"), "{err}");
+    std::fs::remove_file(folder.join("done.json")).unwrap();
+    let o = go();
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("nothing changed") && !err.contains("round 1: "),
+        "{err}"
+    );
+    let again: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(again[0]["reconstructed"], reports[0]["reconstructed"]);
+    assert_eq!(
+        std::fs::read(ws.join("reconstruct.json")).unwrap(),
+        state_before
+    );
+}
+
+/// A broken `[[reconstruct]]` table is refused before any input is read, naming the file, the
+/// line and the key (the same checks as `reconstruct`'s flags).
+#[test]
+fn broken_reconstruct_tables_are_refused_with_file_line_and_key() {
+    let d = tempfile::tempdir().unwrap();
+    let head = "version = 1\n[[sample]]\nplugin = \"every-nth\"\nn = 30\n\n[[reconstruct]]\n";
+    let cases: [(&str, &str, &[&str]); 7] = [
+        (
+            "max_rounds = 0\n",
+            "rounds",
+            &[":7:", "reconstruct[0].max_rounds", "at least 1"],
+        ),
+        (
+            "max_features = 1024\ncamera_model = \"FISHEYE9\"\n",
+            "camera",
+            &[":8:", "reconstruct[0].camera_model", "SIMPLE_RADIAL"],
+        ),
+        (
+            "max_added = \"lots\"\n",
+            "budget",
+            &[":7:", "reconstruct[0].max_added", "percentage"],
+        ),
+        (
+            "mapper_option = [\"no_value\"]\n",
+            "option",
+            &[":7:", "reconstruct[0].mapper_option", "KEY=VALUE"],
+        ),
+        (
+            "matcher = \"vocab\"\n",
+            "matcher",
+            &[":7:", "reconstruct[0].matcher"],
+        ),
+        (
+            "rounds = 3\n",
+            "unknown",
+            &["reconstruct[0]", "unknown field `rounds`"],
+        ),
+        (
+            "name = \"colmap\"\n",
+            "reserved",
+            &[":7:", "reconstruct[0].name", "reserved"],
+        ),
+    ];
+    for (body, name, needles) in cases {
+        let wf = d.path().join(format!("{name}.toml"));
+        std::fs::write(&wf, format!("{head}{body}")).unwrap();
+        let o = kf(&["workflow", "check", s(&wf)]);
+        let (code, err) = code_and_stderr(&o);
+        assert_eq!(code, 1, "{name}: {err}");
+        assert!(err.contains(&format!("{name}.toml")), "{name}: {err}");
+        for n in needles {
+            assert!(err.contains(n), "{name}: `{n}` not in {err}");
+        }
+    }
+    // A good table passes and is counted.
+    let wf = d.path().join("good.toml");
+    std::fs::write(
+        &wf,
+        format!("{head}max_added = \"50%\"\nmapping = \"continue\"\n"),
+    )
+    .unwrap();
+    let o = kf_loud(&["workflow", "check", s(&wf)]);
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("1 reconstruct"), "{err}");
+}

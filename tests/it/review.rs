@@ -1146,3 +1146,135 @@ fn review_shows_a_steps_own_refusal_and_offers_select_only_when_it_would_work() 
     );
     assert!(state["command"].is_null(), "{state}");
 }
+
+/// A project `reconstruct` made (its history ends with the recorded step, frame F added): the
+/// page shows the step as recorded with its frame and reason, the timeline draws F in the added
+/// colour, and toggling the other steps (another chain, a manual removal of F) keeps F and the
+/// record; a save writes both.
+/// The pan project in `dir` as if `reconstruct` had added frame F (a frame it does not keep,
+/// 30..90): F joins its keyframes and the recorded step ends its history. Returns the project,
+/// F, the reason and the history entry.
+fn with_recorded_reconstruct(dir: &Path) -> (PathBuf, u64, String, serde_json::Value) {
+    let project = pan_copy(dir);
+    let mut p = json(&project);
+    let keys: Vec<u64> = p["keyframes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| k.as_u64().unwrap())
+        .collect();
+    let f = (30..90).find(|f| !keys.contains(f)).unwrap();
+    let reason = format!("repairs keyframes {}–{} (split): test", f - 1, f + 1);
+    let mut with_f = keys.clone();
+    with_f.push(f);
+    with_f.sort_unstable();
+    p["keyframes"] = serde_json::json!(with_f);
+    let step = serde_json::json!({
+        "plugin": "reconstruct",
+        "params": {
+            "rounds": 2,
+            "added": [{"frame": f, "round": 1, "reason": reason}],
+            "colmap_version": "COLMAP 3.8",
+            "options": ["--max-rounds 4"],
+        },
+        "kept": with_f.len(),
+    });
+    p["history"].as_array_mut().unwrap().push(step.clone());
+    std::fs::write(&project, serde_json::to_string_pretty(&p).unwrap()).unwrap();
+    (project, f, reason, step)
+}
+
+#[test]
+fn review_keeps_the_frames_reconstruct_added() {
+    let dir = tempfile::tempdir().unwrap();
+    let (project, f, reason, step) = with_recorded_reconstruct(dir.path());
+    let with_f = json(&project)["keyframes"].clone();
+    let srv = Served::start(&project, &[]);
+    let (code, state) = srv.call("GET", "/api/state", None);
+    assert_eq!(code, 200, "{state}");
+    let sel = &state["selection"];
+    assert_eq!(sel["keyframes"], with_f, "{sel}");
+    let rec = &sel["recorded"][0];
+    assert_eq!(rec["plugin"], "reconstruct", "{sel}");
+    assert_eq!(rec["added"][0]["frame"], f);
+    assert_eq!(rec["added"][0]["reason"], reason.as_str());
+    assert!(rec["note"].as_str().unwrap().contains("stay"), "{rec}");
+    assert_eq!(sel["history"].as_array().unwrap().last().unwrap(), &step);
+    // The editable steps are the project's others; the recorded one is not among them.
+    let editable = state["steps"].clone();
+    assert!(!editable.to_string().contains("reconstruct"), "{editable}");
+
+    // Other steps toggled: blur off, and F removed by hand; F and the record stay.
+    let chain = serde_json::json!([
+        {"spacing": {"threshold": 30}},
+        {"manual": {"remove": [f]}}
+    ]);
+    let (code, applied) = srv.call("POST", "/api/apply", Some(&steps(chain.clone())));
+    assert_eq!(code, 200, "{applied}");
+    let kf: Vec<u64> = applied["keyframes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| k.as_u64().unwrap())
+        .collect();
+    assert!(kf.contains(&f), "{kf:?}");
+    assert_eq!(applied["recorded"][0]["added"][0]["frame"], f);
+    let svg = applied["timeline_svg"].as_str().unwrap();
+    let added = format!(r#"<g class="kf added" data-frame="{f}""#);
+    assert_eq!(svg.matches(r#"<g class="kf added""#).count(), 1, "{svg}");
+    assert!(svg.contains(&added) && svg.contains(&reason), "{svg}");
+
+    // A save keeps the frame and the record after the steps that ran.
+    let (code, saved) = srv.call("POST", "/api/save", Some(&steps(chain)));
+    assert_eq!(code, 200, "{saved}");
+    let after = json(&project);
+    assert_eq!(after["keyframes"], applied["keyframes"]);
+    let history = after["history"].as_array().unwrap();
+    assert_eq!(history.last().unwrap()["plugin"], "reconstruct");
+    assert_eq!(history.last().unwrap()["params"], step["params"]);
+    assert_eq!(history.last().unwrap()["kept"], kf.len());
+}
+
+/// The page lists the recorded `reconstruct` step with its frame and reason, draws the frame in
+/// the added colour, and a `k` on that frame says it stays instead of removing it.
+#[test]
+fn review_page_shows_the_recorded_reconstruct_step() {
+    let Some(browser) = Browser::launch() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (project, f, reason, _) = with_recorded_reconstruct(dir.path());
+    let srv = Served::start(&project, &[]);
+    let tab = open_page(&browser, &srv);
+    let row = tab.eval(&format!(
+        "(r => r && [r.className, r.querySelector('legend').textContent, (r.querySelector('li[data-frame=\"{f}\"]') || {{}}).textContent || ''])(document.getElementById('step-reconstruct'))"
+    ));
+    assert_eq!(row[0], "recorded", "{row}");
+    assert!(row[1].as_str().unwrap().contains("1 added"), "{row}");
+    let item = row[2].as_str().unwrap();
+    assert!(
+        item.contains(&format!("frame {f}")) && item.contains(&reason),
+        "{row}"
+    );
+    let bar = tab.eval(&format!(
+        "!!document.querySelector('#timeline g.kf.added[data-frame=\"{f}\"]')"
+    ));
+    assert_eq!(bar, serde_json::json!(true), "the added frame's bar");
+    // The list moves the cursor to the frame; `k` there keeps it and says why.
+    let count = page_count(&tab);
+    let (cx, cy) = centre(&tab, &format!("#step-reconstruct li[data-frame=\"{f}\"]"));
+    tab.click(cx, cy);
+    tab.wait_for(
+        &format!("document.getElementById('view-info').textContent.startsWith('frame {f}')"),
+        PAGE_WAIT,
+    )
+    .unwrap();
+    tab.key("k");
+    tab.wait_for(
+        "document.getElementById('status').textContent.includes('stays')",
+        PAGE_WAIT,
+    )
+    .unwrap();
+    assert_eq!(page_count(&tab), count);
+    assert_clean(&tab);
+}
