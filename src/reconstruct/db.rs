@@ -59,6 +59,57 @@ pub fn inliers(db: &Path) -> Result<HashMap<(String, String), usize>> {
     Ok(out)
 }
 
+/// An image pair of the database.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Pair {
+    /// COLMAP's image ids, the smaller first.
+    pub ids: (i64, i64),
+    /// Their names.
+    pub names: (String, String),
+    /// Inlier matches of their two-view geometry.
+    pub inliers: usize,
+}
+
+/// The image pairs whose two-view geometry is calibrated (COLMAP's configuration 2: an
+/// essential matrix, not a homography, explains it) among the images named `among`, most
+/// inliers first.
+pub fn calibrated_pairs(db: &Path, among: &[String]) -> Result<Vec<Pair>> {
+    let err = |e: rusqlite::Error| Error::input(db, format!("COLMAP database: {e}"));
+    let conn = open(db).map_err(err)?;
+    let mut names: HashMap<i64, String> = HashMap::new();
+    let mut q = conn
+        .prepare("SELECT image_id, name FROM images")
+        .map_err(err)?;
+    let rows = q
+        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)))
+        .map_err(err)?;
+    for row in rows {
+        let (id, name) = row.map_err(err)?;
+        if among.contains(&name) {
+            names.insert(id, name);
+        }
+    }
+    let mut q = conn
+        .prepare("SELECT pair_id, rows FROM two_view_geometries WHERE config = 2 ORDER BY rows DESC, pair_id")
+        .map_err(err)?;
+    let rows = q
+        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?)))
+        .map_err(err)?;
+    let mut out = Vec::new();
+    for row in rows {
+        let (pair, n) = row.map_err(err)?;
+        let (a, b) = pair_ids(pair);
+        if let (Some(na), Some(nb)) = (names.get(&a), names.get(&b)) {
+            out.push(Pair {
+                ids: (a, b),
+                names: (na.clone(), nb.clone()),
+                inliers: usize::try_from(n).unwrap_or(0),
+            });
+        }
+    }
+    Ok(out)
+}
+
 /// The inlier matches of image pairs, as pixel positions in the pair's first and second image:
 /// per pair of `pairs` (image names), its matches in that order, empty when the pair has no
 /// two-view geometry or an image is not in the database.
@@ -93,39 +144,15 @@ pub fn inlier_points(
             continue;
         };
         for id in [ia, ib] {
-            if !keypoints.contains_key(&id) {
-                let k = kq
-                    .query_row([id], |r| {
-                        Ok((
-                            r.get::<_, i64>(0)?,
-                            r.get::<_, i64>(1)?,
-                            r.get::<_, Option<Vec<u8>>>(2)?,
-                        ))
-                    })
-                    .map(|(rows, cols, data)| points(rows, cols, data.as_deref()))
-                    .or_else(|e| match e {
-                        rusqlite::Error::QueryReturnedNoRows => Ok(Vec::new()),
-                        e => Err(e),
-                    })
-                    .map_err(err)?;
-                keypoints.insert(id, k);
+            if let std::collections::hash_map::Entry::Vacant(slot) = keypoints.entry(id) {
+                let row = blob_row(&mut kq, id).map_err(err)?;
+                slot.insert(row.map_or_else(Vec::new, |(r, c, d)| points(r, c, d.as_deref())));
             }
         }
         let (lo, hi) = if ia < ib { (ia, ib) } else { (ib, ia) };
-        let matches = mq
-            .query_row([lo * PAIR_BASE + hi], |r| {
-                Ok((
-                    r.get::<_, i64>(0)?,
-                    r.get::<_, i64>(1)?,
-                    r.get::<_, Option<Vec<u8>>>(2)?,
-                ))
-            })
-            .map(|(rows, cols, data)| index_pairs(rows, cols, data.as_deref()))
-            .or_else(|e| match e {
-                rusqlite::Error::QueryReturnedNoRows => Ok(Vec::new()),
-                e => Err(e),
-            })
-            .map_err(err)?;
+        let matches = blob_row(&mut mq, lo * PAIR_BASE + hi)
+            .map_err(err)?
+            .map_or_else(Vec::new, |(r, c, d)| index_pairs(r, c, d.as_deref()));
         let (ka, kb) = (&keypoints[&ia], &keypoints[&ib]);
         let pts = matches
             .into_iter()
@@ -135,6 +162,16 @@ pub fn inlier_points(
         out.push(pts);
     }
     Ok(out)
+}
+
+/// A matrix blob of COLMAP's tables: `rows`, `cols`, `data`.
+type Blob = (i64, i64, Option<Vec<u8>>);
+
+/// The blob of the row `key` selects (None: no such row).
+fn blob_row(q: &mut rusqlite::Statement<'_>, key: i64) -> rusqlite::Result<Option<Blob>> {
+    use rusqlite::OptionalExtension;
+    q.query_row([key], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+        .optional()
 }
 
 /// Opens the database read-only.

@@ -135,6 +135,10 @@ pub mod defaults {
     /// 16° a survey's straight legs found no initial pair and stayed unregistered).
     pub const MAPPER_OPTIONS: [(&str, &str); 2] =
         [("min_model_size", "3"), ("init_min_tri_angle", "4")];
+    /// Mappings tried from other initial pairs when a round's mapping is mis-assembled (on the
+    /// experiment's mis-assembled databases, one of the 3 calibrated pairs with the most inliers
+    /// gave a correct model each time: docs/reconstruct.md).
+    pub const REMAP_TRIES: usize = 3;
 }
 
 /// The state file: the loop's rounds so far.
@@ -181,8 +185,36 @@ pub struct Round {
     pub true_breaks: Vec<TrueBreak>,
     /// Seconds per COLMAP stage in this round.
     pub colmap_s: BTreeMap<String, f64>,
+    /// The mapping again from other initial pairs, when the first was mis-assembled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub remap: Option<Remap>,
     /// Whether the round finished.
     pub done: bool,
+}
+
+/// A round mapped again from other initial pairs because its first mapping had mis-assembled
+/// links.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Remap {
+    /// Mis-assembled links of the first mapping.
+    pub mis_assembled: usize,
+    /// Mappings tried from other initial pairs.
+    pub tries: usize,
+    /// The frames of the initial pair of the mapping kept (None: no trial was better, the first
+    /// mapping is kept).
+    pub kept: Option<(usize, usize)>,
+}
+
+/// The mapping trials of a round: the one kept (its number and the frames of its initial pair),
+/// and how many were made.
+struct Trials {
+    kept: Option<(usize, (usize, usize))>,
+    tries: usize,
+}
+
+/// How many links of `found` are broken because the model is assembled wrongly.
+fn mis_assembled(found: &[Break]) -> usize {
+    found.iter().filter(|b| b.why.mis_assembled()).count()
 }
 
 /// A model and the keyframe ranges it holds.
@@ -540,6 +572,7 @@ impl Job<'_> {
                     added: Vec::new(),
                     true_breaks: Vec::new(),
                     colmap_s: BTreeMap::new(),
+                    remap: None,
                     done: false,
                 });
                 self.save(state)?;
@@ -602,19 +635,35 @@ impl Job<'_> {
             .iter()
             .filter_map(|f| by_frame.get(f).map(|s| s.to_string()))
             .collect();
-        let rec = extend::round(
+        let mut rec = extend::round(
             &cs,
             o.mapper,
             o.mapping,
             extend_it.then_some(names.as_slice()),
             self.quiet,
         )?;
+        let priors = self.priors(&keys);
+        let mut obs = observe(&cws, &rec, &keys, &by_frame, &priors)?;
+        let mut found = breaks::find(&keys, &obs, o.limits);
+        let fresh = first || o.mapping == Mapping::Fresh;
+        let mut remap = None;
+        if fresh && o.mapper == MapperKind::Incremental && mis_assembled(&found) > 0 {
+            let Trials { kept, tries } = self.remap(&cs, &keys, &by_frame, &priors, &found)?;
+            rec = extend::end_trials(&cws, defaults::REMAP_TRIES, kept.map(|k| k.0))?;
+            remap = Some(Remap {
+                mis_assembled: mis_assembled(&found),
+                tries,
+                kept: kept.map(|k| k.1),
+            });
+            if kept.is_some() {
+                obs = observe(&cws, &rec, &keys, &by_frame, &priors)?;
+                found = breaks::find(&keys, &obs, o.limits);
+            }
+        }
         let mut colmap_s = BTreeMap::new();
         for st in rec.stages.iter().skip(before) {
             *colmap_s.entry(st.stage.clone()).or_insert(0.0) += st.seconds;
         }
-        let obs = observe(&cws, &rec, &keys, &by_frame, &self.priors(&keys))?;
-        let found = breaks::find(&keys, &obs, o.limits);
         let ranges = breaks::ranges(&keys, &obs);
         let mut models: Vec<ModelRanges> = obs
             .models
@@ -644,8 +693,53 @@ impl Job<'_> {
             added: Vec::new(),
             true_breaks: Vec::new(),
             colmap_s,
+            remap,
             done: false,
         })
+    }
+
+    /// Maps the round's database again from other initial pairs (the calibrated two-view
+    /// geometries with the most inliers, [`defaults::REMAP_TRIES`] at most) because its mapping
+    /// has mis-assembled links (`found`); stops at the first trial without any. Returns the
+    /// trial that judged best, if one beats the first mapping (fewer mis-assembled links, then
+    /// fewer breaks), with the frames of its initial pair; and the trials made.
+    fn remap(
+        &self,
+        cs: &ColmapSettings,
+        keys: &[usize],
+        by_frame: &BTreeMap<usize, &str>,
+        priors: &[priors::Prior],
+        found: &[Break],
+    ) -> Result<Trials> {
+        let cws = self.ws.join(COLMAP_DIR);
+        let frame_of: BTreeMap<&str, usize> = by_frame.iter().map(|(f, n)| (*n, *f)).collect();
+        let names: Vec<String> = by_frame.values().map(|n| n.to_string()).collect();
+        let candidates = db::calibrated_pairs(&cws.join("database.db"), &names)?;
+        let score = |b: &[Break]| (mis_assembled(b), b.len());
+        let mut best_score = score(found);
+        let mut out = Trials {
+            kept: None,
+            tries: 0,
+        };
+        for pair in candidates.into_iter().take(defaults::REMAP_TRIES) {
+            out.tries += 1;
+            let (na, nb) = &pair.names;
+            let trial = extend::remap_trial(cs, out.tries, pair.ids, self.quiet)?;
+            let obs = observe(&cws, &trial, keys, by_frame, priors)?;
+            let got = score(&breaks::find(keys, &obs, self.s.options.limits));
+            if got < best_score {
+                best_score = got;
+                let frames = (
+                    frame_of.get(na.as_str()).copied().unwrap_or(0),
+                    frame_of.get(nb.as_str()).copied().unwrap_or(0),
+                );
+                out.kept = Some((out.tries, frames));
+            }
+            if got.0 == 0 {
+                break;
+            }
+        }
+        Ok(out)
     }
 
     /// Records `round` as the state's last and chooses the repairs; returns the outcome when the
@@ -718,8 +812,25 @@ impl Job<'_> {
             .iter()
             .map(|(k, v)| format!("{k} {v:.1} s"))
             .collect();
+        let remap = match &r.remap {
+            Some(Remap {
+                mis_assembled,
+                kept: Some((a, b)),
+                ..
+            }) => format!(
+                "; {mis_assembled} mis-assembled link(s): mapped again from frames {a} and {b}"
+            ),
+            Some(Remap {
+                mis_assembled,
+                tries,
+                kept: None,
+            }) => format!(
+                "; {mis_assembled} mis-assembled link(s): {tries} mapping(s) from other initial pairs did no better"
+            ),
+            None => String::new(),
+        };
         eprintln!(
-            "round {}: {}/{} registered, {} model(s), {} break(s), +{} frame(s); COLMAP {}",
+            "round {}: {}/{} registered, {} model(s), {} break(s), +{} frame(s){remap}; COLMAP {}",
             r.round,
             r.registered,
             r.keyframes.len(),
