@@ -700,9 +700,9 @@ impl Job<'_> {
 
     /// Maps the round's database again from other initial pairs (the calibrated two-view
     /// geometries with the most inliers, [`defaults::REMAP_TRIES`] at most) because its mapping
-    /// has mis-assembled links (`found`); stops at the first trial without any. Returns the
-    /// trial that judged best, if one beats the first mapping (fewer mis-assembled links, then
-    /// fewer breaks), with the frames of its initial pair; and the trials made.
+    /// has mis-assembled links (`found`); stops at the first trial without any break. Returns
+    /// the trial that judged best, if one beats the first mapping (fewer breaks, then fewer
+    /// mis-assembled links), with the frames of its initial pair; and the trials made.
     fn remap(
         &self,
         cs: &ColmapSettings,
@@ -715,7 +715,8 @@ impl Job<'_> {
         let frame_of: BTreeMap<&str, usize> = by_frame.iter().map(|(f, n)| (*n, *f)).collect();
         let names: Vec<String> = by_frame.values().map(|n| n.to_string()).collect();
         let candidates = db::calibrated_pairs(&cws.join("database.db"), &names)?;
-        let score = |b: &[Break]| (mis_assembled(b), b.len());
+        // Fewer breaks to repair first (each costs frames), then fewer mis-assembled links.
+        let score = |b: &[Break]| (b.len(), mis_assembled(b));
         let mut best_score = score(found);
         let mut out = Trials {
             kept: None,
