@@ -7,7 +7,7 @@
 # camera-centre error against the ground truth after a similarity alignment (in % of the path
 # length), and the loop's COLMAP time against one COLMAP run on its final keyframes.
 #
-#   scripts/reconstruct-experiment.sh [--smoke] [--seeds 1,2,3] [--start 30] [--ns 60,45,30,25,20,15,10] [WORK]
+#   scripts/reconstruct-experiment.sh [--smoke] [--seeds 1,2,3] [--start 45] [--ns 60,45,30,25,20,15,10] [WORK]
 #
 # --smoke: one seed, N 30 only (the test suite's size). Every run uses the scene's intrinsics
 # (PINHOLE, kept fixed), 1024 SIFT features and the loop's mapper options for plain COLMAP too
@@ -19,7 +19,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 seeds="1,2,3"
-start=30
+start=45
 ns="60,45,30,25,20,15,10"
 work=target/reconstruct-experiment
 while [ $# -gt 0 ]; do
