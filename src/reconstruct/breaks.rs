@@ -1,9 +1,14 @@
 //! Where a reconstruction of a keyframe set is broken: pure functions over what COLMAP made
 //! (which model registered each keyframe, the 3D points consecutive keyframes share, the inlier
-//! matches of their two-view geometry). Guarantees: every consecutive pair of keyframes is judged
-//! once, in frame order; a pair is sound only when both keyframes are registered in the same
-//! model, share at least `min_shared` 3D points and rest on at least `min_inliers` inliers;
-//! the set is connected exactly when no pair is broken and one model registers every keyframe.
+//! matches of their two-view geometry, how well the model's poses explain those matches) and
+//! over the project's telemetry where it has some. Guarantees: every consecutive pair of
+//! keyframes is judged once, in frame order, and gets at most one reason; a pair is sound only
+//! when both keyframes are registered in the same model, share at least `min_shared` 3D points,
+//! rest on at least `min_inliers` inliers, the model's relative pose explains at least
+//! [`MIN_EXPLAINED`] of those inliers, the model's turn between them is within
+//! [`MAX_TURN_ERROR_DEG`] of the telemetry's, and neither lies further than
+//! [`max_off_track_m`] from its telemetry position; the set is connected exactly when no pair
+//! is broken and one model registers every keyframe.
 
 use serde::{Deserialize, Serialize};
 
@@ -20,6 +25,39 @@ pub struct Observed {
     /// Per consecutive pair: inlier matches of their two-view geometry in the database (None:
     /// no database was read).
     pub inliers: Vec<Option<usize>>,
+    /// Per consecutive pair in one model: the fraction of its two-view inliers the model's
+    /// relative pose explains (`epipolar::agreement`; None: not measured).
+    pub explained: Vec<Option<f64>>,
+    /// Per consecutive pair in one model: the model's turn and the telemetry's turn between
+    /// them, degrees (None: the telemetry has no gimbal angles there).
+    pub turns: Vec<Option<(f64, f64)>>,
+    /// Per keyframe: metres from its telemetry position after the similarity alignment of its
+    /// model to the telemetry (None: no telemetry or no alignment).
+    pub off_track_m: Vec<Option<f64>>,
+    /// The telemetry path's length over the keyframes, metres (0: no telemetry).
+    pub path_m: f64,
+}
+
+/// A pair is inconsistent when the model's relative pose explains less than this fraction of its
+/// two-view inliers. Correct models explain 95–100 % (docs/reconstruct.md).
+pub const MIN_EXPLAINED: f64 = 0.5;
+
+/// A pair disagrees with the telemetry when the model's turn between them differs from the
+/// gimbal's by more than this many degrees. Correct models differ by at most 0.4°, the
+/// mis-assembled seed-3 model by 7–15° on its straight legs (docs/reconstruct.md).
+pub const MAX_TURN_ERROR_DEG: f64 = 5.0;
+
+/// A keyframe is off its track when it lies further than this percentage of the telemetry's
+/// path from its telemetry position after the alignment ...
+pub const MAX_OFF_TRACK_PCT: f64 = 5.0;
+
+/// ... and further than this many metres (GPS noise).
+pub const MIN_OFF_TRACK_M: f64 = 3.0;
+
+/// The distance from its telemetry position beyond which a keyframe is off its track, for a
+/// telemetry path of `path_m` metres.
+pub fn max_off_track_m(path_m: f64) -> f64 {
+    (MAX_OFF_TRACK_PCT / 100.0 * path_m).max(MIN_OFF_TRACK_M)
 }
 
 /// Why a pair of consecutive keyframes is broken.
@@ -52,6 +90,42 @@ pub enum Why {
         /// `--min-inliers`.
         min: usize,
     },
+    /// One model, but its relative pose of the pair contradicts the pair's own matches.
+    Inconsistent {
+        /// Percentage of the two-view inliers the model's relative pose explains.
+        explained_pct: f64,
+        /// Inlier matches of the pair's two-view geometry.
+        inliers: usize,
+    },
+    /// One model, but it turns the camera between them otherwise than the telemetry's gimbal.
+    TurnAgainstTelemetry {
+        /// The model's turn, degrees.
+        model_deg: f64,
+        /// The gimbal's turn, degrees.
+        telemetry_deg: f64,
+    },
+    /// One model, but a keyframe of the pair lies off the telemetry's track.
+    OffTrack {
+        /// The keyframe furthest off.
+        frame: usize,
+        /// Its distance from its telemetry position after the alignment, metres.
+        off_m: f64,
+        /// The distance allowed, metres.
+        max_m: f64,
+        /// The telemetry path's length, metres.
+        path_m: f64,
+    },
+}
+
+impl Why {
+    /// Whether the pair is broken because the model is assembled wrongly there (rather than
+    /// not joined at all).
+    pub fn mis_assembled(&self) -> bool {
+        matches!(
+            self,
+            Why::Inconsistent { .. } | Why::TurnAgainstTelemetry { .. } | Why::OffTrack { .. }
+        )
+    }
 }
 
 impl std::fmt::Display for Why {
@@ -59,7 +133,14 @@ impl std::fmt::Display for Why {
         match self {
             Why::Unregistered { frames } => {
                 let list: Vec<String> = frames.iter().map(usize::to_string).collect();
-                write!(f, "frame {} registered in no model", list.join(" and "))
+                match list.split_last() {
+                    Some((last, rest)) if !rest.is_empty() => write!(
+                        f,
+                        "frames {} and {last} registered in no model",
+                        rest.join(", ")
+                    ),
+                    _ => write!(f, "frame {} registered in no model", list.join("")),
+                }
             }
             Why::Split {
                 from_model,
@@ -71,6 +152,31 @@ impl std::fmt::Display for Why {
             Why::FewInliers { inliers, min } => {
                 write!(f, "{inliers} two-view inliers (fewer than {min})")
             }
+            Why::Inconsistent {
+                explained_pct,
+                inliers,
+            } => write!(
+                f,
+                "mis-assembled: the model's relative pose explains {explained_pct:.0} % of their {inliers} two-view inliers (under {:.0} %)",
+                MIN_EXPLAINED * 100.0
+            ),
+            Why::TurnAgainstTelemetry {
+                model_deg,
+                telemetry_deg,
+            } => write!(
+                f,
+                "mis-assembled: the model turns {model_deg:.1}° between them, the telemetry's gimbal {telemetry_deg:.1}° (more than {MAX_TURN_ERROR_DEG}° apart)"
+            ),
+            Why::OffTrack {
+                frame,
+                off_m,
+                max_m,
+                path_m,
+            } => write!(
+                f,
+                "mis-assembled: frame {frame} lies {off_m:.1} m ({:.1} % of the {path_m:.0} m path) from its telemetry position after a similarity alignment (over {max_m:.1} m)",
+                if *path_m > 0.0 { 100.0 * off_m / path_m } else { 0.0 }
+            ),
         }
     }
 }
@@ -128,7 +234,7 @@ pub fn find(keyframes: &[usize], obs: &Observed, limits: Limits) -> Vec<Break> {
                             inliers: n,
                             min: limits.min_inliers,
                         }),
-                        _ => None,
+                        _ => mis_assembled(obs, i, (from, to), inliers.unwrap_or(0)),
                     }
                 }
             }
@@ -148,6 +254,52 @@ pub fn find(keyframes: &[usize], obs: &Observed, limits: Limits) -> Vec<Break> {
         });
     }
     out
+}
+
+/// Why the sound-looking pair at position `i` (frames `from`, `to`) is mis-assembled, if it is:
+/// its matches, then the telemetry's turn, then its track.
+fn mis_assembled(
+    obs: &Observed,
+    i: usize,
+    (from, to): (usize, usize),
+    inliers: usize,
+) -> Option<Why> {
+    if let Some(x) = obs.explained.get(i).copied().flatten() {
+        if x < MIN_EXPLAINED {
+            return Some(Why::Inconsistent {
+                explained_pct: 100.0 * x,
+                inliers,
+            });
+        }
+    }
+    if let Some((model_deg, telemetry_deg)) = obs.turns.get(i).copied().flatten() {
+        if (model_deg - telemetry_deg).abs() > MAX_TURN_ERROR_DEG {
+            return Some(Why::TurnAgainstTelemetry {
+                model_deg,
+                telemetry_deg,
+            });
+        }
+    }
+    let max_m = max_off_track_m(obs.path_m);
+    let off = |k: usize| {
+        obs.off_track_m
+            .get(k)
+            .copied()
+            .flatten()
+            .filter(|m| *m > max_m)
+    };
+    let worst = match (off(i), off(i + 1)) {
+        (Some(a), Some(b)) if b > a => Some((to, b)),
+        (Some(a), _) => Some((from, a)),
+        (None, Some(b)) => Some((to, b)),
+        (None, None) => None,
+    };
+    worst.map(|(frame, off_m)| Why::OffTrack {
+        frame,
+        off_m,
+        max_m,
+        path_m: obs.path_m,
+    })
 }
 
 /// Per consecutive pair of keyframe positions, the tracks that hold both: `tracks` gives, per
@@ -219,6 +371,7 @@ mod tests {
             models: vec!["sparse/0".into(), "sparse/1".into()],
             shared,
             inliers: vec![Some(100); n.saturating_sub(1)],
+            ..Observed::default()
         }
     }
 
@@ -271,6 +424,98 @@ mod tests {
         assert_eq!(
             b[0].why.to_string(),
             "in different models (sparse/0, sparse/1)"
+        );
+    }
+
+    #[test]
+    fn a_mis_assembled_link_breaks_by_its_matches_its_turn_or_its_track() {
+        let k = [0, 30, 60, 90, 120];
+        let mut o = obs(vec![Some(0); 5], vec![50; 4]);
+        o.explained = vec![Some(0.99), Some(0.97), Some(0.98), Some(1.0)];
+        o.turns = vec![Some((0.1, 0.0)); 4];
+        o.off_track_m = vec![Some(0.2); 5];
+        o.path_m = 100.0;
+        assert!(find(&k, &o, LIMITS).is_empty());
+        // One link the model rotated: its own inliers contradict it.
+        o.explained[1] = Some(0.12);
+        // Another where the model turns 8° while the gimbal holds still.
+        o.turns[2] = Some((8.0, 0.0));
+        // A keyframe 7 m off a 100 m track (the limit: 5 m).
+        o.off_track_m[4] = Some(7.0);
+        let b = find(&k, &o, LIMITS);
+        let got: Vec<(usize, usize, Why)> = b.into_iter().map(|b| (b.from, b.to, b.why)).collect();
+        assert_eq!(
+            got,
+            vec![
+                (
+                    30,
+                    60,
+                    Why::Inconsistent {
+                        explained_pct: 12.0,
+                        inliers: 100
+                    }
+                ),
+                (
+                    60,
+                    90,
+                    Why::TurnAgainstTelemetry {
+                        model_deg: 8.0,
+                        telemetry_deg: 0.0
+                    }
+                ),
+                (
+                    90,
+                    120,
+                    Why::OffTrack {
+                        frame: 120,
+                        off_m: 7.0,
+                        max_m: 5.0,
+                        path_m: 100.0
+                    }
+                ),
+            ]
+        );
+        assert!(got.iter().all(|(_, _, w)| w.mis_assembled()));
+        // One model registers every keyframe, but it is not connected while mis-assembled.
+        assert!(!connected(&o, &find(&k, &o, LIMITS)));
+        assert_eq!(
+            got[1].2.to_string(),
+            "mis-assembled: the model turns 8.0° between them, the telemetry's gimbal 0.0° (more than 5° apart)"
+        );
+        assert!(got[2]
+            .2
+            .to_string()
+            .contains("frame 120 lies 7.0 m (7.0 % of the 100 m path)"));
+    }
+
+    #[test]
+    fn small_turn_errors_and_gps_noise_pass() {
+        let k = [0, 30, 60];
+        let mut o = obs(vec![Some(0); 3], vec![50; 2]);
+        o.explained = vec![Some(0.6), None];
+        o.turns = vec![Some((30.0, 26.0)), None];
+        // 2.5 m off a 20 m track: over 5 % of it, within the 3 m of GPS noise.
+        o.off_track_m = vec![Some(2.5), None, Some(0.1)];
+        o.path_m = 20.0;
+        assert!(find(&k, &o, LIMITS).is_empty());
+        assert_eq!(max_off_track_m(20.0), MIN_OFF_TRACK_M);
+        assert_eq!(max_off_track_m(200.0), 10.0);
+        // Weak links are named before mis-assembly.
+        o.shared[0] = 3;
+        o.explained[0] = Some(0.1);
+        assert!(matches!(find(&k, &o, LIMITS)[0].why, Why::FewShared { .. }));
+    }
+
+    #[test]
+    fn unregistered_frames_are_listed() {
+        let one = Why::Unregistered { frames: vec![20] };
+        let three = Why::Unregistered {
+            frames: vec![20, 30, 40],
+        };
+        assert_eq!(one.to_string(), "frame 20 registered in no model");
+        assert_eq!(
+            three.to_string(),
+            "frames 20, 30 and 40 registered in no model"
         );
     }
 

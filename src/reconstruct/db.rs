@@ -1,10 +1,13 @@
 //! Reads the two-view geometries of a COLMAP database (`database.db`, SQLite): how many inlier
-//! matches each verified image pair has. Read-only; the database is never written.
+//! matches each verified image pair has, and the pixel positions of a pair's inlier matches
+//! (its `keypoints` rows and the `data` of its two-view geometry). Read-only; the database is
+//! never written.
 //!
 //! rusqlite (with SQLite built in) rather than the `sqlite3` tool or a hand-written reader: a
 //! real SQLite reads COLMAP's file exactly as COLMAP wrote it (journal and all), needs no
 //! program on PATH, and the tables are a documented part of COLMAP's database format.
 
+use super::epipolar;
 use crate::error::{Error, Result};
 use std::collections::HashMap;
 use std::path::Path;
@@ -22,11 +25,7 @@ pub fn pair_ids(pair_id: i64) -> (i64, i64) {
 /// matched but not verified has 0, a pair never matched is absent.
 pub fn inliers(db: &Path) -> Result<HashMap<(String, String), usize>> {
     let err = |e: rusqlite::Error| Error::input(db, format!("COLMAP database: {e}"));
-    let conn = rusqlite::Connection::open_with_flags(
-        db,
-        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX,
-    )
-    .map_err(err)?;
+    let conn = open(db).map_err(err)?;
     let mut names: HashMap<i64, String> = HashMap::new();
     let mut q = conn
         .prepare("SELECT image_id, name FROM images")
@@ -58,6 +57,159 @@ pub fn inliers(db: &Path) -> Result<HashMap<(String, String), usize>> {
         }
     }
     Ok(out)
+}
+
+/// An image pair of the database.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Pair {
+    /// COLMAP's image ids, the smaller first.
+    pub ids: (i64, i64),
+    /// Their names.
+    pub names: (String, String),
+    /// Inlier matches of their two-view geometry.
+    pub inliers: usize,
+}
+
+/// The image pairs whose two-view geometry is calibrated (COLMAP's configuration 2: an
+/// essential matrix, not a homography, explains it) among the images named `among`, most
+/// inliers first.
+pub fn calibrated_pairs(db: &Path, among: &[String]) -> Result<Vec<Pair>> {
+    let err = |e: rusqlite::Error| Error::input(db, format!("COLMAP database: {e}"));
+    let conn = open(db).map_err(err)?;
+    let mut names: HashMap<i64, String> = HashMap::new();
+    let mut q = conn
+        .prepare("SELECT image_id, name FROM images")
+        .map_err(err)?;
+    let rows = q
+        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)))
+        .map_err(err)?;
+    for row in rows {
+        let (id, name) = row.map_err(err)?;
+        if among.contains(&name) {
+            names.insert(id, name);
+        }
+    }
+    let mut q = conn
+        .prepare("SELECT pair_id, rows FROM two_view_geometries WHERE config = 2 ORDER BY rows DESC, pair_id")
+        .map_err(err)?;
+    let rows = q
+        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?)))
+        .map_err(err)?;
+    let mut out = Vec::new();
+    for row in rows {
+        let (pair, n) = row.map_err(err)?;
+        let (a, b) = pair_ids(pair);
+        if let (Some(na), Some(nb)) = (names.get(&a), names.get(&b)) {
+            out.push(Pair {
+                ids: (a, b),
+                names: (na.clone(), nb.clone()),
+                inliers: usize::try_from(n).unwrap_or(0),
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// The inlier matches of image pairs, as pixel positions in the pair's first and second image:
+/// per pair of `pairs` (image names), its matches in that order, empty when the pair has no
+/// two-view geometry or an image is not in the database.
+pub fn inlier_points(
+    db: &Path,
+    pairs: &[(String, String)],
+) -> Result<Vec<Vec<(epipolar::Px, epipolar::Px)>>> {
+    let err = |e: rusqlite::Error| Error::input(db, format!("COLMAP database: {e}"));
+    let conn = open(db).map_err(err)?;
+    let mut ids: HashMap<String, i64> = HashMap::new();
+    let mut q = conn
+        .prepare("SELECT image_id, name FROM images")
+        .map_err(err)?;
+    let rows = q
+        .query_map([], |r| Ok((r.get::<_, String>(1)?, r.get::<_, i64>(0)?)))
+        .map_err(err)?;
+    for row in rows {
+        let (name, id) = row.map_err(err)?;
+        ids.insert(name, id);
+    }
+    let mut keypoints: HashMap<i64, Vec<epipolar::Px>> = HashMap::new();
+    let mut kq = conn
+        .prepare("SELECT rows, cols, data FROM keypoints WHERE image_id = ?1")
+        .map_err(err)?;
+    let mut mq = conn
+        .prepare("SELECT rows, cols, data FROM two_view_geometries WHERE pair_id = ?1")
+        .map_err(err)?;
+    let mut out = Vec::with_capacity(pairs.len());
+    for (a, b) in pairs {
+        let (Some(&ia), Some(&ib)) = (ids.get(a), ids.get(b)) else {
+            out.push(Vec::new());
+            continue;
+        };
+        for id in [ia, ib] {
+            if let std::collections::hash_map::Entry::Vacant(slot) = keypoints.entry(id) {
+                let row = blob_row(&mut kq, id).map_err(err)?;
+                slot.insert(row.map_or_else(Vec::new, |(r, c, d)| points(r, c, d.as_deref())));
+            }
+        }
+        let (lo, hi) = if ia < ib { (ia, ib) } else { (ib, ia) };
+        let matches = blob_row(&mut mq, lo * PAIR_BASE + hi)
+            .map_err(err)?
+            .map_or_else(Vec::new, |(r, c, d)| index_pairs(r, c, d.as_deref()));
+        let (ka, kb) = (&keypoints[&ia], &keypoints[&ib]);
+        let pts = matches
+            .into_iter()
+            .map(|(i, j)| if ia < ib { (i, j) } else { (j, i) })
+            .filter_map(|(i, j)| Some((*ka.get(i)?, *kb.get(j)?)))
+            .collect();
+        out.push(pts);
+    }
+    Ok(out)
+}
+
+/// A matrix blob of COLMAP's tables: `rows`, `cols`, `data`.
+type Blob = (i64, i64, Option<Vec<u8>>);
+
+/// The blob of the row `key` selects (None: no such row).
+fn blob_row(q: &mut rusqlite::Statement<'_>, key: i64) -> rusqlite::Result<Option<Blob>> {
+    use rusqlite::OptionalExtension;
+    q.query_row([key], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+        .optional()
+}
+
+/// Opens the database read-only.
+fn open(db: &Path) -> rusqlite::Result<rusqlite::Connection> {
+    rusqlite::Connection::open_with_flags(
+        db,
+        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX,
+    )
+}
+
+/// The `(x, y)` of each keypoint row (float32, `cols` per row, x and y first).
+fn points(rows: i64, cols: i64, data: Option<&[u8]>) -> Vec<epipolar::Px> {
+    let (Ok(rows), Ok(cols)) = (usize::try_from(rows), usize::try_from(cols)) else {
+        return Vec::new();
+    };
+    let Some(data) = data.filter(|d| cols >= 2 && d.len() >= rows * cols * 4) else {
+        return Vec::new();
+    };
+    let f = |k: usize| {
+        let b = &data[k * 4..k * 4 + 4];
+        f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    (0..rows).map(|r| [f(r * cols), f(r * cols + 1)]).collect()
+}
+
+/// The feature index pairs of a matches blob (uint32, 2 per row).
+fn index_pairs(rows: i64, cols: i64, data: Option<&[u8]>) -> Vec<(usize, usize)> {
+    let Ok(rows) = usize::try_from(rows) else {
+        return Vec::new();
+    };
+    let Some(data) = data.filter(|d| cols == 2 && d.len() >= rows * 8) else {
+        return Vec::new();
+    };
+    let u = |k: usize| {
+        let b = &data[k * 4..k * 4 + 4];
+        u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize
+    };
+    (0..rows).map(|r| (u(2 * r), u(2 * r + 1))).collect()
 }
 
 /// The inliers of the pair of images `a` and `b` (either order) in a table from [`inliers`].
@@ -103,5 +255,58 @@ mod tests {
         assert_eq!(of(&t, "a.jpg", "c.jpg"), 0);
         assert_eq!(of(&t, "b.jpg", "c.jpg"), 0);
         assert_eq!(t.len(), 2);
+    }
+
+    #[test]
+    fn inlier_points_are_the_matched_keypoints_in_the_pairs_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let db = dir.path().join("database.db");
+        let c = rusqlite::Connection::open(&db).unwrap();
+        c.execute_batch(
+            "CREATE TABLE images (image_id INTEGER PRIMARY KEY, name TEXT, camera_id INTEGER);
+             CREATE TABLE keypoints (image_id INTEGER PRIMARY KEY, rows INTEGER, cols INTEGER, data BLOB);
+             CREATE TABLE two_view_geometries (pair_id INTEGER PRIMARY KEY, rows INTEGER, cols INTEGER, data BLOB, config INTEGER);
+             INSERT INTO images VALUES (1, 'b.jpg', 1), (2, 'a.jpg', 1), (3, 'c.jpg', 1);",
+        )
+        .unwrap();
+        // Keypoints (x, y and 4 affine values, float32) of images 1 and 2, and the inlier
+        // matches of pair (1, 2): feature 0 of image 1 with feature 1 of image 2, 1 with 0.
+        let kp = |pts: &[[f32; 2]]| -> Vec<u8> {
+            pts.iter()
+                .flat_map(|p| [p[0], p[1], 1.0, 0.0, 0.0, 1.0])
+                .flat_map(f32::to_le_bytes)
+                .collect()
+        };
+        c.execute(
+            "INSERT INTO keypoints VALUES (1, 2, 6, ?1), (2, 2, 6, ?2)",
+            rusqlite::params![kp(&[[1.0, 2.0], [3.0, 4.0]]), kp(&[[5.0, 6.0], [7.0, 8.0]])],
+        )
+        .unwrap();
+        let m: Vec<u8> = [0u32, 1, 1, 0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        c.execute(
+            "INSERT INTO two_view_geometries VALUES (?2, 2, 2, ?1, 2)",
+            rusqlite::params![m, PAIR_BASE + 2],
+        )
+        .unwrap();
+        drop(c);
+        let pairs = [
+            ("b.jpg".to_string(), "a.jpg".to_string()),
+            ("a.jpg".to_string(), "b.jpg".to_string()),
+            ("b.jpg".to_string(), "c.jpg".to_string()),
+            ("b.jpg".to_string(), "zz.jpg".to_string()),
+        ];
+        let pts = inlier_points(&db, &pairs).unwrap();
+        assert_eq!(
+            pts[0],
+            vec![([1.0, 2.0], [7.0, 8.0]), ([3.0, 4.0], [5.0, 6.0])]
+        );
+        assert_eq!(
+            pts[1],
+            vec![([7.0, 8.0], [1.0, 2.0]), ([5.0, 6.0], [3.0, 4.0])]
+        );
+        assert!(pts[2].is_empty() && pts[3].is_empty());
     }
 }

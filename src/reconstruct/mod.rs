@@ -11,6 +11,8 @@
 
 pub mod breaks;
 pub mod db;
+pub mod epipolar;
+pub mod priors;
 pub mod repair;
 
 use crate::colmap::extend::{self, MapperKind, Mapping};
@@ -129,6 +131,10 @@ pub mod defaults {
     /// 16° a survey's straight legs found no initial pair and stayed unregistered).
     pub const MAPPER_OPTIONS: [(&str, &str); 2] =
         [("min_model_size", "3"), ("init_min_tri_angle", "4")];
+    /// Mappings tried from other initial pairs when a round's mapping is mis-assembled (on the
+    /// experiment's mis-assembled databases, one of the 3 calibrated pairs with the most inliers
+    /// gave a correct model each time: docs/reconstruct.md).
+    pub const REMAP_TRIES: usize = 3;
 }
 
 /// The state file: the loop's rounds so far.
@@ -175,8 +181,36 @@ pub struct Round {
     pub true_breaks: Vec<TrueBreak>,
     /// Seconds per COLMAP stage in this round.
     pub colmap_s: BTreeMap<String, f64>,
+    /// The mapping again from other initial pairs, when the first was mis-assembled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub remap: Option<Remap>,
     /// Whether the round finished.
     pub done: bool,
+}
+
+/// A round mapped again from other initial pairs because its first mapping had mis-assembled
+/// links.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Remap {
+    /// Mis-assembled links of the first mapping.
+    pub mis_assembled: usize,
+    /// Mappings tried from other initial pairs.
+    pub tries: usize,
+    /// The frames of the initial pair of the mapping kept (None: no trial was better, the first
+    /// mapping is kept).
+    pub kept: Option<(usize, usize)>,
+}
+
+/// The mapping trials of a round: the one kept (its number and the frames of its initial pair),
+/// and how many were made.
+struct Trials {
+    kept: Option<(usize, (usize, usize))>,
+    tries: usize,
+}
+
+/// How many links of `found` are broken because the model is assembled wrongly.
+fn mis_assembled(found: &[Break]) -> usize {
+    found.iter().filter(|b| b.why.mis_assembled()).count()
 }
 
 /// A model and the keyframe ranges it holds.
@@ -203,7 +237,7 @@ pub struct Added {
     pub reason: String,
 }
 
-/// A break nothing in the cache can repair.
+/// A break nothing in the cache can repair: a span of consecutive broken keyframe pairs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrueBreak {
     /// The keyframe before it.
@@ -216,6 +250,13 @@ pub struct TrueBreak {
     pub broken: String,
     /// Why nothing repairs it.
     pub why: String,
+    /// How many consecutive keyframe pairs the span covers (older states: 1).
+    #[serde(default = "one")]
+    pub links: usize,
+}
+
+fn one() -> usize {
+    1
 }
 
 /// How the loop ended.
@@ -487,6 +528,18 @@ struct Job<'a> {
 }
 
 impl Job<'_> {
+    /// The telemetry of `keys` (empty when the project has none).
+    fn priors(&self, keys: &[usize]) -> Vec<priors::Prior> {
+        let Some(t) = &self.project.cache.telemetry else {
+            return Vec::new();
+        };
+        let positions: Vec<_> = keys
+            .iter()
+            .map(|&f| t.positions.get(f).and_then(Option::as_ref))
+            .collect();
+        priors::of_positions(&positions)
+    }
+
     fn save(&self, state: &State) -> Result<()> {
         fsutil::write_json(&self.ws.join(STATE), state)
     }
@@ -514,6 +567,7 @@ impl Job<'_> {
                     added: Vec::new(),
                     true_breaks: Vec::new(),
                     colmap_s: BTreeMap::new(),
+                    remap: None,
                     done: false,
                 });
                 self.save(state)?;
@@ -571,19 +625,35 @@ impl Job<'_> {
             .iter()
             .filter_map(|f| by_frame.get(f).map(|s| s.to_string()))
             .collect();
-        let rec = extend::round(
+        let mut rec = extend::round(
             &cs,
             o.mapper,
             o.mapping,
             extend_it.then_some(names.as_slice()),
             self.quiet,
         )?;
+        let priors = self.priors(&keys);
+        let mut obs = observe(&cws, &rec, &keys, &by_frame, &priors)?;
+        let mut found = breaks::find(&keys, &obs, o.limits);
+        let fresh = first || o.mapping == Mapping::Fresh;
+        let mut remap = None;
+        if fresh && o.mapper == MapperKind::Incremental && mis_assembled(&found) > 0 {
+            let Trials { kept, tries } = self.remap(&cs, &keys, &by_frame, &priors, &found)?;
+            rec = extend::end_trials(&cws, defaults::REMAP_TRIES, kept.map(|k| k.0))?;
+            remap = Some(Remap {
+                mis_assembled: mis_assembled(&found),
+                tries,
+                kept: kept.map(|k| k.1),
+            });
+            if kept.is_some() {
+                obs = observe(&cws, &rec, &keys, &by_frame, &priors)?;
+                found = breaks::find(&keys, &obs, o.limits);
+            }
+        }
         let mut colmap_s = BTreeMap::new();
         for st in rec.stages.iter().skip(before) {
             *colmap_s.entry(st.stage.clone()).or_insert(0.0) += st.seconds;
         }
-        let obs = observe(&cws, &rec, &keys, &by_frame)?;
-        let found = breaks::find(&keys, &obs, o.limits);
         let ranges = breaks::ranges(&keys, &obs);
         let mut models: Vec<ModelRanges> = obs
             .models
@@ -613,8 +683,54 @@ impl Job<'_> {
             added: Vec::new(),
             true_breaks: Vec::new(),
             colmap_s,
+            remap,
             done: false,
         })
+    }
+
+    /// Maps the round's database again from other initial pairs (the calibrated two-view
+    /// geometries with the most inliers, [`defaults::REMAP_TRIES`] at most) because its mapping
+    /// has mis-assembled links (`found`); stops at the first trial without any break. Returns
+    /// the trial that judged best, if one beats the first mapping (fewer breaks, then fewer
+    /// mis-assembled links), with the frames of its initial pair; and the trials made.
+    fn remap(
+        &self,
+        cs: &ColmapSettings,
+        keys: &[usize],
+        by_frame: &BTreeMap<usize, &str>,
+        priors: &[priors::Prior],
+        found: &[Break],
+    ) -> Result<Trials> {
+        let cws = self.ws.join(COLMAP_DIR);
+        let frame_of: BTreeMap<&str, usize> = by_frame.iter().map(|(f, n)| (*n, *f)).collect();
+        let names: Vec<String> = by_frame.values().map(|n| n.to_string()).collect();
+        let candidates = db::calibrated_pairs(&cws.join("database.db"), &names)?;
+        // Fewer breaks to repair first (each costs frames), then fewer mis-assembled links.
+        let score = |b: &[Break]| (b.len(), mis_assembled(b));
+        let mut best_score = score(found);
+        let mut out = Trials {
+            kept: None,
+            tries: 0,
+        };
+        for pair in candidates.into_iter().take(defaults::REMAP_TRIES) {
+            out.tries += 1;
+            let (na, nb) = &pair.names;
+            let trial = extend::remap_trial(cs, out.tries, pair.ids, self.quiet)?;
+            let obs = observe(&cws, &trial, keys, by_frame, priors)?;
+            let got = score(&breaks::find(keys, &obs, self.s.options.limits));
+            if got < best_score {
+                best_score = got;
+                let frames = (
+                    frame_of.get(na.as_str()).copied().unwrap_or(0),
+                    frame_of.get(nb.as_str()).copied().unwrap_or(0),
+                );
+                out.kept = Some((out.tries, frames));
+            }
+            if got.0 == 0 {
+                break;
+            }
+        }
+        Ok(out)
     }
 
     /// Records `round` as the state's last and chooses the repairs; returns the outcome when the
@@ -626,6 +742,7 @@ impl Job<'_> {
             && round.registered == round.keyframes.len();
         let frames = self.frames.frames();
         let mut repairs: Vec<(usize, Added)> = Vec::new();
+        let mut unrepairable: Vec<(Break, String)> = Vec::new();
         if !connected {
             for b in &round.breaks {
                 match repair::choose(b.from, b.to, &frames) {
@@ -644,16 +761,11 @@ impl Job<'_> {
                             ));
                         }
                     }
-                    Choice::TrueBreak { why } => round.true_breaks.push(TrueBreak {
-                        from: b.from,
-                        to: b.to,
-                        times_s: self.frames.time(b.from).zip(self.frames.time(b.to)),
-                        broken: b.why.to_string(),
-                        why,
-                    }),
+                    Choice::TrueBreak { why } => unrepairable.push((b.clone(), why)),
                 }
             }
         }
+        round.true_breaks = spans(unrepairable, |f| self.frames.time(f));
         let added_so_far: usize = state.rounds.iter().map(|r| r.added.len()).sum();
         let allowed = o.max_added.frames(state.start.len());
         let outcome = if connected {
@@ -691,8 +803,25 @@ impl Job<'_> {
             .iter()
             .map(|(k, v)| format!("{k} {v:.1} s"))
             .collect();
+        let remap = match &r.remap {
+            Some(Remap {
+                mis_assembled,
+                kept: Some((a, b)),
+                ..
+            }) => format!(
+                "; {mis_assembled} mis-assembled link(s): mapped again from frames {a} and {b}"
+            ),
+            Some(Remap {
+                mis_assembled,
+                tries,
+                kept: None,
+            }) => format!(
+                "; {mis_assembled} mis-assembled link(s): {tries} mapping(s) from other initial pairs did no better"
+            ),
+            None => String::new(),
+        };
         eprintln!(
-            "round {}: {}/{} registered, {} model(s), {} break(s), +{} frame(s); COLMAP {}",
+            "round {}: {}/{} registered, {} model(s), {} break(s), +{} frame(s){remap}; COLMAP {}",
             r.round,
             r.registered,
             r.keyframes.len(),
@@ -765,6 +894,58 @@ impl Job<'_> {
     }
 }
 
+/// The true breaks of `unrepairable` (each broken link with why nothing repairs it, in frame
+/// order), consecutive links (one's later keyframe the next one's earlier) merged into one span:
+/// its first and last keyframe, the keyframes left unregistered inside it named once, every
+/// other reason and every distinct why once, in order.
+fn spans(
+    unrepairable: Vec<(Break, String)>,
+    time: impl Fn(usize) -> Option<f64>,
+) -> Vec<TrueBreak> {
+    let mut groups: Vec<Vec<(Break, String)>> = Vec::new();
+    for (b, why) in unrepairable {
+        match groups.last_mut() {
+            Some(g) if g.last().is_some_and(|(last, _)| last.to == b.from) => g.push((b, why)),
+            _ => groups.push(vec![(b, why)]),
+        }
+    }
+    groups
+        .into_iter()
+        .filter_map(|g| {
+            let (from, to) = (g.first()?.0.from, g.last()?.0.to);
+            let mut unregistered: BTreeSet<usize> = BTreeSet::new();
+            let mut broken: Vec<String> = Vec::new();
+            let mut whys: Vec<String> = Vec::new();
+            for (b, why) in &g {
+                match &b.why {
+                    breaks::Why::Unregistered { frames } => unregistered.extend(frames),
+                    other => {
+                        let text = other.to_string();
+                        if !broken.contains(&text) {
+                            broken.push(text);
+                        }
+                    }
+                }
+                if !whys.contains(why) {
+                    whys.push(why.clone());
+                }
+            }
+            if !unregistered.is_empty() {
+                let frames = unregistered.into_iter().collect();
+                broken.insert(0, breaks::Why::Unregistered { frames }.to_string());
+            }
+            Some(TrueBreak {
+                from,
+                to,
+                times_s: time(from).zip(time(to)),
+                broken: broken.join("; "),
+                why: whys.join("; "),
+                links: g.len(),
+            })
+        })
+        .collect()
+}
+
 /// The options as the flags that give them (for the project's history).
 fn options_as_flags(o: &Options) -> Vec<String> {
     let mut f = vec![
@@ -803,26 +984,35 @@ fn options_as_flags(o: &Options) -> Vec<String> {
 }
 
 /// Reads the models of a round: which keyframe (position in `keys`) each registered, the 3D
-/// points consecutive keyframes share, and their two-view inliers from the database.
+/// points consecutive keyframes share, their two-view inliers from the database, how well the
+/// model's poses explain those inliers, and the model against the telemetry (`priors`, by
+/// keyframe position; empty without telemetry).
 fn observe(
     cws: &Path,
     rec: &Record,
     keys: &[usize],
     by_frame: &BTreeMap<usize, &str>,
+    priors: &[priors::Prior],
 ) -> Result<Observed> {
     let position: BTreeMap<&str, usize> = keys
         .iter()
         .enumerate()
         .filter_map(|(i, f)| by_frame.get(f).map(|n| (*n, i)))
         .collect();
+    let pairs = keys.len().saturating_sub(1);
     let mut obs = Observed {
         model_of: vec![None; keys.len()],
-        shared: vec![0; keys.len().saturating_sub(1)],
+        shared: vec![0; pairs],
+        explained: vec![None; pairs],
+        turns: vec![None; pairs],
+        off_track_m: vec![None; keys.len()],
         ..Observed::default()
     };
     // Larger models first, so a keyframe registered twice counts in the larger.
     let mut order: Vec<&crate::colmap::ModelSummary> = rec.models.iter().collect();
     order.sort_by_key(|m| std::cmp::Reverse(m.registered_images));
+    // Per model read: the model and the image id of each keyframe position it registered.
+    let mut read: Vec<(model::Model, BTreeMap<usize, u32>)> = Vec::new();
     for summary in order {
         let (m, _) = model::read(&cws.join(&summary.path))?;
         let index = obs.models.len();
@@ -851,6 +1041,12 @@ fn observe(
         for (total, s) in obs.shared.iter_mut().zip(shared) {
             *total += s;
         }
+        let image_at = pos_of_image
+            .into_iter()
+            .filter(|(_, i)| obs.model_of[*i] == Some(index))
+            .map(|(id, i)| (i, id))
+            .collect();
+        read.push((m, image_at));
     }
     let db = cws.join("database.db");
     let table = db::inliers(&db)?;
@@ -861,6 +1057,66 @@ fn observe(
             _ => None,
         })
         .collect();
+    // The pairs in one model: their images, and the matches the model must explain.
+    let image = |i: usize| {
+        let (m, at) = &read[obs.model_of[i]?];
+        let img = m.images.get(at.get(&i)?)?;
+        Some((img, m.cameras.get(&img.camera_id)?))
+    };
+    let linked: Vec<usize> = (0..pairs)
+        .filter(|&i| obs.model_of[i].is_some() && obs.model_of[i] == obs.model_of[i + 1])
+        .collect();
+    let names: Vec<(String, String)> = linked
+        .iter()
+        .filter_map(|&i| {
+            Some((
+                by_frame.get(&keys[i])?.to_string(),
+                by_frame.get(&keys[i + 1])?.to_string(),
+            ))
+        })
+        .collect();
+    let matches = if names.len() == linked.len() {
+        db::inlier_points(&db, &names)?
+    } else {
+        Vec::new()
+    };
+    for (k, &i) in linked.iter().enumerate() {
+        let (Some(a), Some(b)) = (image(i), image(i + 1)) else {
+            continue;
+        };
+        if let Some(m) = matches.get(k).filter(|m| !m.is_empty()) {
+            obs.explained[i] = epipolar::agreement(a, b, m).map(|g| g.fraction());
+        }
+        let (pa, pb) = (priors.get(i).copied(), priors.get(i + 1).copied());
+        if let (Some(ya), Some(yb)) = (pa.and_then(|p| p.yaw_pitch), pb.and_then(|p| p.yaw_pitch)) {
+            let ra = crate::colmap::align::quat_to_mat(a.0.qvec);
+            let rb = crate::colmap::align::quat_to_mat(b.0.qvec);
+            obs.turns[i] = Some((
+                priors::model_turn_deg(&ra, &rb),
+                priors::telemetry_turn_deg(ya, yb),
+            ));
+        }
+    }
+    if priors.len() == keys.len() {
+        obs.path_m = priors::path_m(priors);
+        for index in 0..read.len() {
+            let centres: Vec<_> = (0..keys.len())
+                .map(|i| {
+                    (obs.model_of[i] == Some(index))
+                        .then(|| image(i).map(|(img, _)| img.centre()))
+                        .flatten()
+                })
+                .collect();
+            for (i, off) in priors::off_track_m(&centres, priors)
+                .into_iter()
+                .enumerate()
+            {
+                if off.is_some() {
+                    obs.off_track_m[i] = off;
+                }
+            }
+        }
+    }
     Ok(obs)
 }
 
@@ -950,6 +1206,61 @@ pub fn render(s: &Summary) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn consecutive_true_breaks_merge_into_one_span() {
+        use breaks::Why;
+        let b = |from, to, why| Break { from, to, why };
+        let unrepairable = vec![
+            (
+                b(119, 135, Why::Unregistered { frames: vec![135] }),
+                "only textureless frames between them".to_string(),
+            ),
+            (
+                b(
+                    135,
+                    150,
+                    Why::Unregistered {
+                        frames: vec![135, 150],
+                    },
+                ),
+                "only textureless frames between them".to_string(),
+            ),
+            (
+                b(
+                    150,
+                    165,
+                    Why::Split {
+                        from_model: "sparse/0".into(),
+                        to_model: "sparse/1".into(),
+                    },
+                ),
+                "adjacent frames".to_string(),
+            ),
+            (
+                b(165, 180, Why::Unregistered { frames: vec![165] }),
+                "only textureless frames between them".to_string(),
+            ),
+            (
+                b(300, 301, Why::FewShared { shared: 2, min: 15 }),
+                "adjacent frames".to_string(),
+            ),
+        ];
+        let spans = spans(unrepairable, |f| Some(f as f64 / 30.0));
+        assert_eq!(spans.len(), 2);
+        assert_eq!((spans[0].from, spans[0].to, spans[0].links), (119, 180, 4));
+        assert_eq!(spans[0].times_s, Some((119.0 / 30.0, 6.0)));
+        assert_eq!(
+            spans[0].broken,
+            "frames 135, 150 and 165 registered in no model; in different models (sparse/0, sparse/1)"
+        );
+        assert_eq!(
+            spans[0].why,
+            "only textureless frames between them; adjacent frames"
+        );
+        assert_eq!((spans[1].from, spans[1].to, spans[1].links), (300, 301, 1));
+        assert_eq!(spans[1].broken, "2 shared 3D points (fewer than 15)");
+    }
 
     #[test]
     fn budgets_parse_and_scale() {
