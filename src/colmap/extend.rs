@@ -165,7 +165,7 @@ pub fn remap_trial(a: &ColmapSettings, n: usize, init: (i64, i64), quiet: bool) 
     clear(&ws, &name)?;
     let output = ws.join(&name);
     std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
-    let mut with_init = a.clone();
+    let mut with_init = a.options.clone();
     let options = &mut with_init.mapper_option;
     options.retain(|m| !m.contains("init_image_id") && !m.contains("multiple_models"));
     options.push(format!("init_image_id1={}", init.0));
