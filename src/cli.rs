@@ -2,8 +2,6 @@
 
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use keyframer::colmap::extend::{MapperKind, Mapping};
-use keyframer::colmap::Matcher;
 use keyframer::error::{Error, Result};
 use keyframer::manifest::{ExportSettings, Format, MaskSettings, SegRuntime, DEFAULT_QUALITY};
 use keyframer::names::Names;
@@ -12,6 +10,7 @@ use keyframer::params::{
     BackendChoice, Derotate, FarnebackParams, Metric, MovementRequest, Statistic,
 };
 use keyframer::select::SelectSettings;
+use keyframer::sparse::{MapperKind, Mapping, Matcher};
 use keyframer::steps::defaults;
 use std::path::PathBuf;
 
@@ -797,13 +796,13 @@ impl ExportArgs {
 #[derive(Debug, Args)]
 pub struct ColmapFlags {
     /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
-    #[arg(long, value_parser = named::<Matcher>(), default_value_t = keyframer::colmap::defaults::MATCHER)]
+    #[arg(long, value_parser = named::<Matcher>(), default_value_t = keyframer::sparse::defaults::MATCHER)]
     pub matcher: Matcher,
     /// Sequential matching: match each image with this many following images.
-    #[arg(long, default_value_t = keyframer::colmap::defaults::OVERLAP)]
+    #[arg(long, default_value_t = keyframer::sparse::defaults::OVERLAP)]
     pub overlap: u32,
     /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).
-    #[arg(long, default_value = keyframer::colmap::defaults::CAMERA_MODEL)]
+    #[arg(long, default_value = keyframer::sparse::defaults::CAMERA_MODEL)]
     pub camera_model: String,
     /// Known intrinsics for the camera model, comma-separated in COLMAP's order (PINHOLE:
     /// `fx,fy,cx,cy`), e.g. from a synthetic scene's scene.json; the mapper then keeps them fixed.
@@ -820,8 +819,8 @@ pub struct ColmapFlags {
 
 impl ColmapFlags {
     /// The library's options.
-    pub fn options(&self) -> keyframer::colmap::SparseOptions {
-        keyframer::colmap::SparseOptions {
+    pub fn options(&self) -> keyframer::sparse::SparseOptions {
+        keyframer::sparse::SparseOptions {
             matcher: self.matcher,
             overlap: self.overlap,
             camera_model: self.camera_model.clone(),
@@ -881,25 +880,25 @@ pub struct ReconstructArgs {
     #[arg(long, value_name = "WS")]
     pub out: PathBuf,
     /// Rounds of COLMAP at most (the first reconstructs the project's keyframes).
-    #[arg(long, default_value_t = keyframer::reconstruct::defaults::MAX_ROUNDS, value_name = "N")]
+    #[arg(long, default_value_t = keyframer::sparse::defaults::MAX_ROUNDS, value_name = "N")]
     pub max_rounds: usize,
     /// Frames the loop may add in all: a count (`40`) or a percentage of the starting keyframes
     /// (`50%`).
-    #[arg(long, default_value = keyframer::reconstruct::defaults::MAX_ADDED, value_name = "N|PCT%")]
+    #[arg(long, default_value = keyframer::sparse::defaults::MAX_ADDED, value_name = "N|PCT%")]
     pub max_added: String,
     /// A link between consecutive keyframes of one model is weak when they share fewer 3D
     /// points than this.
-    #[arg(long, default_value_t = keyframer::reconstruct::defaults::MIN_SHARED, value_name = "P")]
+    #[arg(long, default_value_t = keyframer::sparse::defaults::MIN_SHARED, value_name = "P")]
     pub min_shared: usize,
     /// ... or when their two-view geometry has fewer inlier matches than this.
-    #[arg(long, default_value_t = keyframer::reconstruct::defaults::MIN_INLIERS, value_name = "N")]
+    #[arg(long, default_value_t = keyframer::sparse::defaults::MIN_INLIERS, value_name = "N")]
     pub min_inliers: usize,
     /// Mapper: incremental (COLMAP's `mapper`) or global (`global_mapper`, recent COLMAP only).
-    #[arg(long, value_parser = named::<MapperKind>(), default_value_t = keyframer::reconstruct::defaults::MAPPER)]
+    #[arg(long, value_parser = named::<MapperKind>(), default_value_t = keyframer::sparse::defaults::MAPPER)]
     pub mapper: MapperKind,
     /// How later rounds map: afresh, or continuing the largest model with the new images
     /// (features and matches are reused either way).
-    #[arg(long, value_parser = named::<Mapping>(), default_value_t = keyframer::reconstruct::defaults::MAPPING)]
+    #[arg(long, value_parser = named::<Mapping>(), default_value_t = keyframer::sparse::defaults::MAPPING)]
     pub mapping: Mapping,
     /// COLMAP's options (the loop adds `min_model_size=3` and `init_min_tri_angle=4` to the
     /// mapper options unless given).
@@ -929,7 +928,8 @@ pub struct ReconstructArgs {
 impl ReconstructArgs {
     /// The library's settings.
     pub fn settings(&self) -> Result<keyframer::reconstruct::ReconstructSettings> {
-        use keyframer::reconstruct::{breaks::Limits, Budget, Options, ReconstructSettings};
+        use keyframer::reconstruct::ReconstructSettings;
+        use keyframer::sparse::{Budget, Limits, Options};
         let export = ExportSettings::from_parts(
             self.resize.as_deref(),
             self.scale,

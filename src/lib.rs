@@ -33,6 +33,7 @@ pub mod review;
 pub mod segment;
 pub mod select;
 pub mod source;
+pub mod sparse;
 pub mod steps;
 pub mod synthetic;
 pub mod tomlfile;

@@ -2,8 +2,6 @@
 //! exports and of reconstruction loops (`[[reconstruct]]`), checked completely (file:line and key for every error) before any input is touched,
 //! and turned into the same validated settings the `select` / `export` flags produce.
 
-use crate::colmap::extend::{MapperKind, Mapping};
-use crate::colmap::Matcher;
 use crate::error::{Error, Result};
 use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
 use crate::names::Names;
@@ -12,6 +10,7 @@ use crate::params::{
     Backend, BackendChoice, Derotate, FarnebackParams, MovementRequest, Statistic,
 };
 use crate::project::Project;
+use crate::sparse::{MapperKind, Mapping, Matcher};
 use crate::steps::Step;
 use crate::tomlfile::{self, TomlFile};
 use serde::{Deserialize, Serialize};
@@ -268,7 +267,7 @@ pub struct Workflow {
     /// Each `[[export]]`: its folder name and checked settings.
     pub exports: Vec<(String, ExportSettings)>,
     /// Each `[[reconstruct]]`: its folder name and checked options.
-    pub reconstructs: Vec<(String, crate::reconstruct::Options)>,
+    pub reconstructs: Vec<(String, crate::sparse::Options)>,
     /// The files it names (telemetry, mask model descriptions and their files), which running it
     /// reads; the workflow file itself is not among them.
     pub inputs: Inputs,
@@ -545,15 +544,15 @@ fn check_masks(
 }
 
 /// `[[reconstruct]]` `i` as the loop's checked options (the flags' defaults for what is not
-/// given; checked by [`crate::reconstruct::check`], as the flags are), errors on
+/// given; checked by [`crate::sparse::check`], as the flags are), errors on
 /// `reconstruct[i].<key>`.
 fn reconstruct_options(
     file: &TomlFile<RawFile>,
     w: &WorkflowFile,
     i: usize,
     r: &Reconstruct,
-) -> Result<crate::reconstruct::Options> {
-    use crate::reconstruct::{breaks::Limits, defaults, Budget, Options};
+) -> Result<crate::sparse::Options> {
+    use crate::sparse::{defaults, Budget, Limits, Options};
     let at = |k: &str| format!("reconstruct[{i}].{k}");
     let earlier: Vec<&str> = (w.export.iter().map(|e| e.name.as_str()))
         .chain(w.reconstruct[..i].iter().map(Reconstruct::folder))
@@ -586,11 +585,11 @@ fn reconstruct_options(
             min_shared: r.min_shared.unwrap_or(defaults::MIN_SHARED),
             min_inliers: r.min_inliers.unwrap_or(defaults::MIN_INLIERS),
         },
-        colmap: crate::colmap::SparseOptions {
-            matcher: r.matcher.unwrap_or(crate::colmap::defaults::MATCHER),
-            overlap: r.overlap.unwrap_or(crate::colmap::defaults::OVERLAP),
+        colmap: crate::sparse::SparseOptions {
+            matcher: r.matcher.unwrap_or(crate::sparse::defaults::MATCHER),
+            overlap: r.overlap.unwrap_or(crate::sparse::defaults::OVERLAP),
             camera_model: (r.camera_model.clone())
-                .unwrap_or_else(|| crate::colmap::defaults::CAMERA_MODEL.into()),
+                .unwrap_or_else(|| crate::sparse::defaults::CAMERA_MODEL.into()),
             camera_params: r.camera_params.clone(),
             max_features: r.max_features,
             mapper_option: r.mapper_option.clone(),
@@ -599,13 +598,13 @@ fn reconstruct_options(
         mapping: r.mapping.unwrap_or(defaults::MAPPING),
         export,
     };
-    crate::reconstruct::check(&options).map_err(located)?;
+    crate::sparse::check(&options).map_err(located)?;
     Ok(options)
 }
 
 /// The `[[reconstruct]]` that repeats a loop run with `o`.
-fn reconstruct_table(o: &crate::reconstruct::Options) -> Reconstruct {
-    use crate::reconstruct::Budget;
+fn reconstruct_table(o: &crate::sparse::Options) -> Reconstruct {
+    use crate::sparse::Budget;
     let e = &o.export;
     let (resize, scale) = resize_keys(e.resize);
     Reconstruct {
@@ -867,10 +866,10 @@ mod tests {
         let w = Workflow::from_text(Path::new("/tmp/w.toml"), text.into()).unwrap();
         let (name, o) = &w.reconstructs[0];
         assert_eq!(name, "rec");
-        assert_eq!(o.max_added, crate::reconstruct::Budget::Percent(50.0));
+        assert_eq!(o.max_added, crate::sparse::Budget::Percent(50.0));
         assert_eq!(o.mapping, Mapping::Continue);
-        assert_eq!(o.max_rounds, crate::reconstruct::defaults::MAX_ROUNDS);
-        assert_eq!(o.colmap.matcher, crate::colmap::defaults::MATCHER);
+        assert_eq!(o.max_rounds, crate::sparse::defaults::MAX_ROUNDS);
+        assert_eq!(o.colmap.matcher, crate::sparse::defaults::MATCHER);
         assert_eq!(o.export.quality, 80);
         let raw = RawFile {
             version: VERSION,
@@ -885,7 +884,7 @@ mod tests {
         assert_eq!(again.reconstructs[0].0, RECONSTRUCT_NAME);
         // A frame count is written as an integer and read back.
         let mut counted = o.clone();
-        counted.max_added = crate::reconstruct::Budget::Frames(7);
+        counted.max_added = crate::sparse::Budget::Frames(7);
         let raw = RawFile {
             reconstruct: vec![reconstruct_table(&counted)],
             ..raw

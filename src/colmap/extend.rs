@@ -15,35 +15,13 @@ use super::{
 };
 use crate::error::{Error, Result};
 use crate::fsutil;
+use crate::sparse::{MapperKind, Mapping};
 use std::path::Path;
 
 /// Folder the mapper of a later round writes into before it replaces `sparse/`.
 pub const NEXT: &str = "sparse.next";
 /// The list of new images given to `feature_extractor` (inside `logs/`, which keyframer owns).
 const NEW_LIST: &str = "logs/new_images.txt";
-
-crate::names::named_enum! {
-    /// Which mapper builds the model.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-    pub enum MapperKind: "mapper" {
-        /// `colmap mapper`: incremental structure from motion (every COLMAP).
-        Incremental = "incremental": "COLMAP's incremental `mapper` (every COLMAP)",
-        /// `colmap global_mapper`: global structure from motion (recent COLMAP only).
-        Global = "global": "COLMAP's `global_mapper` (COLMAP 3.12 and later)",
-    }
-}
-
-crate::names::named_enum! {
-    /// How a later round maps.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-    pub enum Mapping: "mapping" {
-        /// A fresh mapping of every image of the database (features and matches are reused).
-        Fresh = "fresh": "map every image afresh (features and matches are reused)",
-        /// `mapper --input_path` the largest model: registers the new images into it (other
-        /// models are not carried over: their images are mapped again into it or left out).
-        Continue = "continue": "`mapper --input_path` the largest model with the new images",
-    }
-}
 
 /// The COLMAP command of a mapper kind.
 pub fn mapper_command(kind: MapperKind) -> &'static str {

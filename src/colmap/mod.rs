@@ -12,6 +12,7 @@ pub mod model;
 use crate::error::{Error, Result};
 use crate::fsutil;
 use crate::manifest::{Manifest, MANIFEST, MASK_DIR};
+use crate::sparse::{mapper_keys, Matcher, SparseOptions};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -52,80 +53,6 @@ pub struct ColmapSettings {
     pub options: SparseOptions,
     /// Replace the keyframer-made content of an existing workspace.
     pub force: bool,
-}
-
-/// COLMAP's options that decide a sparse model, shared by `colmap` and `reconstruct`; each
-/// field is the flag of the same name.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SparseOptions {
-    /// Feature matching strategy.
-    pub matcher: Matcher,
-    /// Sequential matching: how many following images each image is matched with.
-    pub overlap: u32,
-    /// COLMAP camera model shared by all images.
-    pub camera_model: String,
-    /// Known intrinsics, comma-separated in COLMAP's order; the mapper keeps them fixed.
-    pub camera_params: Option<String>,
-    /// Maximum SIFT features per image (None: COLMAP's default).
-    pub max_features: Option<u32>,
-    /// Extra mapper options `KEY=VALUE`, passed as `--Mapper.KEY VALUE`.
-    pub mapper_option: Vec<String>,
-}
-
-impl SparseOptions {
-    /// Checks the options COLMAP would otherwise refuse only after the workspace is made.
-    pub fn check(&self) -> Result<()> {
-        if self.overlap == 0 {
-            return Err(Error::param("overlap", "must be at least 1"));
-        }
-        if !model::CAMERA_MODELS
-            .iter()
-            .any(|m| m.1 == self.camera_model)
-        {
-            let names: Vec<&str> = model::CAMERA_MODELS.iter().map(|m| m.1).collect();
-            let msg = format!("`{}` is not one of {}", self.camera_model, names.join(", "));
-            return Err(Error::param("camera_model", msg));
-        }
-        mapper_keys(&self.mapper_option)?;
-        if let Some(params) = &self.camera_params {
-            camera_params(params)?;
-        }
-        Ok(())
-    }
-}
-
-/// Checks `--camera-params`: comma-separated finite numbers.
-fn camera_params(text: &str) -> Result<Vec<f64>> {
-    text.split(',')
-        .map(|v| match v.trim().parse::<f64>() {
-            Ok(x) if x.is_finite() => Ok(x),
-            _ => Err(Error::param(
-                "camera_params",
-                format!("`{v}` is not a number (give e.g. `448,448,320,180` for PINHOLE)"),
-            )),
-        })
-        .collect()
-}
-
-/// Defaults of COLMAP's options (the `colmap` and `reconstruct` flags' defaults too).
-pub mod defaults {
-    /// Feature matching strategy.
-    pub const MATCHER: super::Matcher = super::Matcher::Sequential;
-    /// Sequential matching: how many following images each image is matched with.
-    pub const OVERLAP: u32 = 10;
-    /// COLMAP camera model shared by all images.
-    pub const CAMERA_MODEL: &str = "SIMPLE_RADIAL";
-}
-
-crate::names::named_enum! {
-    /// Feature matching strategy.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-    pub enum Matcher: "matcher" {
-        /// `sequential_matcher`: neighbours in file-name (video) order.
-        Sequential = "sequential": "`sequential_matcher`: neighbours in file-name (video) order",
-        /// `exhaustive_matcher`: every pair.
-        Exhaustive = "exhaustive": "`exhaustive_matcher`: every pair",
-    }
 }
 
 /// The COLMAP installation used.
@@ -601,23 +528,6 @@ fn densify(runner: &Runner, rec: &mut Record, model_dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// `KEY=VALUE` mapper options as (`--Mapper.KEY`, `VALUE`).
-fn mapper_keys(options: &[String]) -> Result<Vec<(String, String)>> {
-    options
-        .iter()
-        .map(|o| match o.split_once('=') {
-            Some((k, v)) if !k.trim().is_empty() && !v.trim().is_empty() => {
-                let k = k.trim().trim_start_matches("Mapper.");
-                Ok((format!("--Mapper.{k}"), v.trim().to_string()))
-            }
-            _ => Err(Error::param(
-                "mapper_option",
-                format!("`{o}` is not KEY=VALUE"),
-            )),
-        })
-        .collect()
-}
-
 /// The model with the most registered images (the first of equals).
 pub fn largest(models: &[ModelSummary]) -> Option<&ModelSummary> {
     models
@@ -977,10 +887,10 @@ mod tests {
     #[test]
     fn camera_params_are_numbers() {
         assert_eq!(
-            camera_params("448, 448,320,180.5").unwrap(),
+            crate::sparse::camera_params("448, 448,320,180.5").unwrap(),
             vec![448.0, 448.0, 320.0, 180.5]
         );
-        let e = camera_params("448,,320").unwrap_err();
+        let e = crate::sparse::camera_params("448,,320").unwrap_err();
         assert!(e.to_string().contains("`` is not a number"), "{e}");
     }
 

@@ -95,21 +95,6 @@ pub enum Format {
     Text,
 }
 
-/// COLMAP camera models: (id, name, number of parameters).
-pub const CAMERA_MODELS: [(i32, &str, usize); 11] = [
-    (0, "SIMPLE_PINHOLE", 3),
-    (1, "PINHOLE", 4),
-    (2, "SIMPLE_RADIAL", 4),
-    (3, "RADIAL", 5),
-    (4, "OPENCV", 8),
-    (5, "OPENCV_FISHEYE", 8),
-    (6, "FULL_OPENCV", 12),
-    (7, "FOV", 5),
-    (8, "SIMPLE_RADIAL_FISHEYE", 4),
-    (9, "RADIAL_FISHEYE", 5),
-    (10, "THIN_PRISM_FISHEYE", 12),
-];
-
 /// Which format the folder holds (binary preferred when both are complete), if any.
 pub fn detect(dir: &Path) -> Option<Format> {
     let has = |ext: &str| {
@@ -234,7 +219,7 @@ fn read_bin<K: Ord, V>(
 fn bin_camera(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Camera> {
     let id = b.u32(f)?;
     let model_id = b.i32(f)?;
-    let (_, name, np) = CAMERA_MODELS
+    let (_, name, np) = crate::sparse::CAMERA_MODELS
         .iter()
         .find(|m| m.0 == model_id)
         .ok_or_else(|| bad(b.path, f(), format!("unknown camera model id {model_id}")))?;
@@ -355,7 +340,7 @@ fn txt_camera(mut f: Fields, _: &mut Lines) -> Result<Camera> {
         .map(|t| t.parse::<f64>())
         .collect::<std::result::Result<Vec<_>, _>>()
         .map_err(|_| f.err("PARAMS", "not a number"))?;
-    match CAMERA_MODELS.iter().find(|m| m.1 == model) {
+    match crate::sparse::CAMERA_MODELS.iter().find(|m| m.1 == model) {
         Some(m) if m.2 == params.len() => {}
         Some(m) => {
             return Err(f.err("PARAMS", &format!("{model} needs {} parameters", m.2)));

@@ -10,6 +10,7 @@
 //! [`max_off_track_m`] from its telemetry position; the set is connected exactly when no pair
 //! is broken and one model registers every keyframe.
 
+use crate::sparse::Limits;
 use serde::{Deserialize, Serialize};
 
 /// What COLMAP made of a keyframe set, by keyframe position (0 = the first keyframe).
@@ -190,15 +191,6 @@ pub struct Break {
     pub to: usize,
     /// What is wrong.
     pub why: Why,
-}
-
-/// The thresholds of a weak link.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Limits {
-    /// Fewest 3D points consecutive keyframes must share.
-    pub min_shared: usize,
-    /// Fewest inlier matches of their two-view geometry.
-    pub min_inliers: usize,
 }
 
 /// The broken links of `keyframes` (sorted frame indices), in frame order.

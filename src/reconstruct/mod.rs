@@ -15,14 +15,15 @@ pub mod epipolar;
 pub mod priors;
 pub mod repair;
 
-use crate::colmap::extend::{self, MapperKind, Mapping};
-use crate::colmap::{model, ColmapSettings, Record, SparseOptions};
+use crate::colmap::extend;
+use crate::colmap::{model, ColmapSettings, Record};
 use crate::error::{Error, Result};
 use crate::fsutil;
-use crate::manifest::{ExportSettings, Manifest};
+use crate::manifest::Manifest;
 use crate::output::Inputs;
 use crate::project::Project;
-use breaks::{Break, Limits, Observed};
+use crate::sparse::{check, Budget, MapperKind, Mapping, Options};
+use breaks::{Break, Observed};
 use repair::{Choice, Frames, Measure};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
@@ -34,45 +35,6 @@ pub const STATE: &str = "reconstruct.json";
 pub const PROJECT: &str = "project.json";
 /// The COLMAP workspace inside the workspace.
 pub const COLMAP_DIR: &str = "colmap";
-
-/// How many frames the loop may add in all.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Budget {
-    /// At most this many frames.
-    Frames(usize),
-    /// At most this percentage of the starting keyframe count (rounded up).
-    Percent(f64),
-}
-
-impl Budget {
-    /// `N` or `P%`; errors name the parameter `max_added`.
-    pub fn parse(text: &str) -> Result<Budget> {
-        let t = text.trim();
-        let bad = || {
-            Error::param(
-                "max_added",
-                format!("`{text}` is neither a frame count (`40`) nor a percentage (`50%`)"),
-            )
-        };
-        if let Some(p) = t.strip_suffix('%') {
-            let v: f64 = p.trim().parse().map_err(|_| bad())?;
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(bad());
-            }
-            return Ok(Budget::Percent(v));
-        }
-        t.parse().map(Budget::Frames).map_err(|_| bad())
-    }
-
-    /// The number of frames it allows for a start of `start` keyframes.
-    pub fn frames(&self, start: usize) -> usize {
-        match *self {
-            Budget::Frames(n) => n,
-            Budget::Percent(p) => (p / 100.0 * start as f64).ceil() as usize,
-        }
-    }
-}
 
 /// What `reconstruct` does; each field is the flag of the same name (`keyframer reconstruct
 /// --help` says what it does).
@@ -88,43 +50,8 @@ pub struct ReconstructSettings {
     pub force: bool,
 }
 
-/// The options of a loop that decide its result; a workspace made with other options is not
-/// resumed.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Options {
-    /// Rounds of COLMAP at most (the first reconstructs the starting keyframes).
-    pub max_rounds: usize,
-    /// Frames added at most, over all rounds.
-    pub max_added: Budget,
-    /// What makes a link weak.
-    pub limits: Limits,
-    /// COLMAP's options (recorded inline, as the flags of the same names).
-    #[serde(flatten)]
-    pub colmap: SparseOptions,
-    /// Incremental or global mapper.
-    pub mapper: MapperKind,
-    /// How later rounds map: continuing the largest model, or afresh.
-    pub mapping: Mapping,
-    /// How the images are exported.
-    pub export: ExportSettings,
-}
-
-/// Defaults of the options (the flags' defaults too).
+/// The loop's own constants.
 pub mod defaults {
-    use crate::colmap::extend::{MapperKind, Mapping};
-    /// Rounds of COLMAP at most.
-    pub const MAX_ROUNDS: usize = 4;
-    /// The mapper.
-    pub const MAPPER: MapperKind = MapperKind::Incremental;
-    /// How later rounds map.
-    pub const MAPPING: Mapping = Mapping::Fresh;
-    /// Frames added at most: twice the starting keyframes.
-    pub const MAX_ADDED: &str = "200%";
-    /// Fewest 3D points consecutive keyframes must share.
-    pub const MIN_SHARED: usize = 15;
-    /// Fewest inlier matches of consecutive keyframes' two-view geometry (COLMAP's own minimum
-    /// for a verified pair).
-    pub const MIN_INLIERS: usize = 15;
     /// The mapper options the loop adds unless given: keep models of 3 images and more (COLMAP
     /// discards smaller ones, and a sparse start's models tell where it breaks); start a model
     /// from a pair seen 4° apart rather than 16° (video keyframes have short baselines: with
@@ -400,16 +327,6 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
     drop(dir);
     result?;
     Ok(summary(&state, &ws, true))
-}
-
-/// Checks the options before anything runs: the one check of `reconstruct`'s flags and of a
-/// workflow's `[[reconstruct]]` table. Errors name the option's key (`max_rounds`,
-/// `camera_model`, ...); COLMAP's options are checked as `keyframer colmap` checks them.
-pub fn check(o: &Options) -> Result<()> {
-    if o.max_rounds == 0 {
-        return Err(Error::param("max_rounds", "must be at least 1"));
-    }
-    o.colmap.check()
 }
 
 /// The per-frame numbers of the project that repairs read.

@@ -672,7 +672,7 @@ pub enum Applied {
         /// The same options as the loop read them, which `workflow save` writes as a
         /// `[[reconstruct]]` table (absent in projects of earlier builds).
         #[serde(default, skip_serializing_if = "Option::is_none")]
-        settings: Option<Box<crate::reconstruct::Options>>,
+        settings: Option<Box<crate::sparse::Options>>,
     },
     /// The stationary sampler with its resolved threshold.
     Stationary {

@@ -170,6 +170,7 @@ const LAYERS: [(&str, &[&str]); 4] = [
             "model_desc",
             "steps",
             "params",
+            "sparse",
             "flo",
         ],
     ),
