@@ -24,28 +24,11 @@ pub fn pair_ids(pair_id: i64) -> (i64, i64) {
 /// Inlier matches per image pair, keyed by the two image names in name order; a pair that was
 /// matched but not verified has 0, a pair never matched is absent.
 pub fn inliers(db: &Path) -> Result<HashMap<(String, String), usize>> {
-    let err = |e: rusqlite::Error| Error::input(db, format!("COLMAP database: {e}"));
-    let conn = open(db).map_err(err)?;
-    let mut names: HashMap<i64, String> = HashMap::new();
-    let mut q = conn
-        .prepare("SELECT image_id, name FROM images")
-        .map_err(err)?;
-    let rows = q
-        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)))
-        .map_err(err)?;
-    for row in rows {
-        let (id, name) = row.map_err(err)?;
-        names.insert(id, name);
-    }
+    let (conn, err) = open(db)?;
+    let names = images(&conn).map_err(err)?;
     let mut out = HashMap::new();
-    let mut q = conn
-        .prepare("SELECT pair_id, rows FROM two_view_geometries")
-        .map_err(err)?;
-    let rows = q
-        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?)))
-        .map_err(err)?;
-    for row in rows {
-        let (pair, n) = row.map_err(err)?;
+    let rows = id_counts(&conn, "SELECT pair_id, rows FROM two_view_geometries").map_err(err)?;
+    for (pair, n) in rows {
         let (a, b) = pair_ids(pair);
         if let (Some(a), Some(b)) = (names.get(&a), names.get(&b)) {
             let key = if a <= b {
@@ -74,30 +57,12 @@ pub struct Pair {
 /// essential matrix, not a homography, explains it) among the images named `among`, most
 /// inliers first.
 pub fn calibrated_pairs(db: &Path, among: &[String]) -> Result<Vec<Pair>> {
-    let err = |e: rusqlite::Error| Error::input(db, format!("COLMAP database: {e}"));
-    let conn = open(db).map_err(err)?;
-    let mut names: HashMap<i64, String> = HashMap::new();
-    let mut q = conn
-        .prepare("SELECT image_id, name FROM images")
-        .map_err(err)?;
-    let rows = q
-        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)))
-        .map_err(err)?;
-    for row in rows {
-        let (id, name) = row.map_err(err)?;
-        if among.contains(&name) {
-            names.insert(id, name);
-        }
-    }
-    let mut q = conn
-        .prepare("SELECT pair_id, rows FROM two_view_geometries WHERE config = 2 ORDER BY rows DESC, pair_id")
-        .map_err(err)?;
-    let rows = q
-        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?)))
-        .map_err(err)?;
+    let (conn, err) = open(db)?;
+    let mut names = images(&conn).map_err(err)?;
+    names.retain(|_, name| among.contains(name));
+    let sql = "SELECT pair_id, rows FROM two_view_geometries WHERE config = 2 ORDER BY rows DESC, pair_id";
     let mut out = Vec::new();
-    for row in rows {
-        let (pair, n) = row.map_err(err)?;
+    for (pair, n) in id_counts(&conn, sql).map_err(err)? {
         let (a, b) = pair_ids(pair);
         if let (Some(na), Some(nb)) = (names.get(&a), names.get(&b)) {
             out.push(Pair {
@@ -117,19 +82,10 @@ pub fn inlier_points(
     db: &Path,
     pairs: &[(String, String)],
 ) -> Result<Vec<Vec<(epipolar::Px, epipolar::Px)>>> {
-    let err = |e: rusqlite::Error| Error::input(db, format!("COLMAP database: {e}"));
-    let conn = open(db).map_err(err)?;
-    let mut ids: HashMap<String, i64> = HashMap::new();
-    let mut q = conn
-        .prepare("SELECT image_id, name FROM images")
-        .map_err(err)?;
-    let rows = q
-        .query_map([], |r| Ok((r.get::<_, String>(1)?, r.get::<_, i64>(0)?)))
-        .map_err(err)?;
-    for row in rows {
-        let (name, id) = row.map_err(err)?;
-        ids.insert(name, id);
-    }
+    let (conn, err) = open(db)?;
+    let ids: HashMap<String, i64> = (images(&conn).map_err(err)?.into_iter())
+        .map(|(id, name)| (name, id))
+        .collect();
     let mut keypoints: HashMap<i64, Vec<epipolar::Px>> = HashMap::new();
     let mut kq = conn
         .prepare("SELECT rows, cols, data FROM keypoints WHERE image_id = ?1")
@@ -174,12 +130,32 @@ fn blob_row(q: &mut rusqlite::Statement<'_>, key: i64) -> rusqlite::Result<Optio
         .optional()
 }
 
-/// Opens the database read-only.
-fn open(db: &Path) -> rusqlite::Result<rusqlite::Connection> {
-    rusqlite::Connection::open_with_flags(
-        db,
-        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX,
-    )
+/// Opens the database read-only, with the error constructor that names it.
+fn open(
+    db: &Path,
+) -> Result<(
+    rusqlite::Connection,
+    impl Fn(rusqlite::Error) -> Error + Copy + '_,
+)> {
+    let err = move |e: rusqlite::Error| Error::input(db, format!("COLMAP database: {e}"));
+    let flags =
+        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let conn = rusqlite::Connection::open_with_flags(db, flags).map_err(err)?;
+    Ok((conn, err))
+}
+
+/// Every image's name by its id.
+fn images(conn: &rusqlite::Connection) -> rusqlite::Result<HashMap<i64, String>> {
+    let mut q = conn.prepare("SELECT image_id, name FROM images")?;
+    let rows = q.query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)))?;
+    rows.collect()
+}
+
+/// The (id, count) rows `sql` selects.
+fn id_counts(conn: &rusqlite::Connection, sql: &str) -> rusqlite::Result<Vec<(i64, i64)>> {
+    let mut q = conn.prepare(sql)?;
+    let rows = q.query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?)))?;
+    rows.collect()
 }
 
 /// The `(x, y)` of each keypoint row (float32, `cols` per row, x and y first).
