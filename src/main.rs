@@ -281,7 +281,7 @@ fn export(a: &cli::ExportArgs, quiet: bool) -> Result<ExitCode> {
     );
     if let (Some(ms), Some(s)) = (m.mask_ms_per_image, &m.settings.masks) {
         eprintln!(
-            "masks: {} under {}/ ({:?} backend, {ms:.1} ms per image for the network)",
+            "masks: {} under {}/ ({} backend, {ms:.1} ms per image for the network)",
             m.frames.iter().filter(|f| f.mask.is_some()).count(),
             keyframer::manifest::MASK_DIR,
             s.backend
@@ -318,7 +318,7 @@ fn segment(a: &cli::SegmentArgs) -> Result<ExitCode> {
         a.force,
     )?;
     eprintln!(
-        "{}: {:.1}% hidden, network {:.1} ms ({:?}) -> {}",
+        "{}: {:.1}% hidden, network {:.1} ms ({}) -> {}",
         a.image.display(),
         100.0 * r.hidden_fraction,
         r.network_ms,
