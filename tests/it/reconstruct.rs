@@ -652,11 +652,58 @@ fn killed_run_resumes_to_the_same_keyframes() {
     let err = String::from_utf8_lossy(&out.stderr).to_string();
     assert!(err.contains("resuming"), "{err}");
     let resumed = summary(&out);
+    // The finished round the kill left is kept as it was, not redone.
+    let after = json(&state);
     assert_eq!(
-        resumed["final_keyframes"], uninterrupted["final_keyframes"],
-        "{err}"
+        after["rounds"][0], st["rounds"][0],
+        "a finished round was redone"
     );
-    assert_eq!(resumed["outcome"], uninterrupted["outcome"]);
+    // The loop is a function of COLMAP's models, and COLMAP's mapper is not deterministic from
+    // one run to the next (threads): the resumed run must equal the uninterrupted one whenever
+    // COLMAP showed both the same models in every round; where it did not, the two runs took
+    // different paths from that round on, and the resumed run must still hold every keyframe
+    // its finished rounds chose.
+    let reference = json(&sparse().ws.join("reconstruct.json"));
+    let seen = |r: &serde_json::Value| {
+        let keys = [
+            "keyframes",
+            "registered",
+            "models",
+            "breaks",
+            "added",
+            "true_breaks",
+        ];
+        keys.map(|k| r[k].clone())
+    };
+    let (a, b) = (
+        after["rounds"].as_array().unwrap(),
+        reference["rounds"].as_array().unwrap(),
+    );
+    let same_models = a.len() == b.len() && a.iter().zip(b).all(|(x, y)| seen(x) == seen(y));
+    if same_models {
+        assert_eq!(
+            resumed["final_keyframes"], uninterrupted["final_keyframes"],
+            "{err}"
+        );
+        assert_eq!(resumed["outcome"], uninterrupted["outcome"]);
+    } else {
+        eprintln!("COLMAP gave this run other models than the uninterrupted run's: comparing the resume with its own rounds");
+        let fin = frames(&resumed["final_keyframes"]);
+        for r in a.iter().filter(|r| r["done"] == true) {
+            let chosen = frames(&r["keyframes"]).into_iter().chain(
+                (r["added"].as_array().unwrap().iter())
+                    .map(|x| x["frame"].as_u64().unwrap() as usize),
+            );
+            for k in chosen {
+                assert!(
+                    fin.contains(&k),
+                    "frame {k} of round {} lost: {fin:?}\n{err}",
+                    r["round"]
+                );
+            }
+        }
+        assert!(!resumed["outcome"].is_null(), "{err}");
+    }
 }
 
 #[test]
