@@ -539,6 +539,18 @@ impl Step {
                     return bad("reset_delta", "must be at least 1 frame".into());
                 }
             }
+            Step::Boundaries { start, end } => {
+                for (key, b) in [("start", start), ("end", end)] {
+                    if let Some(BoundArg(Bound::Seconds(s))) = b {
+                        if !(s.is_finite() && *s >= 0.0) {
+                            return bad(key, format!("must be a non-negative time, got {s}"));
+                        }
+                    }
+                }
+            }
+            Step::Spacing {
+                threshold: Threshold::Px(t),
+            } => return positive(*t).map(drop).or_else(|m| bad("threshold", m)),
             Step::EveryNth { n: 0 } => return bad("n", "must be at least 1".into()),
             Step::GeoDistance { metres } => {
                 return positive(*metres).map(drop).or_else(|m| bad("metres", m))
@@ -837,66 +849,26 @@ impl Applied {
         }
     }
 
-    /// Checks the parameters `workflow save` reads, for an input of `frames` frames; the error
-    /// names the parameter (`params.fps`).
+    /// Checks the parameters `workflow save` reads, for an input of `frames` frames, with the
+    /// step's own [`Step::validate`]; the error names the parameter (`params.fps`).
     pub fn check(&self, frames: usize) -> std::result::Result<(), (String, String)> {
         let bad = |k: &str, msg: String| Err((format!("params.{k}"), msg));
-        let positive = |k: &str, v: Option<f64>| match v.map(positive) {
-            Some(Err(msg)) => bad(k, msg),
-            _ => Ok(()),
-        };
-        let count = |k: &str, v: Option<usize>| match v {
-            Some(0) => bad(k, "must be a whole number of at least 1, got 0".into()),
-            _ => Ok(()),
-        };
-        match self {
-            Applied::Boundaries { start, end } => {
-                for (k, b) in [("start", start), ("end", end)] {
-                    if let Some(Bound::Seconds(s)) = b {
-                        if !(s.is_finite() && *s >= 0.0) {
-                            return bad(k, format!("must be a non-negative time, got {s}"));
-                        }
-                    }
-                }
-                Ok(())
-            }
-            Applied::Stationary {
-                threshold_px,
-                reset_delta,
-                ..
-            } => {
-                positive("threshold_px", *threshold_px)?;
-                count("reset_delta", *reset_delta)
-            }
-            Applied::Spacing { threshold_px, .. } => positive("threshold_px", Some(*threshold_px)),
-            // The step's own check says the same for these (`fps`: "must be a positive number").
-            Applied::GeoDistance { .. }
-            | Applied::GeoArea { .. }
-            | Applied::FootprintOverlap { .. }
-            | Applied::Fps { .. } => match self.step().map(|s| s.validate()) {
-                Some(Err(e)) => bad(e.key, e.msg),
-                _ => Ok(()),
-            },
-            Applied::EveryNth { n } => count("n", Some(*n)),
-            Applied::Blur { ratio, window, .. } => {
-                positive("ratio", *ratio)?;
-                count("window", *window)
-            }
+        let lists: Vec<(&str, Vec<usize>)> = match self {
             Applied::Manual { add, remove } => {
-                for (k, list) in [("add", add), ("remove", remove)] {
-                    if list.iter().any(|&i| i >= frames) {
-                        return bad(k, format!("must be a list of frame indices below {frames}"));
-                    }
-                }
-                Ok(())
+                vec![("add", add.clone()), ("remove", remove.clone())]
             }
-            Applied::Preview { .. } => Ok(()),
             Applied::Reconstruct { added, .. } => {
-                if added.iter().any(|a| a.frame >= frames) {
-                    return bad("added", format!("must list frames below {frames}"));
-                }
-                Ok(())
+                vec![("added", added.iter().map(|a| a.frame).collect())]
             }
+            _ => Vec::new(),
+        };
+        if let Some((k, _)) = lists.iter().find(|(_, l)| l.iter().any(|&i| i >= frames)) {
+            return bad(k, format!("must be a list of frame indices below {frames}"));
+        }
+        match self.step().map(|s| s.validate()) {
+            Some(Err(e)) if e.key == "threshold" => bad("threshold_px", e.msg),
+            Some(Err(e)) => bad(e.key, e.msg),
+            _ => Ok(()),
         }
     }
 }
