@@ -342,3 +342,43 @@ esac
     std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
     p
 }
+
+/// A 64×48 testsrc2 clip of `seconds` at 10 fps with `creation_time` 2024-05-01T10:00:00Z and
+/// no sidecar, at `dir/clip.mp4`.
+pub fn dated_clip(dir: &Path, seconds: u32) -> PathBuf {
+    let p = dir.join("clip.mp4");
+    let src = format!("testsrc2=size=64x48:rate=10:duration={seconds}");
+    ffmpeg(&[
+        "-f",
+        "lavfi",
+        "-i",
+        &src,
+        "-metadata",
+        "creation_time=2024-05-01T10:00:00Z",
+        "-c:v",
+        "libx264",
+        "-pix_fmt",
+        "yuv420p",
+        p.to_str().unwrap(),
+    ]);
+    p
+}
+
+/// A project's cached per-frame positions: (lat, lon, abs_alt).
+pub fn project_positions(project: &Path) -> Vec<Option<(f64, f64, f64)>> {
+    let p = json(project);
+    (p["cache"]["telemetry"]["positions"]
+        .as_array()
+        .unwrap()
+        .iter())
+    .map(|v| {
+        (!v.is_null()).then(|| {
+            (
+                v["lat_deg"].as_f64().unwrap(),
+                v["lon_deg"].as_f64().unwrap(),
+                v["abs_alt_m"].as_f64().unwrap(),
+            )
+        })
+    })
+    .collect()
+}

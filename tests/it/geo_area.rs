@@ -4,7 +4,9 @@
 //! antimeridian, the buffer; a polar area and malformed files refused naming file and place;
 //! the workflow round trip, re-selection from the cache, the report's map and the review page.
 
-use crate::common::{code_and_stderr, ffmpeg, json, keyframes, kf, kf_loud, kf_ok, s};
+use crate::common::{
+    code_and_stderr, dated_clip, json, keyframes, kf, kf_loud, kf_ok, project_positions, s,
+};
 use crate::review::Served;
 use std::path::{Path, PathBuf};
 
@@ -92,20 +94,7 @@ fn polygon_json(p: &Rings) -> String {
 /// around `centre` (lat, lon).
 fn flight(dir: &Path, centre: (f64, f64)) -> (PathBuf, PathBuf) {
     std::fs::create_dir_all(dir).unwrap();
-    let clip = dir.join("clip.mp4");
-    ffmpeg(&[
-        "-f",
-        "lavfi",
-        "-i",
-        "testsrc2=size=64x48:rate=10:duration=10",
-        "-metadata",
-        "creation_time=2024-05-01T10:00:00Z",
-        "-c:v",
-        "libx264",
-        "-pix_fmt",
-        "yuv420p",
-        s(&clip),
-    ]);
+    let clip = dated_clip(dir, 10);
     let (n, e) = per_deg(centre.0);
     let point = |k: i32| {
         let t = f64::from(k);
@@ -127,20 +116,8 @@ fn flight(dir: &Path, centre: (f64, f64)) -> (PathBuf, PathBuf) {
 
 /// The cached positions of a project: (lat, lon) per frame.
 fn positions(project: &Path) -> Vec<Option<(f64, f64)>> {
-    let p = json(project);
-    (p["cache"]["telemetry"]["positions"]
-        .as_array()
-        .unwrap()
-        .iter())
-    .map(|v| {
-        (!v.is_null()).then(|| {
-            (
-                v["lat_deg"].as_f64().unwrap(),
-                v["lon_deg"].as_f64().unwrap(),
-            )
-        })
-    })
-    .collect()
+    let all = project_positions(project).into_iter();
+    all.map(|p| p.map(|(lat, lon, _)| (lat, lon))).collect()
 }
 
 /// `select CLIP --telemetry GPX ARGS -o P --force`, loud: exit code and stderr.
@@ -207,6 +184,12 @@ fn assert_kept(what: &str, got: &[usize], (want, close): &(Vec<usize>, Vec<usize
     assert!(want.len() >= 5 && want.len() <= 80, "{what}: {want:?}");
 }
 
+/// A 120 m square with a 40 m hole, 10 m north of `centre`.
+fn holed_square(centre: (f64, f64)) -> Rings {
+    let north = (centre.0 + 10.0 / per_deg(centre.0).0, centre.1);
+    vec![square(north, 60.0), square(north, 20.0)]
+}
+
 /// The kept frames are those inside the polygon, hole and MultiPolygon included, GeoJSON and
 /// KML alike; frames without a position are counted and dropped; the history records the file
 /// and its content; buffers grow and shrink the area; re-selection reads the cache.
@@ -217,11 +200,7 @@ fn geo_area_keeps_exactly_the_frames_inside() {
     let (clip, gpx) = flight(tmp.path(), centre);
     let p = tmp.path().join("p.json");
     let n = per_deg(centre.0).0;
-    // A 120 m square with a 40 m hole, 10 m north of the centre.
-    let holed: Rings = vec![
-        square((centre.0 + 10.0 / n, centre.1), 60.0),
-        square((centre.0 + 10.0 / n, centre.1), 20.0),
-    ];
+    let holed = holed_square(centre);
     let area = tmp.path().join("area.geojson");
     std::fs::write(
         &area,
@@ -442,11 +421,7 @@ fn geo_area_workflow_report_and_review() {
     let tmp = tempfile::tempdir().unwrap();
     let centre = (47.0, 8.0);
     let (clip, gpx) = flight(tmp.path(), centre);
-    let n = per_deg(centre.0).0;
-    let holed: Rings = vec![
-        square((centre.0 + 10.0 / n, centre.1), 60.0),
-        square((centre.0 + 10.0 / n, centre.1), 20.0),
-    ];
+    let holed = holed_square(centre);
     let area = tmp.path().join("area.geojson");
     std::fs::write(
         &area,

@@ -5,7 +5,7 @@
 //! `--no-geotag` leaves them out; PNGs and frames without a position stay untagged with one
 //! warning each; a known camera gives Make and Model.
 
-use crate::common::{code_and_stderr, ffmpeg, json, kf, kf_ok, s, scene_ok};
+use crate::common::{code_and_stderr, ffmpeg, json, kf, kf_ok, project_positions, s, scene_ok};
 use keyframer::source::telemetry::wgs84_radii;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -105,25 +105,6 @@ fn exif(images: &Path) -> std::collections::BTreeMap<String, Value> {
     all.into_iter()
         .map(|v| (v["File:FileName"].as_str().unwrap().to_string(), v))
         .collect()
-}
-
-/// The project's per-frame positions: (lat, lon, abs_alt).
-fn project_positions(project: &Path) -> Vec<Option<(f64, f64, f64)>> {
-    let p = json(project);
-    (p["cache"]["telemetry"]["positions"]
-        .as_array()
-        .unwrap()
-        .iter())
-    .map(|v| {
-        (!v.is_null()).then(|| {
-            (
-                v["lat_deg"].as_f64().unwrap(),
-                v["lon_deg"].as_f64().unwrap(),
-                v["abs_alt_m"].as_f64().unwrap(),
-            )
-        })
-    })
-    .collect()
 }
 
 /// `YYYY:MM:DD HH:MM:SS.mmm+00:00`: exiftool's SubSecDateTimeOriginal of a UTC time.

@@ -3,7 +3,9 @@
 //! refusal without telemetry and the warnings of bad telemetry, and the per-frame positions a
 //! GPX track and an EXIF-tagged image folder give.
 
-use crate::common::{code_and_stderr, ffmpeg, json, keyframes, kf, kf_loud, kf_ok, s, scene_ok};
+use crate::common::{
+    code_and_stderr, dated_clip, ffmpeg, json, keyframes, kf, kf_loud, kf_ok, s, scene_ok,
+};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -284,31 +286,12 @@ fn folder_in(runs: &Path, input: &Path) -> PathBuf {
     runs.join(keyframer::batch::folder_name(input))
 }
 
-/// A clip with `creation_time` set and no sidecar.
-fn bare_clip(dir: &Path) -> PathBuf {
-    let p = dir.join("clip.mp4");
-    ffmpeg(&[
-        "-f",
-        "lavfi",
-        "-i",
-        "testsrc2=size=64x48:rate=10:duration=3",
-        "-metadata",
-        "creation_time=2024-05-01T10:00:00Z",
-        "-c:v",
-        "libx264",
-        "-pix_fmt",
-        "yuv420p",
-        s(&p),
-    ]);
-    p
-}
-
 /// Without telemetry the geo steps refuse, naming themselves; bad telemetry is warned about
 /// with its file and line.
 #[test]
 fn geo_steps_refuse_without_telemetry_and_bad_telemetry_is_warned() {
     let tmp = tempfile::tempdir().unwrap();
-    let clip = bare_clip(tmp.path());
+    let clip = dated_clip(tmp.path(), 3);
     let p = tmp.path().join("p.json");
     for flag in ["--geo-distance", "--footprint-overlap"] {
         let out = kf(&["select", s(&clip), flag, "50", "-o", s(&p), "--force"]);
@@ -437,7 +420,7 @@ fn positions(project: &Path) -> Vec<Option<(f64, f64, Option<f64>)>> {
 #[test]
 fn gpx_track_gives_every_frame_its_position() {
     let tmp = tempfile::tempdir().unwrap();
-    let clip = bare_clip(tmp.path());
+    let clip = dated_clip(tmp.path(), 3);
     let (lat0, lon0, alt0) = (47.0, 8.0, 400.0);
     let (dlat, dlon, dalt) = (1e-5, 2e-5, 0.5); // per second
     let point = |k: i64| {
@@ -811,7 +794,7 @@ fn preview_keeps_every_frames_position() {
     }
 }
 
-/// A DJI SRT for `bare_clip`'s 3 s: an entry every 0.1 s (entries 0 to 30), flying north at
+/// A DJI SRT for `dated_clip`'s 3 s: an entry every 0.1 s (entries 0 to 30), flying north at
 /// 10 m/s with a 24 mm lens facing north; `entry(i)` gives entry i's height above take-off and
 /// gimbal pitch; `bad` entries without a position follow.
 fn flight_srt(path: &Path, entry: impl Fn(usize) -> (f64, f64), bad: usize) {
@@ -862,7 +845,7 @@ fn select_with(clip: &Path, srt: &Path, p: &Path, args: &[&str]) -> (i32, String
 #[test]
 fn footprint_overlap_leaves_out_frames_on_the_ground_and_says_so() {
     let tmp = tempfile::tempdir().unwrap();
-    let clip = bare_clip(tmp.path());
+    let clip = dated_clip(tmp.path(), 3);
     let srt = tmp.path().join("ground.srt");
     let height = |i: usize| match i {
         0..=5 => 0.0,
@@ -899,7 +882,7 @@ fn footprint_overlap_leaves_out_frames_on_the_ground_and_says_so() {
 #[test]
 fn footprint_overlap_refuses_a_flight_without_a_frame_above_take_off() {
     let tmp = tempfile::tempdir().unwrap();
-    let clip = bare_clip(tmp.path());
+    let clip = dated_clip(tmp.path(), 3);
     let srt = tmp.path().join("below.srt");
     flight_srt(&srt, |i| (if i < 16 { 0.0 } else { -12.0 }, -90.0), 0);
     let p = tmp.path().join("p.json");
@@ -920,7 +903,7 @@ fn footprint_overlap_refuses_a_flight_without_a_frame_above_take_off() {
 #[test]
 fn footprint_overlap_warns_of_a_camera_at_the_horizon_and_a_very_wide_view() {
     let tmp = tempfile::tempdir().unwrap();
-    let clip = bare_clip(tmp.path());
+    let clip = dated_clip(tmp.path(), 3);
     let srt = tmp.path().join("level.srt");
     flight_srt(&srt, |i| (30.0, if i < 20 { -90.0 } else { 5.0 }), 0);
     let p = tmp.path().join("p.json");
@@ -943,7 +926,7 @@ fn footprint_overlap_warns_of_a_camera_at_the_horizon_and_a_very_wide_view() {
 #[test]
 fn many_telemetry_warnings_are_summarised() {
     let tmp = tempfile::tempdir().unwrap();
-    let clip = bare_clip(tmp.path());
+    let clip = dated_clip(tmp.path(), 3);
     let srt = tmp.path().join("noisy.srt");
     flight_srt(&srt, |_| (30.0, -90.0), 40);
     let p = tmp.path().join("p.json");
