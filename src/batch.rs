@@ -439,11 +439,22 @@ fn read_done(path: &Path) -> Option<Done> {
     serde_json::from_str(&crate::output::read_text(path).ok()?).ok()
 }
 
-/// The summary as a table for stderr.
+/// The summary as a table for stderr; a `reconstructed` column (final keyframes, frames
+/// added, how each loop ended) when the workflow has `[[reconstruct]]` tables.
 pub fn table(reports: &[InputReport]) -> String {
+    let loops = reports.iter().any(|r| !r.reconstructed.is_empty());
+    let dash = |s: String| if s.is_empty() { "-".to_string() } else { s };
     let mut out = format!(
-        "{:<8} {:>9} {:>16} {:>8}  input\n",
-        "status", "keyframes", "exported", "seconds"
+        "{:<8} {:>9} {:>16} {:>8}  {}input\n",
+        "status",
+        "keyframes",
+        "exported",
+        "seconds",
+        if loops {
+            format!("{:<24}  ", "reconstructed")
+        } else {
+            String::new()
+        }
     );
     for r in reports {
         let status = match r.status {
@@ -452,23 +463,20 @@ pub fn table(reports: &[InputReport]) -> String {
             Status::Partial => "partial",
             Status::Failed => "FAILED",
         };
-        let exported = r
-            .exported
-            .iter()
-            .map(|n| n.to_string())
-            .collect::<Vec<_>>()
-            .join(",");
+        let exported: Vec<String> = r.exported.iter().map(|n| n.to_string()).collect();
+        let rec: Vec<String> = (r.reconstructed.iter())
+            .map(|l| format!("{} (+{}) {}", l.keyframes, l.added, l.outcome.short()))
+            .collect();
         out.push_str(&format!(
-            "{status:<8} {:>9} {:>16} {:>8.1}  {}\n",
-            r.keyframes
-                .map(|k| k.to_string())
-                .unwrap_or_else(|| "-".into()),
-            if exported.is_empty() {
-                "-".into()
-            } else {
-                exported
-            },
+            "{status:<8} {:>9} {:>16} {:>8.1}  {}{}\n",
+            r.keyframes.map_or("-".into(), |k| k.to_string()),
+            dash(exported.join(",")),
             r.seconds,
+            if loops {
+                format!("{:<24}  ", dash(rec.join(", ")))
+            } else {
+                String::new()
+            },
             r.input.display()
         ));
         if let Some(e) = &r.error {
@@ -481,6 +489,33 @@ pub fn table(reports: &[InputReport]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_table_has_a_reconstructed_column_only_for_loops() {
+        let mut r = InputReport {
+            input: PathBuf::from("a.mp4"),
+            folder: PathBuf::from("out/a"),
+            status: Status::Done,
+            keyframes: Some(18),
+            exported: vec![18],
+            reconstructed: Vec::new(),
+            seconds: 1.5,
+            error: None,
+        };
+        let plain = table(std::slice::from_ref(&r));
+        assert!(!plain.contains("reconstructed"), "{plain}");
+        r.reconstructed.push(Reconstructed {
+            name: "reconstruct".into(),
+            keyframes: 21,
+            added: 3,
+            outcome: crate::reconstruct::Outcome::Connected,
+        });
+        let t = table(&[r]);
+        let lines: Vec<&str> = t.lines().collect();
+        assert!(lines[0].contains("reconstructed"), "{t}");
+        assert!(lines[1].contains("21 (+3) connected"), "{t}");
+        assert!(lines[1].ends_with("a.mp4"), "{t}");
+    }
 
     #[test]
     fn shards_cover_every_input_once_whatever_the_order() {

@@ -200,6 +200,18 @@ pub enum Outcome {
     FrameBudget,
 }
 
+impl Outcome {
+    /// One word for tables (`run`'s summary).
+    pub fn short(self) -> &'static str {
+        match self {
+            Outcome::Connected => "connected",
+            Outcome::TrueBreaks => "true-breaks",
+            Outcome::RoundBudget => "max-rounds",
+            Outcome::FrameBudget => "max-added",
+        }
+    }
+}
+
 impl std::fmt::Display for Outcome {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
