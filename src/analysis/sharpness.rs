@@ -3,7 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
-use crate::kernels::sharpness::{score_opencv, SharpnessGpu};
+use crate::kernels::sharpness::{score_gray, SharpnessGpu};
 use crate::params::{Backend, Metric};
 use crate::source::{Frame, Metadata};
 use opencv::core::Mat;
@@ -108,10 +108,9 @@ impl SharpnessEngine for Opencv {
 
     fn submit(&mut self, frames: &[Frame]) -> Result<()> {
         for f in frames {
-            let scores = self.0.iter().map(|&m| {
-                score_opencv(&f.image, m)
-                    .map_err(|e| Error::frame(std::path::PathBuf::new(), f.index, e.to_string()))
-            });
+            let at = |e: Error| Error::frame(std::path::PathBuf::new(), f.index, e.to_string());
+            let gray = crate::kernels::gray::opencv(&f.image).map_err(at)?;
+            let scores = self.0.iter().map(|&m| score_gray(&gray, m).map_err(at));
             self.1.push(scores.collect::<Result<_>>()?);
         }
         Ok(())
