@@ -4,7 +4,7 @@
 //! sharpness engine, a device buffer resized from the gray the engine computed on the device.
 
 use super::sharpness::SharpnessEngine;
-use crate::error::Result;
+use crate::error::{CvContext, Result};
 use crate::kernels::resize_area;
 use crate::source::{Frame, FrameSource};
 use opencv::core::Mat;
@@ -34,7 +34,11 @@ pub(crate) enum Decoded {
 
 /// Gray at the analysis resolution (cv::cvtColor, then INTER_AREA unless the size matches).
 pub(crate) fn prepare(size: (i32, i32), image: &Mat) -> Result<Mat> {
-    let gray = crate::kernels::gray::opencv(image)?;
+    shrink(size, crate::kernels::gray::opencv(image)?)
+}
+
+/// `gray` at the analysis resolution (INTER_AREA unless the size matches).
+fn shrink(size: (i32, i32), gray: Mat) -> Result<Mat> {
     if (gray.cols(), gray.rows()) == size {
         Ok(gray)
     } else {
@@ -42,19 +46,52 @@ pub(crate) fn prepare(size: (i32, i32), image: &Mat) -> Result<Mat> {
     }
 }
 
+/// What the decode thread hands on with each frame.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Keep {
+    /// The analysis size, when the CPU prepares the analysis gray.
+    pub small: Option<(i32, i32)>,
+    /// Frames keep their image (the sharpness worker scores it).
+    pub image: bool,
+    /// With `small`, the image a frame keeps is its full-resolution gray instead of the BGR
+    /// frame (the worker scores gray): one conversion per frame, and a third of the bytes queued.
+    pub gray: bool,
+}
+
+impl Keep {
+    /// Frame `f`'s analysis gray (when `small`), its image replaced by what it keeps.
+    fn apply(&self, f: &mut Frame) -> Result<Option<Mat>> {
+        let Some(size) = self.small else {
+            if !self.image {
+                f.image = Mat::default();
+            }
+            return Ok(None);
+        };
+        let gray = crate::kernels::gray::opencv(&f.image)?;
+        let small = match (gray.cols(), gray.rows()) == size {
+            true => gray.try_clone().cv(|| "copy the gray frame".into())?,
+            false => resize_area::opencv(&gray, opencv::core::Size::new(size.0, size.1))?,
+        };
+        match (self.image, self.gray) {
+            (false, _) => f.image = Mat::default(),
+            (true, true) => f.image = gray,
+            (true, false) => {}
+        }
+        Ok(Some(small))
+    }
+}
+
 /// Starts the decode thread over `src`: frames before `resume_at` are skipped (grabbed) except
-/// those in `prime`; every frame gets its analysis gray when `small` (the analysis size) is given;
-/// frames keep their image only when `keep_image`.
+/// those in `prime`; every frame gets its analysis gray and keeps its image as `keep` says.
 pub(crate) fn spawn_decoder<'scope>(
     scope: &'scope Scope<'scope, '_>,
     src: &'scope mut dyn FrameSource,
     resume_at: usize,
     prime: &'scope [usize],
-    small: Option<(i32, i32)>,
-    keep_image: bool,
+    keep: Keep,
 ) -> Receiver<Result<Decoded>> {
     let (tx, rx) = sync_channel::<Result<Decoded>>(DECODE_QUEUE);
-    scope.spawn(move || decode(src, resume_at, prime, small, keep_image, tx));
+    scope.spawn(move || decode(src, resume_at, prime, keep, tx));
     rx
 }
 
@@ -62,8 +99,7 @@ fn decode(
     src: &mut dyn FrameSource,
     resume_at: usize,
     prime: &[usize],
-    small: Option<(i32, i32)>,
-    keep_image: bool,
+    keep: Keep,
     tx: SyncSender<Result<Decoded>>,
 ) {
     let mut next = 0usize;
@@ -80,23 +116,15 @@ fn decode(
         } else {
             match src.next_frame() {
                 Ok(None) => return,
+                Ok(Some(f)) if f.index < resume_at => {
+                    next = f.index + 1;
+                    // Without `small` the frame itself goes (staged on the device).
+                    let gray = keep.small.map(|s| prepare(s, &f.image)).transpose();
+                    gray.map(|g| Decoded::Prime(f.index, g.unwrap_or(f.image)))
+                }
                 Ok(Some(mut f)) => {
                     next = f.index + 1;
-                    let gray = small.map(|s| prepare(s, &f.image)).transpose();
-                    gray.map(|g| {
-                        if f.index < resume_at {
-                            // Without `small` the frame itself goes (staged on the device).
-                            Decoded::Prime(
-                                f.index,
-                                g.unwrap_or_else(|| std::mem::take(&mut f.image)),
-                            )
-                        } else {
-                            if !keep_image {
-                                f.image = Mat::default();
-                            }
-                            Decoded::Frame(f, g)
-                        }
-                    })
+                    keep.apply(&mut f).map(|g| Decoded::Frame(f, g))
                 }
                 Err(e) => Err(e),
             }

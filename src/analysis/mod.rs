@@ -171,8 +171,12 @@ fn run(
     let saver = Saver::new(resume);
     let outcome = std::thread::scope(|scope| {
         let resume_at = done.frames;
-        let keep_image = !req.sharpness.is_empty();
-        let frames = ingest::spawn_decoder(scope, src, resume_at, &prime, small, keep_image);
+        let keep = ingest::Keep {
+            small,
+            image: !req.sharpness.is_empty(),
+            gray: worker_engine.as_ref().is_some_and(|e| e.scores_gray()),
+        };
+        let frames = ingest::spawn_decoder(scope, src, resume_at, &prime, keep);
         let worker = worker_engine.map(|e| Worker::spawn(scope, e));
         let mut pump = Pump {
             req,

@@ -29,6 +29,11 @@ pub(crate) trait MovementEngine {
     fn load(&mut self, slot: usize, px: Pixels) -> Result<()>;
     /// Movement statistic (analysis pixels) from slot `from` to slot `to`.
     fn movement(&mut self, from: usize, to: usize) -> Result<f64>;
+    /// The statistics of several slot pairs `(from, to)`, in order; an engine may measure them
+    /// at once (each as [`MovementEngine::movement`] would).
+    fn movements(&mut self, pairs: &[(usize, usize)]) -> Result<Vec<f64>> {
+        pairs.iter().map(|&(a, b)| self.movement(a, b)).collect()
+    }
 }
 
 /// OpenCV's Farneback and the host twin of the statistic.
@@ -54,9 +59,40 @@ impl MovementEngine for Opencv {
     }
 
     fn movement(&mut self, from: usize, to: usize) -> Result<f64> {
-        let (Some(a), Some(b)) = (&self.frames[from], &self.frames[to]) else {
-            return Err(Error::param("slots", "frame not loaded"));
+        let (a, b) = self.pair(from, to)?;
+        self.measure(a, b)
+    }
+
+    /// Two pairs (a frame's consecutive movement and the one from the stationary reference)
+    /// on two threads: OpenCV's Farneback runs on one core, and the two are independent.
+    fn movements(&mut self, pairs: &[(usize, usize)]) -> Result<Vec<f64>> {
+        let &[(a0, b0), (a1, b1)] = pairs else {
+            return pairs.iter().map(|&(a, b)| self.movement(a, b)).collect();
         };
+        let (first, second) = (self.pair(a0, b0)?, self.pair(a1, b1)?);
+        let this = &*self;
+        std::thread::scope(|scope| {
+            let other = scope.spawn(move || this.measure(second.0, second.1));
+            let here = this.measure(first.0, first.1);
+            let there = other
+                .join()
+                .unwrap_or_else(|_| Err(Error::param("movement", "a flow thread panicked")));
+            Ok(vec![here?, there?])
+        })
+    }
+}
+
+impl Opencv {
+    /// The frames in slots `from` and `to`.
+    fn pair(&self, from: usize, to: usize) -> Result<(&Mat, &Mat)> {
+        match (&self.frames[from], &self.frames[to]) {
+            (Some(a), Some(b)) => Ok((a, b)),
+            _ => Err(Error::param("slots", "frame not loaded")),
+        }
+    }
+
+    /// The statistic of the flow from `a` to `b`.
+    fn measure(&self, a: &Mat, b: &Mat) -> Result<f64> {
         let f = farneback::opencv(a, b, &self.params, None)?;
         movement::cpu_flow(&f, self.statistic, self.field.as_ref())
     }
@@ -315,12 +351,20 @@ impl MovementPass {
                 return self.collect(false);
             }
         };
-        let consecutive = from.map(|s| e.movement(s, cur)).transpose()?;
+        // Both movements the frame needs are known before the step decides: measured together.
+        let needed = reference_needed(self.stationary.as_ref(), &m, self.reference);
+        let pairs: Vec<(usize, usize)> = from.into_iter().chain(needed).map(|s| (s, cur)).collect();
+        let got = e.movements(&pairs)?;
+        let consecutive = from.and(got.first().copied());
+        let measured = needed.and(got.last().copied());
         push_values(&mut self.values, self.scale, &m, consecutive);
         let slot = self.reference;
-        let from_ref = || {
-            let slot = slot.ok_or_else(|| Error::param("stationary", "no reference loaded"))?;
-            e.movement(slot, cur)
+        let from_ref = || match measured {
+            Some(v) => Ok(v),
+            None => {
+                let slot = slot.ok_or_else(|| Error::param("stationary", "no reference loaded"))?;
+                e.movement(slot, cur)
+            }
         };
         if step(&mut self.stationary, &m, consecutive, self.scale, from_ref)? {
             self.reference = Some(cur);
@@ -413,6 +457,19 @@ fn push_values(values: &mut Vec<f64>, scale: f64, m: &Measured, consecutive: Opt
         }
         _ => values.push(0.0),
     }
+}
+
+/// The slot of the stationary reference (`slot`) when the step will ask frame `m` for the movement
+/// from it: a candidate with a reference that [`step`] cannot answer with the consecutive movement.
+fn reference_needed(
+    stationary: Option<&StationarySampler>,
+    m: &Measured,
+    slot: Option<usize>,
+) -> Option<usize> {
+    let st = stationary.filter(|s| m.candidate && s.wants(m.index))?;
+    let reference = st.reference()?;
+    let quick = m.measured_from_previous() && reference + 1 == m.index;
+    slot.filter(|_| !quick)
 }
 
 /// Feeds frame `m` to the stationary step when it is a candidate: the movement from its

@@ -3,10 +3,11 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
-use crate::kernels::sharpness::{score_opencv, SharpnessGpu};
+use crate::kernels::sharpness::{score_gray, SharpnessGpu};
 use crate::params::{Backend, Metric};
 use crate::source::{Frame, Metadata};
 use opencv::core::Mat;
+use opencv::prelude::MatTraitConst;
 use std::collections::VecDeque;
 use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
 use std::sync::Arc;
@@ -33,6 +34,11 @@ pub(crate) trait SharpnessEngine: Send {
     /// keeping its scores (priming a resumed movement state).
     fn stage(&mut self, _image: &Mat) -> Result<()> {
         Ok(())
+    }
+    /// Whether the engine scores a frame's 8-bit gray as well as its BGR image (the same
+    /// scores), so the decode thread may hand on the gray it made.
+    fn scores_gray(&self) -> bool {
+        false
     }
 }
 
@@ -108,10 +114,13 @@ impl SharpnessEngine for Opencv {
 
     fn submit(&mut self, frames: &[Frame]) -> Result<()> {
         for f in frames {
-            let scores = self.0.iter().map(|&m| {
-                score_opencv(&f.image, m)
-                    .map_err(|e| Error::frame(std::path::PathBuf::new(), f.index, e.to_string()))
-            });
+            let at = |e: Error| Error::frame(std::path::PathBuf::new(), f.index, e.to_string());
+            let converted = match f.image.channels() {
+                1 => None,
+                _ => Some(crate::kernels::gray::opencv(&f.image).map_err(at)?),
+            };
+            let gray = converted.as_ref().unwrap_or(&f.image);
+            let scores = self.0.iter().map(|&m| score_gray(gray, m).map_err(at));
             self.1.push(scores.collect::<Result<_>>()?);
         }
         Ok(())
@@ -119,6 +128,10 @@ impl SharpnessEngine for Opencv {
 
     fn take(&mut self, _all: bool) -> Result<Vec<Vec<f64>>> {
         Ok(std::mem::take(&mut self.1))
+    }
+
+    fn scores_gray(&self) -> bool {
+        true
     }
 }
 

@@ -214,11 +214,11 @@ pub fn cpu_flow(
     field: Option<&RotationField>,
 ) -> Result<f64> {
     match field {
-        None => cpu(&magnitudes(flow)?, stat),
+        None => statistic(magnitudes(flow)?, stat),
         Some(field) => {
             let v = flow_values(flow)?;
             let r = field.fit_cpu(&v)?;
-            cpu(&field.residual_magnitudes(&v, &r)?, stat)
+            statistic(field.residual_magnitudes(&v, &r)?, stat)
         }
     }
 }
@@ -233,21 +233,34 @@ pub fn magnitudes(flow: &opencv::core::Mat) -> Result<Vec<f32>> {
 
 /// Host twin: the statistic of `values`.
 pub fn cpu(values: &[f32], stat: Statistic) -> Result<f64> {
+    statistic(values.to_vec(), stat)
+}
+
+/// [`cpu`] on values it may reorder. The median takes its two middle ranks by selection (the
+/// values of those ranks in the total order are the sorted ones'); the trimmed mean sums the
+/// kept ranks in ascending order, so it sorts.
+fn statistic(mut v: Vec<f32>, stat: Statistic) -> Result<f64> {
     stat.validate()?;
-    if values.is_empty() {
+    if v.is_empty() {
         return Err(Error::param("flow", "empty flow field"));
     }
-    let mut v = values.to_vec();
-    v.sort_by(f32::total_cmp);
     let (lo, hi) = stat.ranks(v.len() as u32);
+    let (lo, hi) = (lo as usize, hi as usize);
     Ok(match stat {
-        Statistic::Median => (f64::from(v[lo as usize]) + f64::from(v[hi as usize])) * 0.5,
+        Statistic::Median => {
+            let (_, low, above) = v.select_nth_unstable_by(lo, f32::total_cmp);
+            let low = *low;
+            // The median's ranks are lo and lo + 1 at most: the next rank is the least above.
+            let high = match hi > lo {
+                true => above.iter().copied().min_by(f32::total_cmp).unwrap_or(low),
+                false => low,
+            };
+            (f64::from(low) + f64::from(high)) * 0.5
+        }
         Statistic::TrimmedMean { .. } => {
-            let s: f64 = v[lo as usize..=hi as usize]
-                .iter()
-                .map(|&x| f64::from(x))
-                .sum();
-            s / f64::from(hi - lo + 1)
+            v.sort_by(f32::total_cmp);
+            let s: f64 = v[lo..=hi].iter().map(|&x| f64::from(x)).sum();
+            s / (hi - lo + 1) as f64
         }
     })
 }
@@ -555,4 +568,32 @@ pub fn checked(v: f64) -> Result<f64> {
         ));
     }
     Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cpu;
+    use crate::params::Statistic;
+
+    /// The median by selection equals the middle of the sorted values, for odd and even
+    /// lengths, ties and zeros.
+    #[test]
+    fn median_by_selection_is_the_sorted_median() {
+        let mut rng = fastrand::Rng::with_seed(35);
+        for n in [1usize, 2, 3, 4, 7, 8, 100, 101, 57_600] {
+            let v: Vec<f32> = (0..n)
+                .map(|_| match rng.u8(0..4) {
+                    0 => 0.0,
+                    1 => 1.5,
+                    _ => rng.f32() * 10.0,
+                })
+                .collect();
+            let mut sorted = v.clone();
+            sorted.sort_by(f32::total_cmp);
+            let (lo, hi) = ((n - 1) / 2, n / 2);
+            let want = (f64::from(sorted[lo]) + f64::from(sorted[hi])) * 0.5;
+            let got = cpu(&v, Statistic::Median).unwrap();
+            assert_eq!(got.to_bits(), want.to_bits(), "n = {n}");
+        }
+    }
 }

@@ -36,10 +36,15 @@ fn totals_from_words(words: &[u32]) -> Vec<u64> {
 
 /// OpenCV backend: the score of one 8-bit BGR (or gray) frame.
 pub fn score_opencv(frame: &Mat, metric: Metric) -> Result<f64> {
-    let g = gray::opencv(frame)?;
+    score_gray(&gray::opencv(frame)?, metric)
+}
+
+/// OpenCV backend: the score of a frame's 8-bit gray image (Tenengrad in one host pass, equal
+/// to its OpenCV twin).
+pub fn score_gray(gray: &Mat, metric: Metric) -> Result<f64> {
     match metric {
-        Metric::Tenengrad => tenengrad::opencv(&g),
-        Metric::Laplacian { ksize } => laplacian::opencv(&g, ksize),
+        Metric::Tenengrad => tenengrad::host(gray),
+        Metric::Laplacian { ksize } => laplacian::opencv(gray, ksize),
     }
 }
 
