@@ -285,11 +285,10 @@ fn warp_masks(ws: &Path, out: &Path, source: &Model, dataset: &Model) -> Result<
             camera(source, src_im.camera_id)?,
             camera(dataset, im.camera_id)?,
         );
-        let key = (src.id, dst.id);
-        if !maps.contains_key(&key) {
-            maps.insert(key, remap_indices(&src, &dst)?);
-        }
-        let map = &maps[&key];
+        let map = match maps.entry((src.id, dst.id)) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => e.insert(remap_indices(&src, &dst)?),
+        };
         warp_mask(
             &from,
             &dir.join(format!("{}.png", im.name)),

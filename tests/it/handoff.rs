@@ -388,3 +388,26 @@ fn georegister_refuses_two_positions_and_a_straight_line() {
         assert!(!copy.join("colmap").exists(), "{keep}: workspace made");
     }
 }
+
+/// `info` says what this machine's COLMAP can do for `keyframer colmap`: with Debian's 3.8
+/// (no CUDA) sparse, undistort and georegister but not dense.
+#[test]
+fn info_says_what_colmap_can_do() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    let v: serde_json::Value = serde_json::from_str(&kf_ok(&["info", "--json"])).unwrap();
+    let a = &v["colmap_abilities"]["Ok"];
+    let version = a["version"].as_str().unwrap();
+    assert!(version.starts_with("COLMAP"), "{v}");
+    for k in ["sparse", "undistort", "georegister"] {
+        assert_eq!(a[k], true, "{k}: {a}");
+    }
+    assert_eq!(a["dense"], !version.contains("without CUDA"), "{a}");
+    let text = String::from_utf8(kf(&["info"]).stdout).unwrap();
+    assert!(
+        text.contains("keyframer colmap can run --sparse --undistort --georegister"),
+        "{text}"
+    );
+}
