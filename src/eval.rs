@@ -245,6 +245,12 @@ fn resolve(path: &Path) -> Result<Resolved> {
     })
 }
 
+/// Whether `model` (anything [`evaluate`] accepts) resolves to a workspace's georegistered model
+/// (ENU metres: x east, y north, z up).
+pub fn is_georegistered(model: &Path) -> bool {
+    resolve(model).is_ok_and(|r| r.georegistered.is_some())
+}
+
 /// Evaluates the model at `a.model`.
 pub fn evaluate(a: &EvalSettings) -> Result<Report> {
     let r = resolve(&a.model)?;

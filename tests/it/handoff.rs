@@ -207,6 +207,23 @@ fn georegistered_model_lies_on_the_telemetry_in_metres_north_up() {
         (spacing / true_spacing - 1.0).abs() < 0.01,
         "{spacing} vs {true_spacing}"
     );
+    // The report draws the camera path in metres, east right and north up.
+    let html = export().1.parent().unwrap().join("report.html");
+    let project = export().1.parent().unwrap().join("p.json");
+    kf_ok(&[
+        "report",
+        s(&project),
+        "-o",
+        s(&html),
+        "--model",
+        s(ws),
+        "--force",
+    ]);
+    let page = std::fs::read_to_string(&html).unwrap();
+    assert!(
+        page.contains("east (right), north (up),"),
+        "no north-up camera path"
+    );
 }
 
 /// `dataset/`: PINHOLE cameras; every registered image present at its camera's size with its
