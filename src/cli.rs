@@ -845,6 +845,18 @@ pub struct ColmapArgs {
     /// Then densify (image_undistorter, patch_match_stereo, stereo_fusion); needs a CUDA COLMAP.
     #[arg(long)]
     pub dense: bool,
+    /// Then undistort the model into WORKSPACE/dataset (images/, masks/, sparse/0 in PINHOLE,
+    /// transforms.json) for 3DGS and NeRF trainers; implies --sparse.
+    #[arg(long)]
+    pub undistort: bool,
+    /// Align the model to the keyframes' positions (telemetry or EXIF GPS) with COLMAP's
+    /// model_aligner: ENU metres from the first position, in WORKSPACE/georegistered (and the
+    /// dataset made from it); implies --sparse.
+    #[arg(long)]
+    pub georegister: bool,
+    /// Inlier threshold of the robust georegistration, metres.
+    #[arg(long, value_name = "METRES", default_value_t = keyframer::colmap::georegister::DEFAULT_MAX_ERROR_M)]
+    pub georegister_max_error: f64,
     /// COLMAP's options.
     #[command(flatten)]
     pub colmap: ColmapFlags,
@@ -864,6 +876,8 @@ impl ColmapArgs {
             output: self.output.clone(),
             sparse: self.sparse,
             dense: self.dense,
+            undistort: self.undistort,
+            georegister: self.georegister.then_some(self.georegister_max_error),
             options: self.colmap.options(),
             force: self.force,
         }

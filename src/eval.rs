@@ -178,6 +178,9 @@ pub struct Report {
     pub order: Vec<(String, Option<usize>)>,
     /// Ground-truth comparison.
     pub gt: Option<GtReport>,
+    /// A georegistered workspace's aligned camera centres against the export's positions
+    /// (metres); its georegistered model is the one evaluated.
+    pub georegistration: Option<cm::georegister::Residuals>,
 }
 
 /// Where the model, the manifest and the selected count come from.
@@ -186,6 +189,8 @@ struct Resolved {
     models: usize,
     export: Option<PathBuf>,
     selected_from_workspace: Option<usize>,
+    /// The workspace, when the model is its georegistered one.
+    georegistered: Option<PathBuf>,
 }
 
 fn resolve(path: &Path) -> Result<Resolved> {
@@ -195,6 +200,7 @@ fn resolve(path: &Path) -> Result<Resolved> {
             models: 1,
             export: None,
             selected_from_workspace: None,
+            georegistered: None,
         });
     }
     let (root, export, selected) = if path.join(cm::RECORD).is_file() {
@@ -222,12 +228,27 @@ fn resolve(path: &Path) -> Result<Resolved> {
             "not a COLMAP model, a sparse/ folder of models or a keyframer colmap workspace",
         )
     })?;
+    // A georegistered workspace: the same model in ENU metres.
+    let geo = path.join(cm::georegister::GEOREGISTERED);
+    let georegistered =
+        (export.is_some() && model::detect(&geo).is_some()).then(|| path.to_path_buf());
     Ok(Resolved {
-        model_dir,
+        model_dir: if georegistered.is_some() {
+            geo
+        } else {
+            model_dir
+        },
         models: dirs.len(),
         export,
         selected_from_workspace: selected,
+        georegistered,
     })
+}
+
+/// Whether `model` (anything [`evaluate`] accepts) resolves to a workspace's georegistered model
+/// (ENU metres: x east, y north, z up).
+pub fn is_georegistered(model: &Path) -> bool {
+    resolve(model).is_ok_and(|r| r.georegistered.is_some())
 }
 
 /// Evaluates the model at `a.model`.
@@ -244,6 +265,10 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
     let centres: Vec<Vec3> = ordered.iter().map(|o| o.centre).collect();
     let registered = m.images.len();
     let gt = a.gt.as_deref().map(|p| compare_gt(p, &ordered));
+    let georegistration = match (&r.georegistered, &manifest) {
+        (Some(ws), Some(man)) => cm::georegister::evaluate(ws, man)?,
+        _ => None,
+    };
     Ok(Report {
         model: r.model_dir,
         format,
@@ -259,6 +284,7 @@ pub fn evaluate(a: &EvalSettings) -> Result<Report> {
         spacing: stats(&spacings(&centres)),
         order: ordered.iter().map(|o| (o.name.clone(), o.index)).collect(),
         gt: gt.transpose()?,
+        georegistration,
     })
 }
 
@@ -461,6 +487,14 @@ pub fn render(r: &Report) -> String {
             g.rotation_error_mean_deg,
             fmt_stats(&g.spacing),
             fmt_stats(&g.gt_spacing),
+        );
+    }
+    if let Some(g) = &r.georegistration {
+        s += &format!(
+            "georegistered:         model in ENU metres (x east, y north, z up): spacing above is in metres
+             residual to positions: {} images, mean {:.3} m, median {:.3} m, RMS {:.3} m, max {:.3} m
+",
+            g.images, g.mean_m, g.median_m, g.rms_m, g.max_m
         );
     }
     s

@@ -1,5 +1,6 @@
 //! `info`: what this machine offers keyframer: wgpu adapters and limits, what `--backend auto`
-//! resolves to and why, OpenCV version and video I/O backends, and whether `colmap` is on PATH.
+//! resolves to and why, OpenCV version and video I/O backends, whether `colmap` is on PATH and
+//! what the COLMAP `keyframer colmap` would run can do (sparse, undistort, georegister, dense).
 
 use crate::gpu::{self, AdapterSummary, AutoDecision};
 use serde::Serialize;
@@ -22,6 +23,46 @@ pub struct Info {
     pub opencv_video_backends: Vec<String>,
     /// Path of `colmap`, if found on PATH.
     pub colmap: Option<PathBuf>,
+    /// What the COLMAP `keyframer colmap` would run (`KEYFRAMER_COLMAP`, else PATH) can do, or
+    /// why it cannot be run.
+    pub colmap_abilities: Result<ColmapAbilities, String>,
+}
+
+/// What a COLMAP installation offers `keyframer colmap`, read from its `colmap help`.
+#[derive(Debug, Serialize)]
+pub struct ColmapAbilities {
+    /// The binary.
+    pub bin: PathBuf,
+    /// Its version line (with or without CUDA).
+    pub version: String,
+    /// `--sparse`: feature_extractor, the matchers and mapper are there.
+    pub sparse: bool,
+    /// `--undistort`: image_undistorter is there.
+    pub undistort: bool,
+    /// `--georegister`: model_aligner is there.
+    pub georegister: bool,
+    /// `--dense`: patch_match_stereo is there and the build has CUDA (it needs it).
+    pub dense: bool,
+}
+
+/// Reads what the COLMAP found by [`crate::colmap::locate`] offers.
+pub fn colmap_abilities() -> Result<ColmapAbilities, String> {
+    let c = crate::colmap::locate().map_err(|e| e.to_string())?;
+    let has = |cmd: &str| {
+        c.help
+            .lines()
+            .any(|l| l.split_whitespace().any(|w| w == cmd))
+    };
+    Ok(ColmapAbilities {
+        sparse: ["feature_extractor", "sequential_matcher", "mapper"]
+            .iter()
+            .all(|cmd| has(cmd)),
+        undistort: has("image_undistorter"),
+        georegister: has("model_aligner"),
+        dense: c.cuda && has("patch_match_stereo"),
+        bin: c.bin,
+        version: c.version,
+    })
 }
 
 /// Gathers the facts; `adapter` is the `--adapter` choice.
@@ -41,6 +82,7 @@ pub fn gather(adapter: Option<&str>) -> Info {
         opencv_version: opencv::core::get_version_string().unwrap_or_default(),
         opencv_video_backends: video_backends(),
         colmap: find_on_path("colmap"),
+        colmap_abilities: colmap_abilities(),
     }
 }
 
@@ -99,5 +141,32 @@ pub fn render(info: &Info) -> String {
         Some(p) => format!("colmap: {}\n", p.display()),
         None => "colmap: not found on PATH (Debian package `colmap`)\n".into(),
     };
+    match &info.colmap_abilities {
+        Ok(a) => {
+            let (mut can, mut cannot) = (Vec::new(), Vec::new());
+            for (ok, what) in [
+                (a.sparse, "--sparse"),
+                (a.undistort, "--undistort"),
+                (a.georegister, "--georegister"),
+                (a.dense, "--dense"),
+            ] {
+                if ok { &mut can } else { &mut cannot }.push(what);
+            }
+            s += &format!(
+                "  {} ({}): keyframer colmap can run {}",
+                a.version,
+                a.bin.display(),
+                can.join(" ")
+            );
+            if !cannot.is_empty() {
+                s += &format!("; not {}", cannot.join(" "));
+            }
+            if !a.dense {
+                s += " (dense stereo needs a CUDA build of COLMAP)";
+            }
+            s += "\n";
+        }
+        Err(e) => s += &format!("  {e}\n"),
+    }
     s
 }

@@ -213,10 +213,12 @@ fn report(a: &cli::ReportArgs) -> Result<ExitCode> {
     let centres = (a.model.as_ref())
         .map(|m| keyframer::eval::camera_centres(m, a.export.as_deref()))
         .transpose()?;
+    let north_up = (a.model.as_ref()).is_some_and(|m| keyframer::eval::is_georegistered(m));
     let camera = centres.map(|c| keyframer::report::CameraPath {
         points: (c.into_iter())
             .map(|(frame, centre)| keyframer::report::PathPoint { frame, centre })
             .collect(),
+        north_up,
     });
     let r = keyframer::report::write_report(&a.project, &a.settings(), camera.as_ref())?;
     eprintln!(

@@ -7,7 +7,10 @@
 
 pub mod align;
 pub mod extend;
+pub mod georegister;
 pub mod model;
+pub mod transforms;
+pub mod undistort;
 
 use crate::error::{Error, Result};
 use crate::fsutil;
@@ -23,12 +26,14 @@ pub const RECORD: &str = "colmap.json";
 /// Environment variable naming the COLMAP binary to use instead of `colmap` on PATH.
 pub const COLMAP_ENV: &str = "KEYFRAMER_COLMAP";
 /// What keyframer creates in a workspace; `--force` removes exactly these.
-const OURS: [&str; 11] = [
+const OURS: [&str; 13] = [
     "images",
     "masks",
     "sparse",
     extend::NEXT,
     "dense",
+    undistort::DATASET,
+    georegister::GEOREGISTERED,
     "logs",
     "database.db",
     "database.db-shm",
@@ -49,6 +54,11 @@ pub struct ColmapSettings {
     pub sparse: bool,
     /// Then densify (needs a CUDA COLMAP).
     pub dense: bool,
+    /// Then undistort into `WORKSPACE/dataset/` (PINHOLE images, masks, `transforms.json`).
+    pub undistort: bool,
+    /// Align the model to the keyframes' positions (ENU metres) first: the inlier threshold of
+    /// the robust alignment in metres, or None for no georegistration.
+    pub georegister: Option<f64>,
     /// COLMAP's options for the sparse model.
     pub options: SparseOptions,
     /// Replace the keyframer-made content of an existing workspace.
@@ -178,6 +188,12 @@ pub struct Record {
     pub stages: Vec<StageRecord>,
     /// Models under sparse/, in folder order.
     pub models: Vec<ModelSummary>,
+    /// The georegistration (`--georegister`), when it ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub georegistration: Option<georegister::Georegistration>,
+    /// The undistorted dataset (`--undistort`), when it was made.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dataset: Option<undistort::DatasetSummary>,
     /// Why the run stopped early, when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
@@ -248,6 +264,13 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
     a.options.check()?;
     let colmap = locate()?;
     let (export, manifest, ws) = check_export(a)?;
+    if let Some(m) = a.georegister {
+        if !(m.is_finite() && m > 0.0) {
+            let msg = format!("{m} m: the inlier threshold must be a positive number of metres");
+            return Err(Error::param("georegister_max_error", msg));
+        }
+        georegister::precheck(&manifest)?;
+    }
     // The workspace stays locked until its record is written last.
     let (masks, _held) = fill_workspace(&ws, &export, &manifest, a.force)?;
     let mut rec = Record {
@@ -266,7 +289,7 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         ws: &ws,
         quiet,
     };
-    let result = run_stages(&runner, &mut rec, a);
+    let result = run_stages(&runner, &mut rec, a, &manifest);
     if let Err(e) = &result {
         rec.error = Some(e.to_string());
     }
@@ -350,17 +373,32 @@ fn fill_workspace(
 }
 
 /// `project.ini`, then the database alone, or the sparse stages (and the dense ones).
-fn run_stages(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<()> {
+fn run_stages(
+    runner: &Runner,
+    rec: &mut Record,
+    a: &ColmapSettings,
+    manifest: &Manifest,
+) -> Result<()> {
     let ws = runner.ws;
     write_project_ini(runner, rec, &a.options)?;
     let db = ws.join("database.db");
-    if !(a.sparse || a.dense) {
+    if !(a.sparse || a.dense || a.undistort || a.georegister.is_some()) {
         rec.stages
             .push(runner.stage("database_creator", &[("--database_path", p(&db))])?);
         return Ok(());
     }
     extract_and_match(runner, rec, &a.options, None)?;
     let best = map(runner, rec, a)?;
+    let mut model_dir = ws.join(&best);
+    let mut world = transforms::World::Colmap;
+    if let Some(max_error_m) = a.georegister {
+        let (dir, g) = georegister::georegister(runner, rec, manifest, &model_dir, max_error_m)?;
+        rec.georegistration = Some(g);
+        (model_dir, world) = (dir, transforms::World::Enu);
+    }
+    if a.undistort {
+        rec.dataset = Some(undistort::make_dataset(runner, rec, &model_dir, world)?);
+    }
     if a.dense {
         densify(runner, rec, &ws.join(&best))?;
     }
@@ -871,6 +909,23 @@ pub fn render(rec: &Record) -> String {
             m.mean_reprojection_error
                 .map(|e| format!("{e:.3} px"))
                 .unwrap_or_else(|| "-".into())
+        );
+    }
+    if let Some(g) = &rec.georegistration {
+        let r = &g.residuals;
+        s += &format!(
+            "georeg:    {} (ENU metres from {:.7}, {:.7}, {:.2} m): {} images, residual mean {:.3} m, \
+             median {:.3} m, max {:.3} m, scale {:.6}\n",
+            g.model, g.origin.lat_deg, g.origin.lon_deg, g.origin.alt_m, r.images, r.mean_m,
+            r.median_m, r.max_m, g.scale
+        );
+    }
+    if let Some(d) = &rec.dataset {
+        s += &format!(
+            "dataset:   {} ({} PINHOLE images, {} masks, transforms.json)\n",
+            rec.workspace.join(&d.path).display(),
+            d.images,
+            d.masks
         );
     }
     s += &format!(

@@ -541,6 +541,8 @@ impl Job<'_> {
             output: Some(cws.clone()),
             sparse: true,
             dense: false,
+            undistort: false,
+            georegister: None,
             options,
             force: true,
         };

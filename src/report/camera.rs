@@ -18,6 +18,9 @@ pub struct PathPoint {
 pub struct CameraPath {
     /// The cameras.
     pub points: Vec<PathPoint>,
+    /// The centres are east/north/up metres (a georegistered model): drawn east to the right,
+    /// north up, instead of on their principal axes.
+    pub north_up: bool,
 }
 
 /// Numbers the camera-path section reports.
@@ -73,6 +76,12 @@ impl CameraPath {
         if pts.is_empty() {
             return Vec::new();
         }
+        if self.north_up {
+            return pts
+                .iter()
+                .map(|p| (p.frame, p.centre[0], p.centre[1]))
+                .collect();
+        }
         let n = pts.len() as f64;
         let centres: Vec<Vector3<f64>> = pts.iter().map(|p| Vector3::from(p.centre)).collect();
         let mean = centres.iter().sum::<Vector3<f64>>() / n;
@@ -107,7 +116,7 @@ impl CameraPath {
             r##"<rect width="{SIZE}" height="{SIZE}" fill="#fafafa" stroke="#999"/>"##
         )?;
         write_path(s, &p, &d)?;
-        write_legend(s, &d)?;
+        write_legend(s, &d, self.north_up)?;
         writeln!(s, "</svg>")
     }
 }
@@ -166,7 +175,7 @@ fn write_path(s: &mut String, p: &[(usize, f64, f64)], d: &[f64]) -> fmt::Result
 }
 
 /// The colour scale legend of the spacings `d`, and a note on the axes.
-fn write_legend(s: &mut String, d: &[f64]) -> fmt::Result {
+fn write_legend(s: &mut String, d: &[f64], north_up: bool) -> fmt::Result {
     let ((lo, hi), lx) = (bounds(d.iter().copied()), SIZE + 30.0);
     writeln!(
         s,
@@ -190,9 +199,14 @@ fn write_legend(s: &mut String, d: &[f64]) -> fmt::Result {
             50 + steps * 10 - 1
         )?;
     }
+    let (a, b) = if north_up {
+        ("axes: east (right), north (up),", "metres (georegistered)")
+    } else {
+        ("axes: the two principal", "directions of the centres")
+    };
     writeln!(
         s,
-        r#"<text x="{lx}" y="{}">axes: the two principal</text><text x="{lx}" y="{}">directions of the centres</text>"#,
+        r#"<text x="{lx}" y="{}">{a}</text><text x="{lx}" y="{}">{b}</text>"#,
         50 + steps * 10 + 30,
         50 + steps * 10 + 44
     )
@@ -270,7 +284,10 @@ mod tests {
                 }
             })
             .collect();
-        CameraPath { points }
+        CameraPath {
+            points,
+            north_up: false,
+        }
     }
 
     #[test]
@@ -286,6 +303,29 @@ mod tests {
         assert!(st.cv_spacing < 0.01, "equal steps: cv {}", st.cv_spacing);
         let expect = 2.0 * 2.0 * (std::f64::consts::PI / n as f64).sin();
         assert!((st.mean_spacing - expect).abs() < 0.01 * expect);
+    }
+
+    #[test]
+    fn georegistered_path_is_drawn_east_right_north_up() {
+        let path = CameraPath {
+            points: vec![
+                PathPoint {
+                    frame: 0,
+                    centre: [0.0, 0.0, 30.0],
+                },
+                PathPoint {
+                    frame: 1,
+                    centre: [0.0, 50.0, 31.0],
+                },
+            ],
+            north_up: true,
+        };
+        assert_eq!(path.projected(), [(0, 0.0, 0.0), (1, 0.0, 50.0)]);
+        let svg = path.svg();
+        assert!(svg.contains("east (right), north (up)"), "{svg}");
+        // The second camera, north of the first, is drawn above it.
+        let to = plot_transform(&path.projected());
+        assert!(to(0.0, 50.0).1 < to(0.0, 0.0).1);
     }
 
     #[test]
@@ -309,6 +349,7 @@ mod tests {
                     }
                 })
                 .collect(),
+            north_up: false,
         };
         let line = CameraPath {
             points: (0..10)
@@ -321,6 +362,7 @@ mod tests {
                     ],
                 })
                 .collect(),
+            north_up: false,
         };
         // A circle: two equal principal spreads, the tie broken towards the lower world axis.
         let circle = tilted_circle();

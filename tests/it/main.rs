@@ -14,6 +14,7 @@ mod flow;
 mod foundation;
 mod geo_area;
 mod geotag;
+mod handoff;
 mod inputs;
 mod layers;
 mod lock;

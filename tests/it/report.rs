@@ -226,6 +226,7 @@ fn helix(keys: &[usize]) -> CameraPath {
                 }
             })
             .collect(),
+        north_up: false,
     }
 }
 

@@ -1,0 +1,430 @@
+//! Hand-off to trainers and GIS on a synthetic flight with exact telemetry and ground truth
+//! (one real COLMAP run shared by the tests): `colmap --sparse --georegister --undistort` gives a
+//! model in ENU metres on the telemetry (centres within 0.5 m, scale within 1 %, cameras oriented
+//! as the truth: north up), an undistorted PINHOLE dataset with every registered image and its
+//! mask, whose points reproject where COLMAP observes them and whose undistortion geometry is the
+//! one the masks were warped with, and a `transforms.json` that, read the way nerfstudio reads it,
+//! gives back the model's cameras; too few or collinear positions are refused before COLMAP runs.
+
+use crate::common::{code_and_stderr, json, kf, kf_ok, s, scene_ok};
+use crate::scene::{poses, rotation};
+use keyframer::colmap::model::{self, Camera, Model};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+type M3 = [[f64; 3]; 3];
+
+/// Where the flight's world origin is on Earth.
+const ORIGIN: &str = "-33.8568,-70.6012,520.5";
+/// Size of the flight's images.
+const W: u32 = 320;
+const H: u32 = 180;
+/// Export masks: 0 (ignore) left of this column, 255 from it on.
+const MASK_EDGE: u32 = 24;
+
+fn colmap_installed() -> bool {
+    Command::new("colmap").arg("-h").output().is_ok()
+}
+
+/// A 12 s survey (a straight leg, a U-turn and the leg back) at 10 fps, every 8th frame exported
+/// with its telemetry position and a mask: (flight folder, export folder).
+fn export() -> &'static (PathBuf, PathBuf) {
+    static DIRS: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    DIRS.get_or_init(|| {
+        let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("handoff");
+        let flight = root.join("flight");
+        scene_ok(&[
+            s(&flight),
+            "--force",
+            "--size",
+            &format!("{W}x{H}"),
+            "--fps",
+            "10",
+            "--seconds",
+            "12",
+            "--blur-samples",
+            "1",
+            &format!("--origin={ORIGIN}"),
+        ]);
+        let project = root.join("p.json");
+        kf_ok(&[
+            "select",
+            s(&flight.join("video.mp4")),
+            "--every",
+            "8",
+            "-o",
+            s(&project),
+            "--force",
+        ]);
+        let out = root.join("export");
+        if out.exists() {
+            std::fs::remove_dir_all(&out).unwrap();
+        }
+        kf_ok(&["export", s(&project), "--out", s(&out)]);
+        add_masks(&out);
+        (flight, out)
+    })
+}
+
+/// Gives every exported image a mask (the left `MASK_EDGE` columns 0, the rest 255) listed in
+/// the manifest, as `export --mask` does.
+fn add_masks(export: &Path) {
+    let masks = export.join("masks");
+    std::fs::create_dir_all(&masks).unwrap();
+    let mut manifest = json(&export.join("manifest.json"));
+    for f in manifest["frames"].as_array_mut().unwrap() {
+        let name = format!("{}.png", f["file"].as_str().unwrap());
+        let img = image::GrayImage::from_fn(W, H, |x, _| {
+            image::Luma([if x < MASK_EDGE { 0 } else { 255 }])
+        });
+        img.save(masks.join(&name)).unwrap();
+        f["mask"] = serde_json::Value::String(name);
+    }
+    std::fs::write(export.join("manifest.json"), manifest.to_string()).unwrap();
+}
+
+/// The workspace of `colmap --sparse --georegister --undistort` on the export (run once).
+fn workspace() -> &'static PathBuf {
+    static WS: OnceLock<PathBuf> = OnceLock::new();
+    WS.get_or_init(|| {
+        let (_, export) = export();
+        let ws = export.parent().unwrap().join("ws");
+        kf_ok(&[
+            "colmap",
+            s(export),
+            "-o",
+            s(&ws),
+            "--sparse",
+            "--georegister",
+            "--undistort",
+            "--force",
+        ]);
+        ws
+    })
+}
+
+/// World-to-camera rotation of a COLMAP quaternion (w, x, y, z).
+fn w2c(q: [f64; 4]) -> M3 {
+    rotation(&[q[1], q[2], q[3], q[0]])
+}
+
+fn centre(q: [f64; 4], t: [f64; 3]) -> [f64; 3] {
+    let r = w2c(q);
+    // C = −Rᵀ t: the columns of R dotted with t.
+    std::array::from_fn(|j| -(0..3).map(|i| r[i][j] * t[i]).sum::<f64>())
+}
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
+}
+
+/// The truth of every exported frame registered in `m`: (name, true position relative to the first
+/// exported frame's, true camera-to-world rotation).
+fn truth(m: &Model) -> Vec<(String, [f64; 3], M3)> {
+    let (flight, export) = export();
+    let poses = poses(flight);
+    let manifest = json(&export.join("manifest.json"));
+    let frames = manifest["frames"].as_array().unwrap();
+    let first = &poses[frames[0]["index"].as_u64().unwrap() as usize].1;
+    frames
+        .iter()
+        .filter(|f| m.images.values().any(|im| im.name == f["file"]))
+        .map(|f| {
+            let p = &poses[f["index"].as_u64().unwrap() as usize].1;
+            let rel = [p[0] - first[0], p[1] - first[1], p[2] - first[2]];
+            (
+                f["file"].as_str().unwrap().to_string(),
+                rel,
+                rotation(&p[3..]),
+            )
+        })
+        .collect()
+}
+
+/// The georegistered model: every registered camera within 0.5 m of its true position (ENU of
+/// the first exported frame: the synthetic telemetry is exact, and over this flight's 60 m the
+/// scene's tangent plane and the ENU frame agree to the millimetre), the spread of the centres
+/// the truth's within 1 % (scale), every camera's orientation the truth's within 1° (north up);
+/// `colmap.json`, `georegistration.json` and `eval` report the residuals.
+#[test]
+fn georegistered_model_lies_on_the_telemetry_in_metres_north_up() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    let ws = workspace();
+    let (m, _) = model::read(&ws.join("georegistered")).unwrap();
+    let truth = truth(&m);
+    assert!(truth.len() >= 12, "{} of 15 registered", truth.len());
+    let mut got = Vec::new();
+    for (name, pos, r_true) in &truth {
+        let im = m.images.values().find(|im| &im.name == name).unwrap();
+        let c = centre(im.qvec, im.tvec);
+        assert!(dist(&c, pos) < 0.5, "{name}: {c:?} vs {pos:?}");
+        // The angle between the true camera-to-world rotation and the model's (Rᵀ):
+        // trace(R_trueᵀ Rᵀ) = trace(R_true R).
+        let r = w2c(im.qvec);
+        let trace: f64 = (0..3)
+            .map(|k| (0..3).map(|i| r_true[i][k] * r[k][i]).sum::<f64>())
+            .sum();
+        let angle = ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+        assert!(angle < 1.0, "{name}: {angle}° from the true orientation");
+        got.push(c);
+    }
+    let spread = |pts: &[[f64; 3]]| {
+        let n = pts.len() as f64;
+        let mean: [f64; 3] = std::array::from_fn(|k| pts.iter().map(|p| p[k]).sum::<f64>() / n);
+        (pts.iter().map(|p| dist(p, &mean).powi(2)).sum::<f64>() / n).sqrt()
+    };
+    let want: Vec<[f64; 3]> = truth.iter().map(|t| t.1).collect();
+    let scale = spread(&got) / spread(&want);
+    assert!((scale - 1.0).abs() < 0.01, "scale {scale}");
+
+    let rec = json(&ws.join("colmap.json"));
+    let g = &rec["georegistration"];
+    assert_eq!(g["residuals"]["images"].as_u64(), Some(truth.len() as u64));
+    assert!(g["residuals"]["max_m"].as_f64().unwrap() < 0.5, "{g}");
+    // The origin is the first exported frame's position.
+    let manifest = json(&export().1.join("manifest.json"));
+    let p0 = &manifest["frames"][0]["position"];
+    assert_eq!(g["origin"]["lat_deg"], p0["lat_deg"]);
+    assert_eq!(g["origin"]["alt_m"], p0["abs_alt_m"]);
+    assert_eq!(json(&ws.join("georegistered/georegistration.json")), *g);
+    let e: serde_json::Value = serde_json::from_str(&kf_ok(&["eval", s(ws), "--json"])).unwrap();
+    assert!(
+        e["model"].as_str().unwrap().ends_with("georegistered"),
+        "{e}"
+    );
+    let r = &e["georegistration"];
+    assert_eq!(r["images"].as_u64(), Some(truth.len() as u64), "{e}");
+    assert!(r["max_m"].as_f64().unwrap() < 0.5, "{e}");
+    // Spacing is now in metres: the truth's mean spacing within 1 %.
+    let true_spacing: f64 =
+        want.windows(2).map(|w| dist(&w[0], &w[1])).sum::<f64>() / (want.len() - 1) as f64;
+    let spacing = e["spacing"]["mean"].as_f64().unwrap();
+    assert!(
+        (spacing / true_spacing - 1.0).abs() < 0.01,
+        "{spacing} vs {true_spacing}"
+    );
+    // The report draws the camera path in metres, east right and north up.
+    let html = export().1.parent().unwrap().join("report.html");
+    let project = export().1.parent().unwrap().join("p.json");
+    kf_ok(&[
+        "report",
+        s(&project),
+        "-o",
+        s(&html),
+        "--model",
+        s(ws),
+        "--force",
+    ]);
+    let page = std::fs::read_to_string(&html).unwrap();
+    assert!(
+        page.contains("east (right), north (up),"),
+        "no north-up camera path"
+    );
+}
+
+/// `dataset/`: PINHOLE cameras; every registered image present at its camera's size with its
+/// mask; the masks keep the export's edge where the undistortion puts it; every 3D point reprojects
+/// into the undistorted images where COLMAP observes it (median 0.5 px); and keyframer's
+/// undistortion geometry (the masks' maps) takes COLMAP's undistorted observations back onto the
+/// distorted ones.
+#[test]
+fn undistorted_dataset_is_pinhole_with_images_masks_and_consistent_points() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    let ws = workspace();
+    let ds = ws.join("dataset");
+    let (m, _) = model::read(&ds.join("sparse/0")).unwrap();
+    let (source, _) = model::read(&ws.join("georegistered")).unwrap();
+    assert_eq!(m.images.len(), source.images.len());
+    let cam: &Camera = m.cameras.values().next().unwrap();
+    assert_eq!(m.cameras.len(), 1);
+    assert_eq!(cam.model, "PINHOLE");
+    let [fx, fy, cx, cy] = [cam.params[0], cam.params[1], cam.params[2], cam.params[3]];
+    for im in m.images.values() {
+        let img = image::open(ds.join("images").join(&im.name)).unwrap();
+        assert_eq!(
+            (u64::from(img.width()), u64::from(img.height())),
+            (cam.width, cam.height)
+        );
+        let mask = image::open(ds.join("masks").join(format!("{}.png", im.name)))
+            .unwrap()
+            .to_luma8();
+        assert_eq!(
+            (u64::from(mask.width()), u64::from(mask.height())),
+            (cam.width, cam.height)
+        );
+        // The undistortion moves this flight's pixels by under a pixel and a half.
+        for (x, y, v) in mask.enumerate_pixels() {
+            if x + 2 < MASK_EDGE {
+                assert_eq!(v.0[0], 0, "{} ({x}, {y})", im.name);
+            } else if x > MASK_EDGE + 1 {
+                assert_eq!(v.0[0], 255, "{} ({x}, {y})", im.name);
+            }
+        }
+    }
+    // Reprojection into the undistorted images.
+    let mut errors = Vec::new();
+    for pt in m.points.values() {
+        for &(image_id, idx) in &pt.track {
+            let im = &m.images[&image_id];
+            let r = w2c(im.qvec);
+            let xc: [f64; 3] = std::array::from_fn(|i| {
+                (0..3).map(|k| r[i][k] * pt.xyz[k]).sum::<f64>() + im.tvec[i]
+            });
+            let (u, v) = (fx * xc[0] / xc[2] + cx, fy * xc[1] / xc[2] + cy);
+            let (ox, oy, _) = im.points2d[idx as usize];
+            errors.push(((u - ox).powi(2) + (v - oy).powi(2)).sqrt());
+        }
+    }
+    errors.sort_by(f64::total_cmp);
+    assert!(errors.len() > 1000, "{} observations", errors.len());
+    let median = errors[errors.len() / 2];
+    assert!(median < 0.5, "median reprojection error {median} px");
+    // COLMAP's undistorted observations, taken back through keyframer's maps, land on the
+    // distorted ones.
+    let mut worst: f64 = 0.0;
+    for im in m.images.values() {
+        let src = source.images.values().find(|s| s.name == im.name).unwrap();
+        let src_cam = &source.cameras[&src.camera_id];
+        for (k, &(x, y, _)) in im.points2d.iter().enumerate() {
+            let (u, v) = keyframer::colmap::undistort::unproject_pinhole(cam, x, y).unwrap();
+            let (dx, dy) = keyframer::colmap::undistort::project(src_cam, u, v).unwrap();
+            let (sx, sy, _) = src.points2d[k];
+            worst = worst.max(((dx - sx).powi(2) + (dy - sy).powi(2)).sqrt());
+        }
+    }
+    assert!(
+        worst < 0.01,
+        "undistortion maps differ from COLMAP's by {worst} px"
+    );
+}
+
+/// `transforms.json` read as nerfstudio's parser reads it: `transform_matrix` camera-to-world
+/// with OpenGL camera axes (x right, y up, z back) in the world `applied_transform · COLMAP's`;
+/// its columns give back each camera's centre and axes computed here from the dataset's model
+/// (1e-6), its intrinsics are the PINHOLE camera's, its files exist; on this georegistered
+/// dataset the world is ENU (identity) and the centres are the true positions within 0.5 m.
+#[test]
+fn transforms_json_gives_back_the_models_cameras() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    let ds = workspace().join("dataset");
+    let (m, _) = model::read(&ds.join("sparse/0")).unwrap();
+    let t = json(&ds.join("transforms.json"));
+    let cam = m.cameras.values().next().unwrap();
+    for (k, key) in ["fl_x", "fl_y", "cx", "cy"].iter().enumerate() {
+        assert_eq!(t[key].as_f64(), Some(cam.params[k]), "{key}");
+    }
+    assert_eq!(
+        (t["w"].as_u64(), t["h"].as_u64()),
+        (Some(cam.width), Some(cam.height))
+    );
+    let a: Vec<Vec<f64>> = serde_json::from_value(t["applied_transform"].clone()).unwrap();
+    assert_eq!(a.len(), 3);
+    let identity = (0..3).all(|i| (0..4).all(|j| a[i][j] == if i == j { 1.0 } else { 0.0 }));
+    assert!(identity, "georegistered: ENU kept, {a:?}");
+    assert!(t["aabb_scale"]
+        .as_u64()
+        .is_some_and(|v| v.is_power_of_two()));
+    assert!(ds.join(t["ply_file_path"].as_str().unwrap()).is_file());
+    let frames = t["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), m.images.len());
+    let truth = truth(&m);
+    // COLMAP world = Aᵀ · transforms world (A is a rotation here).
+    let back =
+        |v: [f64; 3]| -> [f64; 3] { std::array::from_fn(|j| (0..3).map(|i| a[i][j] * v[i]).sum()) };
+    for f in frames {
+        let file = f["file_path"].as_str().unwrap();
+        assert!(ds.join(file).is_file(), "{file}");
+        assert!(ds.join(f["mask_path"].as_str().unwrap()).is_file(), "{f}");
+        let name = file.strip_prefix("images/").unwrap();
+        let im = m.images.values().find(|im| im.name == name).unwrap();
+        let c2w: Vec<Vec<f64>> = serde_json::from_value(f["transform_matrix"].clone()).unwrap();
+        assert_eq!(c2w[3], [0.0, 0.0, 0.0, 1.0]);
+        let column = |j: usize| back([c2w[0][j], c2w[1][j], c2w[2][j]]);
+        let r = w2c(im.qvec);
+        // OpenCV camera axes in the world are the rows of R; OpenGL's are x, −y, −z.
+        let want = [
+            r[0],
+            r[1].map(|v| -v),
+            r[2].map(|v| -v),
+            centre(im.qvec, im.tvec),
+        ];
+        for (j, w) in want.iter().enumerate() {
+            let got = column(j);
+            assert!(dist(&got, w) < 1e-6, "{name} column {j}: {got:?} vs {w:?}");
+        }
+        let (_, pos, _) = truth.iter().find(|t| t.0 == name).unwrap();
+        assert!(dist(&column(3), pos) < 0.5, "{name}");
+    }
+}
+
+/// `--georegister` refuses an export whose frames carry two positions, and one whose positions
+/// lie on a line, with the reason, before COLMAP runs and without making the workspace.
+#[test]
+fn georegister_refuses_two_positions_and_a_straight_line() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    let (_, export) = export();
+    let tmp = tempfile::tempdir().unwrap();
+    for (keep, reason) in [(2usize, "2 positions"), (5, "lie on one line")] {
+        let copy = tmp.path().join(format!("export{keep}"));
+        std::fs::create_dir_all(copy.join("images")).unwrap();
+        let mut manifest = json(&export.join("manifest.json"));
+        for (k, f) in manifest["frames"]
+            .as_array_mut()
+            .unwrap()
+            .iter_mut()
+            .enumerate()
+        {
+            let name = f["file"].as_str().unwrap().to_string();
+            std::fs::copy(
+                export.join("images").join(&name),
+                copy.join("images").join(&name),
+            )
+            .unwrap();
+            f.as_object_mut().unwrap().remove("mask");
+            if k >= keep {
+                f.as_object_mut().unwrap().remove("position");
+            }
+        }
+        std::fs::write(copy.join("manifest.json"), manifest.to_string()).unwrap();
+        let (code, err) = code_and_stderr(&kf(&["colmap", s(&copy), "--sparse", "--georegister"]));
+        assert_ne!(code, 0, "{err}");
+        assert!(err.contains(reason), "{keep}: {err}");
+        assert!(!copy.join("colmap").exists(), "{keep}: workspace made");
+    }
+}
+
+/// `info` says what this machine's COLMAP can do for `keyframer colmap`: with Debian's 3.8
+/// (no CUDA) sparse, undistort and georegister but not dense.
+#[test]
+fn info_says_what_colmap_can_do() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    let v: serde_json::Value = serde_json::from_str(&kf_ok(&["info", "--json"])).unwrap();
+    let a = &v["colmap_abilities"]["Ok"];
+    let version = a["version"].as_str().unwrap();
+    assert!(version.starts_with("COLMAP"), "{v}");
+    for k in ["sparse", "undistort", "georegister"] {
+        assert_eq!(a[k], true, "{k}: {a}");
+    }
+    assert_eq!(a["dense"], !version.contains("without CUDA"), "{a}");
+    let text = String::from_utf8(kf(&["info"]).stdout).unwrap();
+    assert!(
+        text.contains("keyframer colmap can run --sparse --undistort --georegister"),
+        "{text}"
+    );
+}
