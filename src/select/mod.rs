@@ -11,12 +11,14 @@ use crate::analysis::{self, Request};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu;
+use crate::kernels::descriptor;
 use crate::output::lock::Lock;
 use crate::output::Inputs;
 use crate::params::Metric;
 use crate::params::{Backend, BackendChoice, MovementRequest, StationaryRequest};
 use crate::project::{
-    Cache, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache, SCHEMA_VERSION,
+    Cache, EmbeddingCache, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
+    SCHEMA_VERSION,
 };
 use crate::source::{self, Metadata, OpenOptions, SourceKind};
 use crate::steps::stationary::StationarySettings;
@@ -510,6 +512,19 @@ impl Known {
                 keyframes: keys,
             });
         }
+        if let Some(e) = a.embeddings {
+            cache
+                .embeddings
+                .retain(|c| !(c.embedder == descriptor::NAME && (c.width, c.height) == e.size));
+            cache.embeddings.push(EmbeddingCache {
+                embedder: descriptor::NAME.into(),
+                width: e.size.0,
+                height: e.size.1,
+                backend: e.backend,
+                dim: descriptor::TOTALS,
+                frames: e.frames,
+            });
+        }
         if cache.timestamps_s.is_none() {
             cache.timestamps_s = a.timestamps_s;
         }
@@ -598,6 +613,8 @@ struct Plan {
     missing: Vec<Metric>,
     movement: bool,
     stationary: Option<StationaryRequest>,
+    /// The analysis width to describe the frames at (the similarity step's embeddings).
+    descriptor: Option<u32>,
 }
 
 impl Plan {
@@ -616,7 +633,15 @@ impl Plan {
         let cache = &known.cache;
         let need_series = needs.contains(&Need::Movement) && cache.movement(&s.movement).is_none();
         let need_run = needs.contains(&Need::StationaryRun);
+        let width = s.movement.analysis_width;
+        let described = |m: &Metadata| {
+            let size = analysis::analysis_size(m.width, m.height, width);
+            cache.embeddings(descriptor::NAME, size).is_some()
+        };
+        let need_embeddings =
+            needs.contains(&Need::Embeddings) && !known.metadata.as_ref().is_some_and(described);
         Plan {
+            descriptor: need_embeddings.then_some(width),
             missing,
             movement: need_series,
             stationary: stationary
@@ -627,7 +652,10 @@ impl Plan {
     /// Nothing to measure: every series is cached (the metadata still needs a scan when none is
     /// cached).
     fn is_empty(&self) -> bool {
-        self.missing.is_empty() && !self.movement && self.stationary.is_none()
+        self.missing.is_empty()
+            && !self.movement
+            && self.stationary.is_none()
+            && self.descriptor.is_none()
     }
 
     fn request(&self, s: &SelectSettings) -> Request {
@@ -635,6 +663,7 @@ impl Plan {
             sharpness: self.missing.clone(),
             movement: (self.movement || self.stationary.is_some()).then_some(s.movement),
             stationary: self.stationary,
+            descriptor: self.descriptor,
         }
     }
 }
@@ -751,6 +780,29 @@ fn inputs<'a>(
         positions: cache.telemetry.as_ref().map(|t| t.positions.as_slice()),
         camera: cache.telemetry.as_ref().and_then(|t| t.camera.as_deref()),
         frame_size: (w, h),
+        embeddings: embeddings(cache, metadata, movement.analysis_width),
     };
     Ok((range, at))
+}
+
+/// The built-in descriptor's embeddings in `cache`: those at the analysis size of
+/// `analysis_width`, else any size's.
+fn embeddings<'a>(
+    cache: &'a Cache,
+    metadata: &Metadata,
+    analysis_width: u32,
+) -> Option<steps::similarity::Embeddings<'a>> {
+    let size = analysis::analysis_size(metadata.width, metadata.height, analysis_width);
+    let ours = || {
+        cache
+            .embeddings
+            .iter()
+            .find(|e| e.embedder == descriptor::NAME)
+    };
+    let e = cache.embeddings(descriptor::NAME, size).or_else(ours)?;
+    Some(steps::similarity::Embeddings {
+        embedder: &e.embedder,
+        backend: e.backend,
+        frames: &e.frames,
+    })
 }
