@@ -30,5 +30,6 @@ mod safety;
 mod scene;
 mod segment;
 mod sharpness;
+mod similarity;
 mod standalone;
 mod telemetry;
