@@ -98,7 +98,7 @@ pub fn encode(v: &[f64]) -> String {
 /// The unit vector of an [`encode`]d one (renormalised after the quantisation); None when the
 /// text is not whole 4-digit hex numbers.
 pub fn decode(text: &str) -> Option<Vec<f64>> {
-    if text.len() % 4 != 0 || !text.is_ascii() {
+    if !text.len().is_multiple_of(4) || !text.is_ascii() {
         return None;
     }
     let v = (0..text.len() / 4)

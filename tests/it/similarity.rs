@@ -270,3 +270,44 @@ fn similarity_workflow_and_review() {
         "{state}"
     );
 }
+
+/// Every golden file in reference/descriptor (made by `examples/make_reference.rs`): the OpenCV
+/// twin reproduces its totals and the GPU kernel equals them within its tolerance.
+#[test]
+fn descriptor_reproduces_the_reference_totals() {
+    use keyframer::kernels::{descriptor, tolerance};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("reference");
+    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None).unwrap());
+    let mut seen = 0;
+    for entry in std::fs::read_dir(root.join("descriptor")).unwrap() {
+        let golden = json(&entry.unwrap().path());
+        let input = root.join(golden["input"].as_str().unwrap());
+        let image = imgcodecs::imread(input.to_str().unwrap(), imgcodecs::IMREAD_COLOR).unwrap();
+        let size = (
+            golden["width"].as_u64().unwrap() as u32,
+            golden["height"].as_u64().unwrap() as u32,
+        );
+        let want: Vec<u32> = (golden["totals"].as_array().unwrap().iter())
+            .map(|t| t.as_u64().unwrap() as u32)
+            .collect();
+        let small = descriptor::prepare(&image, size).unwrap();
+        assert_eq!(
+            descriptor::opencv(&small).unwrap(),
+            want,
+            "{}",
+            input.display()
+        );
+        let got = descriptor::DescriptorGpu::new(ctx.clone(), size)
+            .unwrap()
+            .totals(&small)
+            .unwrap();
+        let worst = got.iter().zip(&want).map(|(a, b)| a.abs_diff(*b)).max();
+        assert!(
+            worst <= Some(tolerance::DESCRIPTOR_TOTALS_ABS),
+            "{}",
+            input.display()
+        );
+        seen += 1;
+    }
+    assert!(seen >= 5, "{seen} golden files");
+}
