@@ -2,11 +2,13 @@
 //! thread as frames arrive: the frame resized to the analysis size on the CPU (the same call for
 //! both backends), its totals on the device or by the OpenCV twin (equal integers), normalised
 //! and encoded on the host. One small read-back per frame; nothing is kept but the encoding.
+//! With a network (`segment::embedding`), the frame goes through it on the CPU instead.
 
 use crate::error::Result;
 use crate::gpu::GpuContext;
 use crate::kernels::descriptor::{self, DescriptorGpu};
 use crate::params::Backend;
+use crate::segment::embedding::Network;
 use crate::steps::similarity;
 use opencv::core::Mat;
 use std::sync::Arc;
@@ -16,6 +18,7 @@ pub(crate) struct EmbeddingPass {
     /// The analysis size (width, height).
     pub size: (u32, u32),
     gpu: Option<DescriptorGpu>,
+    network: Option<Network>,
 }
 
 impl EmbeddingPass {
@@ -30,7 +33,21 @@ impl EmbeddingPass {
             (Backend::Gpu, Some(c)) => Some(DescriptorGpu::new(c.clone(), size)?),
             _ => None,
         };
-        Ok(EmbeddingPass { size, gpu })
+        Ok(EmbeddingPass {
+            size,
+            gpu,
+            network: None,
+        })
+    }
+
+    /// The pass through the embedding network at `model` (OpenCV DNN on the CPU).
+    pub(crate) fn network(model: &std::path::Path) -> Result<EmbeddingPass> {
+        let net = Network::load(model)?;
+        Ok(EmbeddingPass {
+            size: net.size(),
+            gpu: None,
+            network: Some(net),
+        })
     }
 
     /// The backend its totals come from.
@@ -43,6 +60,9 @@ impl EmbeddingPass {
 
     /// The encoded embedding of one decoded frame (8-bit BGR at the input's size).
     pub(crate) fn frame(&mut self, image: &Mat) -> Result<String> {
+        if let Some(net) = self.network.as_mut() {
+            return Ok(similarity::encode(&net.embed(image)?));
+        }
         let small = descriptor::prepare(image, self.size)?;
         let totals = match self.gpu.as_mut() {
             Some(g) => g.totals(&small)?,

@@ -47,6 +47,10 @@ pub struct Request {
     /// Each frame's built-in descriptor, on the frame resized to this width ([`analysis_size`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub descriptor: Option<u32>,
+    /// With `descriptor`: the embeddings come from this network instead
+    /// (`segment::embedding`), at its own input size.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub network: Option<std::path::PathBuf>,
 }
 
 /// The analysis size for a `width` x `height` input: `analysis_width` wide (never wider than the
@@ -147,7 +151,12 @@ impl Engines {
             s
         });
         let embedding = (req.descriptor)
-            .map(|w| EmbeddingPass::open(analysis_size(meta.width, meta.height, w), backend, ctx))
+            .map(|w| match &req.network {
+                Some(model) => EmbeddingPass::network(model),
+                None => {
+                    EmbeddingPass::open(analysis_size(meta.width, meta.height, w), backend, ctx)
+                }
+            })
             .transpose()?;
         if let Some(e) = embedding
             .as_ref()

@@ -189,6 +189,7 @@ fn request(stride: u32, stationary: Option<StationaryRequest>) -> Request {
         }),
         stationary,
         descriptor: None,
+        network: None,
     }
 }
 

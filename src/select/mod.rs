@@ -148,8 +148,8 @@ impl SelectSettings {
             };
             inputs.add(what, file);
         }
-        for (_, file) in self.steps.iter().flat_map(Step::files) {
-            inputs.add("area file", file);
+        for (key, file) in self.steps.iter().flat_map(Step::files) {
+            inputs.add(Step::file_what(key), file);
         }
         inputs
     }
@@ -273,6 +273,10 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let full = open.codec_keyframes.is_none();
     let input_ref = input_ref(s)?;
     let _held = check_outputs(s)?;
+    // A model that does not fit its name is refused before any frame is decoded.
+    if let Some(model) = similarity_model(&s.steps) {
+        crate::segment::embedding::check(model)?;
+    }
     let boundaries = steps::boundaries(&s.steps);
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;
@@ -512,16 +516,17 @@ impl Known {
                 keyframes: keys,
             });
         }
-        if let Some(e) = a.embeddings {
+        if let (Some(e), Some((embedder, _))) = (a.embeddings, plan.embedder.clone()) {
+            let dim = e.frames.first().map_or(0, |f| f.len() / 4);
             cache
                 .embeddings
-                .retain(|c| !(c.embedder == descriptor::NAME && (c.width, c.height) == e.size));
+                .retain(|c| !(c.embedder == embedder && (c.width, c.height) == e.size));
             cache.embeddings.push(EmbeddingCache {
-                embedder: descriptor::NAME.into(),
+                embedder,
                 width: e.size.0,
                 height: e.size.1,
                 backend: e.backend,
-                dim: descriptor::TOTALS,
+                dim,
                 frames: e.frames,
             });
         }
@@ -615,6 +620,8 @@ struct Plan {
     stationary: Option<StationaryRequest>,
     /// The analysis width to describe the frames at (the similarity step's embeddings).
     descriptor: Option<u32>,
+    /// The embedder the chain reads (its cache name) and its network, if any.
+    embedder: Option<(String, Option<PathBuf>)>,
 }
 
 impl Plan {
@@ -634,14 +641,26 @@ impl Plan {
         let need_series = needs.contains(&Need::Movement) && cache.movement(&s.movement).is_none();
         let need_run = needs.contains(&Need::StationaryRun);
         let width = s.movement.analysis_width;
-        let described = |m: &Metadata| {
-            let size = analysis::analysis_size(m.width, m.height, width);
-            cache.embeddings(descriptor::NAME, size).is_some()
+        let model = similarity_model(&s.steps);
+        let embedder = (needs.contains(&Need::Embeddings)).then(|| match model {
+            Some(m) => (
+                steps::similarity::model_embedder(m).unwrap_or_default(),
+                Some(m.to_path_buf()),
+            ),
+            None => (descriptor::NAME.to_string(), None),
+        });
+        // The built-in descriptor at this analysis size, or the step's network.
+        let described = |m: &Metadata| match model {
+            Some(_) => embeddings(cache, m, width, model).is_some(),
+            None => {
+                let size = analysis::analysis_size(m.width, m.height, width);
+                cache.embeddings(descriptor::NAME, size).is_some()
+            }
         };
-        let need_embeddings =
-            needs.contains(&Need::Embeddings) && !known.metadata.as_ref().is_some_and(described);
+        let need_embeddings = embedder.is_some() && !known.metadata.as_ref().is_some_and(described);
         Plan {
             descriptor: need_embeddings.then_some(width),
+            embedder,
             missing,
             movement: need_series,
             stationary: stationary
@@ -664,6 +683,7 @@ impl Plan {
             movement: (self.movement || self.stationary.is_some()).then_some(s.movement),
             stationary: self.stationary,
             descriptor: self.descriptor,
+            network: self.embedder.clone().and_then(|e| e.1),
         }
     }
 }
@@ -780,26 +800,48 @@ fn inputs<'a>(
         positions: cache.telemetry.as_ref().map(|t| t.positions.as_slice()),
         camera: cache.telemetry.as_ref().and_then(|t| t.camera.as_deref()),
         frame_size: (w, h),
-        embeddings: embeddings(cache, metadata, movement.analysis_width),
+        embeddings: embeddings(
+            cache,
+            metadata,
+            movement.analysis_width,
+            similarity_model(steps),
+        ),
     };
     Ok((range, at))
 }
 
-/// The built-in descriptor's embeddings in `cache`: those at the analysis size of
-/// `analysis_width`, else any size's.
+/// The embedding network of the chain's similarity step, if it names one.
+fn similarity_model(steps: &[Step]) -> Option<&Path> {
+    steps.iter().find_map(|s| match s {
+        Step::Similarity { model, .. } => model.as_deref(),
+        _ => None,
+    })
+}
+
+/// The embeddings in `cache` the similarity step reads: those of its `model`'s network, else
+/// the built-in descriptor's at the analysis size of `analysis_width`, else at any size.
 fn embeddings<'a>(
     cache: &'a Cache,
     metadata: &Metadata,
     analysis_width: u32,
+    model: Option<&Path>,
 ) -> Option<steps::similarity::Embeddings<'a>> {
-    let size = analysis::analysis_size(metadata.width, metadata.height, analysis_width);
-    let ours = || {
-        cache
-            .embeddings
-            .iter()
-            .find(|e| e.embedder == descriptor::NAME)
+    let e = match model {
+        Some(m) => {
+            let name = steps::similarity::model_embedder(m)?;
+            cache.embeddings.iter().find(|e| e.embedder == name)?
+        }
+        None => {
+            let size = analysis::analysis_size(metadata.width, metadata.height, analysis_width);
+            let ours = || {
+                cache
+                    .embeddings
+                    .iter()
+                    .find(|e| e.embedder == descriptor::NAME)
+            };
+            cache.embeddings(descriptor::NAME, size).or_else(ours)?
+        }
     };
-    let e = cache.embeddings(descriptor::NAME, size).or_else(ours)?;
     Some(steps::similarity::Embeddings {
         embedder: &e.embedder,
         backend: e.backend,

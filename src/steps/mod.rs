@@ -366,6 +366,9 @@ pub enum Step {
         k: Option<usize>,
         /// Cosine distance below which a frame counts as seen (instead of `k`).
         threshold: Option<f64>,
+        /// The embedding network (`ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx`); absent: the
+        /// built-in descriptor. In a workflow relative to the workflow's folder.
+        model: Option<std::path::PathBuf>,
     },
     /// Every n-th candidate.
     #[serde(alias = "every")]
@@ -441,7 +444,11 @@ impl Step {
             Step::FootprintOverlap { percent, hfov } => {
                 footprint::apply(at, keys, *percent, *hfov)?
             }
-            Step::Similarity { k, threshold } => similarity::apply(at, keys, *k, *threshold)?,
+            Step::Similarity {
+                k,
+                threshold,
+                model,
+            } => similarity::apply(at, keys, (*k, *threshold), model.as_deref())?,
             Step::EveryNth { n } => every_nth::apply(keys, *n)?,
             Step::Fps { fps } => fps::apply(at, keys, *fps)?,
             Step::Blur { .. } => match self.blur_params() {
@@ -479,24 +486,43 @@ impl Step {
     pub fn files(&self) -> Vec<(&'static str, &std::path::Path)> {
         match self {
             Step::GeoArea { file, .. } => vec![("file", file.as_path())],
+            Step::Similarity { model: Some(m), .. } => vec![("model", m.as_path())],
             _ => Vec::new(),
+        }
+    }
+
+    /// What a file of [`Step::files`] is, by its parameter (for the output rules' messages).
+    pub fn file_what(key: &str) -> &'static str {
+        match key {
+            "model" => "embedding model",
+            _ => "area file",
         }
     }
 
     /// The step with its relative files taken relative to `base` (a workflow's folder).
     pub fn resolve_files(&mut self, base: &std::path::Path) {
-        if let Step::GeoArea { file, .. } = self {
-            if file.is_relative() {
-                *file = base.join(&*file);
-            }
+        let file = match self {
+            Step::GeoArea { file, .. } => file,
+            Step::Similarity { model: Some(m), .. } => m,
+            _ => return,
+        };
+        if file.is_relative() {
+            *file = base.join(&*file);
         }
     }
 
     /// Reads the files the step names, so that a bad one is refused before any frame is
     /// decoded (the error names the file and the place in it).
     pub fn check_files(&self) -> Result<()> {
-        if let Step::GeoArea { file, .. } = self {
-            geo_area::Area::load(file)?;
+        match self {
+            Step::GeoArea { file, .. } => drop(geo_area::Area::load(file)?),
+            Step::Similarity { model: Some(m), .. } => {
+                similarity::model_name(m)?;
+                if !m.is_file() {
+                    return Err(Error::input(m, "no such embedding model"));
+                }
+            }
+            _ => {}
         }
         Ok(())
     }
@@ -578,7 +604,7 @@ impl Step {
                 }
             }
             Step::Fps { fps } => return positive(*fps).map(drop).or_else(|m| bad("fps", m)),
-            Step::Similarity { k, threshold } => {
+            Step::Similarity { k, threshold, .. } => {
                 return similarity::check(*k, *threshold).or_else(|(key, m)| bad(key, m))
             }
             Step::Blur { .. } => {
@@ -765,6 +791,9 @@ pub enum Applied {
         embedder: String,
         /// One keyframe per `k` candidates on average, when given.
         k: Option<usize>,
+        /// The embedding network as given, when one was.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        model: Option<std::path::PathBuf>,
         /// The cosine-distance threshold, when given.
         threshold: Option<f64>,
     },
@@ -839,9 +868,15 @@ impl Applied {
                 percent: *percent,
                 hfov: *hfov,
             },
-            Applied::Similarity { k, threshold, .. } => Step::Similarity {
+            Applied::Similarity {
+                k,
+                threshold,
+                model,
+                ..
+            } => Step::Similarity {
                 k: *k,
                 threshold: *threshold,
+                model: model.clone(),
             },
             Applied::EveryNth { n } => Step::EveryNth { n: *n },
             Applied::Fps { fps } => Step::Fps { fps: *fps },

@@ -8,6 +8,10 @@
 //!   cosine distance to a frame already kept is below D, so a scene seen again later (a revisit,
 //!   a loop) is left out, which k-means, blind to order, does not do.
 //!
+//! With `--similarity-model FILE` the embeddings come from an image-embedding network named as
+//! iVS3D names them, `ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx` ([`model_name`]), run through
+//! OpenCV DNN (`segment::embedding`).
+//!
 //! Embeddings are stored per frame as unit vectors quantised to 16 bits ([`encode`]): compact in
 //! the project file, and the same bytes for the same descriptor totals, whichever backend
 //! computed them.
@@ -15,11 +19,12 @@
 use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
 use crate::params::Backend;
+use std::path::{Path, PathBuf};
 
 /// The step's id.
 pub const ID: &str = "similarity";
 
-/// `--similarity K`, `--similarity-threshold D`.
+/// `--similarity K`, `--similarity-threshold D`, `--similarity-model FILE`.
 pub const FLAGS: &[Flag] = &[
     Flag::value::<usize>(
         "similarity",
@@ -34,13 +39,82 @@ pub const FLAGS: &[Flag] = &[
     )
     .conflicts("similarity")
     .sets(ID, "threshold"),
+    Flag::value::<PathBuf>(
+        "similarity-model",
+        "FILE",
+        "Embeddings for --similarity from an ONNX image-embedding network named ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx (iVS3D's naming; RGB, ImageNet mean/std) instead of the built-in descriptor",
+    )
+    .sets(ID, "model"),
 ];
 
 /// The step when `--similarity` or `--similarity-threshold` is given.
 pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
     let k = v.get::<usize>("similarity")?;
     let threshold = v.get::<f64>("similarity-threshold")?;
-    Ok((k.is_some() || threshold.is_some()).then_some(Step::Similarity { k, threshold }))
+    let model = v.get::<PathBuf>("similarity-model")?;
+    match (k.is_some() || threshold.is_some(), model) {
+        (true, model) => Ok(Some(Step::Similarity {
+            k,
+            threshold,
+            model,
+        })),
+        (false, Some(_)) => Err(Error::param(
+            "similarity-model",
+            "needs --similarity K or --similarity-threshold D (the step it feeds)",
+        )),
+        (false, None) => Ok(None),
+    }
+}
+
+/// What an embedding network's file name says (iVS3D's naming,
+/// `ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx`): its output size and input size.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ModelName {
+    /// The network's name (`EigenPlaces`).
+    pub name: String,
+    /// Values in its output (the embedding's dimensions).
+    pub dim: usize,
+    /// Input width in pixels.
+    pub width: u32,
+    /// Input height in pixels.
+    pub height: u32,
+}
+
+/// Reads iVS3D's naming from `path`'s file name; the error names the file and the naming.
+pub fn model_name(path: &Path) -> Result<ModelName> {
+    let file = path.file_name().unwrap_or_default().to_string_lossy();
+    let bad = || {
+        Error::input(
+            path,
+            "an embedding model must be named ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx (iVS3D's \
+             naming, e.g. ImageEmbedding_EigenPlaces_2048_640x480.onnx)",
+        )
+    };
+    let stem = (file.strip_prefix("ImageEmbedding_"))
+        .and_then(|s| s.strip_suffix(".onnx"))
+        .ok_or_else(bad)?;
+    let mut parts = stem.rsplitn(3, '_');
+    let (size, dim, name) = (parts.next(), parts.next(), parts.next());
+    let (Some(size), Some(dim), Some(name)) = (size, dim, name) else {
+        return Err(bad());
+    };
+    let (w, h) = size.split_once('x').ok_or_else(bad)?;
+    let number = |t: &str| t.parse::<u32>().ok().filter(|&v| v > 0).ok_or_else(bad);
+    Ok(ModelName {
+        name: name.to_string(),
+        dim: number(dim)? as usize,
+        width: number(w)?,
+        height: number(h)?,
+    })
+}
+
+/// The embedder a chain's similarity step reads: the built-in descriptor (None) or its model,
+/// named `onnx:<file name>:<bytes>` in the cache (a model replaced by another of the same name
+/// and size is not noticed).
+pub fn model_embedder(model: &Path) -> Option<String> {
+    let bytes = std::fs::metadata(model).ok()?.len();
+    let file = model.file_name()?.to_string_lossy().into_owned();
+    Some(format!("onnx:{file}:{bytes}"))
 }
 
 /// Checks the parameters: one mode, K at least 1, D in (0, 2].
@@ -122,8 +196,8 @@ pub fn cosine_distance(a: &[f64], b: &[f64]) -> f64 {
 pub fn apply(
     at: &Inputs,
     keys: &mut Vec<usize>,
-    k: Option<usize>,
-    threshold: Option<f64>,
+    (k, threshold): (Option<usize>, Option<f64>),
+    model: Option<&Path>,
 ) -> Result<Applied> {
     let e = at.embeddings.ok_or_else(|| {
         Error::step(
@@ -168,6 +242,7 @@ pub fn apply(
         dim,
         embedder: e.embedder.to_string(),
         k,
+        model: model.map(crate::fsutil::absolute),
         threshold,
     })
 }

@@ -57,19 +57,11 @@ fn scenes_clip(dir: &Path) -> (PathBuf, Vec<usize>) {
 /// The cached embeddings of a project, decoded independently of keyframer (16-bit two's
 /// complement hex per component, renormalised).
 fn embeddings(project: &Path) -> Vec<Vec<f64>> {
-    let p = json(project);
-    let series = &p["cache"]["embeddings"][0];
-    assert_eq!(series["embedder"], "builtin-grid-hog-colour-v1");
-    (series["frames"].as_array().unwrap().iter())
-        .map(|f| {
-            let t = f.as_str().unwrap();
-            let v: Vec<f64> = (0..t.len() / 4)
-                .map(|i| f64::from(u16::from_str_radix(&t[4 * i..4 * i + 4], 16).unwrap() as i16))
-                .collect();
-            let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-            v.iter().map(|x| x / n).collect()
-        })
-        .collect()
+    assert_eq!(
+        json(project)["cache"]["embeddings"][0]["embedder"],
+        "builtin-grid-hog-colour-v1"
+    );
+    embeddings_of(project, 0)
 }
 
 fn cos_dist(a: &[f64], b: &[f64]) -> f64 {
@@ -310,4 +302,143 @@ fn descriptor_reproduces_the_reference_totals() {
         seen += 1;
     }
     assert!(seen >= 5, "{seen} golden files");
+}
+
+/// Weights of the tiny embedding network: four mixes of R, G and B.
+const MIX: [[f32; 3]; 4] = [
+    [1.0, 0.0, 0.0],
+    [0.0, 1.0, 0.0],
+    [0.0, 0.0, 1.0],
+    [0.5, -0.5, 0.25],
+];
+
+/// An ONNX embedding network named as iVS3D names them feeds the step (its embeddings cached
+/// under its name, re-selection decodes nothing); a model whose input is not what its name
+/// says, or whose output size is not its name's DIM, or whose name is not iVS3D's, is refused
+/// before any frame is decoded (the input here is not even a video), naming the file.
+#[test]
+fn similarity_with_an_onnx_embedding_network() {
+    use crate::onnx_model::embedding_net;
+    let tmp = tempfile::tempdir().unwrap();
+    let (clip, _) = scenes_clip(tmp.path());
+    let model = tmp.path().join("ImageEmbedding_Tiny_4_12x8.onnx");
+    std::fs::write(&model, embedding_net(8, 12, &MIX)).unwrap();
+    let p = tmp.path().join("p.json");
+    let (code, err) = select(
+        &clip,
+        &p,
+        &["--similarity", "15", "--similarity-model", s(&model)],
+    );
+    assert_eq!(code, 0, "{err}");
+    let project = json(&p);
+    let series = &project["cache"]["embeddings"][0];
+    let bytes = std::fs::metadata(&model).unwrap().len();
+    assert_eq!(
+        series["embedder"],
+        format!("onnx:ImageEmbedding_Tiny_4_12x8.onnx:{bytes}")
+    );
+    assert_eq!(series["dim"], 4);
+    assert_eq!(
+        (series["width"].clone(), series["height"].clone()),
+        (12.into(), 8.into())
+    );
+    let n = series["frames"].as_array().unwrap().len();
+    assert_eq!(n, SCENE * PHOTOS.len());
+    assert_eq!(keyframes(&p).len(), n.div_ceil(15));
+    // The first frame's embedding as an independent computation gives it: the mean of each mix
+    // of the ImageNet-normalised RGB of the frame resized to 12x8, as a unit vector.
+    let first = {
+        // The first frame as OpenCV decodes it (keyframer's decoder).
+        let mut cap =
+            opencv::videoio::VideoCapture::from_file(s(&clip), opencv::videoio::CAP_FFMPEG)
+                .unwrap();
+        let mut img = Mat::default();
+        assert!(cap.read(&mut img).unwrap());
+        let mut small = Mat::default();
+        imgproc::resize(
+            &img,
+            &mut small,
+            Size::new(12, 8),
+            0.0,
+            0.0,
+            imgproc::INTER_AREA,
+        )
+        .unwrap();
+        let (mean, std) = ([0.485, 0.456, 0.406], [0.229, 0.224, 0.225]);
+        let mut e = [0.0f64; 4];
+        for y in 0..8 {
+            for x in 0..12 {
+                let px = *small.at_2d::<opencv::core::Vec3b>(y, x).unwrap();
+                let rgb: Vec<f64> = (0..3)
+                    .map(|c| (f64::from(px[2 - c]) / 255.0 - mean[c]) / std[c])
+                    .collect();
+                for (k, w) in MIX.iter().enumerate() {
+                    e[k] += (0..3).map(|c| f64::from(w[c]) * rgb[c]).sum::<f64>() / 96.0;
+                }
+            }
+        }
+        let norm = e.iter().map(|v| v * v).sum::<f64>().sqrt();
+        e.map(|v| v / norm)
+    };
+    let got = &embeddings_of(&p, 0)[0];
+    for (a, b) in got.iter().zip(&first) {
+        assert!((a - b).abs() < 1e-3, "{got:?} vs {first:?}");
+    }
+    let (code, err) = select(
+        &clip,
+        &p,
+        &["--similarity", "6", "--similarity-model", s(&model)],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("nothing decoded"), "{err}");
+
+    // Refusals, on an input that is no video: the model is checked first.
+    let junk = tmp.path().join("junk.mp4");
+    std::fs::write(&junk, b"not a video at all").unwrap();
+    let q = tmp.path().join("q.json");
+    let cases = [
+        (
+            "ImageEmbedding_Tiny_4_16x8.onnx",
+            embedding_net(8, 12, &MIX),
+            "its name says [1, 3, 8, 16]",
+        ),
+        (
+            "ImageEmbedding_Tiny_5_12x8.onnx",
+            embedding_net(8, 12, &MIX),
+            "its name says 5 values per image",
+        ),
+        (
+            "tiny-embedding.onnx",
+            embedding_net(8, 12, &MIX),
+            "ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx",
+        ),
+    ];
+    for (name, bytes, says) in cases {
+        let bad = tmp.path().join(name);
+        std::fs::write(&bad, bytes).unwrap();
+        let (code, err) = select(
+            &junk,
+            &q,
+            &["--similarity", "15", "--similarity-model", s(&bad)],
+        );
+        assert_ne!(code, 0, "{err}");
+        assert!(err.contains(name) && err.contains(says), "{name}: {err}");
+        assert!(!q.exists());
+    }
+}
+
+/// The embeddings of series `i` of a project, decoded as [`embeddings`] does.
+fn embeddings_of(project: &Path, i: usize) -> Vec<Vec<f64>> {
+    let p = json(project);
+    let series = &p["cache"]["embeddings"][i];
+    (series["frames"].as_array().unwrap().iter())
+        .map(|f| {
+            let t = f.as_str().unwrap();
+            let v: Vec<f64> = (0..t.len() / 4)
+                .map(|i| f64::from(u16::from_str_radix(&t[4 * i..4 * i + 4], 16).unwrap() as i16))
+                .collect();
+            let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            v.iter().map(|x| x / n).collect()
+        })
+        .collect()
 }
