@@ -1,13 +1,19 @@
 //! Regenerates `reference/`: synthetic inputs and OpenCV's sharpness scores for every input, one
-//! JSON file per (input, metric), named `<input file>__<metric>.json`.
+//! JSON file per (input, metric), named `<input file>__<metric>.json`, and the similarity step's
+//! descriptor totals (OpenCV twin) of every input at the analysis width 320,
+//! `descriptor/<input file>.json`.
 //!
 //! Run from the repository root: `cargo run --release --example make_reference`
 
+use keyframer::kernels::descriptor;
 use keyframer::kernels::sharpness::score_opencv;
 use keyframer::params::Metric;
 use opencv::imgcodecs;
 use opencv::prelude::*;
 use std::path::Path;
+
+/// Analysis width of the descriptor's golden totals.
+const DESCRIPTOR_WIDTH: u32 = 320;
 
 fn main() -> anyhow::Result<()> {
     let root = Path::new("reference");
@@ -52,6 +58,22 @@ fn main() -> anyhow::Result<()> {
             std::fs::write(&out, serde_json::to_string_pretty(&v)? + "\n")?;
             println!("{}: {score}", out.display());
         }
+        let (w, h) = (img.cols() as u32, img.rows() as u32);
+        let size = keyframer::analysis::analysis_size(w, h, DESCRIPTOR_WIDTH);
+        let small = descriptor::prepare(&img, size)?;
+        let totals = descriptor::opencv(&small)?;
+        std::fs::create_dir_all(root.join("descriptor"))?;
+        let out = root.join("descriptor").join(format!("{name}.json"));
+        let v = serde_json::json!({
+            "input": format!("inputs/{name}"),
+            "descriptor": descriptor::NAME,
+            "width": size.0,
+            "height": size.1,
+            "opencv_version": opencv::core::get_version_string()?,
+            "totals": totals,
+        });
+        std::fs::write(&out, serde_json::to_string_pretty(&v)? + "\n")?;
+        println!("{}: {} totals", out.display(), totals.len());
     }
     Ok(())
 }

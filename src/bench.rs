@@ -137,6 +137,43 @@ fn render(
     s
 }
 
+/// Times the similarity step's descriptor totals (descriptor.wgsl against its OpenCV twin) at
+/// the analysis sizes of [`FLOW_SIZES`] on `frames` frames (4 distinct synthetic frames, cycled),
+/// each backend after one warm-up frame; the resize to the analysis size, shared by both, is
+/// left out. The gpu does one upload, dispatch and read-back per frame, as the analysis does.
+pub fn descriptor(ctx: &Arc<GpuContext>, frames: usize) -> Result<Vec<Row>> {
+    use crate::kernels::descriptor::{opencv, DescriptorGpu};
+    let frames = frames.max(1);
+    let mut rows = Vec::new();
+    for (w, h) in FLOW_SIZES {
+        let distinct: Vec<opencv::core::Mat> = (0..4)
+            .map(|s| crate::synthetic::pattern(w as i32, h as i32, s))
+            .collect::<Result<_>>()?;
+        opencv(&distinct[0])?;
+        let t = Instant::now();
+        for i in 0..frames {
+            opencv(&distinct[i % 4])?;
+        }
+        let opencv_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
+        let mut gpu = DescriptorGpu::new(ctx.clone(), (w, h))?;
+        gpu.totals(&distinct[0])?;
+        let case = ("grid-hog-colour".to_string(), opencv_ms, 0);
+        rows.push(Row::timed(ctx, frames, (w, h), case, || {
+            (0..frames).try_for_each(|i| gpu.totals(&distinct[i % 4]).map(drop))
+        })?);
+    }
+    Ok(rows)
+}
+
+/// The descriptor table as text.
+pub fn render_descriptor(adapter: &str, frames: usize, rows: &[Row]) -> String {
+    let title = format!(
+        "descriptor, {frames} frames per cell, gpu = {adapter} (upload + kernel + readback per frame; rows: not a strip kernel)\n"
+    );
+    let heads = ["descriptor", "opencv ms/f", "gpu ms/f"];
+    render(title, heads, [15, 4, 12], 3, rows)
+}
+
 /// Sizes the Farneback benchmark runs at.
 pub const FLOW_SIZES: [(u32, u32); 3] = [(320, 180), (640, 360), (1280, 720)];
 

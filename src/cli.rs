@@ -289,6 +289,8 @@ pub enum BenchWhat {
     Sharpness,
     /// Farneback flow per frame pair at 320x180, 640x360, 1280x720.
     Flow,
+    /// The similarity step's built-in descriptor per frame at 320x180, 640x360, 1280x720.
+    Descriptor,
     /// Whole-clip analysis vs decode-only on generated 1080p and 4K clips, with peak memory.
     Pipeline,
     /// `review`'s answer to a parameter change on a synthetic project (--review-frames long):

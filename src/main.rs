@@ -149,6 +149,11 @@ fn bench(a: &cli::BenchArgs) -> Result<ExitCode> {
             let rows = bench::flow(&ctx, pairs, &a.strip_rows)?;
             bench::render_flow(&ctx.info.name, pairs, &rows)
         }
+        cli::BenchWhat::Descriptor => {
+            let ctx = ctx()?;
+            let rows = bench::descriptor(&ctx, a.frames)?;
+            bench::render_descriptor(&ctx.info.name, a.frames, &rows)
+        }
         cli::BenchWhat::Sharpness => {
             let ctx = ctx()?;
             let rows = bench::sharpness(&ctx, a.frames, &a.strip_rows)?;

@@ -83,6 +83,26 @@ pub struct Cache {
     /// Each frame's camera position from telemetry (absent: none known).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub telemetry: Option<TelemetryCache>,
+    /// Per-frame embeddings for the similarity step, one series per embedder and analysis size.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub embeddings: Vec<EmbeddingCache>,
+}
+
+/// Each frame's embedding (`steps::similarity::encode`: a unit vector quantised to 16 bits).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EmbeddingCache {
+    /// What computed them (`builtin-grid-hog-colour-v1`): with the size, the cache key.
+    pub embedder: String,
+    /// Width in pixels of the frames described.
+    pub width: u32,
+    /// Height in pixels of the frames described.
+    pub height: u32,
+    /// Backend that computed them (both give the same bytes: `kernels::tolerance`).
+    pub backend: Backend,
+    /// Dimensions of each embedding.
+    pub dim: usize,
+    /// One encoded embedding per frame.
+    pub frames: Vec<String>,
 }
 
 /// Per-frame positions from telemetry and where they came from.
@@ -178,6 +198,11 @@ impl Cache {
         self.stationary
             .iter()
             .find(|r| &r.request == request && &r.params == params)
+    }
+
+    /// The cached embeddings of `embedder` at `size` (width, height), if present.
+    pub fn embeddings(&self, embedder: &str, size: (u32, u32)) -> Option<&EmbeddingCache> {
+        (self.embeddings.iter()).find(|e| e.embedder == embedder && (e.width, e.height) == size)
     }
 
     /// The cached scores for `metric` at `width` x `height`, if present.

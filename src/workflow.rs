@@ -324,7 +324,7 @@ impl Workflow {
                 let bad = |e: Error| file.error(&format!("sample[{i}].{key}"), e.to_string());
                 step.check_files().map_err(bad)?;
                 hashed.extend(std::fs::read(f).map_err(|e| bad(Error::io(f, e)))?);
-                inputs.add("area file", f);
+                inputs.add(Step::file_what(key), f);
             }
         }
         if let Some(t) = &an.telemetry {

@@ -43,6 +43,9 @@ pub struct Checkpoint {
     pub sharpness: Vec<Vec<f64>>,
     /// Movement state after the last frame done.
     pub movement: Option<MovementState>,
+    /// Encoded descriptors, one per frame done (when requested).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub embeddings: Vec<String>,
 }
 
 /// The movement state a checkpoint keeps: everything the movement pass needs to go on after the
@@ -92,6 +95,8 @@ pub(crate) struct Collected {
     pub have_ts: bool,
     /// Sharpness per metric.
     pub scores: Vec<Vec<f64>>,
+    /// Encoded descriptors (when requested).
+    pub embeddings: Vec<String>,
 }
 
 impl Collected {
@@ -102,6 +107,7 @@ impl Collected {
             timestamps: Vec::new(),
             have_ts: true,
             scores: vec![Vec::new(); metrics],
+            embeddings: Vec::new(),
         }
     }
 
@@ -140,6 +146,7 @@ pub(crate) fn restore(
         timestamps: c.timestamps_s,
         have_ts: c.have_timestamps,
         scores: c.sharpness,
+        embeddings: c.embeddings,
     };
     Some((done, c.movement))
 }
@@ -163,6 +170,12 @@ fn load(resume: &Resume, req: &Request) -> Option<Checkpoint> {
         && c.sharpness.iter().all(|s| s.len() == c.frames)
         && c.timestamps_s.len() == if c.have_timestamps { c.frames } else { 0 }
         && c.movement.is_some() == req.movement.is_some()
+        && c.embeddings.len()
+            == if req.descriptor.is_some() {
+                c.frames
+            } else {
+                0
+            }
         && c.movement
             .as_ref()
             .is_none_or(|m| m.values.len() == c.frames && m.anchor + 1 == c.frames);
@@ -227,6 +240,7 @@ impl<'a> Saver<'a> {
                 .map(|s| s[..frames.min(s.len())].to_vec())
                 .collect(),
             movement,
+            embeddings: done.embeddings[..frames.min(done.embeddings.len())].to_vec(),
         };
         let bytes = serde_json::to_vec(&c).map_err(|e| Error::output(&r.path, e.to_string()))?;
         crate::fsutil::write_atomic(&r.path, &bytes)?;

@@ -8,6 +8,7 @@
 
 mod checkpoint;
 mod device;
+mod embedding;
 mod ingest;
 mod movement;
 mod sharpness;
@@ -19,6 +20,7 @@ pub use movement::sample_movement;
 
 use crate::params::{MovementRequest, MovementSeries, StationaryRequest};
 use checkpoint::{Collected, Saver};
+use embedding::EmbeddingPass;
 use ingest::{Decoded, HandOff, Ready};
 use movement::MovementPass;
 use sharpness::{SharpnessEngine, Worker};
@@ -42,6 +44,13 @@ pub struct Request {
     pub movement: Option<MovementRequest>,
     /// The stationary sampler's reference-mode run (requires `movement`).
     pub stationary: Option<StationaryRequest>,
+    /// Each frame's built-in descriptor, on the frame resized to this width ([`analysis_size`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub descriptor: Option<u32>,
+    /// With `descriptor`: the embeddings come from this network instead
+    /// (`segment::embedding`), at its own input size.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub network: Option<std::path::PathBuf>,
 }
 
 /// The analysis size for a `width` x `height` input: `analysis_width` wide (never wider than the
@@ -50,6 +59,17 @@ pub fn analysis_size(width: u32, height: u32, analysis_width: u32) -> (u32, u32)
     let w = analysis_width.clamp(1, width.max(1));
     let h = ((f64::from(height) * f64::from(w) / f64::from(width.max(1))).round() as u32).max(1);
     (w, h)
+}
+
+/// The descriptors of every frame, as one pass computed them.
+#[derive(Debug, Clone)]
+pub struct Embedded {
+    /// One encoded embedding per frame (`steps::similarity::encode`).
+    pub frames: Vec<String>,
+    /// The analysis size (width, height) the frames were described at.
+    pub size: (u32, u32),
+    /// Backend that computed them.
+    pub backend: Backend,
 }
 
 /// What one pass produced.
@@ -65,6 +85,9 @@ pub struct Analysis {
     pub movement: Option<MovementSeries>,
     /// Keyframes chosen by the stationary sampler, when requested.
     pub stationary: Option<Vec<usize>>,
+    /// Each frame's encoded descriptor, the size it was computed at and the backend that
+    /// computed them, when requested.
+    pub embeddings: Option<Embedded>,
     /// Decode problems (damaged stream, damaged images), one line each.
     pub problems: Vec<String>,
     /// Damaged frames that did not stop the input (image folders): their scores are those of a
@@ -91,7 +114,7 @@ pub fn analyse(
     if req.stationary.is_some() && req.movement.is_none() {
         return Err(Error::param("stationary", "needs a movement request"));
     }
-    if req.sharpness.is_empty() && req.movement.is_none() {
+    if req.sharpness.is_empty() && req.movement.is_none() && req.descriptor.is_none() {
         return scan_only(src.as_mut(), input, quiet);
     }
     let engines = Engines::new(req, backend, ctx, src.metadata())?;
@@ -101,6 +124,7 @@ pub fn analyse(
 /// The engines of one analysis and the backend its scores are said to come from.
 struct Engines {
     movement: Option<MovementPass>,
+    embedding: Option<EmbeddingPass>,
     sharpness: Option<Box<dyn SharpnessEngine>>,
     backend: Backend,
 }
@@ -126,8 +150,23 @@ impl Engines {
             }
             s
         });
+        let embedding = (req.descriptor)
+            .map(|w| match &req.network {
+                Some(model) => EmbeddingPass::network(model),
+                None => {
+                    EmbeddingPass::open(analysis_size(meta.width, meta.height, w), backend, ctx)
+                }
+            })
+            .transpose()?;
+        if let Some(e) = embedding
+            .as_ref()
+            .filter(|_| movement.is_none() && sharpness.is_none())
+        {
+            used = e.backend();
+        }
         Ok(Engines {
             movement,
+            embedding,
             sharpness,
             backend: used,
         })
@@ -147,11 +186,13 @@ fn run(
     let declared = src.metadata().frame_count as u64;
     let Engines {
         movement: mut moving,
+        mut embedding,
         sharpness,
         backend,
     } = engines;
     let (mut done, state) = checkpoint::restore(resume, req, backend, input)
         .unwrap_or_else(|| (Collected::new(req.sharpness.len()), None));
+    let embedded = embedding.as_ref().map(|e| (e.size, e.backend()));
     let prime = match (moving.as_mut(), &state) {
         (Some(m), Some(st)) => {
             m.restore(st);
@@ -171,10 +212,12 @@ fn run(
     let saver = Saver::new(resume);
     let outcome = std::thread::scope(|scope| {
         let resume_at = done.frames;
+        // The descriptor reads the colour frame: frames then keep it rather than their gray.
         let keep = ingest::Keep {
             small,
-            image: !req.sharpness.is_empty(),
-            gray: worker_engine.as_ref().is_some_and(|e| e.scores_gray()),
+            image: !req.sharpness.is_empty() || req.descriptor.is_some(),
+            gray: req.descriptor.is_none()
+                && worker_engine.as_ref().is_some_and(|e| e.scores_gray()),
         };
         let frames = ingest::spawn_decoder(scope, src, resume_at, &prime, keep);
         let worker = worker_engine.map(|e| Worker::spawn(scope, e));
@@ -182,6 +225,7 @@ fn run(
             req,
             backend,
             moving: moving.as_mut(),
+            embedding: embedding.as_mut(),
             state: state.as_ref(),
             worker: worker.as_ref(),
             hand_off,
@@ -201,7 +245,11 @@ fn run(
     if let Some(m) = moving.as_mut() {
         m.finish().map_err(|e| with_path(e, input))?;
     }
-    Ok(conclude(src, input, req, done, moving, backend))
+    let mut analysis = conclude(src, input, req, done, moving, backend);
+    if let (Some(e), Some((size, backend))) = (analysis.embeddings.as_mut(), embedded) {
+        (e.size, e.backend) = (size, backend);
+    }
+    Ok(analysis)
 }
 
 /// How frames reach the movement pass: staged on the device when the sharpness engine can
@@ -236,6 +284,7 @@ struct Pump<'a, 'scope> {
     req: &'a Request,
     backend: Backend,
     moving: Option<&'a mut MovementPass>,
+    embedding: Option<&'a mut EmbeddingPass>,
     /// The restored movement state whose frames are primed.
     state: Option<&'a MovementState>,
     worker: Option<&'a Worker<'scope>>,
@@ -278,6 +327,9 @@ impl Pump<'_, '_> {
         self.done.push_timestamp(r.frame.timestamp_s);
         if let (Some(m), Some(px)) = (self.moving.as_deref_mut(), r.pixels) {
             m.step(i, px)?;
+        }
+        if let Some(e) = self.embedding.as_deref_mut() {
+            self.done.embeddings.push(e.frame(&r.frame.image)?);
         }
         if let Some(w) = self.worker {
             w.send(r.frame, &mut self.done.scores)?;
@@ -337,6 +389,11 @@ fn conclude(
         sharpness: req.sharpness.iter().copied().zip(done.scores).collect(),
         movement,
         stationary,
+        embeddings: req.descriptor.map(|w| Embedded {
+            frames: done.embeddings,
+            size: (w, 0),
+            backend,
+        }),
         problems: problems_of(src, input),
         damaged: src.damaged_frames().into_iter().map(|(i, _)| i).collect(),
         backend,

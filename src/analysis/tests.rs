@@ -188,6 +188,8 @@ fn request(stride: u32, stationary: Option<StationaryRequest>) -> Request {
             derotate: None,
         }),
         stationary,
+        descriptor: None,
+        network: None,
     }
 }
 
@@ -204,6 +206,7 @@ fn fake_run(
     });
     let engines = Engines {
         movement,
+        embedding: None,
         sharpness: Some(Box::new(FakeSharpness {
             metrics: req.sharpness.len(),
             scored: scored.clone(),

@@ -2,6 +2,7 @@
 //! Rust module, its params struct and its OpenCV twin (the `opencv` function of the module), and
 //! the two are compared in tests within the bounds of [`tolerance`].
 
+pub mod descriptor;
 pub mod farneback;
 pub mod gray;
 pub mod laplacian;
@@ -28,6 +29,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("stationary", stationary::WGSL),
     ("copy", farneback::COPY_WGSL),
     ("resize_area", resize_area::WGSL),
+    ("descriptor", descriptor::WGSL),
 ];
 
 /// Words (4 gray pixels each) per row of a packed gray image of `width` pixels.

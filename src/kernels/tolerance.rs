@@ -40,6 +40,13 @@ pub const ROTATION_ABS: f32 = 1e-6;
 /// against statistics of tenths of a pixel and more; the selection itself is exact.
 pub const DEROTATED_SAME_FLOW_REL: f64 = 1e-4;
 
+/// The similarity step's built-in descriptor (descriptor.wgsl): none. Both backends compute the
+/// same integers (fixed-point gray, 16-bit Sobel, sectors decided by comparisons, integer sums;
+/// the frame resized by the same cv::resize call on the host), so the totals must be equal and
+/// the embeddings, normalised on the host from them, are bit-identical: the backends select
+/// identical keyframes without any quantisation of the descriptor.
+pub const DESCRIPTOR_TOTALS_ABS: u32 = 0;
+
 /// Relative error `|a - b| / max(|b|, tiny)`.
 pub fn rel_err(a: f64, b: f64) -> f64 {
     (a - b).abs() / b.abs().max(1e-12)

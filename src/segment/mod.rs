@@ -4,6 +4,7 @@
 
 use crate::model_desc as desc;
 pub mod dnn;
+pub mod embedding;
 pub mod onnx;
 #[cfg(feature = "onnx")]
 pub mod onnxrt;

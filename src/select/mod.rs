@@ -11,12 +11,14 @@ use crate::analysis::{self, Request};
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu;
+use crate::kernels::descriptor;
 use crate::output::lock::Lock;
 use crate::output::Inputs;
 use crate::params::Metric;
 use crate::params::{Backend, BackendChoice, MovementRequest, StationaryRequest};
 use crate::project::{
-    Cache, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache, SCHEMA_VERSION,
+    Cache, EmbeddingCache, InputRef, MovementCache, Project, SharpnessSeries, StationaryCache,
+    SCHEMA_VERSION,
 };
 use crate::source::{self, Metadata, OpenOptions, SourceKind};
 use crate::steps::stationary::StationarySettings;
@@ -146,8 +148,8 @@ impl SelectSettings {
             };
             inputs.add(what, file);
         }
-        for (_, file) in self.steps.iter().flat_map(Step::files) {
-            inputs.add("area file", file);
+        for (key, file) in self.steps.iter().flat_map(Step::files) {
+            inputs.add(Step::file_what(key), file);
         }
         inputs
     }
@@ -271,6 +273,10 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let full = open.codec_keyframes.is_none();
     let input_ref = input_ref(s)?;
     let _held = check_outputs(s)?;
+    // A model that does not fit its name is refused before any frame is decoded.
+    if let Some(model) = similarity_model(&s.steps) {
+        crate::segment::embedding::check(model)?;
+    }
     let boundaries = steps::boundaries(&s.steps);
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;
@@ -510,6 +516,20 @@ impl Known {
                 keyframes: keys,
             });
         }
+        if let (Some(e), Some((embedder, _))) = (a.embeddings, plan.embedder.clone()) {
+            let dim = e.frames.first().map_or(0, |f| f.len() / 4);
+            cache
+                .embeddings
+                .retain(|c| !(c.embedder == embedder && (c.width, c.height) == e.size));
+            cache.embeddings.push(EmbeddingCache {
+                embedder,
+                width: e.size.0,
+                height: e.size.1,
+                backend: e.backend,
+                dim,
+                frames: e.frames,
+            });
+        }
         if cache.timestamps_s.is_none() {
             cache.timestamps_s = a.timestamps_s;
         }
@@ -598,6 +618,10 @@ struct Plan {
     missing: Vec<Metric>,
     movement: bool,
     stationary: Option<StationaryRequest>,
+    /// The analysis width to describe the frames at (the similarity step's embeddings).
+    descriptor: Option<u32>,
+    /// The embedder the chain reads (its cache name) and its network, if any.
+    embedder: Option<(String, Option<PathBuf>)>,
 }
 
 impl Plan {
@@ -616,7 +640,27 @@ impl Plan {
         let cache = &known.cache;
         let need_series = needs.contains(&Need::Movement) && cache.movement(&s.movement).is_none();
         let need_run = needs.contains(&Need::StationaryRun);
+        let width = s.movement.analysis_width;
+        let model = similarity_model(&s.steps);
+        let embedder = (needs.contains(&Need::Embeddings)).then(|| match model {
+            Some(m) => (
+                steps::similarity::model_embedder(m).unwrap_or_default(),
+                Some(m.to_path_buf()),
+            ),
+            None => (descriptor::NAME.to_string(), None),
+        });
+        // The built-in descriptor at this analysis size, or the step's network.
+        let described = |m: &Metadata| match model {
+            Some(_) => embeddings(cache, m, width, model).is_some(),
+            None => {
+                let size = analysis::analysis_size(m.width, m.height, width);
+                cache.embeddings(descriptor::NAME, size).is_some()
+            }
+        };
+        let need_embeddings = embedder.is_some() && !known.metadata.as_ref().is_some_and(described);
         Plan {
+            descriptor: need_embeddings.then_some(width),
+            embedder,
             missing,
             movement: need_series,
             stationary: stationary
@@ -627,7 +671,10 @@ impl Plan {
     /// Nothing to measure: every series is cached (the metadata still needs a scan when none is
     /// cached).
     fn is_empty(&self) -> bool {
-        self.missing.is_empty() && !self.movement && self.stationary.is_none()
+        self.missing.is_empty()
+            && !self.movement
+            && self.stationary.is_none()
+            && self.descriptor.is_none()
     }
 
     fn request(&self, s: &SelectSettings) -> Request {
@@ -635,6 +682,8 @@ impl Plan {
             sharpness: self.missing.clone(),
             movement: (self.movement || self.stationary.is_some()).then_some(s.movement),
             stationary: self.stationary,
+            descriptor: self.descriptor,
+            network: self.embedder.clone().and_then(|e| e.1),
         }
     }
 }
@@ -751,6 +800,51 @@ fn inputs<'a>(
         positions: cache.telemetry.as_ref().map(|t| t.positions.as_slice()),
         camera: cache.telemetry.as_ref().and_then(|t| t.camera.as_deref()),
         frame_size: (w, h),
+        embeddings: embeddings(
+            cache,
+            metadata,
+            movement.analysis_width,
+            similarity_model(steps),
+        ),
     };
     Ok((range, at))
+}
+
+/// The embedding network of the chain's similarity step, if it names one.
+fn similarity_model(steps: &[Step]) -> Option<&Path> {
+    steps.iter().find_map(|s| match s {
+        Step::Similarity { model, .. } => model.as_deref(),
+        _ => None,
+    })
+}
+
+/// The embeddings in `cache` the similarity step reads: those of its `model`'s network, else
+/// the built-in descriptor's at the analysis size of `analysis_width`, else at any size.
+fn embeddings<'a>(
+    cache: &'a Cache,
+    metadata: &Metadata,
+    analysis_width: u32,
+    model: Option<&Path>,
+) -> Option<steps::similarity::Embeddings<'a>> {
+    let e = match model {
+        Some(m) => {
+            let name = steps::similarity::model_embedder(m)?;
+            cache.embeddings.iter().find(|e| e.embedder == name)?
+        }
+        None => {
+            let size = analysis::analysis_size(metadata.width, metadata.height, analysis_width);
+            let ours = || {
+                cache
+                    .embeddings
+                    .iter()
+                    .find(|e| e.embedder == descriptor::NAME)
+            };
+            cache.embeddings(descriptor::NAME, size).or_else(ours)?
+        }
+    };
+    Some(steps::similarity::Embeddings {
+        embedder: &e.embedder,
+        backend: e.backend,
+        frames: &e.frames,
+    })
 }

@@ -17,6 +17,7 @@ pub mod geo_area;
 pub mod geo_distance;
 mod history;
 mod manual;
+pub mod similarity;
 pub mod spacing;
 pub mod stationary;
 mod values;
@@ -93,6 +94,8 @@ pub struct Inputs<'a> {
     pub camera: Option<&'a str>,
     /// Width and height of the frames.
     pub frame_size: (u32, u32),
+    /// Each frame's embedding, from the embedder the chain's similarity step reads.
+    pub embeddings: Option<similarity::Embeddings<'a>>,
 }
 
 /// The positions a geo step reads: an error naming the step when the input has none, a warning
@@ -177,7 +180,7 @@ impl Kind {
 /// Every kind of step in keyframer's chain order. The flags, the order [`check_order`] enforces,
 /// the history's step ids and the review page's step list come from here; what a step reads
 /// from the analysis is its [`Step::needs`], which `select`'s plan and `review` read.
-pub static STEPS: [Kind; 10] = [
+pub static STEPS: [Kind; 11] = [
     Kind::new("boundaries", boundaries::FLAGS, boundaries::from_flags),
     Kind::new("stationary", stationary::FLAGS, stationary::from_flags),
     Kind::new("spacing", spacing::FLAGS, spacing::from_flags),
@@ -189,6 +192,7 @@ pub static STEPS: [Kind; 10] = [
     )
     .required("metres"),
     Kind::new("footprint-overlap", footprint::FLAGS, footprint::from_flags).required("percent"),
+    Kind::new("similarity", similarity::FLAGS, similarity::from_flags).required("k"),
     Kind::new("every-nth", every_nth::FLAGS, every_nth::from_flags).required("n"),
     Kind::new("fps", fps::FLAGS, fps::from_flags)
         .required("fps")
@@ -211,6 +215,8 @@ pub enum Need {
     StationaryRun,
     /// Each frame's camera position, from the input's telemetry.
     Positions,
+    /// Each frame's embedding (the built-in descriptor), for the similarity step.
+    Embeddings,
 }
 
 impl Need {
@@ -228,6 +234,7 @@ impl Need {
             Need::SpacingProposal => at.spacing_px.is_some(),
             Need::StationaryRun => at.stationary.is_some(),
             Need::Positions => at.positions.is_some(),
+            Need::Embeddings => at.embeddings.is_some(),
         }
     }
 }
@@ -351,6 +358,18 @@ pub enum Step {
         /// Horizontal field of view in degrees.
         hfov: Option<f64>,
     },
+    /// Keep frames by what they look like: k-means over their embeddings (one keyframe per `k`
+    /// candidates on average), or, with `threshold`, drop a frame within that cosine distance
+    /// of one kept before.
+    Similarity {
+        /// One keyframe per `k` candidates on average (k-means with ⌈n / k⌉ clusters).
+        k: Option<usize>,
+        /// Cosine distance below which a frame counts as seen (instead of `k`).
+        threshold: Option<f64>,
+        /// The embedding network (`ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx`); absent: the
+        /// built-in descriptor. In a workflow relative to the workflow's folder.
+        model: Option<std::path::PathBuf>,
+    },
     /// Every n-th candidate.
     #[serde(alias = "every")]
     EveryNth {
@@ -405,6 +424,7 @@ impl Step {
             Step::GeoArea { .. } => "geo-area",
             Step::GeoDistance { .. } => "geo-distance",
             Step::FootprintOverlap { .. } => "footprint-overlap",
+            Step::Similarity { .. } => similarity::ID,
             Step::EveryNth { .. } => "every-nth",
             Step::Fps { .. } => "fps",
             Step::Blur { .. } => "blur",
@@ -424,6 +444,11 @@ impl Step {
             Step::FootprintOverlap { percent, hfov } => {
                 footprint::apply(at, keys, *percent, *hfov)?
             }
+            Step::Similarity {
+                k,
+                threshold,
+                model,
+            } => similarity::apply(at, keys, (*k, *threshold), model.as_deref())?,
             Step::EveryNth { n } => every_nth::apply(keys, *n)?,
             Step::Fps { fps } => fps::apply(at, keys, *fps)?,
             Step::Blur { .. } => match self.blur_params() {
@@ -445,6 +470,7 @@ impl Step {
             Step::GeoArea { .. } | Step::GeoDistance { .. } | Step::FootprintOverlap { .. } => {
                 vec![Need::Positions]
             }
+            Step::Similarity { .. } => vec![Need::Embeddings],
             Step::Blur { .. } => (self.blur_params().into_iter())
                 .map(|b| Need::Sharpness(b.metric))
                 .collect(),
@@ -460,24 +486,43 @@ impl Step {
     pub fn files(&self) -> Vec<(&'static str, &std::path::Path)> {
         match self {
             Step::GeoArea { file, .. } => vec![("file", file.as_path())],
+            Step::Similarity { model: Some(m), .. } => vec![("model", m.as_path())],
             _ => Vec::new(),
+        }
+    }
+
+    /// What a file of [`Step::files`] is, by its parameter (for the output rules' messages).
+    pub fn file_what(key: &str) -> &'static str {
+        match key {
+            "model" => "embedding model",
+            _ => "area file",
         }
     }
 
     /// The step with its relative files taken relative to `base` (a workflow's folder).
     pub fn resolve_files(&mut self, base: &std::path::Path) {
-        if let Step::GeoArea { file, .. } = self {
-            if file.is_relative() {
-                *file = base.join(&*file);
-            }
+        let file = match self {
+            Step::GeoArea { file, .. } => file,
+            Step::Similarity { model: Some(m), .. } => m,
+            _ => return,
+        };
+        if file.is_relative() {
+            *file = base.join(&*file);
         }
     }
 
     /// Reads the files the step names, so that a bad one is refused before any frame is
     /// decoded (the error names the file and the place in it).
     pub fn check_files(&self) -> Result<()> {
-        if let Step::GeoArea { file, .. } = self {
-            geo_area::Area::load(file)?;
+        match self {
+            Step::GeoArea { file, .. } => drop(geo_area::Area::load(file)?),
+            Step::Similarity { model: Some(m), .. } => {
+                similarity::model_name(m)?;
+                if !m.is_file() {
+                    return Err(Error::input(m, "no such embedding model"));
+                }
+            }
+            _ => {}
         }
         Ok(())
     }
@@ -571,6 +616,9 @@ impl Step {
                 }
             }
             Step::Fps { fps } => return positive(*fps).map(drop).or_else(|m| bad("fps", m)),
+            Step::Similarity { k, threshold, .. } => {
+                return similarity::check(*k, *threshold).or_else(|(key, m)| bad(key, m))
+            }
             Step::Blur { .. } => {
                 if let Some(p) = self.blur_params() {
                     if let Err(e) = p.validate() {
@@ -743,6 +791,24 @@ pub enum Applied {
         /// Overlap in percent below which a frame was kept.
         percent: f64,
     },
+    /// The similarity step: its parameters as given and the embeddings it read.
+    Similarity {
+        /// Backend that computed the embeddings.
+        backend: Option<Backend>,
+        /// Clusters of the k-means (k mode).
+        clusters: Option<usize>,
+        /// Dimensions of the embeddings.
+        dim: usize,
+        /// What computed the embeddings.
+        embedder: String,
+        /// One keyframe per `k` candidates on average, when given.
+        k: Option<usize>,
+        /// The embedding network as given, when one was.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        model: Option<std::path::PathBuf>,
+        /// The cosine-distance threshold, when given.
+        threshold: Option<f64>,
+    },
     /// Every n-th candidate.
     EveryNth {
         /// One candidate in `n` was kept.
@@ -813,6 +879,16 @@ impl Applied {
             Applied::FootprintOverlap { percent, hfov } => Step::FootprintOverlap {
                 percent: *percent,
                 hfov: *hfov,
+            },
+            Applied::Similarity {
+                k,
+                threshold,
+                model,
+                ..
+            } => Step::Similarity {
+                k: *k,
+                threshold: *threshold,
+                model: model.clone(),
             },
             Applied::EveryNth { n } => Step::EveryNth { n: *n },
             Applied::Fps { fps } => Step::Fps { fps: *fps },
@@ -930,7 +1006,8 @@ mod tests {
         assert_eq!(
             msg,
             "`stationary` cannot follow `fps`: keyframer applies boundaries → stationary → \
-             spacing → geo-area → geo-distance → footprint-overlap → every-nth/fps → blur → manual"
+             spacing → geo-area → geo-distance → footprint-overlap → similarity → every-nth/fps → blur → \
+             manual"
         );
         let (_, msg) = check_order(&[Step::EveryNth { n: 2 }, Step::Fps { fps: 1.0 }]).unwrap_err();
         assert_eq!(

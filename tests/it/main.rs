@@ -31,5 +31,6 @@ mod safety;
 mod scene;
 mod segment;
 mod sharpness;
+mod similarity;
 mod standalone;
 mod telemetry;

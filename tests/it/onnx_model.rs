@@ -190,3 +190,49 @@ pub fn tiny_model(
     .unwrap();
     desc
 }
+
+/// An image-embedding model: `input` [1,3,h,w] -> Conv 1x1 with `weights` [k][3] (no bias) ->
+/// GlobalAveragePool -> Flatten -> `embedding` [1,k] (each value a weighted mean of the
+/// normalised R, G, B over the image).
+pub fn embedding_net(h: i64, w: i64, weights: &[[f32; 3]]) -> Vec<u8> {
+    let k = weights.len() as i64;
+    let flat: Vec<f32> = weights.iter().flatten().copied().collect();
+    let mut graph = Vec::new();
+    bytes(
+        &mut graph,
+        1,
+        &node("Conv", &["input", "W", "B"], &["maps"], "conv"),
+    );
+    bytes(
+        &mut graph,
+        1,
+        &node("GlobalAveragePool", &["maps"], &["pooled"], "pool"),
+    );
+    bytes(
+        &mut graph,
+        1,
+        &node("Flatten", &["pooled"], &["embedding"], "flatten"),
+    );
+    string(&mut graph, 2, "tiny-embedding");
+    bytes(&mut graph, 5, &tensor("W", &[k, 3, 1, 1], &flat));
+    bytes(&mut graph, 5, &tensor("B", &[k], &vec![0.0; k as usize]));
+    bytes(
+        &mut graph,
+        11,
+        &value_info("input", &[Some(1), Some(3), Some(h), Some(w)]),
+    );
+    bytes(
+        &mut graph,
+        12,
+        &value_info("embedding", &[Some(1), Some(k)]),
+    );
+    let mut model = Vec::new();
+    int(&mut model, 1, 8); // ir_version
+    string(&mut model, 2, "keyframer-tests");
+    bytes(&mut model, 7, &graph);
+    let mut opset = Vec::new();
+    string(&mut opset, 1, "");
+    int(&mut opset, 2, 13);
+    bytes(&mut model, 8, &opset);
+    model
+}
