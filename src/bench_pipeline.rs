@@ -60,7 +60,7 @@ fn clip_tool() -> Result<PathBuf> {
         .and_then(|e| e.parent().map(|d| d.join(CLIP_TOOL)));
     beside
         .filter(|p| p.is_file())
-        .or_else(|| crate::info::find_on_path(CLIP_TOOL))
+        .or_else(|| crate::fsutil::find_on_path(CLIP_TOOL))
         .ok_or_else(|| {
             Error::input(
                 CLIP_TOOL,

@@ -4,7 +4,7 @@
 //! position RMSE (absolute trajectory error) and mean rotation error. Every number is computed
 //! from the files given; nothing is estimated when the inputs do not allow it.
 
-use crate::colmap::align::{self, Vec3};
+use crate::colmap::align::{self, quantile, Vec3};
 use crate::colmap::model::{self, Format, Model};
 use crate::colmap::{self as cm, read_manifest};
 use crate::error::{Error, Result};
@@ -56,19 +56,6 @@ pub fn stats(values: &[f64]) -> Option<Stats> {
         q10: quantile(&sorted, 0.1),
         q90: quantile(&sorted, 0.9),
     })
-}
-
-/// Quantile `p` of ascending `sorted` values by linear interpolation between order statistics:
-/// position h = (n − 1)·p, value x[⌊h⌋] + (h − ⌊h⌋)(x[⌊h⌋+1] − x[⌊h⌋]) (Hyndman & Fan type 7,
-/// numpy's default).
-pub fn quantile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let h = (sorted.len() - 1) as f64 * p.clamp(0.0, 1.0);
-    let lo = h.floor() as usize;
-    let hi = (lo + 1).min(sorted.len() - 1);
-    sorted[lo] + (h - lo as f64) * (sorted[hi] - sorted[lo])
 }
 
 /// Distances between consecutive points.

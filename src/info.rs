@@ -81,7 +81,7 @@ pub fn gather(adapter: Option<&str>) -> Info {
         backend_auto: gpu::auto_backend(adapter),
         opencv_version: opencv::core::get_version_string().unwrap_or_default(),
         opencv_video_backends: video_backends(),
-        colmap: find_on_path("colmap"),
+        colmap: crate::fsutil::find_on_path("colmap"),
         colmap_abilities: colmap_abilities(),
     }
 }
@@ -94,14 +94,6 @@ fn video_backends() -> Vec<String> {
     list.iter()
         .map(|b| videoio::get_backend_name(b).unwrap_or_else(|_| format!("{b:?}")))
         .collect()
-}
-
-/// The first executable called `name` on PATH.
-pub fn find_on_path(name: &str) -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    std::env::split_paths(&path)
-        .map(|d| d.join(name))
-        .find(|p| p.is_file())
 }
 
 /// Human-readable form of [`Info`].

@@ -169,6 +169,19 @@ pub fn umeyama(src: &[Vec3], dst: &[Vec3]) -> Option<Sim3> {
     })
 }
 
+/// Quantile `p` of ascending `sorted` values by linear interpolation between order statistics:
+/// position h = (n − 1)·p, value x[⌊h⌋] + (h − ⌊h⌋)(x[⌊h⌋+1] − x[⌊h⌋]) (Hyndman & Fan type 7,
+/// numpy's default).
+pub fn quantile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let h = (sorted.len() - 1) as f64 * p.clamp(0.0, 1.0);
+    let lo = h.floor() as usize;
+    let hi = (lo + 1).min(sorted.len() - 1);
+    sorted[lo] + (h - lo as f64) * (sorted[hi] - sorted[lo])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -176,7 +176,7 @@ pub fn residuals(
     Some(Residuals {
         images: d.len(),
         mean_m: d.iter().sum::<f64>() / n,
-        median_m: crate::eval::quantile(&d, 0.5),
+        median_m: super::align::quantile(&d, 0.5),
         rms_m: (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
         max_m: d[d.len() - 1],
     })

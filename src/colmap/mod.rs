@@ -92,7 +92,7 @@ pub fn locate() -> Result<Colmap> {
             }
             p
         }
-        None => crate::info::find_on_path("colmap").ok_or_else(|| {
+        None => crate::fsutil::find_on_path("colmap").ok_or_else(|| {
             Error::Colmap(
                 "colmap not found on PATH: install COLMAP (Debian/Ubuntu: apt-get install colmap)"
                     .into(),

@@ -21,7 +21,7 @@ const CAMERA: [&str; 4] = [
 ];
 
 fn has_colmap() -> bool {
-    keyframer::info::find_on_path("colmap").is_some()
+    keyframer::fsutil::find_on_path("colmap").is_some()
 }
 
 /// A 15 s survey (320x180, 30 fps, two fast turns) and a project over it whose cache holds the
