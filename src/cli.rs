@@ -294,6 +294,9 @@ pub enum BenchWhat {
     /// `review`'s answer to a parameter change on a synthetic project (--review-frames long):
     /// the step chain, the timeline drawing, the HTTP round trip.
     Review,
+    /// ERP → pinhole views (remap, bilinear and bicubic): a 3840x1920 frame to 6 cube faces of
+    /// 1024x1024.
+    Remap,
 }
 
 /// Flags of analysing commands.

@@ -8,6 +8,7 @@ pub mod bench;
 pub mod bench_pipeline;
 pub mod colmap;
 pub mod encode;
+pub mod equirect;
 pub mod error;
 pub mod eval;
 pub mod export;

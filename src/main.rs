@@ -149,6 +149,11 @@ fn bench(a: &cli::BenchArgs) -> Result<ExitCode> {
             let rows = bench::flow(&ctx, pairs, &a.strip_rows)?;
             bench::render_flow(&ctx.info.name, pairs, &rows)
         }
+        cli::BenchWhat::Remap => {
+            let (ctx, frames) = (ctx()?, a.frames.min(8));
+            let rows = bench::remap(&ctx, frames)?;
+            bench::render_remap(&ctx.info.name, frames, &rows)
+        }
         cli::BenchWhat::Sharpness => {
             let ctx = ctx()?;
             let rows = bench::sharpness(&ctx, a.frames, &a.strip_rows)?;

@@ -6,6 +6,7 @@ pub mod farneback;
 pub mod gray;
 pub mod laplacian;
 pub mod movement;
+pub mod remap;
 pub mod resize_area;
 pub mod sharpness;
 pub mod stationary;
@@ -28,6 +29,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("stationary", stationary::WGSL),
     ("copy", farneback::COPY_WGSL),
     ("resize_area", resize_area::WGSL),
+    ("remap", remap::WGSL),
 ];
 
 /// Words (4 gray pixels each) per row of a packed gray image of `width` pixels.

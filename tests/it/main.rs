@@ -24,6 +24,7 @@ mod pipeline;
 mod preview;
 mod read_inputs;
 mod reconstruct;
+mod remap;
 mod report;
 mod review;
 mod safety;
