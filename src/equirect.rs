@@ -18,6 +18,112 @@
 //!   its lower edge meets `front`), `down` (pitch −90, its upper edge meets `front`).
 
 use crate::error::{Error, Result};
+use std::path::Path;
+
+/// How an input's frames map to directions (`select --projection`), recorded in the project.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Projection {
+    /// An ordinary camera's frames.
+    #[default]
+    Pinhole,
+    /// 360° equirectangular frames (2:1).
+    Equirect,
+}
+
+impl Projection {
+    /// Whether this is the default (projects leave it out).
+    pub fn is_pinhole(&self) -> bool {
+        *self == Projection::Pinhole
+    }
+}
+
+/// Refuses equirect on frames that are not 2:1, with the reason.
+pub fn check_equirect(input: &Path, (w, h): (u32, u32)) -> Result<()> {
+    if u64::from(w) == 2 * u64::from(h) {
+        return Ok(());
+    }
+    Err(Error::param(
+        "--projection",
+        format!(
+            "{}: equirect needs 2:1 frames (360° of longitude over 180° of latitude), these are {w}x{h}{}",
+            input.display(),
+            if u64::from(w) * 9 == u64::from(h) * 16 { " (16:9: an ordinary video, or a 360° video already cut to a view)" } else { "" }
+        ),
+    ))
+}
+
+/// The projection a video's container declares in Google's spherical video metadata (ffprobe's
+/// `Spherical Mapping` side data), when ffprobe is there and the video has it.
+pub fn spherical_metadata(video: &Path) -> Option<String> {
+    let out = std::process::Command::new("ffprobe")
+        .args(["-v", "error", "-select_streams", "v:0", "-show_streams", "-of", "json"])
+        .arg(video)
+        .stdin(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .output()
+        .ok()?;
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).ok()?;
+    spherical_of(&v)
+}
+
+/// The `projection` of the first `Spherical Mapping` side data of ffprobe's `-show_streams`
+/// JSON.
+pub fn spherical_of(probe: &serde_json::Value) -> Option<String> {
+    let streams = probe.get("streams")?.as_array()?;
+    streams.iter().find_map(|s| {
+        s.get("side_data_list")?.as_array()?.iter().find_map(|d| {
+            let t = d.get("side_data_type")?.as_str()?;
+            (t == "Spherical Mapping")
+                .then(|| d.get("projection").and_then(|p| p.as_str()).unwrap_or("unknown"))
+                .map(str::to_string)
+        })
+    })
+}
+
+/// The projection `select` records: `asked` when given; else equirect when the container's
+/// spherical metadata says so (said on stderr), pinhole otherwise (with a one-line hint for 2:1
+/// frames). Equirect on frames that are not 2:1 is refused.
+pub fn resolve_projection(
+    asked: Option<Projection>,
+    input: &Path,
+    is_video: bool,
+    size: (u32, u32),
+) -> Result<Projection> {
+    let found = if is_video { spherical_metadata(input) } else { None };
+    let p = match (asked, &found) {
+        (Some(p), _) => p,
+        (None, Some(kind)) if kind == "equirectangular" => {
+            log::warn!(
+                "{}: spherical video metadata (equirectangular) found: analysing it as a 360° input (--projection pinhole overrides)",
+                input.display()
+            );
+            Projection::Equirect
+        }
+        (None, Some(kind)) => {
+            log::warn!(
+                "{}: spherical video metadata says `{kind}`, which keyframer does not read: analysing the frames as pinhole ones (convert to equirectangular, see docs/360.md)",
+                input.display()
+            );
+            Projection::Pinhole
+        }
+        (None, None) => {
+            if u64::from(size.0) == 2 * u64::from(size.1) {
+                log::warn!(
+                    "{}: 2:1 frames without spherical metadata: if this is a 360° video, give --projection equirect",
+                    input.display()
+                );
+            }
+            Projection::Pinhole
+        }
+    };
+    if p == Projection::Equirect {
+        check_equirect(input, size)?;
+    }
+    Ok(p)
+}
 
 /// 3x3 rotation, row-major.
 pub type Mat3 = [[f64; 3]; 3];
@@ -398,6 +504,24 @@ mod tests {
             let q = quaternion(&v.rotation());
             assert!((q.iter().map(|x| x * x).sum::<f64>() - 1.0).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn projection_checks_and_metadata() {
+        let p = Path::new("v.mp4");
+        assert!(check_equirect(p, (3840, 1920)).is_ok());
+        let e = check_equirect(p, (1920, 1080)).unwrap_err().to_string();
+        assert!(e.contains("2:1") && e.contains("16:9") && e.contains("1920x1080"), "{e}");
+        let probe = serde_json::json!({"streams": [{"side_data_list": [
+            {"side_data_type": "Display Matrix"},
+            {"side_data_type": "Spherical Mapping", "projection": "equirectangular"}
+        ]}]});
+        assert_eq!(spherical_of(&probe).as_deref(), Some("equirectangular"));
+        assert_eq!(spherical_of(&serde_json::json!({"streams": [{}]})), None);
+        let asked = resolve_projection(Some(Projection::Equirect), p, false, (1920, 1080));
+        assert!(asked.is_err());
+        let plain = resolve_projection(None, p, false, (400, 200)).unwrap();
+        assert_eq!(plain, Projection::Pinhole);
     }
 
     #[test]

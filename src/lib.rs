@@ -31,6 +31,7 @@ pub mod project;
 pub mod reconstruct;
 pub mod report;
 pub mod review;
+pub mod rig;
 pub mod segment;
 pub mod select;
 pub mod source;

@@ -14,7 +14,9 @@ use std::sync::Arc;
 pub const WGSL: &str = include_str!("../../shaders/remap.wgsl");
 
 /// Interpolation of a remap.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Interp {
     /// 2 x 2 taps (cv::INTER_LINEAR).
