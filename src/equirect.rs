@@ -22,7 +22,15 @@ use std::path::Path;
 
 /// How an input's frames map to directions (`select --projection`), recorded in the project.
 #[derive(
-    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+    Debug,
+    Clone,
+    Copy,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
 )]
 #[serde(rename_all = "lowercase")]
 pub enum Projection {
@@ -59,7 +67,15 @@ pub fn check_equirect(input: &Path, (w, h): (u32, u32)) -> Result<()> {
 /// `Spherical Mapping` side data), when ffprobe is there and the video has it.
 pub fn spherical_metadata(video: &Path) -> Option<String> {
     let out = std::process::Command::new("ffprobe")
-        .args(["-v", "error", "-select_streams", "v:0", "-show_streams", "-of", "json"])
+        .args([
+            "-v",
+            "error",
+            "-select_streams",
+            "v:0",
+            "-show_streams",
+            "-of",
+            "json",
+        ])
         .arg(video)
         .stdin(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
@@ -77,7 +93,11 @@ pub fn spherical_of(probe: &serde_json::Value) -> Option<String> {
         s.get("side_data_list")?.as_array()?.iter().find_map(|d| {
             let t = d.get("side_data_type")?.as_str()?;
             (t == "Spherical Mapping")
-                .then(|| d.get("projection").and_then(|p| p.as_str()).unwrap_or("unknown"))
+                .then(|| {
+                    d.get("projection")
+                        .and_then(|p| p.as_str())
+                        .unwrap_or("unknown")
+                })
                 .map(str::to_string)
         })
     })
@@ -92,7 +112,11 @@ pub fn resolve_projection(
     is_video: bool,
     size: (u32, u32),
 ) -> Result<Projection> {
-    let found = if is_video { spherical_metadata(input) } else { None };
+    let found = if is_video {
+        spherical_metadata(input)
+    } else {
+        None
+    };
     let p = match (asked, &found) {
         (Some(p), _) => p,
         (None, Some(kind)) if kind == "equirectangular" => {
@@ -511,7 +535,10 @@ mod tests {
         let p = Path::new("v.mp4");
         assert!(check_equirect(p, (3840, 1920)).is_ok());
         let e = check_equirect(p, (1920, 1080)).unwrap_err().to_string();
-        assert!(e.contains("2:1") && e.contains("16:9") && e.contains("1920x1080"), "{e}");
+        assert!(
+            e.contains("2:1") && e.contains("16:9") && e.contains("1920x1080"),
+            "{e}"
+        );
         let probe = serde_json::json!({"streams": [{"side_data_list": [
             {"side_data_type": "Display Matrix"},
             {"side_data_type": "Spherical Mapping", "projection": "equirectangular"}

@@ -635,7 +635,12 @@ fn decode_and_encode(
     let mut missing = Vec::new();
     let result = source::read_indices(src, &job.project.keyframes, |frame| {
         let outputs: Vec<(Option<usize>, Mat)> = match job.rig {
-            Some(r) => r.render(&frame.image)?.into_iter().enumerate().map(|(v, m)| (Some(v), m)).collect(),
+            Some(r) => r
+                .render(&frame.image)?
+                .into_iter()
+                .enumerate()
+                .map(|(v, m)| (Some(v), m))
+                .collect(),
             None => vec![(None, transform(&frame.image, job.settings, job.size)?)],
         };
         // Damaged frames are never passed here: find this frame's name by its index.
@@ -826,6 +831,12 @@ fn commit(out: &Path, staging: &Path, ours: &[PathBuf], frames: &[ExportedFrame]
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
             Err(e) => log::warn!("{}: cannot remove stale export: {e}", p.display()),
         }
+        if rel.components().count() == 3 {
+            // An earlier rig export's view folder goes once empty.
+            if let Some(parent) = p.parent() {
+                let _ = std::fs::remove_dir(parent);
+            }
+        }
     }
     for d in [MASK_DIR, OVERLAY_DIR] {
         // Empty masks/ or overlays/ folders left from an earlier export go.
@@ -848,7 +859,9 @@ fn warn_unlisted(out: &Path, listed: &std::collections::HashSet<&PathBuf>) {
             .map(|e| e.file_name().to_string_lossy().into_owned())
             .filter(|n| {
                 let p = Path::new(d).join(n);
-                !n.starts_with('.') && !listed.contains(&p) && !listed.iter().any(|l| l.starts_with(&p))
+                !n.starts_with('.')
+                    && !listed.contains(&p)
+                    && !listed.iter().any(|l| l.starts_with(&p))
             })
             .collect();
         if let Some(first) = names.first() {

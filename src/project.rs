@@ -54,7 +54,10 @@ pub struct Project<H = Recorded> {
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub preview: bool,
     /// How the frames map to directions (`select --projection`); pinhole when left out.
-    #[serde(default, skip_serializing_if = "crate::equirect::Projection::is_pinhole")]
+    #[serde(
+        default,
+        skip_serializing_if = "crate::equirect::Projection::is_pinhole"
+    )]
     pub projection: crate::equirect::Projection,
 }
 

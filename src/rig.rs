@@ -94,9 +94,9 @@ impl Rig {
         let auto = crate::gpu::auto_backend(None);
         let backend = match auto.backend {
             crate::params::Backend::Gpu => {
-                let gpu = crate::gpu::GpuContext::new(None).map(std::sync::Arc::new).and_then(
-                    |ctx| RemapGpu::new(ctx, erp, 3, settings.interp, &tables),
-                );
+                let gpu = crate::gpu::GpuContext::new(None)
+                    .map(std::sync::Arc::new)
+                    .and_then(|ctx| RemapGpu::new(ctx, erp, 3, settings.interp, &tables));
                 match gpu {
                     Ok(g) => Backend::Gpu(g),
                     Err(e) => {
@@ -188,9 +188,11 @@ mod tests {
                 .len(),
             6
         );
-        assert!(views_of(&settings("equirect", 512), Projection::Equirect, limits)
-            .unwrap()
-            .is_empty());
+        assert!(
+            views_of(&settings("equirect", 512), Projection::Equirect, limits)
+                .unwrap()
+                .is_empty()
+        );
     }
 
     #[test]
@@ -204,6 +206,9 @@ mod tests {
         assert_eq!(cams[2]["image_prefix"], "back/");
         let q: Vec<f64> = serde_json::from_value(cams[2]["cam_from_rig_rotation"].clone()).unwrap();
         // `back`: a half turn about y.
-        assert!(q[0].abs() < 1e-9 && (q[2].abs() - 1.0).abs() < 1e-9, "{q:?}");
+        assert!(
+            q[0].abs() < 1e-9 && (q[2].abs() - 1.0).abs() < 1e-9,
+            "{q:?}"
+        );
     }
 }

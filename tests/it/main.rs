@@ -8,6 +8,7 @@ mod checks;
 mod colmap;
 mod common;
 mod docs;
+mod equirect;
 mod experiment;
 mod fixtures;
 mod flow;
