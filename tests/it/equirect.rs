@@ -199,3 +199,70 @@ fn bad_360_inputs_are_refused_before_writing() {
     assert!(err.contains("--view-size"), "{err}");
     assert!(!out.exists(), "nothing written");
 }
+
+/// `keyframer colmap` on a rig export (Debian's COLMAP 3.8, no rig support): the view folders are
+/// kept in the workspace and every folder is one PINHOLE camera with the views' known focal length
+/// and centre. (The mapper's outcome on this synthetic pattern is not what is checked.)
+#[test]
+fn colmap_takes_one_camera_per_view_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = erp_folder(dir.path(), 240, 120, 2);
+    let project = dir.path().join("p.json");
+    kf_ok(&[
+        "select",
+        s(&frames),
+        "-o",
+        s(&project),
+        "--projection",
+        "equirect",
+    ]);
+    let out = dir.path().join("rig");
+    kf_ok(&[
+        "export",
+        s(&project),
+        "--out",
+        s(&out),
+        "--views",
+        "cube",
+        "--view-size",
+        "64",
+        "--view-fov",
+        "96",
+        "--mask-nadir",
+        "30",
+    ]);
+    let _ = kf(&["colmap", s(&out), "--sparse", "--matcher", "exhaustive"]);
+    let ws = out.join("colmap");
+    let record = json(&ws.join("colmap.json"));
+    assert_eq!(record["per_folder"], true);
+    assert!(ws.join("images/front/f000.png").is_file());
+    assert!(ws.join("masks/down/f000.png.png").is_file());
+    let fe = std::fs::read_to_string(ws.join("project.ini")).unwrap();
+    assert!(fe.contains("single_camera_per_folder=true"), "{fe}");
+    let db = rusqlite::Connection::open(ws.join("database.db")).unwrap();
+    let cams: Vec<(i64, Vec<u8>)> = db
+        .prepare("SELECT model, params FROM cameras")
+        .unwrap()
+        .query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    assert_eq!(cams.len(), 6, "one camera per view folder");
+    let f = 32.0 / (48f64.to_radians()).tan();
+    for (model, params) in cams {
+        assert_eq!(model, 1, "PINHOLE");
+        let p: Vec<f64> = params
+            .chunks(8)
+            .map(|b| f64::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        assert!(
+            (p[0] - f).abs() < 1e-9 && (p[1] - f).abs() < 1e-9,
+            "{p:?} vs {f}"
+        );
+        assert_eq!((p[2], p[3]), (32.0, 32.0));
+    }
+    let images: i64 = db
+        .query_row("SELECT count(*) FROM images", [], |r| r.get(0))
+        .unwrap();
+    assert_eq!(images, 12, "2 keyframes x 6 views");
+}
