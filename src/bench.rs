@@ -209,8 +209,9 @@ pub const REMAP_SIZES: ((u32, u32), u32) = ((3840, 1920), 1024);
 /// bicubic, over `frames` frames (2 distinct, cycled): OpenCV's cv::remap per face against the
 /// gpu (upload, 6 dispatches, readback of all faces), after one warm-up frame.
 pub fn remap(ctx: &Arc<GpuContext>, frames: usize) -> Result<Vec<Row>> {
+    use crate::equirect::Interp;
     use crate::equirect::{view_map, ViewSet};
-    use crate::kernels::remap::{opencv as cv_remap, Interp, RemapGpu, Table};
+    use crate::kernels::remap::{opencv as cv_remap, RemapGpu, Table};
     let ((w, h), size) = REMAP_SIZES;
     let frames = frames.max(1);
     let distinct: Vec<opencv::core::Mat> = (0..2)

@@ -377,7 +377,7 @@ pub struct SelectArgs {
     pub preview: bool,
     /// How the frames map to directions: `equirect` for 2:1 360° video (see docs/360.md).
     /// Default: equirect when the container's spherical metadata says so, else pinhole.
-    #[arg(long, value_enum)]
+    #[arg(long, value_name = "pinhole|equirect", value_parser = |v: &str| v.parse::<keyframer::equirect::Projection>())]
     pub projection: Option<keyframer::equirect::Projection>,
     /// The steps' flags.
     #[command(flatten)]
@@ -485,8 +485,8 @@ pub struct ExportArgs {
     #[arg(long, value_name = "DEG", requires = "views")]
     pub mask_nadir: Option<f64>,
     /// Interpolation of the views.
-    #[arg(long, value_enum, default_value = "bilinear", requires = "views")]
-    pub view_interp: keyframer::kernels::remap::Interp,
+    #[arg(long, value_name = "bilinear|bicubic", default_value = "bilinear", requires = "views", value_parser = |v: &str| v.parse::<keyframer::equirect::Interp>())]
+    pub view_interp: keyframer::equirect::Interp,
     /// Segmentation masks for every exported image.
     #[command(flatten)]
     pub masks: MaskArgs,

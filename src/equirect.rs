@@ -20,18 +20,32 @@
 use crate::error::{Error, Result};
 use std::path::Path;
 
+/// Interpolation of a view's remap (`kernels::remap`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Interp {
+    /// 2 x 2 taps (cv::INTER_LINEAR).
+    Bilinear,
+    /// 4 x 4 taps, Keys' cubic with A = −0.75 (cv::INTER_CUBIC).
+    Bicubic,
+}
+
+impl std::str::FromStr for Interp {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Interp> {
+        match s {
+            "bilinear" => Ok(Interp::Bilinear),
+            "bicubic" => Ok(Interp::Bicubic),
+            _ => Err(Error::param(
+                "--view-interp",
+                format!("`{s}`: bilinear or bicubic"),
+            )),
+        }
+    }
+}
+
 /// How an input's frames map to directions (`select --projection`), recorded in the project.
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-    clap::ValueEnum,
-)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Projection {
     /// An ordinary camera's frames.
@@ -39,6 +53,20 @@ pub enum Projection {
     Pinhole,
     /// 360° equirectangular frames (2:1).
     Equirect,
+}
+
+impl std::str::FromStr for Projection {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Projection> {
+        match s {
+            "pinhole" => Ok(Projection::Pinhole),
+            "equirect" => Ok(Projection::Equirect),
+            _ => Err(Error::param(
+                "--projection",
+                format!("`{s}`: pinhole or equirect"),
+            )),
+        }
+    }
 }
 
 impl Projection {

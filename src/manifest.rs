@@ -105,7 +105,7 @@ pub struct ViewSettings {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask_nadir_deg: Option<f64>,
     /// Interpolation of the remap.
-    pub interp: crate::kernels::remap::Interp,
+    pub interp: crate::equirect::Interp,
 }
 
 fn on() -> bool {

@@ -3,6 +3,7 @@
 //! that one ERP frame uploaded once gives every pinhole view of an export or an analysis.
 //! Twin: [`opencv`] (cv::remap on the same maps); bounds in `tolerance::REMAP_*`.
 
+pub use crate::equirect::Interp;
 use crate::error::{CvContext, Error, Result};
 use crate::gpu::{compute_pass, mat_bytes, GpuContext};
 use bytemuck::{Pod, Zeroable};
@@ -12,18 +13,6 @@ use std::sync::Arc;
 
 /// WGSL source.
 pub const WGSL: &str = include_str!("../../shaders/remap.wgsl");
-
-/// Interpolation of a remap.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
-)]
-#[serde(rename_all = "lowercase")]
-pub enum Interp {
-    /// 2 x 2 taps (cv::INTER_LINEAR).
-    Bilinear,
-    /// 4 x 4 taps, Keys' cubic with A = −0.75 (cv::INTER_CUBIC).
-    Bicubic,
-}
 
 impl Interp {
     fn cv_flag(self) -> i32 {

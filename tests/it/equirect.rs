@@ -6,7 +6,7 @@ use crate::common::{code_and_stderr, json, kf, kf_ok, s};
 use opencv::core::{Mat, Vector};
 use opencv::imgcodecs;
 use opencv::prelude::*;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// A folder of `n` lossless `w` x `h` frames.
 fn erp_folder(dir: &Path, w: i32, h: i32, n: u64) -> std::path::PathBuf {
@@ -74,11 +74,12 @@ fn psnr(img: &Mat, reference: &[f64]) -> f64 {
     10.0 * (255.0f64 * 255.0 / mse.max(1e-12)).log10()
 }
 
-#[test]
-fn cube_export_matches_a_reference_projection() {
-    let dir = tempfile::tempdir().unwrap();
-    let frames = erp_folder(dir.path(), 480, 240, 2);
-    let project = dir.path().join("p.json");
+/// An ERP folder of two `w` x `h` frames selected as equirect, exported with `--views cube`,
+/// `--mask-nadir 30` and `extra` into DIR/out; returns the frames' folder, the export and the
+/// project.
+fn cube_export(dir: &Path, (w, h): (i32, i32), extra: &[&str]) -> (PathBuf, PathBuf, PathBuf) {
+    let frames = erp_folder(dir, w, h, 2);
+    let project = dir.join("p.json");
     kf_ok(&[
         "select",
         s(&frames),
@@ -87,23 +88,22 @@ fn cube_export_matches_a_reference_projection() {
         "--projection",
         "equirect",
     ]);
-    assert_eq!(json(&project)["projection"], "equirect");
-    let out = dir.path().join("out");
+    let out = dir.join("out");
+    let mut args = vec!["export", s(&project), "--out", s(&out), "--views", "cube"];
+    args.extend_from_slice(&["--mask-nadir", "30"]);
+    args.extend_from_slice(extra);
+    kf_ok(&args);
+    (frames, out, project)
+}
+
+#[test]
+fn cube_export_matches_a_reference_projection() {
+    let dir = tempfile::tempdir().unwrap();
     let n = 96usize;
-    kf_ok(&[
-        "export",
-        s(&project),
-        "--out",
-        s(&out),
-        "--views",
-        "cube",
-        "--view-size",
-        &n.to_string(),
-        "--format",
-        "png",
-        "--mask-nadir",
-        "30",
-    ]);
+    let size = n.to_string();
+    let extra = ["--view-size", size.as_str(), "--format", "png"];
+    let (frames, out, project) = cube_export(dir.path(), (480, 240), &extra);
+    assert_eq!(json(&project)["projection"], "equirect");
     let m = json(&out.join("manifest.json"));
     let views = m["views"].as_array().unwrap();
     let names: Vec<&str> = views.iter().map(|v| v["name"].as_str().unwrap()).collect();
@@ -206,31 +206,8 @@ fn bad_360_inputs_are_refused_before_writing() {
 #[test]
 fn colmap_takes_one_camera_per_view_folder() {
     let dir = tempfile::tempdir().unwrap();
-    let frames = erp_folder(dir.path(), 240, 120, 2);
-    let project = dir.path().join("p.json");
-    kf_ok(&[
-        "select",
-        s(&frames),
-        "-o",
-        s(&project),
-        "--projection",
-        "equirect",
-    ]);
-    let out = dir.path().join("rig");
-    kf_ok(&[
-        "export",
-        s(&project),
-        "--out",
-        s(&out),
-        "--views",
-        "cube",
-        "--view-size",
-        "64",
-        "--view-fov",
-        "96",
-        "--mask-nadir",
-        "30",
-    ]);
+    let extra = ["--view-size", "64", "--view-fov", "96"];
+    let (_, out, _) = cube_export(dir.path(), (240, 120), &extra);
     let _ = kf(&["colmap", s(&out), "--sparse", "--matcher", "exhaustive"]);
     let ws = out.join("colmap");
     let record = json(&ws.join("colmap.json"));
