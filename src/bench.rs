@@ -238,3 +238,57 @@ pub fn render_flow(adapter: &str, pairs: usize, rows: &[Row]) -> String {
     let heads = ["params", "opencv ms", "gpu ms"];
     render(title, heads, [20, 6, 12], 1, rows)
 }
+
+/// ERP size and view size of the remap benchmark: 4K ERP to 6 cube faces of 1024².
+pub const REMAP_SIZES: ((u32, u32), u32) = ((3840, 1920), 1024);
+
+/// Times rendering the 6 cube faces (90°, 1024²) of a 3840x1920 BGR frame, bilinear and
+/// bicubic, over `frames` frames (2 distinct, cycled): OpenCV's cv::remap per face against the
+/// gpu (upload, 6 dispatches, readback of all faces), after one warm-up frame.
+pub fn remap(ctx: &Arc<GpuContext>, frames: usize) -> Result<Vec<Row>> {
+    use crate::equirect::Interp;
+    use crate::equirect::{view_map, ViewSet};
+    use crate::kernels::remap::{opencv as cv_remap, RemapGpu, Table};
+    let ((w, h), size) = REMAP_SIZES;
+    let frames = frames.max(1);
+    let distinct: Vec<opencv::core::Mat> = (0..2)
+        .map(|s| crate::synthetic::pattern(w as i32, h as i32, s))
+        .collect::<Result<_>>()?;
+    let tables: Vec<Table> = ViewSet::Cube
+        .views(90.0, size)
+        .iter()
+        .map(|v| {
+            let (xs, ys) = view_map(v, (w, h));
+            Table::new((size, size), xs, ys)
+        })
+        .collect::<Result<_>>()?;
+    let mut rows = Vec::new();
+    for interp in [Interp::Bilinear, Interp::Bicubic] {
+        let t = Instant::now();
+        for i in 0..frames {
+            for table in &tables {
+                cv_remap(&distinct[i % 2], table, interp)?;
+            }
+        }
+        let opencv_ms = t.elapsed().as_secs_f64() * 1e3 / frames as f64;
+        let gpu = RemapGpu::new(ctx.clone(), (w, h), 3, interp, &tables)?;
+        gpu.render(&distinct[0])?; // warm-up
+        let case = (format!("{interp:?}").to_lowercase(), opencv_ms, 0);
+        rows.push(Row::timed(ctx, frames, (w, h), case, || {
+            for i in 0..frames {
+                gpu.render(&distinct[i % 2])?;
+            }
+            Ok(())
+        })?);
+    }
+    Ok(rows)
+}
+
+/// The remap table as text.
+pub fn render_remap(adapter: &str, frames: usize, rows: &[Row]) -> String {
+    let title = format!(
+        "remap, ERP 3840x1920 BGR -> 6 x 1024x1024 cube faces, {frames} frames per cell, gpu = {adapter} (upload + 6 views + readback)\n"
+    );
+    let heads = ["interp", "opencv ms/f", "gpu ms/f"];
+    render(title, heads, [9, 4, 10], 1, rows)
+}

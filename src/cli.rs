@@ -296,6 +296,9 @@ pub enum BenchWhat {
     /// `review`'s answer to a parameter change on a synthetic project (--review-frames long):
     /// the step chain, the timeline drawing, the HTTP round trip.
     Review,
+    /// ERP → pinhole views (remap, bilinear and bicubic): a 3840x1920 frame to 6 cube faces of
+    /// 1024x1024.
+    Remap,
 }
 
 /// Flags of analysing commands.
@@ -374,6 +377,10 @@ pub struct SelectArgs {
     /// keyframes. The project is marked as a preview and never reused as a cache.
     #[arg(long)]
     pub preview: bool,
+    /// How the frames map to directions: `equirect` for 2:1 360° video (see docs/360.md).
+    /// Default: equirect when the container's spherical metadata says so, else pinhole.
+    #[arg(long, value_name = "pinhole|equirect", value_parser = |v: &str| v.parse::<keyframer::equirect::Projection>())]
+    pub projection: Option<keyframer::equirect::Projection>,
     /// The steps' flags.
     #[command(flatten)]
     pub steps: StepArgs,
@@ -464,6 +471,24 @@ pub struct ExportArgs {
     /// positions in manifest.json (by default both are written when the project has positions).
     #[arg(long)]
     pub no_geotag: bool,
+    /// 360° projects: the views to export, `cube` (6 faces), `ring:N[,PITCH]` (N views around
+    /// the horizon at PITCH degrees) as a camera rig (`images/<view>/`, `rig_config.json`), or
+    /// `equirect` (the frames unchanged). See docs/360.md.
+    #[arg(long, value_name = "SET")]
+    pub views: Option<String>,
+    /// Field of view of every view in degrees.
+    #[arg(long, value_name = "DEG", default_value_t = 90.0, requires = "views")]
+    pub view_fov: f64,
+    /// Width = height of every view in pixels.
+    #[arg(long, value_name = "PX", default_value_t = 1024, requires = "views")]
+    pub view_size: u32,
+    /// Hide a cap of this radius in degrees around the nadir (the operator, the tripod) in the
+    /// masks of every view that sees it.
+    #[arg(long, value_name = "DEG", requires = "views")]
+    pub mask_nadir: Option<f64>,
+    /// Interpolation of the views.
+    #[arg(long, value_name = "bilinear|bicubic", default_value = "bilinear", requires = "views", value_parser = |v: &str| v.parse::<keyframer::equirect::Interp>())]
+    pub view_interp: keyframer::equirect::Interp,
     /// Segmentation masks for every exported image.
     #[command(flatten)]
     pub masks: MaskArgs,
@@ -738,6 +763,7 @@ impl SelectArgs {
             checkpoint_every_s: non_negative_seconds(self.checkpoint_every)
                 .map_err(|m| Error::param("--checkpoint-every", m))?,
             preview: self.preview,
+            projection: self.projection,
             quiet,
         })
     }
@@ -782,7 +808,7 @@ pub fn command_path(m: &clap::ArgMatches) -> Vec<&str> {
 impl ExportArgs {
     /// Validated settings (the crop is checked against the frame later, when its size is known).
     pub fn settings(&self) -> Result<ExportSettings> {
-        ExportSettings::from_parts(
+        let mut s = ExportSettings::from_parts(
             self.resize.as_deref(),
             self.scale,
             self.crop.as_deref(),
@@ -790,7 +816,18 @@ impl ExportArgs {
             self.quality,
             self.masks.settings(),
             !self.no_geotag,
-        )
+        )?;
+        if let Some(set) = &self.views {
+            let set: keyframer::equirect::ViewSet = set.parse()?;
+            s.views = Some(keyframer::manifest::ViewSettings {
+                set: set.to_string(),
+                fov_deg: self.view_fov,
+                size: self.view_size,
+                mask_nadir_deg: self.mask_nadir,
+                interp: self.view_interp,
+            });
+        }
+        Ok(s)
     }
 }
 

@@ -158,8 +158,25 @@ pub fn export_project(
     }
     let mut src = source::open(&input, &OpenOptions::default())?;
     let meta = src.metadata().clone();
-    let size = output_size(settings, meta.width, meta.height)?;
+    let mut size = output_size(settings, meta.width, meta.height)?;
     check_size(settings, size)?;
+    // A 360° project's views: checked (and their tables made) before anything is written.
+    let rig = match &settings.views {
+        Some(vs) => {
+            if settings.crop.is_some() || settings.resize.is_some() {
+                let msg = "views are rendered from the whole 360° frame: drop --crop, --resize and --scale (--view-size sets their size)";
+                return Err(Error::param("--views", msg));
+            }
+            let views = crate::rig::views_of(vs, project.projection, (MAX_SIDE, MAX_PIXELS))?;
+            if views.is_empty() {
+                None
+            } else {
+                size = (vs.size, vs.size);
+                Some(crate::rig::Rig::new(views, (meta.width, meta.height), vs)?)
+            }
+        }
+        None => None,
+    };
     let is_video = meta.kind == SourceKind::Video;
     let names = output_names(project, src.as_ref(), settings, is_video)?;
     let geo = geo_of(project, &input, src.as_ref(), settings, &names);
@@ -172,7 +189,7 @@ pub fn export_project(
     }
     // The model is loaded and checked before anything is written.
     let mut masker = settings.masks.as_ref().map(Masker::new).transpose()?;
-    let mut records = vec![MANIFEST, PENDING];
+    let mut records = vec![MANIFEST, PENDING, crate::rig::RIG_CONFIG];
     records.extend_from_slice(target.records);
     let dir = crate::output::prepare_dir(out, force, &records, &inputs)?;
     let job = Job {
@@ -183,6 +200,7 @@ pub fn export_project(
         size,
         quiet,
         geo: geo.as_ref(),
+        rig: rig.as_ref(),
     };
     let result = stage_and_commit(&job, out, dir.is_new(), src.as_mut(), masker.as_mut());
     let (frames, missing) = match result {
@@ -206,7 +224,18 @@ pub fn export_project(
         frames,
         missing,
         mask_ms_per_image: masker.as_ref().and_then(|m| m.seg.ms_per_image()),
+        views: rig.as_ref().map(|r| r.views.clone()).unwrap_or_default(),
     };
+    let rig_config = out.join(crate::rig::RIG_CONFIG);
+    match &rig {
+        Some(r) => fsutil::write_json(&rig_config, &crate::rig::rig_config(&r.views))?,
+        None => {
+            // A rig export's record of an earlier run here goes with its views.
+            if crate::output::check_replaceable(&rig_config).is_ok() {
+                let _ = std::fs::remove_file(&rig_config);
+            }
+        }
+    }
     write_manifest(out, &manifest)?;
     let n = manifest
         .frames
@@ -441,7 +470,7 @@ fn own_files(out: &Path) -> Result<Vec<PathBuf>> {
             .map_err(|e| bad(Some(e.line()), String::new(), e.to_string()))?;
         for (i, f) in listed.iter().enumerate() {
             let rel = crate::output::inside(f, &format!("[{i}]"), &journal).map_err(refuse)?;
-            let top = rel.components().count() == 2
+            let top = (2..=3).contains(&rel.components().count())
                 && [IMAGE_DIR, MASK_DIR, OVERLAY_DIR]
                     .iter()
                     .any(|d| rel.starts_with(d));
@@ -462,10 +491,20 @@ fn check_targets(
     ours: &[PathBuf],
     names: &[String],
     settings: &ExportSettings,
+    views: &[crate::equirect::View],
 ) -> Result<()> {
     let ours: std::collections::HashSet<&PathBuf> = ours.iter().collect();
     let mut targets = Vec::new();
-    for n in names {
+    let rel: Vec<String> = if views.is_empty() {
+        names.to_vec()
+    } else {
+        let mut rel = Vec::new();
+        for v in views {
+            rel.extend(names.iter().map(|n| format!("{}/{n}", v.name)));
+        }
+        rel
+    };
+    for n in &rel {
         targets.push(Path::new(IMAGE_DIR).join(n));
         if let Some(m) = &settings.masks {
             targets.push(Path::new(MASK_DIR).join(format!("{n}.png")));
@@ -516,7 +555,7 @@ fn write_staged(
     }
     let is_video = src.metadata().kind == SourceKind::Video;
     let bar = crate::progress::bar(job.project.keyframes.len() as u64, "export", job.quiet);
-    let r = if byte_copy(src, job.settings, is_video) {
+    let r = if job.rig.is_none() && byte_copy(src, job.settings, is_video) {
         copy_originals(job, src, &images, masker, &bar)
     } else {
         decode_and_encode(job, src, &images, masker, &bar)
@@ -563,6 +602,7 @@ fn copy_originals(
             index,
             timestamp_s: timestamps.and_then(|t| t.get(index).copied()),
             file: name.clone(),
+            view: None,
             mask: None,
             overlay: None,
             position: job.geo.and_then(|g| g.position(index)).cloned(),
@@ -570,7 +610,7 @@ fn copy_originals(
         if let Some(m) = masker.as_deref_mut() {
             let img = imgcodecs::imread(&from, imgcodecs::IMREAD_COLOR)
                 .cv(|| format!("read {}", from.display()))?;
-            m.push(name.clone(), img, &mut frames)?;
+            m.push((None, name.clone()), img, None, &mut frames)?;
         }
         bar.inc(1);
     }
@@ -594,7 +634,15 @@ fn decode_and_encode(
     let mut frames = Vec::new();
     let mut missing = Vec::new();
     let result = source::read_indices(src, &job.project.keyframes, |frame| {
-        let img = transform(&frame.image, job.settings, job.size)?;
+        let outputs: Vec<(Option<usize>, Mat)> = match job.rig {
+            Some(r) => r
+                .render(&frame.image)?
+                .into_iter()
+                .enumerate()
+                .map(|(v, m)| (Some(v), m))
+                .collect(),
+            None => vec![(None, transform(&frame.image, job.settings, job.size)?)],
+        };
         // Damaged frames are never passed here: find this frame's name by its index.
         let k = job
             .project
@@ -608,27 +656,50 @@ fn decode_and_encode(
                 )
             })?;
         let name = &job.names[k];
-        let path = images.join(name);
         let format = format_of(name);
-        let mut bytes = encode(&img, format, job.settings.quality)?;
         let timestamp_s = frame
             .timestamp_s
             .or_else(|| timestamps.and_then(|t| t.get(frame.index).copied()));
         let position = job.geo.and_then(|g| g.position(frame.index));
-        if let (Some(g), Some(p), Format::Jpg) = (job.geo, position, format) {
-            tag_jpeg(&path, &mut bytes, &g.tag(k, p, timestamp_s))?;
-        }
-        fsutil::write_atomic(&path, &bytes)?;
-        frames.push(ExportedFrame {
-            index: frame.index,
-            timestamp_s,
-            file: name.clone(),
-            mask: None,
-            overlay: None,
-            position: position.cloned(),
-        });
-        if let Some(m) = masker.as_deref_mut() {
-            m.push(name.clone(), img, &mut frames)?;
+        for (v, img) in outputs {
+            let view = v.and_then(|v| job.rig.map(|r| (v, r)));
+            let folder = view.map(|(v, r)| r.views[v].name.clone());
+            let dir = match &folder {
+                Some(f) => images.join(f),
+                None => images.to_path_buf(),
+            };
+            if folder.is_some() {
+                std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+            }
+            let path = dir.join(name);
+            let mut bytes = encode(&img, format, job.settings.quality)?;
+            if let (Some(g), Some(p), Format::Jpg) = (job.geo, position, format) {
+                tag_jpeg(&path, &mut bytes, &g.tag(k, p, timestamp_s))?;
+            }
+            fsutil::write_atomic(&path, &bytes)?;
+            let nadir = view.and_then(|(v, r)| r.nadir[v].clone());
+            frames.push(ExportedFrame {
+                index: frame.index,
+                timestamp_s,
+                file: name.clone(),
+                view: folder.clone(),
+                mask: None,
+                overlay: None,
+                position: position.cloned(),
+            });
+            match masker.as_deref_mut() {
+                Some(m) => m.push((folder, name.clone()), img, nadir, &mut frames)?,
+                None => {
+                    if let (Some(mask), Some(f)) = (nadir, &folder) {
+                        let masks = images.with_file_name(MASK_DIR).join(f);
+                        std::fs::create_dir_all(&masks).map_err(|e| Error::io(&masks, e))?;
+                        let mask_name = crate::segment::write_mask(&masks, name, &mask)?;
+                        if let Some(last) = frames.last_mut() {
+                            last.mask = Some(mask_name);
+                        }
+                    }
+                }
+            }
         }
         bar.inc(1);
         Ok(())
@@ -690,7 +761,8 @@ fn stage_and_commit(
     masker: Option<&mut Masker>,
 ) -> Result<(Vec<ExportedFrame>, Vec<MissingFrame>)> {
     let ours = if is_new { Vec::new() } else { own_files(out)? };
-    check_targets(out, &ours, job.names, job.settings)?;
+    let views = job.rig.map(|r| r.views.as_slice()).unwrap_or_default();
+    check_targets(out, &ours, job.names, job.settings, views)?;
     for sub in [IMAGE_DIR, MASK_DIR, OVERLAY_DIR] {
         crate::output::clear_stale_temps_of(&out.join(sub), None);
     }
@@ -718,6 +790,8 @@ struct Job<'a> {
     quiet: bool,
     /// What the JPEGs are geotagged with (None: no positions or `geotag` off).
     geo: Option<&'a Geo<'a>>,
+    /// A 360° project's views (images/<view>/, masks/<view>/), None for flat exports.
+    rig: Option<&'a crate::rig::Rig>,
 }
 
 /// Moves the staged files into place and removes what the earlier manifest listed that this
@@ -757,6 +831,12 @@ fn commit(out: &Path, staging: &Path, ours: &[PathBuf], frames: &[ExportedFrame]
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
             Err(e) => log::warn!("{}: cannot remove stale export: {e}", p.display()),
         }
+        if rel.components().count() == 3 {
+            // An earlier rig export's view folder goes once empty.
+            if let Some(parent) = p.parent() {
+                let _ = std::fs::remove_dir(parent);
+            }
+        }
     }
     for d in [MASK_DIR, OVERLAY_DIR] {
         // Empty masks/ or overlays/ folders left from an earlier export go.
@@ -777,7 +857,12 @@ fn warn_unlisted(out: &Path, listed: &std::collections::HashSet<&PathBuf>) {
         let names: Vec<String> = entries
             .flatten()
             .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter(|n| !n.starts_with('.') && !listed.contains(&Path::new(d).join(n)))
+            .filter(|n| {
+                let p = Path::new(d).join(n);
+                !n.starts_with('.')
+                    && !listed.contains(&p)
+                    && !listed.iter().any(|l| l.starts_with(&p))
+            })
             .collect();
         if let Some(first) = names.first() {
             log::warn!(
@@ -809,7 +894,8 @@ struct Masker {
     overlay: bool,
     /// The staging folder receiving `masks/` and `overlays/`.
     out: PathBuf,
-    names: Vec<String>,
+    /// (view folder, file name) of each queued image, with its view's nadir mask.
+    names: Vec<(Option<String>, String, Option<Mat>)>,
     images: Vec<Mat>,
 }
 
@@ -838,8 +924,14 @@ impl Masker {
     }
 
     /// Queues one exported image (`name` in the export folder); runs a batch when full.
-    fn push(&mut self, name: String, image: Mat, frames: &mut [ExportedFrame]) -> Result<()> {
-        self.names.push(name);
+    fn push(
+        &mut self,
+        (view, name): (Option<String>, String),
+        image: Mat,
+        nadir: Option<Mat>,
+        frames: &mut [ExportedFrame],
+    ) -> Result<()> {
+        self.names.push((view, name, nadir));
         self.images.push(image);
         if self.images.len() >= self.seg.batch() {
             self.flush(frames)?;
@@ -855,19 +947,29 @@ impl Masker {
         let names = std::mem::take(&mut self.names);
         let images = std::mem::take(&mut self.images);
         let maps = self.seg.classify(&images)?;
-        for ((name, image), map) in names.iter().zip(&images).zip(&maps) {
+        for (((view, name, nadir), image), map) in names.iter().zip(&images).zip(&maps) {
             let size = (image.cols() as u32, image.rows() as u32);
-            let mask = self.seg.mask(map, size)?;
-            let mask_name = crate::segment::write_mask(&self.out.join(MASK_DIR), name, &mask)?;
+            let mut mask = self.seg.mask(map, size)?;
+            if let Some(n) = nadir {
+                mask = crate::rig::combine(&mask, n)?;
+            }
+            let dir = |d: &str| {
+                let p = self.out.join(d);
+                let p = view.as_ref().map_or(p.clone(), |v| p.join(v));
+                std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
+                Ok::<_, Error>(p)
+            };
+            let mask_name = crate::segment::write_mask(&dir(MASK_DIR)?, name, &mask)?;
             let overlay = if self.overlay {
                 let o = self.seg.overlay(image, map)?;
                 let bytes = encode(&o, format_of(name), 90)?;
-                fsutil::write_atomic(&self.out.join(OVERLAY_DIR).join(name), &bytes)?;
+                fsutil::write_atomic(&dir(OVERLAY_DIR)?.join(name), &bytes)?;
                 Some(name.clone())
             } else {
                 None
             };
-            if let Some(f) = frames.iter_mut().rev().find(|f| &f.file == name) {
+            let is = |f: &&mut ExportedFrame| &f.file == name && &f.view == view;
+            if let Some(f) = frames.iter_mut().rev().find(is) {
                 f.mask = Some(mask_name);
                 f.overlay = overlay;
             }

@@ -154,6 +154,11 @@ fn bench(a: &cli::BenchArgs) -> Result<ExitCode> {
             let rows = bench::descriptor(&ctx, a.frames)?;
             bench::render_descriptor(&ctx.info.name, a.frames, &rows)
         }
+        cli::BenchWhat::Remap => {
+            let (ctx, frames) = (ctx()?, a.frames.min(8));
+            let rows = bench::remap(&ctx, frames)?;
+            bench::render_remap(&ctx.info.name, frames, &rows)
+        }
         cli::BenchWhat::Sharpness => {
             let ctx = ctx()?;
             let rows = bench::sharpness(&ctx, a.frames, &a.strip_rows)?;

@@ -86,6 +86,26 @@ pub struct ExportSettings {
     /// without it (also those of versions before it) read as on, the default.
     #[serde(default = "on", skip_serializing_if = "is_on")]
     pub geotag: bool,
+    /// 360° projects: the views rendered from each frame (`--views`), see docs/360.md.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub views: Option<ViewSettings>,
+}
+
+/// How an export renders views from 360° (ERP) frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewSettings {
+    /// `cube`, `ring:N,PITCH` or `equirect` ([`crate::equirect::ViewSet`]).
+    pub set: String,
+    /// Field of view of every pinhole view in degrees.
+    pub fov_deg: f64,
+    /// Width = height of every pinhole view in pixels.
+    pub size: u32,
+    /// Radius in degrees of the cap around the nadir hidden by the masks (the operator, the
+    /// tripod).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask_nadir_deg: Option<f64>,
+    /// Interpolation of the remap.
+    pub interp: crate::equirect::Interp,
 }
 
 fn on() -> bool {
@@ -129,6 +149,7 @@ impl ExportSettings {
             quality,
             masks,
             geotag,
+            views: None,
         })
     }
 }
@@ -180,8 +201,11 @@ pub struct ExportedFrame {
     pub index: usize,
     /// Presentation time in seconds, when known.
     pub timestamp_s: Option<f64>,
-    /// File name inside the export's `images/` folder.
+    /// File name inside the export's `images/` folder (inside `images/<view>/` for a view).
     pub file: String,
+    /// The view's folder (a rig export of a 360° project: `images/<view>/`, `masks/<view>/`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view: Option<String>,
     /// Mask file name inside `masks/` (`<file>.png`), when masks were requested.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask: Option<String>,
@@ -225,6 +249,9 @@ pub struct Manifest {
     /// Mean network time per image when masks were made (ms).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask_ms_per_image: Option<f64>,
+    /// A rig export's views (name, yaw, pitch, roll, fov, size), in folder order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub views: Vec<crate::equirect::View>,
 }
 
 fn layout_one() -> u32 {
@@ -260,16 +287,31 @@ impl Format {
 
 /// Where the images of an export go, relative to its folder.
 pub fn image_path(out: &Path, f: &ExportedFrame) -> PathBuf {
-    out.join(IMAGE_DIR).join(&f.file)
+    out.join(IMAGE_DIR).join(f.rel())
+}
+
+impl ExportedFrame {
+    /// The image's path inside `images/` (and its mask's inside `masks/`, less `.png`):
+    /// `<view>/<file>` for a view, else `<file>`.
+    pub fn rel(&self) -> PathBuf {
+        match &self.view {
+            Some(v) => Path::new(v).join(&self.file),
+            None => PathBuf::from(&self.file),
+        }
+    }
 }
 
 /// Every file an export lists, relative to its folder (images, masks, overlays).
 pub fn listed_files(frames: &[ExportedFrame]) -> Vec<PathBuf> {
     let mut v = Vec::new();
     for f in frames {
-        v.push(Path::new(IMAGE_DIR).join(&f.file));
-        v.extend(f.mask.iter().map(|m| Path::new(MASK_DIR).join(m)));
-        v.extend(f.overlay.iter().map(|o| Path::new(OVERLAY_DIR).join(o)));
+        let dir = |d: &str| match &f.view {
+            Some(view) => Path::new(d).join(view),
+            None => PathBuf::from(d),
+        };
+        v.push(dir(IMAGE_DIR).join(&f.file));
+        v.extend(f.mask.iter().map(|m| dir(MASK_DIR).join(m)));
+        v.extend(f.overlay.iter().map(|o| dir(OVERLAY_DIR).join(o)));
     }
     v
 }
@@ -298,8 +340,14 @@ impl Manifest {
             if let Some(x) = &f.overlay {
                 crate::output::plain_name(x, &format!("frames[{k}].overlay"), path)?;
             }
+            if let Some(x) = &f.view {
+                crate::output::plain_name(x, &format!("frames[{k}].view"), path)?;
+                if !m.views.iter().any(|v| &v.name == x) {
+                    return Err(bad(&format!("frames[{k}].view"), "not one of `views`"));
+                }
+            }
         }
-        let mut names: Vec<&str> = m.frames.iter().map(|f| f.file.as_str()).collect();
+        let mut names: Vec<PathBuf> = m.frames.iter().map(ExportedFrame::rel).collect();
         names.sort_unstable();
         if names.windows(2).any(|w| w[0] == w[1]) {
             return Err(bad("frames", "lists one file twice"));

@@ -53,6 +53,12 @@ pub struct Project<H = Recorded> {
     /// no scores, and the project is never reused as a cache.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub preview: bool,
+    /// How the frames map to directions (`select --projection`); pinhole when left out.
+    #[serde(
+        default,
+        skip_serializing_if = "crate::equirect::Projection::is_pinhole"
+    )]
+    pub projection: crate::equirect::Projection,
 }
 
 /// The input a project refers to.
@@ -444,6 +450,7 @@ impl Project {
             decode_problems: stored.decode_problems,
             damaged_frames: stored.damaged_frames,
             preview: stored.preview,
+            projection: stored.projection,
         })
     }
 }

@@ -197,6 +197,10 @@ pub struct Record {
     /// Why the run stopped early, when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// A rig export (360° views, `images/<view>/`): one camera per view folder
+    /// (`single_camera_per_folder`), ideal pinholes of known focal length.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub per_folder: bool,
     /// Every file keyframer and COLMAP wrote in the workspace, relative to it: what a `--force`
     /// re-run may replace or remove (and nothing else).
     #[serde(default)]
@@ -271,6 +275,8 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         }
         georegister::precheck(&manifest)?;
     }
+    let rigged = rig_settings(a, &manifest);
+    let a = rigged.as_ref().unwrap_or(a);
     // The workspace stays locked until its record is written last.
     let (masks, _held) = fill_workspace(&ws, &export, &manifest, a.force)?;
     let mut rec = Record {
@@ -280,6 +286,7 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         // that a later `--force` knows as keyframer's (files appearing after `started_unix_s`
         // are COLMAP's).
         finished: false,
+        per_folder: rigged.is_some(),
         ..Record::new(&colmap, &export, &ws, manifest.frames.len(), masks, a)
     };
     write_record(&ws, &rec)?;
@@ -296,6 +303,18 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
     rec.files = ours_now(&ws);
     write_record(&ws, &rec)?;
     result.map(|()| rec)
+}
+
+/// A rig export's settings: every view folder its own PINHOLE camera with the views' known
+/// focal length and centre (the views are ideal pinholes of one fov and size), kept fixed by the
+/// mapper. None for other exports.
+fn rig_settings(a: &ColmapSettings, manifest: &Manifest) -> Option<ColmapSettings> {
+    let v = manifest.views.first()?;
+    let (f, c) = (v.focal(), f64::from(v.size) / 2.0);
+    let mut rigged = a.clone();
+    rigged.options.camera_model = "PINHOLE".into();
+    rigged.options.camera_params = Some(format!("{f},{f},{c},{c}"));
+    Some(rigged)
 }
 
 /// The export (absolute), its manifest (every listed image present) and the workspace folder,
@@ -346,18 +365,27 @@ fn fill_workspace(
         std::fs::create_dir_all(&images).map_err(|e| Error::io(&images, e))?;
         std::fs::create_dir_all(ws.join("logs")).map_err(|e| Error::io(ws.join("logs"), e))?;
         for f in &manifest.frames {
-            link_or_copy(
-                &crate::manifest::image_path(export, f),
-                &images.join(&f.file),
-            )?;
+            // A rig export's view folders are kept (COLMAP's one camera per folder).
+            let to = images.join(f.rel());
+            if let (Some(v), Some(parent)) = (&f.view, to.parent()) {
+                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+                if f.mask.is_some() {
+                    let d = masks_dir.join(v);
+                    std::fs::create_dir_all(&d).map_err(|e| Error::io(&d, e))?;
+                }
+            }
+            link_or_copy(&crate::manifest::image_path(export, f), &to)?;
             if let Some(m) = &f.mask {
                 if masks == 0 {
                     std::fs::create_dir_all(&masks_dir).map_err(|e| Error::io(&masks_dir, e))?;
                 }
-                link_or_copy(
-                    &export_masks.join(m),
-                    &masks_dir.join(format!("{}.png", f.file)),
-                )?;
+                let from = match &f.view {
+                    Some(v) => export_masks.join(v).join(m),
+                    None => export_masks.join(m),
+                };
+                let mut to = f.rel().into_os_string();
+                to.push(".png");
+                link_or_copy(&from, &masks_dir.join(to))?;
                 masks += 1;
             }
         }
@@ -405,6 +433,19 @@ fn run_stages(
     Ok(())
 }
 
+/// COLMAP's option sharing cameras (flag, ini key): one camera for the workspace, or one per
+/// view folder for a rig export.
+fn camera_key(rec: &Record) -> (&'static str, &'static str) {
+    if rec.per_folder {
+        (
+            "--ImageReader.single_camera_per_folder",
+            "single_camera_per_folder",
+        )
+    } else {
+        ("--ImageReader.single_camera", "single_camera")
+    }
+}
+
 /// A path as a COLMAP argument.
 fn p(path: &Path) -> String {
     path.display().to_string()
@@ -423,7 +464,7 @@ fn extract_and_match(
     let mut fe = vec![
         ("--database_path", p(&db)),
         ("--image_path", p(&ws.join("images"))),
-        ("--ImageReader.single_camera", "1".into()),
+        (camera_key(rec).0, "1".into()),
         ("--ImageReader.camera_model", o.camera_model.clone()),
         ("--SiftExtraction.use_gpu", gpu.into()),
     ];
@@ -826,7 +867,7 @@ fn write_project_ini(runner: &Runner, rec: &mut Record, o: &SparseOptions) -> Re
     let mut set = vec![
         ("", "database_path", p("database.db")),
         ("", "image_path", p("images")),
-        ("ImageReader", "single_camera", "true".into()),
+        ("ImageReader", camera_key(rec).1, "true".into()),
         ("ImageReader", "camera_model", o.camera_model.clone()),
         ("SequentialMatching", "overlap", o.overlap.to_string()),
     ];

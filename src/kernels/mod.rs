@@ -7,6 +7,7 @@ pub mod farneback;
 pub mod gray;
 pub mod laplacian;
 pub mod movement;
+pub mod remap;
 pub mod resize_area;
 pub mod sharpness;
 pub mod stationary;
@@ -30,6 +31,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("copy", farneback::COPY_WGSL),
     ("resize_area", resize_area::WGSL),
     ("descriptor", descriptor::WGSL),
+    ("remap", remap::WGSL),
 ];
 
 /// Words (4 gray pixels each) per row of a packed gray image of `width` pixels.

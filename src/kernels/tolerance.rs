@@ -47,6 +47,21 @@ pub const DEROTATED_SAME_FLOW_REL: f64 = 1e-4;
 /// identical keyframes without any quantisation of the descriptor.
 pub const DESCRIPTOR_TOTALS_ABS: u32 = 0;
 
+/// Remap (ERP to pinhole views), bilinear: max abs difference in grey levels per channel against
+/// cv::remap(INTER_LINEAR, BORDER_WRAP) on the same maps. The shader follows OpenCV's fixed-point
+/// path (coordinates rounded to 1/32 px half to even, weights (32 − f)·f exact in 15 bits,
+/// (sum + 2^14) >> 15), and is bit-exact on every test table (lavapipe); 1 grey level covers a map coordinate
+/// within one f32 ulp of a 1/64 px rounding tie, which a different f32 multiply could round the
+/// other way.
+pub const REMAP_BILINEAR_MAX: u8 = 1;
+
+/// Remap, bicubic: max abs difference against cv::remap(INTER_CUBIC, BORDER_WRAP). The weights
+/// are OpenCV's own 15-bit table (the host rebuilds it with the same f32 arithmetic and sum fix),
+/// the sum is exact in i32 (bit-exact on every test table, lavapipe); the same coordinate-rounding tie as bilinear allows 1 grey level, and
+/// a tie there moves a 4 x 4 kernel's result by at most the weight change times the local
+/// contrast (~1 grey level on 8-bit edges).
+pub const REMAP_BICUBIC_MAX: u8 = 1;
+
 /// Relative error `|a - b| / max(|b|, tiny)`.
 pub fn rel_err(a: f64, b: f64) -> f64 {
     (a - b).abs() / b.abs().max(1e-12)

@@ -88,6 +88,7 @@ pub fn synthetic_project(n: usize) -> Result<Project> {
         decode_problems: Vec::new(),
         damaged_frames: Vec::new(),
         preview: false,
+        projection: Default::default(),
     })
 }
 

@@ -99,6 +99,8 @@ pub struct SelectSettings {
     pub checkpoint_every_s: f64,
     /// Analyse only the codec's keyframes (a quick, coarse preview; see [`preview`]).
     pub preview: bool,
+    /// The frames' projection; None: from the container's spherical metadata, else pinhole.
+    pub projection: Option<crate::equirect::Projection>,
     /// No progress bars.
     pub quiet: bool,
 }
@@ -132,6 +134,7 @@ impl SelectSettings {
             force: true,
             checkpoint_every_s: Self::CHECKPOINT_EVERY_S,
             preview: an.preview == Some(true),
+            projection: None,
             quiet,
         }
     }
@@ -286,6 +289,15 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         Some(st) => Some(st.request(&boundaries, &known.metadata(s, open)?, ts)?),
         None => None,
     };
+    let projection = {
+        let m = known.metadata(s, open)?;
+        crate::equirect::resolve_projection(
+            s.projection,
+            &s.input,
+            input_ref.kind == SourceKind::Video,
+            (m.width, m.height),
+        )?
+    };
     let plan = Plan::of(s, &known, stationary_req);
     let metadata = match known.metadata.take() {
         Some(m) if plan.is_empty() => {
@@ -327,6 +339,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         decode_problems: known.problems,
         damaged_frames: known.damaged,
         preview: false,
+        projection,
     };
     Ok(SelectReport {
         project,

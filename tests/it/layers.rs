@@ -158,7 +158,7 @@ const LAYERS: [(&str, &[&str]); 4] = [
     (
         "engines",
         &[
-            "analysis", "kernels", "gpu", "segment", "encode", "geotag", "native",
+            "analysis", "kernels", "gpu", "segment", "encode", "geotag", "native", "rig",
         ],
     ),
     (
@@ -186,6 +186,7 @@ const LAYERS: [(&str, &[&str]); 4] = [
             "synthetic",
             "names",
             "numbers",
+            "equirect",
         ],
     ),
 ];
