@@ -233,7 +233,7 @@ pub enum ViewSet {
         /// Latitude of their centres in degrees.
         pitch: f64,
     },
-    /// The ERP frames unchanged (COLMAP's EQUIRECTANGULAR model, trainers reading ERP).
+    /// The ERP frames unchanged (for trainers and tools that read ERP; not for COLMAP 3.8).
     Equirect,
 }
 

@@ -334,7 +334,7 @@ fn order_images(
             .map(|man| {
                 man.frames
                     .iter()
-                    .find(|f| f.file == im.name)
+                    .find(|f| f.rel() == Path::new(&im.name))
                     .ok_or_else(|| {
                         let msg = format!(
                             "image {} of the model is not in the export's manifest",

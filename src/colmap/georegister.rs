@@ -65,7 +65,8 @@ pub fn positions(manifest: &Manifest) -> Result<(Vec<GeoPosition>, &'static str)
             )
         })?;
         out.push(GeoPosition {
-            name: f.file.clone(),
+            // COLMAP's image name: `<view>/<file>` in a rig export.
+            name: f.rel().to_string_lossy().into_owned(),
             lat_deg: pos.lat_deg,
             lon_deg: pos.lon_deg,
             alt_m,

@@ -275,6 +275,17 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         }
         georegister::precheck(&manifest)?;
     }
+    if manifest
+        .settings
+        .views
+        .as_ref()
+        .is_some_and(|v| v.set == "equirect")
+    {
+        let msg = "holds whole ERP frames (`export --views equirect`), which need a camera model \
+                   for the sphere that this COLMAP (3.8) lacks: export pinhole views \
+                   (`--views cube` or `--views ring:N`) for COLMAP";
+        return Err(Error::input(&export, msg));
+    }
     let rigged = rig_settings(a, &manifest);
     let a = rigged.as_ref().unwrap_or(a);
     // The workspace stays locked until its record is written last.
@@ -428,7 +439,8 @@ fn run_stages(
         rec.dataset = Some(undistort::make_dataset(runner, rec, &model_dir, world)?);
     }
     if a.dense {
-        densify(runner, rec, &ws.join(&best))?;
+        // The georegistered model when there is one, so the dense cloud shares its metres.
+        densify(runner, rec, &model_dir)?;
     }
     Ok(())
 }

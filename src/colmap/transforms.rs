@@ -2,7 +2,7 @@
 //! `sparse_pc.ply`, from an undistorted (PINHOLE) COLMAP model. Guarantees: one frame per
 //! registered image, sorted by name; `transform_matrix` is the camera-to-world matrix with
 //! OpenGL camera axes (x right, y up, z back) in the world `applied_transform` makes of COLMAP's
-//! (`w_json = A · w_colmap`); the point cloud stays in COLMAP's world, as nerfstudio expects.
+//! (`w_json = A · w_colmap`); the point cloud is in the file's world too, as nerfstudio expects.
 //! docs/colmap.md works one camera through by hand.
 
 use super::align::{self, Mat3};
@@ -116,8 +116,12 @@ pub fn transforms(model: &Model, masks: bool, world: World) -> Result<Value> {
     Ok(Value::Object(top))
 }
 
-/// Writes `transforms.json` and `sparse_pc.ply` (the model's points, COLMAP's world) into `dir`.
+/// Writes `transforms.json` and `sparse_pc.ply` into `dir`; the points are in the file's world
+/// (`A · xyz`, as the frames), which is what nerfstudio's parser expects: it loads the cloud with
+/// its own orientation transform only, not with `applied_transform` (`ns-process-data` writes it
+/// the same way).
 pub fn write(dir: &Path, model: &Model, masks: bool, world: World) -> Result<()> {
+    let a = world.applied();
     fsutil::write_json(&dir.join(TRANSFORMS), &transforms(model, masks, world)?)?;
     let mut ply = format!(
         "ply\nformat ascii 1.0\nelement vertex {}\nproperty double x\nproperty double y\n\
@@ -125,7 +129,7 @@ pub fn write(dir: &Path, model: &Model, masks: bool, world: World) -> Result<()>
         model.points.len()
     );
     for pt in model.points.values() {
-        let [x, y, z] = pt.xyz;
+        let [x, y, z] = align::mul_vec(&a, &pt.xyz);
         let [r, g, b] = pt.rgb;
         ply += &format!("{x} {y} {z} {r} {g} {b}\n");
     }
@@ -135,6 +139,7 @@ pub fn write(dir: &Path, model: &Model, masks: bool, world: World) -> Result<()>
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::colmap::model::{Camera, Image, Point3D};
 
     /// A camera at (1, 2, 3) looking down −z of the world with x right: in OpenGL axes its
     /// camera-to-world rotation is the identity.
@@ -160,5 +165,67 @@ mod tests {
         // nerfstudio's default world: (x, y, z) → (x, z, −y).
         let m = transform_matrix([0.0, 1.0, 0.0, 0.0], t, &World::Colmap.applied());
         assert_eq!([m[0][3], m[1][3], m[2][3]], [1.0, 3.0, -2.0]);
+    }
+
+    /// The cloud and the frames share a world: a point 5 units in front of a camera in COLMAP's
+    /// world is 5 units along the frame's −z (OpenGL forward) in the written files, in both worlds.
+    #[test]
+    fn the_point_cloud_is_in_the_frames_world() {
+        let r = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]];
+        let c = [1.0, 2.0, 3.0];
+        let t = align::mul_vec(&r, &c).map(|v| -v);
+        let seen = [1.0, 2.0, -2.0]; // camera z (forward) = −world z: 5 in front of c
+        let model = Model {
+            cameras: [(
+                1,
+                Camera {
+                    id: 1,
+                    model: "PINHOLE".into(),
+                    width: 64,
+                    height: 48,
+                    params: vec![50.0, 50.0, 32.0, 24.0],
+                },
+            )]
+            .into(),
+            images: [(
+                1,
+                Image {
+                    id: 1,
+                    qvec: [0.0, 1.0, 0.0, 0.0],
+                    tvec: t,
+                    camera_id: 1,
+                    name: "a.jpg".into(),
+                    points2d: Vec::new(),
+                },
+            )]
+            .into(),
+            points: [(
+                7,
+                Point3D {
+                    id: 7,
+                    xyz: seen,
+                    rgb: [1, 2, 3],
+                    error: 0.5,
+                    track: vec![(1, 0)],
+                },
+            )]
+            .into(),
+        };
+        for world in [World::Colmap, World::Enu] {
+            let dir = tempfile::tempdir().unwrap();
+            write(dir.path(), &model, false, world).unwrap();
+            let ply = std::fs::read_to_string(dir.path().join(POINT_CLOUD)).unwrap();
+            let row = ply.lines().last().unwrap();
+            let v: Vec<f64> = row.split(' ').take(3).map(|x| x.parse().unwrap()).collect();
+            let m = transform_matrix([0.0, 1.0, 0.0, 0.0], t, &world.applied());
+            // Camera-frame coordinates of the point: Rᵀ of the 3×3 block times (p − centre).
+            let d: Vec<f64> = (0..3).map(|i| v[i] - m[i][3]).collect();
+            let cam: Vec<f64> = (0..3)
+                .map(|j| (0..3).map(|i| m[i][j] * d[i]).sum())
+                .collect();
+            for (got, want) in cam.iter().zip([0.0, 0.0, -5.0]) {
+                assert!((got - want).abs() < 1e-9, "{world:?}: {cam:?}");
+            }
+        }
     }
 }

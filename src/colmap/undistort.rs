@@ -154,15 +154,22 @@ pub fn remap_indices(src: &Camera, dst: &Camera) -> Result<Vec<Option<u32>>> {
 /// 8-bit grey PNG to `to`; pixels that fall outside the source are 0 (ignored, COLMAP's and
 /// nerfstudio's meaning).
 fn warp_mask(
-    from: &Path,
+    from: Option<&Path>,
     to: &Path,
     src: &Camera,
     dst: &Camera,
     map: &[Option<u32>],
 ) -> Result<()> {
-    let img = image::open(from)
-        .map_err(|e| Error::input(from, format!("cannot read the mask: {e}")))?
-        .to_luma8();
+    let img = match from {
+        Some(from) => image::open(from)
+            .map_err(|e| Error::input(from, format!("cannot read the mask: {e}")))?
+            .to_luma8(),
+        // A view without a mask keeps every pixel: only what undistortion adds is masked.
+        None => {
+            image::GrayImage::from_pixel(src.width as u32, src.height as u32, image::Luma([255]))
+        }
+    };
+    let from = from.unwrap_or(to);
     if (u64::from(img.width()), u64::from(img.height())) != (src.width, src.height) {
         let msg = format!(
             "mask is {}x{}, its image's camera {}x{}",
@@ -267,7 +274,10 @@ fn warp_masks(ws: &Path, out: &Path, source: &Model, dataset: &Model) -> Result<
     let mut n = 0;
     for im in dataset.images.values() {
         let from = ws.join("masks").join(format!("{}.png", im.name));
-        if !from.is_file() {
+        // A rig export (`<view>/<frame>`) masks only the views that see the nadir cap or a
+        // person; any other image without a mask is a broken workspace.
+        let rig_view = im.name.contains('/');
+        if !from.is_file() && !rig_view {
             return Err(Error::input(
                 &from,
                 "the workspace has masks but none for this registered image",
@@ -289,13 +299,12 @@ fn warp_masks(ws: &Path, out: &Path, source: &Model, dataset: &Model) -> Result<
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
             std::collections::hash_map::Entry::Vacant(e) => e.insert(remap_indices(&src, &dst)?),
         };
-        warp_mask(
-            &from,
-            &dir.join(format!("{}.png", im.name)),
-            &src,
-            &dst,
-            map,
-        )?;
+        let to = dir.join(format!("{}.png", im.name));
+        if let Some(parent) = to.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+        }
+        let from = from.is_file().then_some(from.as_path());
+        warp_mask(from, &to, &src, &dst, map)?;
         n += 1;
     }
     Ok(n)

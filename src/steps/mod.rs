@@ -942,7 +942,13 @@ impl Applied {
             return bad(k, format!("must be a list of frame indices below {frames}"));
         }
         match self.step().map(|s| s.validate()) {
-            Some(Err(e)) if e.key == "threshold" => bad("threshold_px", e.msg),
+            // The flag's `threshold` is recorded as `threshold_px` by these two.
+            Some(Err(e))
+                if e.key == "threshold"
+                    && matches!(self, Applied::Stationary { .. } | Applied::Spacing { .. }) =>
+            {
+                bad("threshold_px", e.msg)
+            }
             Some(Err(e)) => bad(e.key, e.msg),
             _ => Ok(()),
         }
@@ -1173,5 +1179,28 @@ mod tests {
             threshold: Threshold::Count(60),
         };
         assert_eq!(count.to_flags(), ["--spacing", "60kf"]);
+    }
+
+    #[test]
+    fn a_recorded_threshold_error_names_the_recorded_key() {
+        let spacing = Applied::Spacing {
+            auto: false,
+            backend: None,
+            count: None,
+            movement: None,
+            threshold_px: -1.0,
+        };
+        assert_eq!(spacing.check(10).unwrap_err().0, "params.threshold_px");
+        let similarity = Applied::Similarity {
+            backend: None,
+            clusters: None,
+            dim: 176,
+            embedder: "descriptor".into(),
+            k: Some(4),
+            model: None,
+            threshold: Some(0.2),
+        };
+        let (key, msg) = similarity.check(10).unwrap_err();
+        assert_eq!(key, "params.threshold", "{msg}");
     }
 }
