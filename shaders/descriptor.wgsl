@@ -12,6 +12,7 @@
 //             words apart), 1 totals (176 atomic u32, zeroed by the host), 2 params (uniform).
 // Workgroup: 16 x 16 x 1, one invocation per pixel; totals gather in workgroup memory first.
 // Twin: src/kernels/descriptor.rs `opencv` (cv::cvtColor, cv::Sobel, the same binning).
+// Prelude: border.wgsl (`reflect101`).
 
 struct Params {
     width: u32,
@@ -33,21 +34,6 @@ var<workgroup> local: array<atomic<u32>, 176>;
 
 fn byte_at(i: u32) -> u32 {
     return (src[i >> 2u] >> ((i & 3u) * 8u)) & 0xffu;
-}
-
-// OpenCV's BORDER_REFLECT_101 for one reflection.
-fn reflect101(i: i32, n: i32) -> i32 {
-    if (n == 1) {
-        return 0;
-    }
-    var j = i;
-    if (j < 0) {
-        j = -j;
-    }
-    if (j >= n) {
-        j = 2 * n - 2 - j;
-    }
-    return j;
 }
 
 fn bgr(x: u32, y: u32) -> vec3<u32> {

@@ -22,8 +22,11 @@ use opencv::imgproc;
 use opencv::prelude::*;
 use std::sync::Arc;
 
-/// WGSL source.
-pub const WGSL: &str = include_str!("../../shaders/descriptor.wgsl");
+/// WGSL source, after its prelude (shaders/border.wgsl: `reflect101`).
+pub const WGSL: &str = concat!(
+    include_str!("../../shaders/border.wgsl"),
+    include_str!("../../shaders/descriptor.wgsl")
+);
 
 /// Cells per side of the grid.
 pub const GRID: usize = 4;
