@@ -197,6 +197,13 @@ fn warp_mask(
 /// Runs `image_undistorter` on `model_dir` into `WORKSPACE/dataset`, moves its model into
 /// `sparse/0/`, removes its dense-stereo scripts and configuration, warps the masks and writes
 /// `transforms.json` (`world` says what the model's world frame is).
+/// What `image_undistorter` writes beside the dataset for COLMAP's dense stereo.
+const DENSE_EXTRAS: [&str; 3] = [
+    "run-colmap-geometric.sh",
+    "run-colmap-photometric.sh",
+    "stereo",
+];
+
 pub(super) fn make_dataset(
     runner: &Runner,
     rec: &mut Record,
@@ -205,6 +212,16 @@ pub(super) fn make_dataset(
 ) -> Result<DatasetSummary> {
     let ws = runner.ws;
     let out = ws.join(DATASET);
+    // What the undistorter writes for COLMAP's dense stereo is removed after it; anything there
+    // now is not keyframer's (its own was removed with the workspace's records), so refuse.
+    for name in DENSE_EXTRAS {
+        let f = out.join(name);
+        if std::fs::symlink_metadata(&f).is_ok() {
+            let msg = "keyframer did not write this (the undistorter's dense-stereo files are \
+                       removed after it): move it out of the workspace";
+            return Err(Error::output(&f, msg));
+        }
+    }
     rec.stages.push(runner.stage(
         "image_undistorter",
         &[
@@ -223,15 +240,13 @@ pub(super) fn make_dataset(
         std::fs::rename(&from, zero.join(name)).map_err(|e| Error::io(&from, e))?;
     }
     // What image_undistorter adds for COLMAP's own dense stereo: not part of the dataset.
-    for script in ["run-colmap-geometric.sh", "run-colmap-photometric.sh"] {
-        let f = out.join(script);
-        if f.is_file() {
-            std::fs::remove_file(&f).map_err(|e| Error::io(&f, e))?;
+    for name in DENSE_EXTRAS {
+        let f = out.join(name);
+        match std::fs::symlink_metadata(&f) {
+            Ok(m) if m.is_dir() => std::fs::remove_dir_all(&f).map_err(|e| Error::io(&f, e))?,
+            Ok(_) => std::fs::remove_file(&f).map_err(|e| Error::io(&f, e))?,
+            Err(_) => {}
         }
-    }
-    let stereo = out.join("stereo");
-    if stereo.is_dir() {
-        std::fs::remove_dir_all(&stereo).map_err(|e| Error::io(&stereo, e))?;
     }
     let (dataset, _) = model::read(&zero)?;
     for cam in dataset.cameras.values() {
