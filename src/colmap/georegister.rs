@@ -2,7 +2,8 @@
 //! telemetry or EXIF GPS) by COLMAP's `model_aligner` (robust, with scale) in the local ENU frame
 //! of the first position (x east, y north, z up, metres), written to `WORKSPACE/georegistered/`
 //! with `georegistration.json` (ENU origin, the similarity taking the model into ENU, the residual
-//! of every aligned camera centre). Guarantees: fewer than three positions, or positions on one
+//! of every aligned camera centre) and `cameras.geojson` (every aligned camera centre on Earth, for
+//! a GIS). Guarantees: fewer than three positions, or positions on one
 //! line (the rotation about it would be a guess), are refused with the reason before COLMAP
 //! runs; the residuals are computed by keyframer from the written model, not copied from
 //! COLMAP's log.
@@ -22,6 +23,8 @@ pub const GEOREGISTERED: &str = "georegistered";
 pub const RECORD: &str = "georegistration.json";
 /// The reference positions given to `model_aligner` (image name, latitude, longitude, altitude).
 const REFERENCE: &str = "positions.txt";
+/// The aligned camera centres as GeoJSON points (WGS84 longitude, latitude, altitude).
+pub const CAMERAS: &str = "cameras.geojson";
 /// Default inlier threshold of the robust alignment, metres.
 pub const DEFAULT_MAX_ERROR_M: f64 = 3.0;
 /// Positions whose RMS distance from their best-fitting line is below this many metres, or
@@ -100,6 +103,44 @@ pub fn enu(origin: &GeoPosition, p: &GeoPosition) -> Vec3 {
         [phi.cos() * lam.cos(), phi.cos() * lam.sin(), phi.sin()],
     ];
     align::mul_vec(&r, &d)
+}
+
+/// The WGS84 latitude, longitude (degrees) and altitude (metres) of ECEF coordinates: the
+/// inverse of [`ecef`] (Bowring's start, then fixed-point steps; under a micrometre within a
+/// few hundred kilometres of the surface).
+pub fn geodetic(x: Vec3) -> (f64, f64, f64) {
+    const A: f64 = 6_378_137.0;
+    const E2: f64 = 6.694_379_990_14e-3;
+    let p = x[0].hypot(x[1]);
+    let lon = x[1].atan2(x[0]);
+    let mut lat = x[2].atan2(p * (1.0 - E2));
+    let mut alt = 0.0;
+    for _ in 0..6 {
+        let n = A / (1.0 - E2 * lat.sin().powi(2)).sqrt();
+        alt = if lat.cos().abs() > 1e-9 {
+            p / lat.cos() - n
+        } else {
+            x[2].abs() - n * (1.0 - E2)
+        };
+        lat = x[2].atan2(p * (1.0 - E2 * n / (n + alt)));
+    }
+    (lat.to_degrees(), lon.to_degrees(), alt)
+}
+
+/// The WGS84 position of `v` (east, north, up metres in the tangent frame at `origin`): the
+/// inverse of [`enu`].
+pub fn from_enu(origin: &GeoPosition, v: Vec3) -> (f64, f64, f64) {
+    let o = ecef(origin.lat_deg, origin.lon_deg, origin.alt_m);
+    let (phi, lam) = (origin.lat_deg.to_radians(), origin.lon_deg.to_radians());
+    // The columns of `enu`'s rotation: ECEF directions of east, north, up.
+    let (e, n, u) = (
+        [-lam.sin(), lam.cos(), 0.0],
+        [-phi.sin() * lam.cos(), -phi.sin() * lam.sin(), phi.cos()],
+        [phi.cos() * lam.cos(), phi.cos() * lam.sin(), phi.sin()],
+    );
+    geodetic(std::array::from_fn(|k| {
+        o[k] + e[k] * v[0] + n[k] * v[1] + u[k] * v[2]
+    }))
 }
 
 /// Refuses positions a similarity cannot be fitted to: fewer than three, or collinear (their
@@ -318,6 +359,7 @@ pub(super) fn georegister(
         residuals,
     };
     fsutil::write_json(&out.join(RECORD), &g)?;
+    fsutil::write_json(&out.join(CAMERAS), &cameras_geojson(&aligned, &pos, &g))?;
     if !runner.quiet {
         eprintln!(
             "georegistered: {} images, residual mean {:.3} m, median {:.3} m, max {:.3} m, scale {:.6}",
@@ -325,6 +367,45 @@ pub(super) fn georegister(
         );
     }
     Ok((out, g))
+}
+
+/// The aligned model's camera centres as a GeoJSON FeatureCollection of 3D points (longitude,
+/// latitude, altitude of `g.altitude`'s kind: RFC 7946's WGS84), in image-name order, each with its
+/// image name, its position's distance (`residual_m`, when it has one) and the camera's viewing
+/// direction as a compass bearing and an elevation angle, in degrees.
+fn cameras_geojson(
+    model: &Model,
+    positions: &[GeoPosition],
+    g: &Georegistration,
+) -> serde_json::Value {
+    let mut images: Vec<_> = model.images.values().collect();
+    images.sort_by(|a, b| a.name.cmp(&b.name));
+    let features: Vec<serde_json::Value> = (images.iter())
+        .map(|im| {
+            let c = im.centre();
+            let (lat, lon, alt) = from_enu(&g.origin, c);
+            let residual = (positions.iter().find(|p| p.name == im.name))
+                .map(|p| align::dist(&c, &enu(&g.origin, p)));
+            // The viewing direction (the camera's +z) in ENU: the third row of world-to-camera.
+            let z = align::quat_to_mat(im.qvec)[2];
+            serde_json::json!({
+                "type": "Feature",
+                "geometry": {"type": "Point", "coordinates": [lon, lat, alt]},
+                "properties": {
+                    "name": im.name,
+                    "residual_m": residual,
+                    "bearing_deg": z[0].atan2(z[1]).to_degrees().rem_euclid(360.0),
+                    "elevation_deg": z[2].clamp(-1.0, 1.0).asin().to_degrees(),
+                },
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "type": "FeatureCollection",
+        "name": "cameras",
+        "altitude": g.altitude,
+        "features": features,
+    })
 }
 
 /// The residuals of a workspace's georegistered model against the export's positions, as
@@ -348,6 +429,29 @@ mod tests {
             lat_deg: lat,
             lon_deg: lon,
             alt_m: alt,
+        }
+    }
+
+    #[test]
+    fn geodetic_and_from_enu_invert_ecef_and_enu() {
+        for (lat, lon, alt) in [
+            (-33.8568, -70.6012, 520.5),
+            (0.0, 0.0, 0.0),
+            (89.9, 179.9, -100.0),
+            (47.3, 8.5, 3000.0),
+        ] {
+            let (la, lo, al) = geodetic(ecef(lat, lon, alt));
+            assert!(
+                (la - lat).abs() < 1e-9 && (lo - lon).abs() < 1e-9,
+                "{la} {lo}"
+            );
+            assert!((al - alt).abs() < 1e-6, "{al} vs {alt}");
+            let origin = at(lat, lon, alt);
+            for v in [[0.0, 0.0, 0.0], [1500.0, -800.0, 35.0], [-20.0, 40.0, -3.0]] {
+                let (la, lo, al) = from_enu(&origin, v);
+                let back = enu(&origin, &at(la, lo, al));
+                assert!(align::dist(&back, &v) < 1e-6, "{v:?} -> {back:?}");
+            }
         }
     }
 

@@ -226,6 +226,71 @@ fn georegistered_model_lies_on_the_telemetry_in_metres_north_up() {
     );
 }
 
+/// `georegistered/cameras.geojson`, what a GIS opens: one point per registered camera, at the
+/// telemetry's longitude and latitude within 0.5 m and its altitude within 0.5 m (the distances
+/// computed here from degrees with the WGS84 radii of curvature, independent of keyframer's
+/// ECEF route), looking where the true camera looks (bearing and elevation within 1°).
+#[test]
+fn georegistered_cameras_are_points_on_the_map() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    let ws = workspace();
+    let (m, _) = model::read(&ws.join("georegistered")).unwrap();
+    let truth = truth(&m);
+    let g = json(&ws.join("georegistered/cameras.geojson"));
+    assert_eq!(g["type"], "FeatureCollection");
+    let features = g["features"].as_array().unwrap();
+    assert_eq!(features.len(), m.images.len());
+    let manifest = json(&export().1.join("manifest.json"));
+    for (name, _, r_true) in &truth {
+        let f = (features.iter())
+            .find(|f| f["properties"]["name"] == name.as_str())
+            .unwrap_or_else(|| panic!("{name} is not in cameras.geojson"));
+        assert_eq!(f["geometry"]["type"], "Point");
+        let c: Vec<f64> = (f["geometry"]["coordinates"].as_array().unwrap().iter())
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let frame = (manifest["frames"].as_array().unwrap().iter())
+            .find(|fr| fr["file"] == name.as_str())
+            .unwrap();
+        let p = &frame["position"];
+        let (lat, lon, alt) = (
+            p["lat_deg"].as_f64().unwrap(),
+            p["lon_deg"].as_f64().unwrap(),
+            p["abs_alt_m"].as_f64().unwrap(),
+        );
+        // Metres per degree from the WGS84 meridian and prime-vertical radii at this latitude.
+        let (a, e2, phi) = (6_378_137.0_f64, 6.694_379_990_14e-3, lat.to_radians());
+        let w = (1.0 - e2 * phi.sin().powi(2)).sqrt();
+        let north = (c[1] - lat).to_radians() * a * (1.0 - e2) / w.powi(3);
+        let east = (c[0] - lon).to_radians() * a / w * phi.cos();
+        let d = north.hypot(east);
+        assert!(d < 0.5, "{name}: {d} m from its telemetry position");
+        assert!(
+            (c[2] - alt).abs() < 0.5,
+            "{name}: altitude {} vs {alt}",
+            c[2]
+        );
+        let residual = f["properties"]["residual_m"].as_f64().unwrap();
+        assert!(residual < 0.5, "{name}: residual {residual}");
+        // The true viewing direction: the camera-to-world rotation's third column (x east,
+        // y north, z up: the georegistered test above shows the scene's axes are ENU's).
+        let v = [r_true[0][2], r_true[1][2], r_true[2][2]];
+        let bearing = v[0].atan2(v[1]).to_degrees().rem_euclid(360.0);
+        let elevation = v[2].asin().to_degrees();
+        let got_b = f["properties"]["bearing_deg"].as_f64().unwrap();
+        let got_e = f["properties"]["elevation_deg"].as_f64().unwrap();
+        let db = ((got_b - bearing + 540.0).rem_euclid(360.0) - 180.0).abs();
+        assert!(db < 1.0, "{name}: bearing {got_b} vs {bearing}");
+        assert!(
+            (got_e - elevation).abs() < 1.0,
+            "{name}: elevation {got_e} vs {elevation}"
+        );
+    }
+}
+
 /// `dataset/`: PINHOLE cameras; every registered image present at its camera's size with its
 /// mask; the masks keep the export's edge where the undistortion puts it; every 3D point reprojects
 /// into the undistorted images where COLMAP observes it (median 0.5 px); and keyframer's
