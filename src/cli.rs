@@ -837,7 +837,8 @@ pub struct ColmapFlags {
     /// Feature matching strategy: sequential (video order) or exhaustive (all pairs).
     #[arg(long, value_parser = named::<Matcher>(), default_value_t = keyframer::sparse::defaults::MATCHER)]
     pub matcher: Matcher,
-    /// Sequential matching: match each image with this many following images.
+    /// Sequential matching: match each image with this many following images (a rig export:
+    /// every view of a keyframe with every view of this many following keyframes).
     #[arg(long, default_value_t = keyframer::sparse::defaults::OVERLAP)]
     pub overlap: u32,
     /// COLMAP camera model shared by all images (SIMPLE_RADIAL, PINHOLE, OPENCV, ...).

@@ -9,6 +9,7 @@ pub mod align;
 pub mod extend;
 pub mod georegister;
 pub mod model;
+pub mod rig_pairs;
 pub mod transforms;
 pub mod undistort;
 
@@ -26,7 +27,7 @@ pub const RECORD: &str = "colmap.json";
 /// Environment variable naming the COLMAP binary to use instead of `colmap` on PATH.
 pub const COLMAP_ENV: &str = "KEYFRAMER_COLMAP";
 /// What keyframer creates in a workspace; `--force` removes exactly these.
-const OURS: [&str; 13] = [
+const OURS: [&str; 14] = [
     "images",
     "masks",
     "sparse",
@@ -39,8 +40,11 @@ const OURS: [&str; 13] = [
     "database.db-shm",
     "database.db-wal",
     "project.ini",
+    RIG_PAIRS,
     RECORD,
 ];
+/// The match pairs of a rig export (`matches_importer`, [`rig_pairs`]).
+const RIG_PAIRS: &str = "rig_pairs.txt";
 
 /// What `colmap` does: the export to reconstruct and COLMAP's options; each field is the flag
 /// of the same name, whose help (`keyframer colmap --help`) says what it does.
@@ -497,6 +501,24 @@ fn extract_and_match(
     rec.stages.push(runner.stage("feature_extractor", &fe)?);
     rec.matcher = Some(o.matcher);
     let (name, mut args) = match o.matcher {
+        Matcher::Sequential if rec.per_folder && image_list.is_none() => {
+            // A rig: the views of a keyframe and of the next `overlap` keyframes.
+            rec.overlap = Some(o.overlap);
+            let list = ws.join(RIG_PAIRS);
+            let names = rig_image_names(&ws.join("images"))?;
+            let text: String = rig_pairs::pairs(&names, o.overlap as usize)
+                .iter()
+                .map(|(a, b)| format!("{a} {b}\n"))
+                .collect();
+            crate::fsutil::write_atomic(&list, text.as_bytes())?;
+            (
+                "matches_importer",
+                vec![
+                    ("--match_list_path", p(&list)),
+                    ("--match_type", "pairs".into()),
+                ],
+            )
+        }
         Matcher::Sequential => {
             rec.overlap = Some(o.overlap);
             (
@@ -510,6 +532,27 @@ fn extract_and_match(
     args.push(("--SiftMatching.use_gpu", gpu.into()));
     rec.stages.push(runner.stage(name, &args)?);
     Ok(())
+}
+
+/// The image names (`view/file`) of a rig workspace's `images` folder.
+fn rig_image_names(images: &Path) -> Result<Vec<String>> {
+    let mut out = Vec::new();
+    let read = |dir: &Path| std::fs::read_dir(dir).map_err(|e| Error::io(dir, e));
+    for view in read(images)? {
+        let view = view.map_err(|e| Error::io(images, e))?.path();
+        if !view.is_dir() {
+            continue;
+        }
+        let vname = view.file_name().map(|n| n.to_string_lossy().to_string());
+        for f in read(&view)? {
+            let f = f.map_err(|e| Error::io(&view, e))?;
+            if let Some(v) = &vname {
+                out.push(format!("{v}/{}", f.file_name().to_string_lossy()));
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
 }
 
 /// The `mapper` (known intrinsics kept fixed unless a mapper option says otherwise); records

@@ -287,6 +287,12 @@ fn warp_masks(ws: &Path, out: &Path, source: &Model, dataset: &Model) -> Result<
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let mut maps: HashMap<(u32, u32), Vec<Option<u32>>> = HashMap::new();
     let mut n = 0;
+    // The source model's images by name (a rig export has thousands: no scan per image).
+    let by_name: HashMap<&str, &model::Image> = source
+        .images
+        .values()
+        .map(|s| (s.name.as_str(), s))
+        .collect();
     for im in dataset.images.values() {
         let from = ws.join("masks").join(format!("{}.png", im.name));
         // A rig export (`<view>/<frame>`) masks only the views that see the nadir cap or a
@@ -298,7 +304,7 @@ fn warp_masks(ws: &Path, out: &Path, source: &Model, dataset: &Model) -> Result<
                 "the workspace has masks but none for this registered image",
             ));
         }
-        let src_im = (source.images.values().find(|s| s.name == im.name))
+        let src_im = (by_name.get(im.name.as_str()).copied())
             .ok_or_else(|| Error::Colmap(format!("{}: not in the undistorted model", im.name)))?;
         let camera = |m: &Model, id: u32| {
             m.cameras

@@ -36,3 +36,4 @@ mod sharpness;
 mod similarity;
 mod standalone;
 mod telemetry;
+mod walk;

@@ -16,6 +16,9 @@ pub enum PresetArg {
     Orbit,
     /// The survey with three hovers of 10 % of the length each (1-5 s); 55 s.
     HoverSurvey,
+    /// A person's walk (camera 1.6 m above the ground, level) down an L-shaped street of
+    /// textured blocks, with a stop and a 90° turn on the spot; 21.5 s.
+    Walk,
 }
 
 /// Renders a synthetic drone sequence (video.mp4, video.SRT, poses.tum, scene.json): a development tool of
@@ -70,6 +73,10 @@ pub struct SceneArgs {
     /// level), for video.SRT.
     #[arg(long, default_value = "47.3769,8.5417,408")]
     pub origin: String,
+    /// Camera model: pinhole (FOCAL_PER_WIDTH) or equirect (360°: --size must be 2:1; six cube
+    /// faces rendered and resampled to ERP with keyframer's conventions, docs/360.md).
+    #[arg(long, default_value = "pinhole", value_name = "pinhole|equirect")]
+    pub projection: String,
     /// Camera pitch below the horizon in degrees for the survey presets (default 45; 90 looks
     /// straight down).
     #[arg(long, value_name = "DEG")]
@@ -135,7 +142,9 @@ impl SceneArgs {
                 PresetArg::Survey => Preset::Survey,
                 PresetArg::Orbit => Preset::Orbit,
                 PresetArg::HoverSurvey => Preset::HoverSurvey,
+                PresetArg::Walk => Preset::Walk,
             },
+            projection: self.projection.parse()?,
             seconds: self.seconds,
             fps: self.fps,
             width,

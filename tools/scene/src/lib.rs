@@ -1,7 +1,8 @@
 //! Development tools of keyframer, kept out of the product (this crate depends on the `keyframer`
 //! library, never the other way round):
 //!
-//! - `keyframer-scene`: a synthetic drone sequence rendered with wgpu (this module). Writes into
+//! - `keyframer-scene`: a synthetic drone flight, or a person's walk down a street ([`walk`]),
+//!   rendered with wgpu through a pinhole or a 360° equirectangular camera ([`erp`]). Writes into
 //!   an output folder, each file atomically and `scene.json` last: `video.mp4` (H.264, yuv420p,
 //!   constant frame rate, `creation_time` set), `video.SRT` (DJI-style telemetry: every
 //!   frame's true camera position as latitude/longitude/altitude, [`srt`]), `poses.tum` (one
@@ -12,17 +13,21 @@
 
 pub mod bench_clip;
 pub mod cli;
+pub mod erp;
 pub mod math;
 pub mod path;
 pub mod render;
 pub mod srt;
+pub mod walk;
 pub mod world;
 
 mod encode;
 
+use erp::ErpCamera;
+use keyframer::equirect::Projection;
 use keyframer::error::{Error, Result};
 use math::{Pose, V3};
-use path::{Flight, Preset};
+use path::{Flight, Hover, Preset};
 use render::{Instance, Intrinsics, Renderer, SceneData, SubSample};
 use std::path::PathBuf;
 use world::{Kind, Object, Terrain};
@@ -73,6 +78,8 @@ pub struct SceneSettings {
     pub origin: srt::GeoOrigin,
     /// Camera pitch below the horizon of the survey presets, degrees (None: 45; 90: nadir).
     pub pitch_deg: Option<f64>,
+    /// Camera model: pinhole, or 360° equirectangular (`width` = 2 `height`).
+    pub projection: Projection,
 }
 
 /// An inclusive range of frame indices.
@@ -121,8 +128,12 @@ pub struct SceneDescription {
     pub shutter_s: f64,
     /// What a pose's timestamp means.
     pub pose_time: String,
-    /// Pinhole camera (COLMAP PINHOLE, pixel centres at +0.5).
-    pub intrinsics: Intrinsics,
+    /// Camera model of the frames: `pinhole` (see `intrinsics`) or `equirect` (360°, the
+    /// conventions of keyframer's docs/360.md; the camera frame of poses.tum is the ERP's).
+    pub projection: Projection,
+    /// Pinhole camera (COLMAP PINHOLE, pixel centres at +0.5); absent for `equirect`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub intrinsics: Option<Intrinsics>,
     /// Conventions of poses.tum and the world.
     pub conventions: Conventions,
     /// Hover holds (frames whose whole shutter lies inside a hold).
@@ -227,6 +238,21 @@ fn validate(s: &SceneSettings) -> Result<f64> {
             ));
         }
     }
+    if s.projection == Projection::Equirect && s.width != 2 * s.height {
+        return Err(Error::param(
+            "--size",
+            format!(
+                "an equirect frame is 2:1 (e.g. 1024x512), got {}x{}",
+                s.width, s.height
+            ),
+        ));
+    }
+    if s.pitch_deg.is_some() && s.preset == Preset::Walk {
+        return Err(Error::param(
+            "--pitch",
+            "the walk's camera is level; --pitch is for the survey presets",
+        ));
+    }
     let seconds = s.seconds.unwrap_or(s.preset.default_seconds());
     if !(seconds.is_finite() && seconds > 0.0) {
         return Err(Error::param("--seconds", "must be positive"));
@@ -250,22 +276,124 @@ fn yaw(p: &Pose) -> f64 {
     p.rot[2].1.atan2(p.rot[2].0)
 }
 
+/// Where the camera goes: a drone's flight or a person's walk.
+enum Route {
+    Flight(Flight),
+    Walk(walk::Walk),
+}
+
+impl Route {
+    fn pose(&self, t: f64) -> Pose {
+        match self {
+            Route::Flight(f) => f.pose(t),
+            Route::Walk(w) => w.pose(t),
+        }
+    }
+    fn duration(&self) -> f64 {
+        match self {
+            Route::Flight(f) => f.duration(),
+            Route::Walk(w) => w.duration(),
+        }
+    }
+    /// Times the camera centre holds still.
+    fn holds(&self) -> Vec<Hover> {
+        match self {
+            Route::Flight(f) => f.hovers().to_vec(),
+            Route::Walk(w) => w.holds(),
+        }
+    }
+    fn ground_track(&self, seconds: f64, step: f64) -> Vec<(f64, f64)> {
+        match self {
+            Route::Flight(f) => f.ground_track(seconds, step),
+            Route::Walk(w) => w.ground_track(step),
+        }
+    }
+}
+
+/// The camera that turns a pose into an image.
+enum Camera<'a> {
+    Pinhole(Intrinsics),
+    Equirect(&'a ErpCamera),
+}
+
+impl Camera<'_> {
+    /// Directions (camera frame) of a coarse grid of pixels.
+    fn sample_directions(&self, w: f64, h: f64) -> Vec<V3> {
+        match self {
+            Camera::Pinhole(k) => (0..25)
+                .map(|g| {
+                    let (u, v) = (
+                        w * ((g % 5) as f64 + 0.5) / 5.0,
+                        h * ((g / 5) as f64 + 0.5) / 5.0,
+                    );
+                    V3((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0).unit()
+                })
+                .collect(),
+            Camera::Equirect(e) => e.sample_directions(),
+        }
+    }
+    /// Image distance (pixels) between camera-frame points `a` and `b` (`None` where a pinhole
+    /// camera has one of them behind it).
+    fn shift(&self, a: V3, b: V3) -> Option<f64> {
+        match self {
+            Camera::Pinhole(k) => {
+                if a.2 < 0.5 || b.2 < 0.5 {
+                    return None;
+                }
+                let (ua, va) = k.project(a);
+                let (ub, vb) = k.project(b);
+                Some((ua - ub).hypot(va - vb))
+            }
+            Camera::Equirect(e) => {
+                let cos = a.unit().dot(b.unit()).clamp(-1.0, 1.0);
+                Some(cos.acos() * f64::from(e.width) / std::f64::consts::TAU)
+            }
+        }
+    }
+    /// Whether camera-frame point `q` is in (or near: 20 % of the size) a `w` x `h` image.
+    fn sees(&self, q: V3, w: f64, h: f64) -> bool {
+        match self {
+            Camera::Pinhole(k) => {
+                if q.2 < 0.5 {
+                    return false;
+                }
+                let (u, v) = k.project(q);
+                u >= -0.2 * w && u <= 1.2 * w && v >= -0.2 * h && v <= 1.2 * h
+            }
+            Camera::Equirect(_) => true,
+        }
+    }
+}
+
 fn instances(objects: &[Object], t: f64, terrain: &Terrain) -> Vec<Instance> {
     let mut v = vec![Instance::terrain()];
     for o in objects {
         let (c, yaw) = o.placement(t, terrain);
         let q = o.quadrant;
-        let rect = [0.5 * (q % 2) as f32, 0.5 * (q / 2) as f32, 0.5, 0.5];
-        let kind = if o.kind == Kind::Marker { 2.0 } else { 1.0 };
+        let (rect, kind) = match o.kind {
+            // A wall's part of the terrain texture: a 4 x 3 grid of 0.04-wide cells (see
+            // scene.wgsl's wall_shift).
+            Kind::Wall => (
+                [
+                    0.40 + 0.045 * (q % 4) as f32,
+                    0.42 + 0.045 * (q / 4 % 3) as f32,
+                    0.04,
+                    0.04,
+                ],
+                3.0,
+            ),
+            Kind::Marker => ([0.0, 0.0, 0.5, 0.5], 2.0),
+            _ => ([0.5 * (q % 2) as f32, 0.5 * (q / 2) as f32, 0.5, 0.5], 1.0),
+        };
         let tint = [o.tint[0] as f32, o.tint[1] as f32, o.tint[2] as f32, kind];
         v.push(Instance::boxed(c, yaw, o.size, rect, tint));
     }
     v
 }
 
-/// Where the ray through pixel (u, v) of `pose` first meets the terrain (marching 1 m steps).
-fn ray_hit(pose: &Pose, k: &Intrinsics, u: f64, v: f64, terrain: &Terrain) -> Option<V3> {
-    let d = V3((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0).unit();
+/// Where the ray from `pose` along camera-frame direction `d` first meets the terrain (marching
+/// 1 m steps).
+fn ray_hit(pose: &Pose, d: V3, terrain: &Terrain) -> Option<V3> {
     let r = &pose.rot;
     let dir = r[0] * d.0 + r[1] * d.1 + r[2] * d.2;
     (1..1500)
@@ -274,50 +402,33 @@ fn ray_hit(pose: &Pose, k: &Intrinsics, u: f64, v: f64, terrain: &Terrain) -> Op
 }
 
 /// Largest image displacement (pixels) of the visible content between the start and the end of
-/// frame `i`'s shutter: terrain points seen through a 5x5 pixel grid, and the visible cars.
+/// frame `i`'s shutter: terrain points seen through a coarse grid of pixels, and the visible cars.
 fn shutter_motion(
     i: usize,
     s: &SceneSettings,
-    flight: &Flight,
+    route: &Route,
     terrain: &Terrain,
     objects: &[Object],
-    k: &Intrinsics,
+    cam: &Camera,
 ) -> f64 {
     let t = i as f64 / s.fps;
     let half = 0.5 * SHUTTER / s.fps;
-    let (pa, pm, pb) = (flight.pose(t - half), flight.pose(t), flight.pose(t + half));
+    let (pa, pm, pb) = (route.pose(t - half), route.pose(t), route.pose(t + half));
     let (w, h) = (s.width as f64, s.height as f64);
-    let shift = |a: V3, b: V3| -> f64 {
-        let (qa, qb) = (pa.to_camera(a), pb.to_camera(b));
-        if qa.2 < 0.5 || qb.2 < 0.5 {
-            return 0.0;
-        }
-        let (ua, va) = k.project(qa);
-        let (ub, vb) = k.project(qb);
-        (ua - ub).hypot(va - vb)
-    };
     let mut m: f64 = 0.0;
-    for gy in 0..5 {
-        for gx in 0..5 {
-            let (u, v) = (w * (gx as f64 + 0.5) / 5.0, h * (gy as f64 + 0.5) / 5.0);
-            if let Some(p) = ray_hit(&pm, k, u, v, terrain) {
-                m = m.max(shift(p, p));
-            }
+    for d in cam.sample_directions(w, h) {
+        if let Some(p) = ray_hit(&pm, d, terrain) {
+            m = m.max(cam.shift(pa.to_camera(p), pb.to_camera(p)).unwrap_or(0.0));
         }
     }
     for o in objects.iter().filter(|o| o.path.is_some()) {
         let (c, _) = o.placement(t, terrain);
-        let q = pm.to_camera(c);
-        if q.2 < 0.5 {
-            continue;
-        }
-        let (u, v) = k.project(q);
-        if u < -0.2 * w || u > 1.2 * w || v < -0.2 * h || v > 1.2 * h {
+        if !cam.sees(pm.to_camera(c), w, h) {
             continue;
         }
         let (a, _) = o.placement(t - half, terrain);
         let (b, _) = o.placement(t + half, terrain);
-        m = m.max(shift(a, b));
+        m = m.max(cam.shift(pa.to_camera(a), pb.to_camera(b)).unwrap_or(0.0));
     }
     m
 }
@@ -379,28 +490,43 @@ fn check_sidecar_is_ours(out: &std::path::Path) -> Result<()> {
 /// Renders the sequence into the prepared folder `s.out`.
 fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let frames = (seconds * s.fps).round() as usize;
-    let terrain = Terrain::new(s.seed);
-    let mut flight = Flight::new(s.preset, seconds, s.seed, &|x, y| terrain.height(x, y));
-    if let Some(p) = s.pitch_deg {
-        flight = flight.with_camera_pitch(p);
-    }
+    let terrain = match s.preset {
+        Preset::Walk => Terrain::new(s.seed).levelled(walk::STREET_CENTRE, 30.0, 40.0),
+        _ => Terrain::new(s.seed),
+    };
+    let route = if s.preset == Preset::Walk {
+        Route::Walk(walk::Walk::new(&terrain))
+    } else {
+        let mut flight = Flight::new(s.preset, seconds, s.seed, &|x, y| terrain.height(x, y));
+        if let Some(p) = s.pitch_deg {
+            flight = flight.with_camera_pitch(p);
+        }
+        Route::Flight(flight)
+    };
     let last_t = (frames - 1) as f64 / s.fps + 0.5 * SHUTTER / s.fps;
-    if last_t > flight.duration() {
+    if last_t > route.duration() {
         return Err(Error::param(
             "--seconds",
             format!(
                 "the {} path lasts {:.1} s; ask for at most that",
                 s.preset.name(),
-                flight.duration()
+                route.duration()
             ),
         ));
     }
-    let objects = world::objects(
-        s.seed,
-        &terrain,
-        &flight.ground_track(seconds, 5.0),
-        s.markers,
-    );
+    let track = route.ground_track(seconds, 5.0);
+    let objects = match s.preset {
+        Preset::Walk => {
+            let mut v = walk::street(s.seed, &terrain);
+            v.extend(
+                world::objects(s.seed, &terrain, &track, s.markers)
+                    .into_iter()
+                    .filter(|o| o.kind == Kind::Marker),
+            );
+            v
+        }
+        _ => world::objects(s.seed, &terrain, &track, s.markers),
+    };
     let t0 = std::time::Instant::now();
     log::info!("building textures from {}", s.textures.display());
     let terrain_tex = world::terrain_texture(&s.textures, s.seed, world::TERRAIN_TEX)?;
@@ -411,7 +537,12 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     // The product asks for downlevel limits (2048-texel textures); the terrain texture and large
     // frames need more. Asking for no more than the adapter has leaves the error to the renderer,
     // which names the size it needs.
-    let texels = world::TERRAIN_TEX.max(s.width).max(s.height);
+    let erp = (s.projection == Projection::Equirect).then(|| ErpCamera::new(s.width));
+    let (rw, rh) = match &erp {
+        Some(e) => (e.face_size, e.face_size),
+        None => (s.width, s.height),
+    };
+    let texels = world::TERRAIN_TEX.max(rw).max(rh);
     let ctx = keyframer::gpu::GpuContext::with_limits(s.adapter.as_deref(), |limits, have| {
         limits.max_texture_dimension_2d = limits
             .max_texture_dimension_2d
@@ -424,21 +555,28 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
         atlas: &atlas,
         instances: 1 + objects.len() as u32,
     };
-    let renderer = Renderer::new(&ctx, &data, s.width, s.height, s.blur_samples)?;
+    let renderer = Renderer::new(&ctx, &data, rw, rh, s.blur_samples)?;
     log::info!("renderer ready after {:.1} s", t0.elapsed().as_secs_f64());
     drop(terrain_tex);
     drop(atlas);
-    let k = Intrinsics {
-        fx: FOCAL_PER_WIDTH * s.width as f64,
-        fy: FOCAL_PER_WIDTH * s.width as f64,
-        cx: 0.5 * s.width as f64,
-        cy: 0.5 * s.height as f64,
+    let k = match &erp {
+        Some(e) => e.intrinsics(),
+        None => Intrinsics {
+            fx: FOCAL_PER_WIDTH * s.width as f64,
+            fy: FOCAL_PER_WIDTH * s.width as f64,
+            cx: 0.5 * s.width as f64,
+            cy: 0.5 * s.height as f64,
+        },
+    };
+    let cam = match &erp {
+        Some(e) => Camera::Equirect(e),
+        None => Camera::Pinhole(k),
     };
     let sun = SUN.unit();
     let sun4 = [sun.0 as f32, sun.1 as f32, sun.2 as f32, 0.0];
     let video = s.out.join("video.mp4");
     let mut enc = encode::Encoder::start(&video, s.width, s.height, s.fps, srt::START_UTC)?;
-    let first = flight.pose(0.0).centre;
+    let first = route.pose(0.0).centre;
     let telemetry = Telemetry {
         origin: s.origin,
         takeoff_z_m: terrain.height(first.0, first.1),
@@ -455,28 +593,43 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     let mut sub_counts = Vec::with_capacity(frames);
     let chunks = terrain.chunk_bounds();
     for i in 0..frames {
-        let motion = shutter_motion(i, s, &flight, &terrain, &objects, &k);
+        let motion = shutter_motion(i, s, &route, &terrain, &objects, &cam);
         let count = ((motion / MAX_SUB_STEP_PX).ceil() as u32).clamp(1, s.blur_samples);
         sub_counts.push(count);
-        let subs: Vec<SubSample> = sub_times(i, s.fps, count)
-            .into_iter()
-            .map(|t| {
-                let pose = flight.pose(t);
-                SubSample {
-                    clip: render::clip_matrix(&pose, &k, s.width, s.height),
-                    instances: instances(&objects, t, &terrain),
-                    terrain: render::visible_chunks(&pose, &k, s.width, s.height, &chunks),
-                }
-            })
-            .collect();
-        let rgba = renderer.frame(&subs, sun4)?;
+        let times = sub_times(i, s.fps, count);
+        let subs = |face: Option<usize>| -> Vec<SubSample> {
+            times
+                .iter()
+                .map(|&t| {
+                    let pose = route.pose(t);
+                    let pose = match (&erp, face) {
+                        (Some(e), Some(f)) => e.face_pose(&pose, f),
+                        _ => pose,
+                    };
+                    SubSample {
+                        clip: render::clip_matrix(&pose, &k, rw, rh),
+                        instances: instances(&objects, t, &terrain),
+                        terrain: render::visible_chunks(&pose, &k, rw, rh, &chunks),
+                    }
+                })
+                .collect()
+        };
+        let rgba = match &erp {
+            Some(e) => {
+                let faces = (0..e.faces())
+                    .map(|f| renderer.frame(&subs(Some(f)), sun4))
+                    .collect::<Result<Vec<_>>>()?;
+                e.resample(&faces)
+            }
+            None => renderer.frame(&subs(None), sun4)?,
+        };
         enc.write(&rgba)?;
         let t = i as f64 / s.fps;
-        let pose = flight.pose(t);
+        let pose = route.pose(t);
         tum.push_str(&tum_line(t, &pose));
         sidecar.push_str(&srt::entry(i, s.fps, &pose, &telemetry));
         let h = 0.01;
-        let (a, b) = (flight.pose(t - h), flight.pose(t + h));
+        let (a, b) = (route.pose(t - h), route.pose(t + h));
         let mut d = yaw(&b) - yaw(&a);
         d = (d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
         yaw_rates.push((d / (2.0 * h)).to_degrees().abs());
@@ -491,8 +644,8 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
     keyframer::fsutil::write_atomic(&s.out.join("video.SRT"), sidecar.as_bytes())?;
 
     let half_shutter = 0.5 * SHUTTER / s.fps;
-    let hovers = flight
-        .hovers()
+    let hovers = route
+        .holds()
         .iter()
         .filter_map(|h| {
             let inside: Vec<usize> = (0..frames)
@@ -553,7 +706,8 @@ fn render_scene(s: &SceneSettings, seconds: f64) -> Result<SceneReport> {
             "mid-shutter: frame i is exposed over [i/fps - shutter_s/2, i/fps + shutter_s/2] \
                     (1 to blur_samples renders spread evenly over it and averaged: as many as keep the image motion between neighbouring renders under 1.25 px); its pose is at i/fps"
                 .into(),
-        intrinsics: k,
+        projection: s.projection,
+        intrinsics: erp.is_none().then_some(k),
         conventions: Conventions {
             poses: "poses.tum: `timestamp tx ty tz qx qy qz qw` per video frame, timestamp = \
                     frame index / fps; camera-to-world: t is the camera centre in the world, q \

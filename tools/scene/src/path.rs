@@ -14,6 +14,9 @@ pub enum Preset {
     Orbit,
     /// The survey with three hovers (holds) of several seconds.
     HoverSurvey,
+    /// A person's walk down an L-shaped street with a stop and a turn on the spot
+    /// ([`crate::walk`]).
+    Walk,
 }
 
 impl Preset {
@@ -23,6 +26,7 @@ impl Preset {
             Preset::Survey => 45.0,
             Preset::Orbit => 50.0,
             Preset::HoverSurvey => 55.0,
+            Preset::Walk => 21.5,
         }
     }
     /// The name used on the command line and in scene.json.
@@ -31,6 +35,7 @@ impl Preset {
             Preset::Survey => "survey",
             Preset::Orbit => "orbit",
             Preset::HoverSurvey => "hover-survey",
+            Preset::Walk => "walk",
         }
     }
 }

@@ -67,6 +67,24 @@ impl Terrain {
         Terrain { heights }
     }
 
+    /// The same terrain levelled within `radius` metres of (`x`, `y`) to the height there,
+    /// blending back into the hills over the next `blend` metres (a street on flat ground).
+    pub fn levelled(mut self, (x, y): (f64, f64), radius: f64, blend: f64) -> Terrain {
+        let level = self.height(x, y);
+        let verts = CELLS + 1;
+        for j in 0..verts {
+            for i in 0..verts {
+                let (gx, gy) = grid_xy(i, j);
+                let d = (gx - x).hypot(gy - y);
+                let u = ((d - radius) / blend).clamp(0.0, 1.0);
+                let w = u * u * (3.0 - 2.0 * u);
+                let h = &mut self.heights[j * verts + i];
+                *h = (level + w * (*h as f64 - level)) as f32;
+            }
+        }
+        self
+    }
+
     fn h(&self, i: usize, j: usize) -> f64 {
         self.heights[j * (CELLS + 1) + i] as f64
     }
@@ -208,6 +226,9 @@ pub enum Kind {
     Car,
     /// An unlit flat magenta square at a known position (test aid).
     Marker,
+    /// A static block whose faces show the terrain's photo patchwork, each face a part of it no
+    /// other wall shows (the walk's street: no two walls alike).
+    Wall,
 }
 
 /// One box in the scene.
