@@ -8,4 +8,6 @@ export KEYFRAMER_TESTDATA="$PWD/target/testdata"
 export ORT_DYLIB_PATH="${ORT_DYLIB_PATH:-$PWD/target/onnxruntime/libonnxruntime.so.1.31.1}"
 cargo fmt --all -- --check
 cargo clippy --locked --release --workspace --all-targets -- -D warnings
+# The library without OpenCV, as keyframer-gpu-bench builds it (a subset: ~20 s more).
+cargo clippy --locked --release -p keyframer -p keyframer-gpu-bench --no-default-features --all-targets -- -D warnings
 cargo test --locked --release --workspace

@@ -94,6 +94,7 @@ pub enum Error {
     /// An OpenCV call failed; `context` says which one and on what. OpenCV's own texts that
     /// mean nothing to a user (size limits, allocation failures) get a sentence saying what to
     /// do, see [`explain_opencv`].
+    #[cfg(feature = "opencv")]
     #[error("OpenCV {context}: {}", explain_opencv(source))]
     OpenCv {
         /// Which OpenCV call failed and on what.
@@ -126,6 +127,7 @@ pub enum GpuSource {
     #[error(transparent)]
     MapRange(#[from] wgpu::MapRangeError),
     /// An OpenCV call on the way to or from the device failed.
+    #[cfg(feature = "opencv")]
     #[error(transparent)]
     OpenCv(#[from] opencv::Error),
 }
@@ -225,6 +227,7 @@ impl Error {
 /// OpenCV's message for `e`, preceded by what it means and what to do when it is one of the
 /// texts a user cannot act on: the image size limits of imgcodecs (CV_IO_MAX_IMAGE_PIXELS,
 /// _WIDTH, _HEIGHT) and failed allocations. The raw text follows in brackets.
+#[cfg(feature = "opencv")]
 pub fn explain_opencv(e: &opencv::Error) -> String {
     let raw = e.message.trim();
     let hint = if raw.contains("CV_IO_MAX_IMAGE_PIXELS")
@@ -260,11 +263,13 @@ pub fn explain_opencv(e: &opencv::Error) -> String {
 }
 
 /// N of OpenCV's "Failed to allocate N bytes".
+#[cfg(feature = "opencv")]
 fn failed_allocation(raw: &str) -> Option<u64> {
     let rest = &raw[raw.find("Failed to allocate ")? + "Failed to allocate ".len()..];
     rest.split_whitespace().next()?.parse().ok()
 }
 
+#[cfg(feature = "opencv")]
 fn human_bytes(b: u64) -> String {
     const GIB: f64 = (1u64 << 30) as f64;
     if b as f64 >= GIB {
@@ -275,11 +280,13 @@ fn human_bytes(b: u64) -> String {
 }
 
 /// Attaches a description of the failed OpenCV call to an `opencv::Result`.
+#[cfg(feature = "opencv")]
 pub trait CvContext<T> {
     /// Converts the OpenCV error into [`Error::OpenCv`] with `context`.
     fn cv(self, context: impl FnOnce() -> String) -> Result<T>;
 }
 
+#[cfg(feature = "opencv")]
 impl<T> CvContext<T> for opencv::Result<T> {
     fn cv(self, context: impl FnOnce() -> String) -> Result<T> {
         self.map_err(|source| Error::OpenCv {
@@ -289,7 +296,7 @@ impl<T> CvContext<T> for opencv::Result<T> {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "opencv"))]
 mod tests {
     use super::*;
 

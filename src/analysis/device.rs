@@ -4,7 +4,6 @@
 //! blocks only when [`DEPTH`] batches are still in flight, or when it asks for every result (a
 //! checkpoint, the end of the input).
 
-use super::ingest::Pixels;
 use crate::error::{Error, Result};
 use crate::gpu::readback::Readback;
 use crate::gpu::readback::Until;
@@ -24,6 +23,14 @@ const DEPTH: usize = 4;
 /// The slot holding the stationary step's reference frame (the device copies frames into it).
 pub(crate) const REFERENCE: usize = SLOTS - 1;
 const RECORD_BYTES: usize = RECORD_WORDS as usize * 4;
+
+/// One frame's pixels at the analysis resolution: an 8-bit gray Mat, or the index of the
+/// device buffer the staging engine resized it into (valid until its next batch).
+pub(crate) enum Pixels {
+    #[cfg(feature = "opencv")]
+    Small(opencv::core::Mat),
+    Staged(usize),
+}
 
 /// What to measure at one frame.
 pub(crate) struct Work {
@@ -128,6 +135,7 @@ impl DeviceMovement {
     /// Puts a frame's analysis pixels in `slot`.
     pub(crate) fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
         match px {
+            #[cfg(feature = "opencv")]
             Pixels::Small(gray) => self.flow.load(slot, &gray),
             Pixels::Staged(k) => {
                 let buf = self

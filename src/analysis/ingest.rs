@@ -15,12 +15,7 @@ use std::thread::Scope;
 /// Frames queued between the decode thread and the analysis (bounds memory with the batch).
 const DECODE_QUEUE: usize = 2;
 
-/// One frame's pixels at the analysis resolution: an 8-bit gray Mat, or the index of the
-/// device buffer the staging engine resized it into (valid until its next batch).
-pub(crate) enum Pixels {
-    Small(Mat),
-    Staged(usize),
-}
+pub(crate) use super::device::Pixels;
 
 /// Items from the decode thread.
 pub(crate) enum Decoded {

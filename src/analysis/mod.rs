@@ -5,34 +5,58 @@
 //! Frames stream through in small batches (bounded memory); when nothing needs pixels, frames are
 //! only grabbed, never converted. The parts: `ingest` (decode thread, frame hand-off),
 //! `sharpness` and `movement` (engines behind traits), `checkpoint`; this module wires them.
+//! `stream` feeds the gpu backend's engines frames from memory instead (no decoder, no OpenCV).
 
+// Without OpenCV only `stream` drives these (no resume, no opencv engine): parts stay unused.
+#[cfg_attr(not(feature = "opencv"), allow(dead_code))]
 mod checkpoint;
+#[cfg_attr(not(feature = "opencv"), allow(dead_code))]
 mod device;
+#[cfg(feature = "opencv")]
 mod embedding;
+#[cfg(feature = "opencv")]
 mod ingest;
+#[cfg_attr(not(feature = "opencv"), allow(dead_code))]
 mod movement;
+#[cfg(feature = "opencv")]
 mod sharpness;
-#[cfg(test)]
+mod stream;
+#[cfg(all(test, feature = "opencv"))]
 mod tests;
 
 pub use checkpoint::{is_checkpoint, Checkpoint, MovementState, Resume};
+#[cfg(feature = "opencv")]
 pub use movement::sample_movement;
+pub use stream::{DeviceAnalysis, DeviceResults};
 
 use crate::params::{MovementRequest, MovementSeries, StationaryRequest};
+#[cfg(feature = "opencv")]
 use checkpoint::{Collected, Saver};
+#[cfg(feature = "opencv")]
 use embedding::EmbeddingPass;
+#[cfg(feature = "opencv")]
 use ingest::{Decoded, HandOff, Ready};
+#[cfg(feature = "opencv")]
 use movement::MovementPass;
+#[cfg(feature = "opencv")]
 use sharpness::{SharpnessEngine, Worker};
 
+#[cfg(feature = "opencv")]
 use crate::error::{Error, Result};
+#[cfg(feature = "opencv")]
 use crate::gpu::GpuContext;
 use crate::params::{Backend, Metric};
-use crate::source::{self, FrameSource, Metadata, OpenOptions};
+use crate::source::Metadata;
+#[cfg(feature = "opencv")]
+use crate::source::{self, FrameSource, OpenOptions};
+#[cfg(feature = "opencv")]
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
+#[cfg(feature = "opencv")]
 use std::path::Path;
+#[cfg(feature = "opencv")]
 use std::sync::mpsc::Receiver;
+#[cfg(feature = "opencv")]
 use std::sync::Arc;
 
 /// What to compute.
@@ -97,6 +121,7 @@ pub struct Analysis {
     pub backend: Backend,
 }
 
+#[cfg(feature = "opencv")]
 /// Runs one pass over `input`. `ctx` is the GPU context when the gpu backend is in use. With
 /// `resume`, saves a checkpoint there periodically and resumes from it when it matches the input
 /// and request. The decode thread, the sharpness worker and the movement pass (this thread)
@@ -121,6 +146,7 @@ pub fn analyse(
     run(src.as_mut(), input, req, engines, quiet, resume)
 }
 
+#[cfg(feature = "opencv")]
 /// The engines of one analysis and the backend its scores are said to come from.
 struct Engines {
     movement: Option<MovementPass>,
@@ -129,6 +155,7 @@ struct Engines {
     backend: Backend,
 }
 
+#[cfg(feature = "opencv")]
 impl Engines {
     /// The engines `req` needs on `backend` (each falls back to opencv on its own; the scores
     /// are then said to be opencv's).
@@ -173,6 +200,7 @@ impl Engines {
     }
 }
 
+#[cfg(feature = "opencv")]
 /// The pass over `src` with `engines`: resumes from a fitting checkpoint, streams the frames
 /// through the decode thread, the hand-off, the movement pass and the sharpness worker.
 fn run(
@@ -252,6 +280,7 @@ fn run(
     Ok(analysis)
 }
 
+#[cfg(feature = "opencv")]
 /// How frames reach the movement pass: staged on the device when the sharpness engine can
 /// resize there for a movement engine on the device (integer downscale of the frame `size`),
 /// else prepared on the CPU. Returns the hand-off and the engine left for the worker thread.
@@ -278,6 +307,7 @@ fn hand_off(
     (HandOff::Cpu, sharpness)
 }
 
+#[cfg(feature = "opencv")]
 /// The analysis thread while frames stream through: every frame in order to the movement pass
 /// and the sharpness worker, checkpoints when due.
 struct Pump<'a, 'scope> {
@@ -294,6 +324,7 @@ struct Pump<'a, 'scope> {
     bar: &'a ProgressBar,
 }
 
+#[cfg(feature = "opencv")]
 impl Pump<'_, '_> {
     fn run(&mut self, frames: Receiver<Result<Decoded>>) -> Result<()> {
         for item in frames {
@@ -360,6 +391,7 @@ impl Pump<'_, '_> {
     }
 }
 
+#[cfg(feature = "opencv")]
 /// The analysis of what `done` and `moving` hold, with the source's problems.
 fn conclude(
     src: &dyn FrameSource,
@@ -400,6 +432,7 @@ fn conclude(
     }
 }
 
+#[cfg(feature = "opencv")]
 /// Frame count and timestamps only: frames are grabbed, never converted.
 fn scan_only(src: &mut dyn FrameSource, input: &Path, quiet: bool) -> Result<Analysis> {
     let bar = crate::progress::bar(src.metadata().frame_count as u64, "scan", quiet);
@@ -414,6 +447,7 @@ fn scan_only(src: &mut dyn FrameSource, input: &Path, quiet: bool) -> Result<Ana
     Ok(conclude(src, input, &req, done, None, Backend::Opencv))
 }
 
+#[cfg(feature = "opencv")]
 fn finish_metadata(metadata: &mut Metadata, input: &Path, done: &Collected) {
     let count = done.frames;
     if metadata.frame_count != count {
@@ -435,6 +469,7 @@ fn finish_metadata(metadata: &mut Metadata, input: &Path, done: &Collected) {
     }
 }
 
+#[cfg(feature = "opencv")]
 fn problems_of(src: &dyn FrameSource, input: &Path) -> Vec<String> {
     let problems: Vec<String> = src.decode_failure().into_iter().map(|(_, m)| m).collect();
     for p in &problems {
@@ -448,6 +483,7 @@ fn problems_of(src: &dyn FrameSource, input: &Path) -> Vec<String> {
         .collect()
 }
 
+#[cfg(feature = "opencv")]
 fn with_path(e: Error, input: &Path) -> Error {
     match e {
         Error::Frame { path, index, msg } if path.as_os_str().is_empty() => {

@@ -7,24 +7,35 @@
 //! reference loaded.
 
 use super::checkpoint::MovementState;
-use super::device::{DeviceMovement, Record, Work, REFERENCE};
-use super::ingest::{prepare, Pixels};
+use super::device::{DeviceMovement, Pixels, Record, Work, REFERENCE};
+#[cfg(feature = "opencv")]
+use super::ingest::prepare;
 use super::{analysis_size, MovementRequest, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
-use crate::kernels::farneback::{self, SLOTS};
-use crate::kernels::movement::{self, checked, RotationField};
+#[cfg(feature = "opencv")]
+use crate::kernels::farneback;
+use crate::kernels::farneback::SLOTS;
+use crate::kernels::movement::checked;
+#[cfg(feature = "opencv")]
+use crate::kernels::movement::{self, RotationField};
 use crate::kernels::resize_area;
-use crate::params::{Backend, FarnebackParams, Statistic};
-use crate::source::{self, Metadata, OpenOptions};
+use crate::params::Backend;
+#[cfg(feature = "opencv")]
+use crate::params::{FarnebackParams, Statistic};
+use crate::source::Metadata;
+#[cfg(feature = "opencv")]
+use crate::source::{self, OpenOptions};
 use crate::steps::StationarySampler;
+#[cfg(feature = "opencv")]
 use opencv::core::Mat;
 use std::collections::VecDeque;
+#[cfg(feature = "opencv")]
 use std::path::Path;
 use std::sync::Arc;
 
 /// Flow + statistic between frames held in slots, answered at once.
-pub(crate) trait MovementEngine {
+pub(crate) trait MovementEngine: Send {
     /// Puts a frame's analysis pixels in `slot` (below [`SLOTS`]).
     fn load(&mut self, slot: usize, px: Pixels) -> Result<()>;
     /// Movement statistic (analysis pixels) from slot `from` to slot `to`.
@@ -37,6 +48,7 @@ pub(crate) trait MovementEngine {
 }
 
 /// OpenCV's Farneback and the host twin of the statistic.
+#[cfg(feature = "opencv")]
 struct Opencv {
     params: FarnebackParams,
     statistic: Statistic,
@@ -44,6 +56,7 @@ struct Opencv {
     field: Option<RotationField>,
 }
 
+#[cfg(feature = "opencv")]
 impl MovementEngine for Opencv {
     fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
         match px {
@@ -82,6 +95,7 @@ impl MovementEngine for Opencv {
     }
 }
 
+#[cfg(feature = "opencv")]
 impl Opencv {
     /// The frames in slots `from` and `to`.
     fn pair(&self, from: usize, to: usize) -> Result<(&Mat, &Mat)> {
@@ -125,6 +139,21 @@ fn engine(
     (w, h): (u32, u32),
     scale: f64,
 ) -> Result<(Engine, Backend)> {
+    if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
+        match DeviceMovement::new(ctx, req, stationary, scale, (w, h)) {
+            Ok(e) => return Ok((Engine::Device(Box::new(e)), Backend::Gpu)),
+            #[cfg(feature = "opencv")]
+            Err(e) => log::warn!("{e}; movement uses the opencv backend"),
+            #[cfg(not(feature = "opencv"))]
+            Err(e) => return Err(e),
+        }
+    }
+    host_engine(req, (w, h))
+}
+
+/// OpenCV's engine at the analysis size `(w, h)`.
+#[cfg(feature = "opencv")]
+fn host_engine(req: &MovementRequest, (w, h): (u32, u32)) -> Result<(Engine, Backend)> {
     let cpu = Opencv {
         params: req.farneback,
         statistic: req.statistic,
@@ -134,13 +163,16 @@ fn engine(
             .map(|d| RotationField::new(w, h, d))
             .transpose()?,
     };
-    if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
-        match DeviceMovement::new(ctx, req, stationary, scale, (w, h)) {
-            Ok(e) => return Ok((Engine::Device(Box::new(e)), Backend::Gpu)),
-            Err(e) => log::warn!("{e}; movement uses the opencv backend"),
-        }
-    }
     Ok((Engine::Host(Box::new(cpu)), Backend::Opencv))
+}
+
+/// Without OpenCV only the gpu engine measures movement.
+#[cfg(not(feature = "opencv"))]
+fn host_engine(_req: &MovementRequest, _size: (u32, u32)) -> Result<(Engine, Backend)> {
+    Err(Error::param(
+        "backend",
+        "this build has no OpenCV: movement needs the gpu backend",
+    ))
 }
 
 /// The analysis size of `meta`'s frames for `req`, and the factor from it to full resolution.
@@ -433,6 +465,7 @@ impl MovementPass {
     }
 
     /// Movement between two frames (for the `--auto` sample).
+    #[cfg(feature = "opencv")]
     fn pair(&mut self, a: Mat, b: Mat) -> Result<f64> {
         self.engine.load(0, Pixels::Small(a))?;
         self.engine.load(1, Pixels::Small(b))?;
@@ -495,6 +528,7 @@ fn step(
 /// Movement of `pairs` frame pairs (t, t+1) spread evenly over the input, in full-resolution
 /// pixels: the sample `--auto` proposes thresholds from. Decodes sequentially (grab over the
 /// frames in between).
+#[cfg(feature = "opencv")]
 pub fn sample_movement(
     input: &Path,
     opts: &OpenOptions,

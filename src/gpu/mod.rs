@@ -246,6 +246,16 @@ impl GpuContext {
         wanted: Option<&str>,
         raise: impl FnOnce(&mut wgpu::Limits, &wgpu::Limits),
     ) -> Result<GpuContext> {
+        GpuContext::with_options(wanted, wgpu::Features::empty(), raise)
+    }
+
+    /// As [`GpuContext::with_limits`], also enabling those of `optional` features the adapter
+    /// has (e.g. `TIMESTAMP_QUERY` for a benchmark); `device.features()` says which it got.
+    pub fn with_options(
+        wanted: Option<&str>,
+        optional: wgpu::Features,
+        raise: impl FnOnce(&mut wgpu::Limits, &wgpu::Limits),
+    ) -> Result<GpuContext> {
         let adapter = pick_adapter(wanted)?;
         let info = adapter.get_info();
         let have = adapter.limits();
@@ -259,7 +269,7 @@ impl GpuContext {
         raise(&mut limits, &have);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("keyframer"),
-            required_features: wgpu::Features::empty(),
+            required_features: optional & adapter.features(),
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -590,8 +600,58 @@ impl GpuContext {
     }
 }
 
+/// A host image the runners upload: 8-bit pixels, `channels` per pixel (1: gray, 3: BGR), rows
+/// packed. An OpenCV `Mat` (with the `opencv` feature) and a plain byte slice both are one.
+pub trait HostImage {
+    /// The pixel bytes, checked to be `channels` x `size` (width, height); `what` names the
+    /// runner in errors. Borrowed where the pixels are contiguous.
+    fn pixel_bytes(
+        &self,
+        channels: u32,
+        size: (u32, u32),
+        what: &str,
+    ) -> Result<std::borrow::Cow<'_, [u8]>>;
+}
+
+/// Rows of `width * channels` bytes, one after the other (the size is checked by length).
+impl HostImage for [u8] {
+    fn pixel_bytes(
+        &self,
+        channels: u32,
+        (width, height): (u32, u32),
+        what: &str,
+    ) -> Result<std::borrow::Cow<'_, [u8]>> {
+        let want = width as usize * height as usize * channels as usize;
+        if self.len() != want {
+            return Err(Error::gpu(format!(
+                "frame has {} bytes; the {what} runner takes {width}x{height} with {channels} \
+                 channel(s), {want} bytes",
+                self.len()
+            )));
+        }
+        Ok(std::borrow::Cow::Borrowed(self))
+    }
+}
+
+#[cfg(feature = "opencv")]
+impl HostImage for opencv::core::Mat {
+    fn pixel_bytes(
+        &self,
+        channels: u32,
+        size: (u32, u32),
+        what: &str,
+    ) -> Result<std::borrow::Cow<'_, [u8]>> {
+        let typ = match channels {
+            1 => opencv::core::CV_8UC1,
+            _ => opencv::core::CV_8UC3,
+        };
+        mat_bytes(self, typ, size, what)
+    }
+}
+
 /// The pixel bytes of `mat`, checked to be of type `typ` and `size` (width, height); `what`
 /// names the runner in errors. Borrowed when `mat` is continuous.
+#[cfg(feature = "opencv")]
 pub fn mat_bytes<'a>(
     mat: &'a opencv::core::Mat,
     typ: i32,

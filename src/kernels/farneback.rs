@@ -4,12 +4,17 @@
 //! pyramid into another (copy); flows and copies can be gated by sizes the device writes. The
 //! OpenCV twin is `opencv` (the OpenCV call itself).
 
-use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, mat_bytes, Gate, GpuContext};
+#[cfg(feature = "opencv")]
+use crate::error::CvContext;
+use crate::error::{Error, Result};
+use crate::gpu::{compute_pass, Gate, GpuContext, HostImage};
 use crate::params::FarnebackParams;
 use bytemuck::{Pod, Zeroable};
-use opencv::core::{Mat, Size};
-use opencv::prelude::*;
+#[cfg(feature = "opencv")]
+use opencv::{
+    core::{Mat, Size},
+    prelude::*,
+};
 use std::sync::Arc;
 use wgpu::TextureFormat;
 
@@ -28,6 +33,7 @@ pub const COPY_WGSL: &str = include_str!("../../shaders/copy.wgsl");
 
 /// OpenCV twin: the flow from `prev` to `next` (8-bit gray), CV_32FC2. With `initial`, the flow
 /// starts from it (OPTFLOW_USE_INITIAL_FLOW).
+#[cfg(feature = "opencv")]
 pub fn opencv(prev: &Mat, next: &Mat, p: &FarnebackParams, initial: Option<&Mat>) -> Result<Mat> {
     p.validate()?;
     let initial_copy = initial.map(Mat::try_clone).transpose();
@@ -982,12 +988,12 @@ impl FarnebackGpu {
     }
 
     /// Uploads `gray` into `slot` and computes its expansion pyramid on the device.
-    pub fn load(&mut self, slot: usize, gray: &Mat) -> Result<()> {
+    pub fn load<F: HostImage + ?Sized>(&mut self, slot: usize, gray: &F) -> Result<()> {
         if slot >= SLOTS {
             return Err(Error::param("slot", format!("must be below {SLOTS}")));
         }
         let size = (self.levels[0].width, self.levels[0].height);
-        let bytes = mat_bytes(gray, opencv::core::CV_8UC1, size, "Farneback (8-bit gray)")?;
+        let bytes = gray.pixel_bytes(1, size, "Farneback (8-bit gray)")?;
         let buf = &self.slots[slot].gray;
         if bytes.len() % 4 == 0 {
             self.ctx.write(buf, 0, &bytes);
@@ -1029,11 +1035,16 @@ impl FarnebackGpu {
     /// Computes the flow from the frame in slot `from` to the frame in slot `to` into
     /// [`FarnebackGpu::flow_buffer`].
     pub fn flow_between(&mut self, from: usize, to: usize) -> Result<()> {
-        self.flow_between_from(from, to, None)
+        let steps = self.flow_steps(from, to, false)?;
+        let mut enc = self.ctx.encoder("farneback flow");
+        self.encode(&mut enc, "farneback flow", &steps, None);
+        self.ctx.queue.submit([enc.finish()]);
+        Ok(())
     }
 
     /// As [`FarnebackGpu::flow_between`], starting from `initial` (CV_32FC2, full resolution) as
     /// OPTFLOW_USE_INITIAL_FLOW does: resized to the coarsest level with INTER_AREA and scaled.
+    #[cfg(feature = "opencv")]
     pub fn flow_between_from(
         &mut self,
         from: usize,
@@ -1089,6 +1100,7 @@ impl FarnebackGpu {
     }
 
     /// Reads back the flow of the last pair as CV_32FC2.
+    #[cfg(feature = "opencv")]
     pub fn read_flow(&self) -> Result<Mat> {
         let (w, h) = (self.levels[0].width, self.levels[0].height);
         let bytes = self
@@ -1100,11 +1112,13 @@ impl FarnebackGpu {
     }
 
     /// The flow from `prev` to `next` (8-bit gray), read back as CV_32FC2.
+    #[cfg(feature = "opencv")]
     pub fn flow(&mut self, prev: &Mat, next: &Mat) -> Result<Mat> {
         self.flow_from(prev, next, None)
     }
 
     /// As [`FarnebackGpu::flow`], optionally starting from an initial flow.
+    #[cfg(feature = "opencv")]
     pub fn flow_from(&mut self, prev: &Mat, next: &Mat, initial: Option<&Mat>) -> Result<Mat> {
         self.load(0, prev)?;
         self.load(1, next)?;
@@ -1115,6 +1129,7 @@ impl FarnebackGpu {
 
 /// A flow field (`width` pixels per row) in the layout of the level flow textures: per row and
 /// texel t, the x components of pixels 4 t .. 4 t + 3, then their y components (f32 bytes).
+#[cfg(feature = "opencv")]
 fn planar_flow(values: &[opencv::core::Vec2f], width: usize) -> Vec<u8> {
     let n = width.div_ceil(4);
     let mut out = vec![0f32; values.len().div_ceil(width.max(1)) * n * 8];

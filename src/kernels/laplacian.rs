@@ -1,9 +1,13 @@
 //! `laplacian`: sharpness as the variance of the Laplacian of the gray image, OpenCV ksize 1 or 3
 //! (shaders/laplacian.wgsl); the OpenCV twin uses cv::Laplacian and cv::meanStdDev.
 
+#[cfg(feature = "opencv")]
 use crate::error::{CvContext, Result};
-use opencv::core::{self, Mat, Vector};
-use opencv::imgproc;
+#[cfg(feature = "opencv")]
+use opencv::{
+    core::{self, Mat, Vector},
+    imgproc,
+};
 
 /// WGSL source, after its preludes (shaders/border.wgsl, shaders/strip.wgsl, whose `StripParams` it takes).
 pub const WGSL: &str = concat!(
@@ -30,6 +34,7 @@ pub fn from_totals(sum_off: u64, sum_sq: u64, n: u64, ksize: u32) -> f64 {
 }
 
 /// OpenCV twin: variance of the Laplacian (CV_64F) of an 8-bit gray image.
+#[cfg(feature = "opencv")]
 pub fn opencv(gray: &Mat, ksize: u32) -> Result<f64> {
     let mut lap = Mat::default();
     let (depth, border) = (core::CV_64F, core::BORDER_DEFAULT);

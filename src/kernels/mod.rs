@@ -2,11 +2,14 @@
 //! Rust module, its params struct and its OpenCV twin (the `opencv` function of the module), and
 //! the two are compared in tests within the bounds of [`tolerance`].
 
+#[cfg(feature = "opencv")]
 pub mod descriptor;
 pub mod farneback;
+#[cfg(feature = "opencv")]
 pub mod gray;
 pub mod laplacian;
 pub mod movement;
+#[cfg(feature = "opencv")]
 pub mod remap;
 pub mod resize_area;
 pub mod sharpness;
@@ -30,7 +33,9 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("stationary", stationary::WGSL),
     ("copy", farneback::COPY_WGSL),
     ("resize_area", resize_area::WGSL),
+    #[cfg(feature = "opencv")]
     ("descriptor", descriptor::WGSL),
+    #[cfg(feature = "opencv")]
     ("remap", remap::WGSL),
 ];
 

@@ -198,6 +198,7 @@ fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
 }
 
 /// The interleaved (dx, dy) values of a CV_32FC2 flow field.
+#[cfg(feature = "opencv")]
 pub fn flow_values(flow: &opencv::core::Mat) -> Result<Vec<f32>> {
     use opencv::prelude::*;
     let d = flow
@@ -208,6 +209,7 @@ pub fn flow_values(flow: &opencv::core::Mat) -> Result<Vec<f32>> {
 
 /// Host twin of the whole device statistic: the statistic of the flow magnitudes of `flow`, or
 /// of the residual magnitudes after the fitted rotation when `field` is given.
+#[cfg(feature = "opencv")]
 pub fn cpu_flow(
     flow: &opencv::core::Mat,
     stat: Statistic,
@@ -224,6 +226,7 @@ pub fn cpu_flow(
 }
 
 /// Per-pixel magnitudes of a CV_32FC2 flow field, in f32 as the shader computes them.
+#[cfg(feature = "opencv")]
 pub fn magnitudes(flow: &opencv::core::Mat) -> Result<Vec<f32>> {
     let v = flow_values(flow)?;
     Ok(v.chunks_exact(2)

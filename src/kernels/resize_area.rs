@@ -2,11 +2,18 @@
 //! cv::resize(INTER_AREA) (shaders/resize_area.wgsl); other factors stay on the CPU twin.
 
 use super::gray_stride;
-use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, GpuContext};
+#[cfg(feature = "opencv")]
+use crate::error::CvContext;
+use crate::error::{Error, Result};
+#[cfg(feature = "opencv")]
+use crate::gpu::compute_pass;
+use crate::gpu::GpuContext;
 use bytemuck::{Pod, Zeroable};
-use opencv::core::{Mat, Size};
-use opencv::prelude::*;
+#[cfg(feature = "opencv")]
+use opencv::{
+    core::{Mat, Size},
+    prelude::*,
+};
 use std::sync::Arc;
 
 /// WGSL source.
@@ -35,6 +42,7 @@ pub struct ResizeAreaParams {
 }
 
 /// OpenCV twin: `gray` resized to `size` with cv::resize(INTER_AREA).
+#[cfg(feature = "opencv")]
 pub fn opencv(gray: &Mat, size: Size) -> Result<Mat> {
     crate::encode::resize(gray, (size.width, size.height), opencv::imgproc::INTER_AREA)
         .cv(|| "resize INTER_AREA".into())
@@ -123,6 +131,7 @@ impl ResizeAreaGpu {
 
     /// Resizes an 8-bit gray `Mat` of the source size (uploaded in gray.wgsl's layout) and reads
     /// the output back, row after row (for checking against [`opencv`]).
+    #[cfg(feature = "opencv")]
     pub fn resize_mat(&self, gray: &Mat) -> Result<Vec<u8>> {
         let (w, h) = (self.p.src_w as usize, self.p.src_h as usize);
         if gray.typ() != opencv::core::CV_8UC1

@@ -7,13 +7,16 @@
 //! the submission downsizes it (resize_area) into a small buffer per batch slot, which the
 //! movement pass loads into Farneback without a CPU round trip.
 
+#[cfg(feature = "opencv")]
+use super::gray;
 use super::resize_area::ResizeAreaGpu;
 use super::strip::{self, StripParams};
-use super::{gray, gray_stride, laplacian, tenengrad};
+use super::{gray_stride, laplacian, tenengrad};
 use crate::error::{Error, Result};
 use crate::gpu::readback::{Readback, Until};
-use crate::gpu::{compute_pass, GpuContext};
+use crate::gpu::{compute_pass, GpuContext, HostImage};
 use crate::params::Metric;
+#[cfg(feature = "opencv")]
 use opencv::core::Mat;
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -35,12 +38,14 @@ fn totals_from_words(words: &[u32]) -> Vec<u64> {
 }
 
 /// OpenCV backend: the score of one 8-bit BGR (or gray) frame.
+#[cfg(feature = "opencv")]
 pub fn score_opencv(frame: &Mat, metric: Metric) -> Result<f64> {
     score_gray(&gray::opencv(frame)?, metric)
 }
 
 /// OpenCV backend: the score of a frame's 8-bit gray image (Tenengrad in one host pass, equal
 /// to its OpenCV twin).
+#[cfg(feature = "opencv")]
 pub fn score_gray(gray: &Mat, metric: Metric) -> Result<f64> {
     match metric {
         Metric::Tenengrad => tenengrad::host(gray),
@@ -207,7 +212,7 @@ impl SharpnessGpu {
 
     /// The device-resized gray of `frame` (needs [`SharpnessGpu::attach_resize`]), row after
     /// row, for checking against cv::resize.
-    pub fn resized_of(&mut self, frame: &Mat) -> Result<Vec<u8>> {
+    pub fn resized_of<F: HostImage + ?Sized>(&mut self, frame: &F) -> Result<Vec<u8>> {
         self.scores(&[frame])?;
         let Some(r) = &self.resize else {
             return Err(Error::param("resize", "no resize attached"));
@@ -220,7 +225,7 @@ impl SharpnessGpu {
         self.slots.len()
     }
 
-    fn upload(&mut self, slot: usize, frame: &Mat) -> Result<()> {
+    fn upload<F: HostImage + ?Sized>(&mut self, slot: usize, frame: &F) -> Result<()> {
         let what = "sharpness (8-bit BGR)";
         let tex = &self.slots[slot].frame;
         strip::upload(&self.ctx, tex, frame, self.width, what, &mut self.pad)
@@ -241,7 +246,7 @@ impl SharpnessGpu {
 
     /// Scores of `frames` (8-bit BGR, this runner's size), in order (waits for them; not
     /// while submitted scores are still to be taken).
-    pub fn scores(&mut self, frames: &[&Mat]) -> Result<Vec<f64>> {
+    pub fn scores<F: HostImage + ?Sized>(&mut self, frames: &[&F]) -> Result<Vec<f64>> {
         if !(self.in_flight.is_empty() && self.landed.is_empty()) {
             return Err(Error::gpu(
                 "sharpness scores asked while submitted scores are not taken",
@@ -254,13 +259,13 @@ impl SharpnessGpu {
     /// Starts scoring `frames` (8-bit BGR, this runner's size) after the frames submitted
     /// before; their scores come back through [`SharpnessGpu::take`]. Blocks only when every
     /// staging buffer is in flight, and then until half of them have landed.
-    pub fn submit(&mut self, frames: &[&Mat]) -> Result<()> {
+    pub fn submit<F: HostImage + ?Sized>(&mut self, frames: &[&F]) -> Result<()> {
         for chunk in frames.chunks(self.slots.len()) {
             if self.readback.is_full() {
                 self.land(Until::Half)?;
             }
             for (i, f) in chunk.iter().enumerate() {
-                self.upload(i, f)?;
+                self.upload(i, *f)?;
             }
             let mut enc = self.ctx.encoder("sharpness batch");
             for i in 0..chunk.len() {
@@ -301,7 +306,7 @@ impl SharpnessGpu {
     }
 
     /// The gray image the gpu computes for `frame` (for checking against cv::cvtColor).
-    pub fn gray_of(&mut self, frame: &Mat) -> Result<Vec<u8>> {
+    pub fn gray_of<F: HostImage + ?Sized>(&mut self, frame: &F) -> Result<Vec<u8>> {
         self.set_write_gray(true);
         self.upload(0, frame)?;
         let mut enc = self.ctx.encoder("gray");

@@ -6,7 +6,7 @@
 //! ([`strip_rows_for`]) and overridable for `bench`.
 
 use crate::error::{Error, Result};
-use crate::gpu::{mat_bytes, GpuContext};
+use crate::gpu::{GpuContext, HostImage};
 use bytemuck::{Pod, Zeroable};
 
 /// Columns per invocation (48 bytes of BGR = 3 texels).
@@ -76,18 +76,18 @@ pub fn frame_texture(ctx: &GpuContext, width: u32, height: u32) -> Result<wgpu::
     ))
 }
 
-/// Uploads the pixels of `mat` (8-bit BGR, `width` x the texture's height; `what` names the runner in
+/// Uploads the pixels of `frame` (8-bit BGR, `width` x the texture's height; `what` names the runner in
 /// errors) into `texture`; rows whose bytes do not fill whole texels are padded in `scratch`.
 pub fn upload(
     ctx: &GpuContext,
     texture: &wgpu::Texture,
-    mat: &opencv::core::Mat,
+    frame: &(impl HostImage + ?Sized),
     width: u32,
     what: &str,
     scratch: &mut Vec<u8>,
 ) -> Result<()> {
     let size = texture.size();
-    let bytes = mat_bytes(mat, opencv::core::CV_8UC3, (width, size.height), what)?;
+    let bytes = frame.pixel_bytes(3, (width, size.height), what)?;
     let row = width as usize * 3;
     let padded = size.width as usize * 16;
     let data: &[u8] = if row == padded {

@@ -2,10 +2,14 @@
 //! (shaders/tenengrad.wgsl, read from the BGR frame in strips); the OpenCV twin uses cv::Sobel and Mat::dot,
 //! and `host` computes the same exact total in one pass over the gray rows (no gradient images).
 
+#[cfg(feature = "opencv")]
 use crate::error::{CvContext, Error, Result};
-use opencv::core::{self, Mat};
-use opencv::imgproc;
-use opencv::prelude::*;
+#[cfg(feature = "opencv")]
+use opencv::{
+    core::{self, Mat},
+    imgproc,
+    prelude::*,
+};
 
 /// WGSL source, after its preludes (shaders/border.wgsl, shaders/strip.wgsl, whose `StripParams` it takes).
 pub const WGSL: &str = concat!(
@@ -22,6 +26,7 @@ pub fn from_totals(sum_sq: u64, n: u64) -> f64 {
 /// OpenCV twin: Tenengrad of an 8-bit gray image. Sobel into 16-bit integers (|G| ≤ 1020, so
 /// exact) and the squares summed by `Mat::dot` in double precision (sums below 2^53, so exact):
 /// the same exact total the gpu computes, in two passes fewer than multiply + add + mean.
+#[cfg(feature = "opencv")]
 pub fn opencv(gray: &Mat) -> Result<f64> {
     let mut gx = Mat::default();
     let mut gy = Mat::default();
@@ -38,11 +43,13 @@ pub fn opencv(gray: &Mat) -> Result<f64> {
 
 /// Pixels per partial sum in [`inside_total_generic`]: each adds at most 2 * 1020^2, so an i32
 /// holds 1024 of them (1024 * 2 * 1020^2 = 2 130 739 200 < 2^31).
+#[cfg(feature = "opencv")]
 const CHUNK: usize = 1024;
 
 /// The Tenengrad of an 8-bit gray image as [`opencv`] computes it (the same exact integer total
 /// of Gx^2 + Gy^2 over 3x3 Sobel gradients with reflect-101 borders, divided by the pixel count),
 /// in one pass over the rows without gradient images.
+#[cfg(feature = "opencv")]
 pub fn host(gray: &Mat) -> Result<f64> {
     if gray.typ() != core::CV_8UC1 {
         return Err(Error::param("tenengrad", "needs an 8-bit gray image"));
@@ -65,6 +72,7 @@ pub fn host(gray: &Mat) -> Result<f64> {
 }
 
 /// Index `i` in `0..n` with OpenCV's BORDER_REFLECT_101 (n = 1: 0).
+#[cfg(feature = "opencv")]
 fn reflect(i: isize, n: usize) -> usize {
     let n = n as isize;
     if n <= 1 {
@@ -75,6 +83,7 @@ fn reflect(i: isize, n: usize) -> usize {
 }
 
 /// Gx^2 + Gy^2 at column `x` of the row `b` between rows `a` (above) and `c` (below).
+#[cfg(feature = "opencv")]
 fn at(a: &[u8], b: &[u8], c: &[u8], x: usize) -> u64 {
     let w = b.len();
     let (l, r) = (reflect(x as isize - 1, w), reflect(x as isize + 1, w));
@@ -85,6 +94,7 @@ fn at(a: &[u8], b: &[u8], c: &[u8], x: usize) -> u64 {
 }
 
 /// The row's total: its two border columns one by one, the inside by [`inside_total`].
+#[cfg(feature = "opencv")]
 fn row_total(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     let w = b.len();
     if w < 3 {
@@ -95,6 +105,7 @@ fn row_total(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
 
 /// [`inside_total_generic`], compiled for AVX2 when the CPU has it (the same integer arithmetic,
 /// so the same total: `row_total_paths_agree` checks it; 2.5x faster at 1080p here).
+#[cfg(feature = "opencv")]
 fn inside_total(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
@@ -105,7 +116,7 @@ fn inside_total(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     inside_total_generic(a, b, c)
 }
 
-#[cfg(target_arch = "x86_64")]
+#[cfg(all(feature = "opencv", target_arch = "x86_64"))]
 #[target_feature(enable = "avx2")]
 fn inside_total_avx2(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     inside_total_generic(a, b, c)
@@ -115,6 +126,7 @@ fn inside_total_avx2(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
 /// the vertical parts first: `s = a + 2b + c` (Gx = s[x+1] − s[x−1]) and `d = c − a`
 /// (Gy = d[x−1] + 2d[x] + d[x+1]), in i16 (|s|, |Gx|, |Gy| ≤ 1020), then the squares in i32:
 /// straight loops the compiler vectorises.
+#[cfg(feature = "opencv")]
 #[inline(always)]
 fn inside_total_generic(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     let inside = b.len() - 2;
@@ -143,7 +155,7 @@ fn inside_total_generic(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     total
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "opencv"))]
 mod tests {
     use super::{host, inside_total, inside_total_generic, opencv};
     use opencv::core::{Mat, Scalar, CV_8UC1};

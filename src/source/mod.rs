@@ -1,22 +1,33 @@
 //! Frame sources: videos (OpenCV VideoCapture) and image folders behind one streaming interface.
 //! Frames are produced one at a time in index order, so memory stays bounded on any input length.
 
+#[cfg(feature = "opencv")]
 pub mod codec_keyframes;
+#[cfg(feature = "opencv")]
 mod images;
 mod natural;
+#[cfg(feature = "opencv")]
 mod packets;
+#[cfg(feature = "opencv")]
 mod reader;
 pub mod telemetry;
+#[cfg(feature = "opencv")]
 mod video;
 
+#[cfg(feature = "opencv")]
 pub use images::{check_image, escaped_name, folder_images, is_image_name, ImageSource};
 pub use natural::natural_cmp;
+#[cfg(feature = "opencv")]
 pub use reader::{shrink, FrameReader, FrameSize, DEFAULT_BUDGET_BYTES};
+#[cfg(feature = "opencv")]
 pub use video::VideoSource;
 
+#[cfg(feature = "opencv")]
 use crate::error::{Error, Result};
+#[cfg(feature = "opencv")]
 use opencv::core::Mat;
 use serde::{Deserialize, Serialize};
+#[cfg(feature = "opencv")]
 use std::path::Path;
 
 /// What kind of input a source reads.
@@ -55,6 +66,7 @@ pub struct Metadata {
     pub rotation_deg: i32,
 }
 
+#[cfg(feature = "opencv")]
 /// One decoded frame.
 pub struct Frame {
     /// 0-based frame index in decode order.
@@ -65,6 +77,7 @@ pub struct Frame {
     pub image: Mat,
 }
 
+#[cfg(feature = "opencv")]
 /// A stream of frames in index order.
 pub trait FrameSource: Send {
     /// Metadata known so far.
@@ -102,6 +115,7 @@ pub trait FrameSource: Send {
     }
 }
 
+#[cfg(feature = "opencv")]
 /// Options for opening a source.
 #[derive(Debug, Clone, Default)]
 pub struct OpenOptions {
@@ -115,6 +129,7 @@ pub struct OpenOptions {
 /// What `path` is, from the file system only: a folder of images, an image file (by its
 /// extension) or a video; anything but a folder or a regular file (a FIFO would block the
 /// reader) is refused.
+#[cfg(feature = "opencv")]
 pub fn kind_of(path: &Path) -> Result<SourceKind> {
     let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => Error::input(path, "no such file or folder"),
@@ -134,6 +149,7 @@ pub fn kind_of(path: &Path) -> Result<SourceKind> {
     })
 }
 
+#[cfg(feature = "opencv")]
 /// Opens a video file, an image file or a folder of images.
 pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
     let kind = kind_of(path)?;
@@ -156,6 +172,7 @@ pub fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn FrameSource>> {
 /// pass: skipped frames are only grabbed, never seeked to. Returns the indices that could not be
 /// decoded, ascending: damaged frames (never passed to `f`; see [`FrameSource::damage_of`]) and
 /// those after the stream ended early.
+#[cfg(feature = "opencv")]
 pub fn read_indices(
     source: &mut dyn FrameSource,
     indices: &[usize],
@@ -186,6 +203,7 @@ pub fn read_indices(
     Ok(damaged)
 }
 
+#[cfg(feature = "opencv")]
 /// Result of one pass over every frame without decoding pixels beyond what the codec needs.
 #[derive(Debug, Clone)]
 pub struct Scan {
@@ -199,6 +217,7 @@ pub struct Scan {
     pub damaged: Vec<(usize, String)>,
 }
 
+#[cfg(feature = "opencv")]
 /// Walks the whole input once with `skip_frame`, collecting timestamps and the true frame count.
 pub fn scan(source: &mut dyn FrameSource, mut progress: impl FnMut(usize)) -> Result<Scan> {
     let mut ts = Vec::new();
@@ -221,6 +240,7 @@ pub fn scan(source: &mut dyn FrameSource, mut progress: impl FnMut(usize)) -> Re
 }
 
 /// What `probe` found: the input's metadata (frame count counted by decoding when asked or when
+#[cfg(feature = "opencv")]
 /// the container gives none) and the decode problems met while counting.
 #[derive(Debug, Clone)]
 pub struct Probe {
@@ -232,6 +252,7 @@ pub struct Probe {
 
 /// Opens `input` and reads its metadata; with `exact` (or a container without a frame count)
 /// counts the frames by decoding them all, reporting the count to `progress`.
+#[cfg(feature = "opencv")]
 pub fn probe(
     input: &Path,
     options: &OpenOptions,

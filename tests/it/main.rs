@@ -15,6 +15,7 @@ mod flow;
 mod foundation;
 mod geo_area;
 mod geotag;
+mod gpu_bench;
 mod handoff;
 mod inputs;
 mod layers;

@@ -1,0 +1,249 @@
+//! The measurements: each submits its work, marks the device clock (when the adapter has
+//! timestamps), waits, and takes the wall time and the context's counters around it. Frames come
+//! from `keyframer::synthetic::Scroll` (slices of one host buffer, no copy per frame).
+
+use crate::clock::Clock;
+use keyframer::analysis::{DeviceAnalysis, Request};
+use keyframer::gpu::{GpuContext, PerFrame};
+use keyframer::kernels::farneback::FarnebackGpu;
+use keyframer::kernels::sharpness::SharpnessGpu;
+use keyframer::params::{FarnebackParams, Metric, StationaryRequest};
+use keyframer::synthetic::Scroll;
+use keyframer::{Error, Result};
+use serde::Serialize;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Rows the scene moves per frame (full resolution).
+const SPEED: u32 = 2;
+/// Seed of every scene.
+const SEED: u64 = 35;
+/// Distinct gray frames the Farneback loop cycles through.
+const FLOW_FRAMES: usize = 16;
+
+/// One measurement.
+#[derive(Debug, Clone, Serialize)]
+pub struct Measure {
+    /// What ran (`gray+resize+tenengrad`, `farneback`, `analysis`, ...).
+    pub name: String,
+    /// Frame size, `WxH`.
+    pub size: String,
+    /// Streams on the device at once (threads, each with its own engine).
+    pub streams: usize,
+    /// Frames (or pairs, for `farneback`) in all streams together.
+    pub count: usize,
+    /// Wall time from the first submission until every result was back.
+    pub wall_s: f64,
+    /// Device time between the marks before the first and after the last submission
+    /// (`None` without timestamp queries).
+    pub device_s: Option<f64>,
+    /// Frames (pairs) per second: from `device_s` where there is one, else from `wall_s`.
+    pub per_s: f64,
+    /// The context's counters over the run, per frame (pair).
+    pub per_frame: PerFrame,
+}
+
+/// The device, its clock and the run's sizes.
+pub struct Bench {
+    /// The context every measurement shares.
+    pub ctx: Arc<GpuContext>,
+    /// Timestamps, where the adapter has them.
+    pub clock: Option<Clock>,
+    /// Frames (pairs) per measurement and stream.
+    pub frames: usize,
+}
+
+impl Bench {
+    /// Times `submit` (then the end mark), then `wait`; `count` frames.
+    fn timed<T>(
+        &self,
+        (name, size, streams, count): (&str, (u32, u32), usize, usize),
+        submit: impl FnOnce() -> Result<T>,
+        wait: impl FnOnce(T) -> Result<()>,
+    ) -> Result<Measure> {
+        self.ctx.wait()?;
+        let before = self.ctx.counts();
+        if let Some(c) = &self.clock {
+            c.mark(&self.ctx, 0);
+        }
+        let start = Instant::now();
+        let pending = submit()?;
+        if let Some(c) = &self.clock {
+            c.mark(&self.ctx, 1);
+        }
+        wait(pending)?;
+        let wall_s = start.elapsed().as_secs_f64();
+        let used = self.ctx.counts() - before;
+        let device_s = self
+            .clock
+            .as_ref()
+            .map(|c| c.seconds(&self.ctx))
+            .transpose()?;
+        let per_s = count as f64 / device_s.unwrap_or(wall_s).max(1e-12);
+        Ok(Measure {
+            name: name.into(),
+            size: format!("{}x{}", size.0, size.1),
+            streams,
+            count,
+            wall_s,
+            device_s,
+            per_s,
+            per_frame: PerFrame::of(used, count),
+        })
+    }
+
+    /// Gray + INTER_AREA to `small` + `metric` on `size` BGR frames (upload included).
+    pub fn sharpness(
+        &self,
+        metric: Metric,
+        size: (u32, u32),
+        small: (u32, u32),
+    ) -> Result<Measure> {
+        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let mut r = SharpnessGpu::new(self.ctx.clone(), metric, size.0, size.1)?;
+        r.attach_resize(small)?;
+        r.scores(&[scene.frame(0)])?;
+        let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
+        let name = format!("gray+resize+{}", metric_name(metric));
+        let n = frames.len();
+        let runner = std::cell::RefCell::new(r);
+        let mut scores = Vec::new();
+        let m = self.timed(
+            (&name, size, 1, n),
+            || runner.borrow_mut().submit(&frames),
+            |()| {
+                scores = runner.borrow_mut().take(true)?;
+                Ok(())
+            },
+        )?;
+        expect(
+            scores.len() == n && scores.iter().all(|s| s.is_finite() && *s > 0.0),
+            &name,
+        )?;
+        Ok(m)
+    }
+
+    /// Farneback pairs at analysis width `width` (16:9): each pair loads the next gray (its
+    /// pyramid) and computes the flow from the previous one.
+    pub fn farneback(&self, width: u32) -> Result<Measure> {
+        let size = (width, (width * 9 / 16).max(1));
+        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let grays: Vec<Vec<u8>> = (0..FLOW_FRAMES).map(|i| gray(scene.frame(i))).collect();
+        let mut f =
+            FarnebackGpu::new(self.ctx.clone(), FarnebackParams::default(), size.0, size.1)?;
+        f.load(0, grays[0].as_slice())?;
+        f.load(1, grays[1].as_slice())?;
+        f.flow_between(0, 1)?;
+        self.ctx.wait()?;
+        let n = self.frames;
+        self.timed(
+            ("farneback", size, 1, n),
+            || {
+                for i in 0..n {
+                    let (prev, cur) = (i % 2, (i + 1) % 2);
+                    f.load(cur, grays[(i + 1) % FLOW_FRAMES].as_slice())?;
+                    f.flow_between(prev, cur)?;
+                }
+                Ok(())
+            },
+            |()| self.ctx.wait(),
+        )
+    }
+
+    /// The whole per-frame analysis of `select --stationary --blur --spacing` on the gpu backend
+    /// (`keyframer::analysis::DeviceAnalysis`), `streams` threads at once, each with its engine.
+    pub fn analysis(&self, size: (u32, u32), req: &Request, streams: usize) -> Result<Measure> {
+        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
+        // Warm-up: the pipelines are compiled once per context.
+        let mut warm = DeviceAnalysis::new(&self.ctx, req, size)?;
+        warm.push(&frames[..frames.len().min(warm.batch())])?;
+        warm.finish()?;
+        let engines = (0..streams)
+            .map(|_| DeviceAnalysis::new(&self.ctx, req, size))
+            .collect::<Result<Vec<_>>>()?;
+        let n = frames.len();
+        let frames = &frames;
+        let mut results = Vec::new();
+        let m = self.timed(
+            ("analysis", size, streams, n * streams),
+            || {
+                let done = std::thread::scope(|s| {
+                    let handles: Vec<_> = (engines.into_iter())
+                        .map(|mut e| {
+                            s.spawn(move || {
+                                e.push(frames)?;
+                                e.finish()
+                            })
+                        })
+                        .collect();
+                    handles
+                        .into_iter()
+                        .map(|h| {
+                            h.join()
+                                .unwrap_or_else(|_| Err(Error::gpu("a stream panicked")))
+                        })
+                        .collect::<Result<Vec<_>>>()
+                });
+                results = done?;
+                Ok(())
+            },
+            |()| Ok(()),
+        )?;
+        let ok = results.iter().all(|r| {
+            r.frames == n
+                && r.sharpness.iter().all(|s| s.len() == n)
+                && r.movement.as_ref().is_some_and(|v| v.len() == n)
+                && r.stationary.as_ref().is_some_and(|k| !k.is_empty())
+        });
+        expect(ok && results.windows(2).all(|w| w[0] == w[1]), "analysis")?;
+        Ok(m)
+    }
+}
+
+/// The request `select --stationary --blur --spacing` makes (Tenengrad, movement with
+/// `select`'s defaults at `analysis_width`, the stationary run with its default threshold) for
+/// frames `width` wide.
+pub fn select_request(width: u32, analysis_width: u32) -> Request {
+    let mut movement = keyframer::steps::defaults::movement();
+    movement.analysis_width = analysis_width;
+    Request {
+        sharpness: vec![Metric::Tenengrad],
+        movement: Some(movement),
+        stationary: Some(StationaryRequest {
+            threshold: f64::from(width) * 0.01,
+            reset_delta: keyframer::steps::defaults::RESET_DELTA,
+            first: 0,
+            last: usize::MAX,
+        }),
+        descriptor: None,
+        network: None,
+    }
+}
+
+/// The metric's name in the report.
+fn metric_name(m: Metric) -> &'static str {
+    match m {
+        Metric::Tenengrad => "tenengrad",
+        Metric::Laplacian { .. } => "laplacian",
+    }
+}
+
+/// An 8-bit gray of a BGR frame (BT.601 weights in 8.8 fixed point; input for the flow timing).
+fn gray(bgr: &[u8]) -> Vec<u8> {
+    (bgr.chunks_exact(3))
+        .map(|p| {
+            ((u32::from(p[0]) * 29 + u32::from(p[1]) * 150 + u32::from(p[2]) * 77 + 128) >> 8) as u8
+        })
+        .collect()
+}
+
+/// An error unless the results of `what` are complete and plausible.
+fn expect(ok: bool, what: &str) -> Result<()> {
+    match ok {
+        true => Ok(()),
+        false => Err(Error::gpu(format!(
+            "{what}: incomplete or implausible results"
+        ))),
+    }
+}
