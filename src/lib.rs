@@ -7,6 +7,7 @@ pub mod batch;
 pub mod bench;
 pub mod bench_pipeline;
 pub mod colmap;
+pub mod embedding_file;
 pub mod encode;
 pub mod equirect;
 pub mod error;

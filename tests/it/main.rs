@@ -34,5 +34,6 @@ mod scene;
 mod segment;
 mod sharpness;
 mod similarity;
+mod similarity_models;
 mod standalone;
 mod telemetry;
