@@ -203,7 +203,11 @@ impl Network {
         let desc = check(path)?;
         let runner = match runtime {
             SegRuntime::Opencv => Runner::Dnn(DnnRunner::load(&desc)?),
-            SegRuntime::Ort => Runner::Ort(OrtRunner::load(&desc)?),
+            // ONNX Runtime's own refusals (no library) name the step they stop.
+            SegRuntime::Ort => Runner::Ort(OrtRunner::load(&desc).map_err(|e| match e {
+                Error::Step { msg, .. } => Error::step(crate::steps::similarity::ID, msg),
+                e => e,
+            })?),
         };
         let mut net = Network {
             desc,

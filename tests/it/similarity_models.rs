@@ -340,3 +340,81 @@ fn projects_with_hex_embeddings_still_reselect() {
     assert!(err.contains("nothing decoded"), "{err}");
     assert_eq!(keyframes(&old), want);
 }
+
+/// An analysis computing embeddings, killed after its second checkpoint, resumes from it: the
+/// series file is truncated back to the checkpoint's frames and appended to, and ends byte for
+/// byte as an uninterrupted run's; no running file is left.
+#[test]
+fn a_killed_analysis_resumes_its_embeddings() {
+    use std::process::Stdio;
+    use std::time::{Duration, Instant};
+    let d = tempfile::tempdir().unwrap();
+    let clip = testsrc(d.path(), "long.mp4", 320, 180, "60", 20.0);
+    let args = |p: &Path| -> Vec<String> {
+        let p = s(p).to_string();
+        let c = s(&clip).to_string();
+        [
+            "select",
+            &c,
+            "--similarity",
+            "40",
+            "--backend",
+            "opencv",
+            "--checkpoint-every",
+            "0.3",
+            "-o",
+            &p,
+        ]
+        .iter()
+        .map(|x| x.to_string())
+        .collect()
+    };
+    let clean = d.path().join("clean.json");
+    kf_ok(&args(&clean).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(!d.path().join("clean.json.partial.emb").exists());
+
+    let resumed = d.path().join("resumed.json");
+    let partial = d.path().join("resumed.json.partial");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args(args(&resumed))
+        .arg("--quiet")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    let mut seen = Vec::new();
+    while start.elapsed() < Duration::from_secs(120) && seen.len() < 2 {
+        if let Ok(bytes) = std::fs::read(&partial) {
+            let v: serde_json::Value = serde_json::from_slice(&bytes).unwrap();
+            let frames = v["frames"].as_u64().unwrap();
+            if seen.last() != Some(&frames) {
+                seen.push(frames);
+            }
+        }
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    if seen.len() < 2 || resumed.exists() {
+        eprintln!("SKIPPED the resume check: the run ended before two checkpoints ({seen:?})");
+        return;
+    }
+    let running = d.path().join("resumed.json.partial.emb");
+    assert!(running.exists(), "the series file while the analysis runs");
+    let out = kf_loud(
+        &args(&resumed)
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    let (code, err) = code_and_stderr(&out);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("resuming the analysis"), "{err}");
+    assert!(!partial.exists() && !running.exists());
+    assert_eq!(series_bytes(&resumed, 0), series_bytes(&clean, 0));
+    assert_eq!(keyframes(&resumed), keyframes(&clean));
+}
