@@ -13,6 +13,8 @@ pub mod bench_pipeline;
 #[cfg(feature = "opencv")]
 pub mod colmap;
 #[cfg(feature = "opencv")]
+pub mod embedding_file;
+#[cfg(feature = "opencv")]
 pub mod encode;
 pub mod equirect;
 pub mod error;

@@ -1,5 +1,7 @@
 //! Model description files (TOML): which network, how to feed it, how to read its output and what
-//! its classes are called. Loading checks everything that can be checked without the model.
+//! its classes are called (segmentation), or how many values it gives per image (an image
+//! embedding, `[output] kind = "embedding"`, for the similarity step). Loading checks everything
+//! that can be checked without the model.
 
 use crate::error::{Error, Result};
 use crate::output::Inputs;
@@ -67,6 +69,8 @@ pub enum OutputKind {
     /// One channel with the probability of the last class; pixels at or above `threshold` get the
     /// last class, the others the first.
     Probability,
+    /// One vector of `dim` values per image (an image embedding); no classes.
+    Embedding,
 }
 
 /// `[input]` table.
@@ -112,6 +116,8 @@ pub struct OutputDesc {
     /// Probability threshold for `kind = "probability"`.
     #[serde(default = "half")]
     pub threshold: f32,
+    /// Values per image for `kind = "embedding"`.
+    pub dim: Option<usize>,
 }
 
 fn one() -> f32 {
@@ -179,8 +185,15 @@ impl ModelDesc {
         let model = existing(&file, "model", dir.join(&raw.model))?;
         let config = raw.config.as_deref().map(|c| dir.join(c));
         let config = config.map(|c| existing(&file, "config", c)).transpose()?;
-        let classes = classes(&file, dir)?;
-        let colors = colors(&file, dir, classes.len())?;
+        let embedding = raw.output.kind == OutputKind::Embedding;
+        let classes = match embedding {
+            true => check_embedding(&file)?,
+            false => classes(&file, dir)?,
+        };
+        let colors = match embedding {
+            true => Vec::new(),
+            false => colors(&file, dir, classes.len())?,
+        };
         let hide = raw.hide.clone().unwrap_or_default();
         for (k, h) in hide.iter().enumerate() {
             if !classes.iter().any(|c| c.eq_ignore_ascii_case(h)) {
@@ -215,6 +228,86 @@ impl ModelDesc {
         })
     }
 
+    /// Reads a description of an image-embedding network (`[output] kind = "embedding"`); any
+    /// other kind is refused, naming the file and the key.
+    pub fn load_embedding(path: &Path) -> Result<ModelDesc> {
+        let d = ModelDesc::load(path)?;
+        if d.output.kind != OutputKind::Embedding {
+            let msg = format!(
+                "the similarity step needs an image-embedding network (kind = \"embedding\"), \
+                 this description is for {:?} (segmentation)",
+                d.output.kind
+            );
+            return Err(Error::file(
+                path,
+                None,
+                "model description",
+                "output.kind",
+                msg,
+            ));
+        }
+        Ok(d)
+    }
+
+    /// The description iVS3D's naming implies for the ONNX embedding network at `model` (no
+    /// description file): one RGB `width` x `height` image (NCHW) scaled to [0, 1] and
+    /// normalised with ImageNet's mean and standard deviation, `dim` values out.
+    pub fn embedding_defaults(model: &Path, dim: usize, width: u32, height: u32) -> ModelDesc {
+        ModelDesc {
+            path: model.to_path_buf(),
+            model: model.to_path_buf(),
+            framework: Framework::Onnx,
+            config: None,
+            classes: Vec::new(),
+            colors: Vec::new(),
+            hide: Vec::new(),
+            input: InputDesc {
+                name: None,
+                width,
+                height,
+                layout: Layout::Nchw,
+                channels: ChannelOrder::Rgb,
+                scale: 1.0 / 255.0,
+                mean: IMAGENET_MEAN,
+                std: IMAGENET_STD,
+                batch: 1,
+            },
+            output: OutputDesc {
+                name: None,
+                kind: OutputKind::Embedding,
+                layout: None,
+                threshold: half(),
+                dim: Some(dim),
+            },
+            inputs: Inputs::none().with("embedding model", model),
+        }
+    }
+
+    /// Whether this description is a file of its own (false: implied by a model's name).
+    pub fn has_file(&self) -> bool {
+        self.path != self.model
+    }
+
+    /// The fields that decide what a network computes from an image besides its weights (input
+    /// size, layout, channels, scale, mean, std, tensor names, output size), as text: part of
+    /// an embedding series' cache key.
+    pub fn preprocessing(&self) -> String {
+        let i = &self.input;
+        format!(
+            "{:?} {}x{} {:?} {:?} {:?} {:?} {:?} -> {:?} {:?}",
+            i.name,
+            i.width,
+            i.height,
+            i.layout,
+            i.channels,
+            i.scale,
+            i.mean,
+            i.std,
+            self.output.name,
+            self.output.dim
+        )
+    }
+
     /// Layout of the output tensor.
     pub fn output_layout(&self) -> Layout {
         self.output.layout.unwrap_or(self.input.layout)
@@ -225,6 +318,7 @@ impl ModelDesc {
         match self.output.kind {
             OutputKind::Scores => self.classes.len(),
             OutputKind::Probability => 1,
+            OutputKind::Embedding => self.output.dim.unwrap_or(0),
         }
     }
 
@@ -257,6 +351,46 @@ impl ModelDesc {
                 })
             })
             .collect()
+    }
+}
+
+/// ImageNet's per-channel mean (R, G, B) of values in [0, 1].
+pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+/// ImageNet's per-channel standard deviation (R, G, B) of values in [0, 1].
+pub const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
+
+/// Whether `path` names a description file (`.toml`) rather than a network.
+pub fn is_description(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+}
+
+/// An embedding network's description: an ONNX model, no classes, colours or hidden classes
+/// (the error names the key), `output.dim` given. Returns the (empty) class list.
+fn check_embedding(file: &TomlFile<RawDesc>) -> Result<Vec<String>> {
+    let raw = &file.value;
+    if raw.framework != Framework::Onnx {
+        let msg = "an embedding network must be an ONNX model (framework = \"onnx\")";
+        return Err(file.error("framework", msg));
+    }
+    let given = [
+        ("classes", raw.classes.is_some()),
+        ("classes_file", raw.classes_file.is_some()),
+        ("colors", raw.colors.is_some()),
+        ("colors_file", raw.colors_file.is_some()),
+        ("hide", raw.hide.is_some()),
+    ];
+    if let Some((key, _)) = given.iter().find(|(_, g)| *g) {
+        let msg = "an embedding network (kind = \"embedding\") has no classes: leave it out";
+        return Err(file.error(key, msg));
+    }
+    match raw.output.dim {
+        Some(d) if (1..=65536).contains(&d) => Ok(Vec::new()),
+        Some(d) => Err(file.error("output.dim", format!("must be 1..=65536, got {d}"))),
+        None => Err(file.error(
+            "output.dim",
+            "give the values per image of an embedding network (e.g. dim = 2048)",
+        )),
     }
 }
 
@@ -315,6 +449,11 @@ fn colors(file: &TomlFile<RawDesc>, dir: &Path, classes: usize) -> Result<Vec<[u
 /// Checks the input size, scale, std and batch, and the output threshold.
 fn check_numbers(file: &TomlFile<RawDesc>) -> Result<()> {
     let i = &file.value.input;
+    let o = &file.value.output;
+    if o.dim.is_some() && o.kind != OutputKind::Embedding {
+        let msg = "`dim` is for an embedding network (kind = \"embedding\")";
+        return Err(file.error("output.dim", msg));
+    }
     if i.width == 0 || i.height == 0 || i.width > 16384 || i.height > 16384 {
         return Err(file.error("input.width", "width and height must be 1..=16384"));
     }

@@ -340,7 +340,14 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str
 /// FNV-1a, 64 bit: a small, stable, non-cryptographic hash (fingerprints, folder and temporary
 /// names).
 pub fn fnv1a64(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    fnv1a64_update(FNV_OFFSET, bytes)
+}
+
+/// [`fnv1a64`]'s starting state.
+pub const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// [`fnv1a64`] continued from the state `h` over `bytes` (a long input hashed in pieces).
+pub fn fnv1a64_update(mut h: u64, bytes: &[u8]) -> u64 {
     for &b in bytes {
         h ^= u64::from(b);
         h = h.wrapping_mul(0x0000_0100_0000_01b3);

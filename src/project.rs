@@ -8,6 +8,7 @@
 
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
+use crate::manifest::SegRuntime;
 use crate::numbers::{non_negative_seconds, positive, positive_px};
 use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
 use crate::source::telemetry::{Position, TelemetryKind};
@@ -94,7 +95,9 @@ pub struct Cache {
     pub embeddings: Vec<EmbeddingCache>,
 }
 
-/// Each frame's embedding (`steps::similarity::encode`: a unit vector quantised to 16 bits).
+/// Each frame's embedding (a unit vector quantised to 16 bits, `steps::similarity::quantise`),
+/// in a series file beside the project (`embedding_file`) that this record names and owns, or,
+/// in projects written before those files, as hex text per frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EmbeddingCache {
     /// What computed them (`builtin-grid-hog-colour-v1`): with the size, the cache key.
@@ -105,10 +108,38 @@ pub struct EmbeddingCache {
     pub height: u32,
     /// Backend that computed them (both give the same bytes: `kernels::tolerance`).
     pub backend: Backend,
+    /// The runtime that ran the network, when a network computed them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub runtime: Option<SegRuntime>,
     /// Dimensions of each embedding.
     pub dim: usize,
-    /// One encoded embedding per frame.
+    /// The series file, a plain file name in the project file's folder: one record per frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<String>,
+    /// Projects written before the series files: one hex-encoded embedding per frame
+    /// (`steps::similarity::encode`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub frames: Vec<String>,
+    /// The project file's folder, where `file` is: set when the project is read or the series
+    /// made, never written.
+    #[serde(skip)]
+    pub dir: PathBuf,
+}
+
+impl EmbeddingCache {
+    /// Where the series file is, when it has one.
+    pub fn path(&self) -> Option<PathBuf> {
+        self.file.as_ref().map(|f| self.dir.join(f))
+    }
+
+    /// Whether its vectors can be read for an input of `n` frames: hex text for each, or a
+    /// series file of keyframer's holding exactly `n` records of `dim` values.
+    pub fn usable(&self, n: usize) -> bool {
+        match self.path() {
+            Some(p) => crate::embedding_file::frames_in(&p) == Some(n),
+            None => self.frames.len() == n,
+        }
+    }
 }
 
 /// Per-frame positions from telemetry and where they came from.
@@ -249,7 +280,30 @@ impl<H> Project<H> {
         self.validate_sharpness(n)?;
         self.validate_movement(n)?;
         self.validate_stationary(n)?;
+        self.validate_embeddings(n)?;
         self.validate_telemetry(n)
+    }
+
+    /// Embedding series: a positive size, and either hex text for each frame or a series file
+    /// named plainly (in the project's folder, ending in `.emb`).
+    fn validate_embeddings(&self, n: usize) -> Checked {
+        for (i, e) in self.cache.embeddings.iter().enumerate() {
+            let at = |k: &str| format!("cache.embeddings[{i}].{k}");
+            analysis_size(at("width"), e.width, e.height)?;
+            match (&e.file, e.frames.is_empty()) {
+                (Some(f), true) => {
+                    let plain = !f.contains(['/', '\\', '\0']) && f.ends_with(".emb");
+                    if !plain || Path::new(f).file_name() != Some(std::ffi::OsStr::new(f)) {
+                        let msg = format!("`{f}` must be a plain file name ending in .emb");
+                        return fail(at("file"), msg);
+                    }
+                }
+                (None, false) => per_frame(at("frames"), "embeddings", e.frames.len(), n)?,
+                (Some(_), false) => return fail(at("file"), "give `file` or `frames`, not both"),
+                (None, true) => return fail(at("file"), "names no series file"),
+            }
+        }
+        Ok(())
     }
 
     /// Keyframes, damaged frames and boundaries: within the input, sorted and distinct.
@@ -438,6 +492,11 @@ impl Project {
             .map(read)
             .collect::<std::result::Result<_, _>>()
             .map_err(bad)?;
+        let mut cache = stored.cache;
+        let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+        for e in &mut cache.embeddings {
+            e.dir = dir.clone();
+        }
         Ok(Project {
             schema_version: stored.schema_version,
             tool_version: stored.tool_version,
@@ -446,7 +505,7 @@ impl Project {
             boundaries: stored.boundaries,
             keyframes: stored.keyframes,
             history,
-            cache: stored.cache,
+            cache,
             decode_problems: stored.decode_problems,
             damaged_frames: stored.damaged_frames,
             preview: stored.preview,

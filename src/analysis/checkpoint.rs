@@ -41,11 +41,10 @@ pub struct Checkpoint {
     pub have_timestamps: bool,
     /// Sharpness per metric, one score per frame done.
     pub sharpness: Vec<Vec<f64>>,
-    /// Movement state after the last frame done.
+    /// Movement state after the last frame done. The embeddings of the frames done, when
+    /// requested, are the first `frames` records of the request's series file
+    /// (`Request::store`), appended as frames go rather than written here each time.
     pub movement: Option<MovementState>,
-    /// Encoded descriptors, one per frame done (when requested).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub embeddings: Vec<String>,
 }
 
 /// The movement state a checkpoint keeps: everything the movement pass needs to go on after the
@@ -95,8 +94,6 @@ pub(crate) struct Collected {
     pub have_ts: bool,
     /// Sharpness per metric.
     pub scores: Vec<Vec<f64>>,
-    /// Encoded descriptors (when requested).
-    pub embeddings: Vec<String>,
 }
 
 impl Collected {
@@ -107,7 +104,6 @@ impl Collected {
             timestamps: Vec::new(),
             have_ts: true,
             scores: vec![Vec::new(); metrics],
-            embeddings: Vec::new(),
         }
     }
 
@@ -146,7 +142,6 @@ pub(crate) fn restore(
         timestamps: c.timestamps_s,
         have_ts: c.have_timestamps,
         scores: c.sharpness,
-        embeddings: c.embeddings,
     };
     Some((done, c.movement))
 }
@@ -163,19 +158,26 @@ fn load(resume: &Resume, req: &Request) -> Option<Checkpoint> {
             return None;
         }
     };
+    let work = Request {
+        store: None,
+        ..req.clone()
+    };
+    // The series file holds at least the frames done (it may hold more: written after the
+    // checkpoint, they are written again).
+    let embedded = match (&req.descriptor, &req.store) {
+        (Some(_), Some(p)) => {
+            c.frames == 0 || crate::embedding_file::frames_in(p).is_some_and(|n| n >= c.frames)
+        }
+        _ => true,
+    };
     let fits = c.version == CHECKPOINT_VERSION
         && c.fingerprint == resume.fingerprint
-        && &c.request == req
+        && c.request == work
+        && embedded
         && c.sharpness.len() == req.sharpness.len()
         && c.sharpness.iter().all(|s| s.len() == c.frames)
         && c.timestamps_s.len() == if c.have_timestamps { c.frames } else { 0 }
         && c.movement.is_some() == req.movement.is_some()
-        && c.embeddings.len()
-            == if req.descriptor.is_some() {
-                c.frames
-            } else {
-                0
-            }
         && c.movement
             .as_ref()
             .is_none_or(|m| m.values.len() == c.frames && m.anchor + 1 == c.frames);
@@ -240,7 +242,6 @@ impl<'a> Saver<'a> {
                 .map(|s| s[..frames.min(s.len())].to_vec())
                 .collect(),
             movement,
-            embeddings: done.embeddings[..frames.min(done.embeddings.len())].to_vec(),
         };
         let bytes = serde_json::to_vec(&c).map_err(|e| Error::output(&r.path, e.to_string()))?;
         crate::fsutil::write_atomic(&r.path, &bytes)?;

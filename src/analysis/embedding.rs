@@ -1,12 +1,14 @@
 //! The built-in descriptor of every frame (the similarity step's embedding), on the analysis
 //! thread as frames arrive: the frame resized to the analysis size on the CPU (the same call for
 //! both backends), its totals on the device or by the OpenCV twin (equal integers), normalised
-//! and encoded on the host. One small read-back per frame; nothing is kept but the encoding.
-//! With a network (`segment::embedding`), the frame goes through it on the CPU instead.
+//! and quantised on the host. One small read-back per frame; nothing is kept: the caller appends
+//! each frame's vector to the series file. With a network (`segment::embedding`), the frame goes
+//! through it on the CPU instead (OpenCV DNN or ONNX Runtime).
 
 use crate::error::Result;
 use crate::gpu::GpuContext;
 use crate::kernels::descriptor::{self, DescriptorGpu};
+use crate::manifest::SegRuntime;
 use crate::params::Backend;
 use crate::segment::embedding::Network;
 use crate::steps::similarity;
@@ -40,9 +42,10 @@ impl EmbeddingPass {
         })
     }
 
-    /// The pass through the embedding network at `model` (OpenCV DNN on the CPU).
-    pub(crate) fn network(model: &std::path::Path) -> Result<EmbeddingPass> {
-        let net = Network::load(model)?;
+    /// The pass through the embedding network at `model` (a description or an ONNX file) on
+    /// `runtime`.
+    pub(crate) fn network(model: &std::path::Path, runtime: SegRuntime) -> Result<EmbeddingPass> {
+        let net = Network::load(model, runtime)?;
         Ok(EmbeddingPass {
             size: net.size(),
             gpu: None,
@@ -58,17 +61,22 @@ impl EmbeddingPass {
         }
     }
 
-    /// The encoded embedding of one decoded frame (8-bit BGR at the input's size).
-    pub(crate) fn frame(&mut self, image: &Mat) -> Result<String> {
+    /// The runtime of its network, when it has one.
+    pub(crate) fn runtime(&self) -> Option<SegRuntime> {
+        self.network.as_ref().map(Network::runtime)
+    }
+
+    /// The quantised embedding of one decoded frame (8-bit BGR at the input's size).
+    pub(crate) fn frame(&mut self, image: &Mat) -> Result<Vec<i16>> {
         if let Some(net) = self.network.as_mut() {
-            return Ok(similarity::encode(&net.embed(image)?));
+            return Ok(similarity::quantise(&net.embed(image)?));
         }
         let small = descriptor::prepare(image, self.size)?;
         let totals = match self.gpu.as_mut() {
             Some(g) => g.totals(&small)?,
             None => descriptor::opencv(&small)?,
         };
-        Ok(similarity::encode(&descriptor::embedding(
+        Ok(similarity::quantise(&descriptor::embedding(
             &totals, self.size,
         )))
     }

@@ -42,9 +42,12 @@ use movement::MovementPass;
 use sharpness::{SharpnessEngine, Worker};
 
 #[cfg(feature = "opencv")]
+use crate::embedding_file;
+#[cfg(feature = "opencv")]
 use crate::error::{Error, Result};
 #[cfg(feature = "opencv")]
 use crate::gpu::GpuContext;
+use crate::manifest::SegRuntime;
 use crate::params::{Backend, Metric};
 use crate::source::Metadata;
 #[cfg(feature = "opencv")]
@@ -75,6 +78,14 @@ pub struct Request {
     /// (`segment::embedding`), at its own input size.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub network: Option<std::path::PathBuf>,
+    /// The runtime of `network` (OpenCV DNN when absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub runtime: Option<SegRuntime>,
+    /// With `descriptor`: the series file the embeddings are appended to (`embedding_file`;
+    /// keyframer's own, replaced). Where the results go, not what is computed: no part of a
+    /// checkpoint's request.
+    #[serde(skip)]
+    pub store: Option<std::path::PathBuf>,
 }
 
 /// The analysis size for a `width` x `height` input: `analysis_width` wide (never wider than the
@@ -85,11 +96,17 @@ pub fn analysis_size(width: u32, height: u32, analysis_width: u32) -> (u32, u32)
     (w, h)
 }
 
-/// The descriptors of every frame, as one pass computed them.
+/// The embeddings of every frame, as one pass computed them.
 #[derive(Debug, Clone)]
 pub struct Embedded {
-    /// One encoded embedding per frame (`steps::similarity::encode`).
-    pub frames: Vec<String>,
+    /// The series file holding them (`Request::store`).
+    pub file: std::path::PathBuf,
+    /// Values per frame.
+    pub dim: usize,
+    /// Frames in the file.
+    pub count: usize,
+    /// The network's runtime, when a network computed them.
+    pub runtime: Option<SegRuntime>,
     /// The analysis size (width, height) the frames were described at.
     pub size: (u32, u32),
     /// Backend that computed them.
@@ -109,8 +126,8 @@ pub struct Analysis {
     pub movement: Option<MovementSeries>,
     /// Keyframes chosen by the stationary sampler, when requested.
     pub stationary: Option<Vec<usize>>,
-    /// Each frame's encoded descriptor, the size it was computed at and the backend that
-    /// computed them, when requested.
+    /// The series file of every frame's embedding, the size they were computed at and the
+    /// backend that computed them, when requested.
     pub embeddings: Option<Embedded>,
     /// Decode problems (damaged stream, damaged images), one line each.
     pub problems: Vec<String>,
@@ -179,7 +196,7 @@ impl Engines {
         });
         let embedding = (req.descriptor)
             .map(|w| match &req.network {
-                Some(model) => EmbeddingPass::network(model),
+                Some(model) => EmbeddingPass::network(model, req.runtime.unwrap_or_default()),
                 None => {
                     EmbeddingPass::open(analysis_size(meta.width, meta.height, w), backend, ctx)
                 }
@@ -220,7 +237,17 @@ fn run(
     } = engines;
     let (mut done, state) = checkpoint::restore(resume, req, backend, input)
         .unwrap_or_else(|| (Collected::new(req.sharpness.len()), None));
-    let embedded = embedding.as_ref().map(|e| (e.size, e.backend()));
+    let embedded = embedding
+        .as_ref()
+        .map(|e| (e.size, e.backend(), e.runtime()));
+    let mut sink = match (embedding.is_some(), &req.store) {
+        (true, Some(p)) => Some(embedding_file::Writer::open(p, done.frames)?),
+        (true, None) => {
+            let msg = "embeddings need a series file to go to (Request::store)";
+            return Err(Error::param("descriptor", msg));
+        }
+        (false, _) => None,
+    };
     let prime = match (moving.as_mut(), &state) {
         (Some(m), Some(st)) => {
             m.restore(st);
@@ -254,6 +281,7 @@ fn run(
             backend,
             moving: moving.as_mut(),
             embedding: embedding.as_mut(),
+            sink: sink.as_mut(),
             state: state.as_ref(),
             worker: worker.as_ref(),
             hand_off,
@@ -274,8 +302,16 @@ fn run(
         m.finish().map_err(|e| with_path(e, input))?;
     }
     let mut analysis = conclude(src, input, req, done, moving, backend);
-    if let (Some(e), Some((size, backend))) = (analysis.embeddings.as_mut(), embedded) {
-        (e.size, e.backend) = (size, backend);
+    if let (Some(w), Some((size, backend, runtime)), Some(file)) = (sink, embedded, &req.store) {
+        let (dim, count) = w.finish()?;
+        analysis.embeddings = Some(Embedded {
+            file: file.clone(),
+            dim,
+            count,
+            runtime,
+            size,
+            backend,
+        });
     }
     Ok(analysis)
 }
@@ -315,6 +351,8 @@ struct Pump<'a, 'scope> {
     backend: Backend,
     moving: Option<&'a mut MovementPass>,
     embedding: Option<&'a mut EmbeddingPass>,
+    /// Where each frame's embedding is appended.
+    sink: Option<&'a mut embedding_file::Writer>,
     /// The restored movement state whose frames are primed.
     state: Option<&'a MovementState>,
     worker: Option<&'a Worker<'scope>>,
@@ -359,8 +397,8 @@ impl Pump<'_, '_> {
         if let (Some(m), Some(px)) = (self.moving.as_deref_mut(), r.pixels) {
             m.step(i, px)?;
         }
-        if let Some(e) = self.embedding.as_deref_mut() {
-            self.done.embeddings.push(e.frame(&r.frame.image)?);
+        if let (Some(e), Some(sink)) = (self.embedding.as_deref_mut(), self.sink.as_deref_mut()) {
+            sink.push(&e.frame(&r.frame.image)?)?;
         }
         if let Some(w) = self.worker {
             w.send(r.frame, &mut self.done.scores)?;
@@ -378,6 +416,9 @@ impl Pump<'_, '_> {
             w.flush(&mut self.done.scores, self.done.frames)?;
         }
         self.scores(true)?;
+        if let Some(sink) = self.sink.as_deref_mut() {
+            sink.flush()?;
+        }
         let movement = self.moving.as_ref().and_then(|m| m.state());
         self.saver.save(self.req, self.backend, self.done, movement)
     }
@@ -421,11 +462,8 @@ fn conclude(
         sharpness: req.sharpness.iter().copied().zip(done.scores).collect(),
         movement,
         stationary,
-        embeddings: req.descriptor.map(|w| Embedded {
-            frames: done.embeddings,
-            size: (w, 0),
-            backend,
-        }),
+        // Filled in by `run` from the series file.
+        embeddings: None,
         problems: problems_of(src, input),
         damaged: src.damaged_frames().into_iter().map(|(i, _)| i).collect(),
         backend,

@@ -190,6 +190,8 @@ fn request(stride: u32, stationary: Option<StationaryRequest>) -> Request {
         stationary,
         descriptor: None,
         network: None,
+        runtime: None,
+        store: None,
     }
 }
 

@@ -47,6 +47,17 @@ impl Segmenter {
     /// trial run on a blank image) and resolves the class names to hide.
     pub fn new(settings: &MaskSettings) -> Result<Segmenter> {
         let desc = ModelDesc::load(&settings.model)?;
+        if desc.output.kind == desc::OutputKind::Embedding {
+            let msg =
+                "an image-embedding network (for --similarity-model), not a segmentation network";
+            return Err(Error::file(
+                &desc.path,
+                None,
+                "model description",
+                "output.kind",
+                msg,
+            ));
+        }
         let ids = desc.class_ids(&settings.classes)?;
         let mut hide = vec![false; desc.classes.len()];
         for i in ids {

@@ -19,6 +19,11 @@ pub fn input_shape(desc: &ModelDesc, n: usize) -> [usize; 4] {
 /// Appends the input tensor values of one 8-bit BGR image to `out`: resized (bilinear) to the
 /// model's size, channels reordered, `(v * scale - mean) / std`, in the model's layout.
 pub fn push_image(desc: &ModelDesc, image: &Mat, out: &mut Vec<f32>) -> Result<()> {
+    push_resized(desc, image, imgproc::INTER_LINEAR, out)
+}
+
+/// [`push_image`] with the resize's interpolation `interp` (an OpenCV `INTER_*`).
+pub fn push_resized(desc: &ModelDesc, image: &Mat, interp: i32, out: &mut Vec<f32>) -> Result<()> {
     let (w, h) = (desc.input.width as i32, desc.input.height as i32);
     if image.channels() != 3 || image.depth() != opencv::core::CV_8U {
         let msg = "segmentation needs an 8-bit, 3-channel image";
@@ -28,7 +33,7 @@ pub fn push_image(desc: &ModelDesc, image: &Mat, out: &mut Vec<f32>) -> Result<(
     let img = if image.cols() == w && image.rows() == h {
         image
     } else {
-        resized = crate::encode::resize(image, (w, h), imgproc::INTER_LINEAR)
+        resized = crate::encode::resize(image, (w, h), interp)
             .cv(|| format!("resize to the model's {w}x{h}"))?;
         &resized
     };
@@ -131,6 +136,8 @@ pub fn decode_output(
             (0..plane)
                 .map(|p| match desc.output.kind {
                     OutputKind::Probability => u16::from(at(b, 0, p) >= desc.output.threshold),
+                    // Refused by `Segmenter::new`: an embedding has no classes.
+                    OutputKind::Embedding => 0,
                     // First maximum wins, so ties resolve the same way everywhere.
                     OutputKind::Scores => (1..c).fold(0, |best, k| {
                         if at(b, k, p) > at(b, best, p) {

@@ -8,6 +8,7 @@ pub mod preview;
 mod telemetry;
 
 use crate::analysis::{self, Request};
+use crate::embedding_file;
 use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::gpu;
@@ -154,6 +155,14 @@ impl SelectSettings {
         for (key, file) in self.steps.iter().flat_map(Step::files) {
             inputs.add(Step::file_what(key), file);
         }
+        // A network's description names the network (and is itself the `model` above).
+        if let Some(m) =
+            similarity_model(&self.steps).filter(|m| crate::model_desc::is_description(m))
+        {
+            if let Ok(d) = crate::model_desc::ModelDesc::load(m) {
+                inputs.extend(&d.inputs);
+            }
+        }
         inputs
     }
 
@@ -207,7 +216,41 @@ pub(crate) fn check_outputs(s: &SelectSettings) -> Result<[Lock; 2]> {
             "exists and is not a keyframer checkpoint; pass --force to replace it",
         ));
     }
+    if s.needs(Need::Embeddings) {
+        let running = series_partial_path(&s.output);
+        crate::output::check_name_len(&running)?;
+        crate::output::check_name_len(&s.output.with_file_name(series_name(
+            &s.output,
+            "",
+            (0, 0),
+        )))?;
+        if running.exists() && !s.force && !embedding_file::is_ours(&running) {
+            return Err(Error::output(
+                running,
+                "exists and is not a keyframer embeddings file; pass --force to replace it",
+            ));
+        }
+    }
     Ok([project, partial])
+}
+
+/// Where a running analysis appends the embeddings: `output` + `.partial.emb` (with the
+/// checkpoint, `output` + `.partial`, which counts its frames).
+pub fn series_partial_path(output: &Path) -> PathBuf {
+    let mut name = output.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial.emb");
+    output.with_file_name(name)
+}
+
+/// The file name of a finished embedding series of `embedder` at `size` beside the project
+/// `output`: its name, 16 hex digits of a hash of the series' key, `.emb`.
+fn series_name(output: &Path, embedder: &str, size: (u32, u32)) -> String {
+    let key = format!("{embedder} {}x{}", size.0, size.1);
+    format!(
+        "{}.{:016x}.emb",
+        output.file_name().unwrap_or_default().to_string_lossy(),
+        crate::output::fnv1a64(key.as_bytes())
+    )
 }
 
 /// The checkpoint file of a running analysis for the project `output`: `output` + `.partial`.
@@ -238,6 +281,11 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
 /// Writes `project` to `output` atomically and removes the analysis checkpoint beside it: the
 /// end of every `select` (and of `review`'s save).
 pub fn write(project: &Project, output: &Path) -> Result<()> {
+    // The series files the project being replaced names (its own record of them).
+    let old: Vec<PathBuf> = match output.is_file() {
+        true => Project::load(output).map_or_else(|_| Vec::new(), |p| series_files(&p)),
+        false => Vec::new(),
+    };
     project.save(output, true)?;
     let checkpoint = checkpoint_path(output);
     if checkpoint.is_file() {
@@ -248,7 +296,19 @@ pub fn write(project: &Project, output: &Path) -> Result<()> {
             );
         }
     }
+    let kept = series_files(project);
+    for f in old.iter().filter(|f| !kept.contains(f)) {
+        embedding_file::remove_ours(f);
+    }
+    embedding_file::remove_ours(&series_partial_path(output));
     Ok(())
+}
+
+/// The series files `project`'s cache names.
+pub(crate) fn series_files(project: &Project) -> Vec<PathBuf> {
+    (project.cache.embeddings.iter())
+        .filter_map(|e| e.path())
+        .collect()
 }
 
 /// The manual step of `steps` (frames added and removed by index), when there is one.
@@ -278,7 +338,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let _held = check_outputs(s)?;
     // A model that does not fit its name is refused before any frame is decoded.
     if let Some(model) = similarity_model(&s.steps) {
-        crate::segment::embedding::check(model)?;
+        drop(crate::segment::embedding::check(model)?);
     }
     let boundaries = steps::boundaries(&s.steps);
     let mut known = Known::from_project(s, full, &input_ref);
@@ -530,7 +590,15 @@ impl Known {
             });
         }
         if let (Some(e), Some((embedder, _))) = (a.embeddings, plan.embedder.clone()) {
-            let dim = e.frames.first().map_or(0, |f| f.len() / 4);
+            // The running series file becomes the project's, under a name of its key.
+            let name = series_name(&s.output, &embedder, e.size);
+            let to = s.output.with_file_name(&name);
+            if to.exists() && !s.force && !embedding_file::is_ours(&to) {
+                let msg =
+                    "exists and is not a keyframer embeddings file; pass --force to replace it";
+                return Err(Error::output(to, msg));
+            }
+            std::fs::rename(&e.file, &to).map_err(|err| Error::io(&to, err))?;
             cache
                 .embeddings
                 .retain(|c| !(c.embedder == embedder && (c.width, c.height) == e.size));
@@ -539,8 +607,11 @@ impl Known {
                 width: e.size.0,
                 height: e.size.1,
                 backend: e.backend,
-                dim,
-                frames: e.frames,
+                runtime: e.runtime,
+                dim: e.dim,
+                file: Some(name),
+                frames: Vec::new(),
+                dir: to.parent().unwrap_or(Path::new("")).to_path_buf(),
             });
         }
         if cache.timestamps_s.is_none() {
@@ -657,17 +728,17 @@ impl Plan {
         let model = similarity_model(&s.steps);
         let embedder = (needs.contains(&Need::Embeddings)).then(|| match model {
             Some(m) => (
-                steps::similarity::model_embedder(m).unwrap_or_default(),
+                crate::segment::embedding::embedder_of(m).unwrap_or_default(),
                 Some(m.to_path_buf()),
             ),
             None => (descriptor::NAME.to_string(), None),
         });
-        // The built-in descriptor at this analysis size, or the step's network.
+        // The built-in descriptor at this analysis size, or the step's network, readable.
         let described = |m: &Metadata| match model {
             Some(_) => embeddings(cache, m, width, model).is_some(),
             None => {
                 let size = analysis::analysis_size(m.width, m.height, width);
-                cache.embeddings(descriptor::NAME, size).is_some()
+                (cache.embeddings(descriptor::NAME, size)).is_some_and(|e| e.usable(m.frame_count))
             }
         };
         let need_embeddings = embedder.is_some() && !known.metadata.as_ref().is_some_and(described);
@@ -697,6 +768,8 @@ impl Plan {
             stationary: self.stationary,
             descriptor: self.descriptor,
             network: self.embedder.clone().and_then(|e| e.1),
+            runtime: similarity_runtime(&s.steps),
+            store: self.descriptor.map(|_| series_partial_path(&s.output)),
         }
     }
 }
@@ -831,33 +904,52 @@ fn similarity_model(steps: &[Step]) -> Option<&Path> {
     })
 }
 
-/// The embeddings in `cache` the similarity step reads: those of its `model`'s network, else
-/// the built-in descriptor's at the analysis size of `analysis_width`, else at any size.
+/// The runtime the chain's similarity step asks for its network, if it names one.
+fn similarity_runtime(steps: &[Step]) -> Option<crate::manifest::SegRuntime> {
+    steps.iter().find_map(|s| match s {
+        Step::Similarity { runtime, .. } => *runtime,
+        _ => None,
+    })
+}
+
+/// The embeddings in `cache` the similarity step reads (readable ones: [`EmbeddingCache::usable`]):
+/// those of its `model`'s network, else the built-in descriptor's at the analysis size of
+/// `analysis_width`, else at any size.
 fn embeddings<'a>(
     cache: &'a Cache,
     metadata: &Metadata,
     analysis_width: u32,
     model: Option<&Path>,
 ) -> Option<steps::similarity::Embeddings<'a>> {
+    let n = metadata.frame_count;
     let e = match model {
         Some(m) => {
-            let name = steps::similarity::model_embedder(m)?;
-            cache.embeddings.iter().find(|e| e.embedder == name)?
+            let name = crate::segment::embedding::embedder_of(m)?;
+            (cache.embeddings.iter()).find(|e| e.embedder == name && e.usable(n))?
         }
         None => {
             let size = analysis::analysis_size(metadata.width, metadata.height, analysis_width);
             let ours = || {
-                cache
-                    .embeddings
-                    .iter()
-                    .find(|e| e.embedder == descriptor::NAME)
+                (cache.embeddings.iter()).find(|e| e.embedder == descriptor::NAME && e.usable(n))
             };
-            cache.embeddings(descriptor::NAME, size).or_else(ours)?
+            (cache.embeddings(descriptor::NAME, size))
+                .filter(|e| e.usable(n))
+                .or_else(ours)?
         }
+    };
+    let frames = match &e.file {
+        Some(name) => steps::similarity::Stored::File {
+            dir: &e.dir,
+            name,
+            dim: e.dim,
+            count: n,
+        },
+        None => steps::similarity::Stored::Hex(&e.frames),
     };
     Some(steps::similarity::Embeddings {
         embedder: &e.embedder,
         backend: e.backend,
-        frames: &e.frames,
+        runtime: e.runtime,
+        frames,
     })
 }

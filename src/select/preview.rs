@@ -102,6 +102,10 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
         }
         false => None,
     };
+    // A preview is never reused as a cache: the embeddings its keyframes gave are dropped.
+    for f in select::series_files(p) {
+        crate::embedding_file::remove_ours(&f);
+    }
     p.cache = Cache {
         timestamps_s: Some(index.timestamps_s.clone()),
         telemetry,

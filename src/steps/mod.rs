@@ -366,9 +366,13 @@ pub enum Step {
         k: Option<usize>,
         /// Cosine distance below which a frame counts as seen (instead of `k`).
         threshold: Option<f64>,
-        /// The embedding network (`ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx`); absent: the
-        /// built-in descriptor. In a workflow relative to the workflow's folder.
+        /// The embedding network: a model description (`.toml`) or an ONNX file named
+        /// `ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx`; absent: the built-in descriptor. In a
+        /// workflow relative to the workflow's folder.
         model: Option<std::path::PathBuf>,
+        /// The runtime that runs `model` (OpenCV DNN when absent).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        runtime: Option<crate::manifest::SegRuntime>,
     },
     /// Every n-th candidate.
     #[serde(alias = "every")]
@@ -448,6 +452,7 @@ impl Step {
                 k,
                 threshold,
                 model,
+                ..
             } => similarity::apply(at, keys, (*k, *threshold), model.as_deref())?,
             Step::EveryNth { n } => every_nth::apply(keys, *n)?,
             Step::Fps { fps } => fps::apply(at, keys, *fps)?,
@@ -517,9 +522,12 @@ impl Step {
         match self {
             Step::GeoArea { file, .. } => drop(geo_area::Area::load(file)?),
             Step::Similarity { model: Some(m), .. } => {
-                similarity::model_name(m)?;
                 if !m.is_file() {
                     return Err(Error::input(m, "no such embedding model"));
+                }
+                match crate::model_desc::is_description(m) {
+                    true => drop(crate::model_desc::ModelDesc::load_embedding(m)?),
+                    false => drop(similarity::model_name(m)?),
                 }
             }
             _ => {}
@@ -806,6 +814,9 @@ pub enum Applied {
         /// The embedding network as given, when one was.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         model: Option<std::path::PathBuf>,
+        /// The runtime that ran the network, when one did.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        runtime: Option<crate::manifest::SegRuntime>,
         /// The cosine-distance threshold, when given.
         threshold: Option<f64>,
     },
@@ -884,11 +895,13 @@ impl Applied {
                 k,
                 threshold,
                 model,
+                runtime,
                 ..
             } => Step::Similarity {
                 k: *k,
                 threshold: *threshold,
                 model: model.clone(),
+                runtime: *runtime,
             },
             Applied::EveryNth { n } => Step::EveryNth { n: *n },
             Applied::Fps { fps } => Step::Fps { fps: *fps },
@@ -1198,6 +1211,7 @@ mod tests {
             embedder: "descriptor".into(),
             k: Some(4),
             model: None,
+            runtime: None,
             threshold: Some(0.2),
         };
         let (key, msg) = similarity.check(10).unwrap_err();

@@ -8,16 +8,19 @@
 //!   cosine distance to a frame already kept is below D, so a scene seen again later (a revisit,
 //!   a loop) is left out, which k-means, blind to order, does not do.
 //!
-//! With `--similarity-model FILE` the embeddings come from an image-embedding network named as
-//! iVS3D names them, `ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx` ([`model_name`]), run through
-//! OpenCV DNN (`segment::embedding`).
+//! With `--similarity-model FILE` the embeddings come from an image-embedding network: a model
+//! description (`model_desc`, output kind `embedding`) or an ONNX file named as iVS3D names them,
+//! `ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx` ([`model_name`]), run by OpenCV DNN or ONNX Runtime
+//! (`--similarity-runtime`, `segment::embedding`).
 //!
-//! Embeddings are stored per frame as unit vectors quantised to 16 bits ([`encode`]): compact in
-//! the project file, and the same bytes for the same descriptor totals, whichever backend
-//! computed them.
+//! Embeddings are kept per frame as unit vectors quantised to 16 bits ([`quantise`]) in a side
+//! file beside the project (`embedding_file`; older projects: hex text, [`encode`]), the same
+//! bytes for the same descriptor totals whichever backend computed them; the step reads back
+//! only its candidates' vectors ([`Stored::vectors`]).
 
 use super::{Applied, Flag, FlagValues, Inputs, Step};
 use crate::error::{Error, Result};
+use crate::manifest::SegRuntime;
 use crate::params::Backend;
 use std::path::{Path, PathBuf};
 
@@ -42,9 +45,16 @@ pub const FLAGS: &[Flag] = &[
     Flag::value::<PathBuf>(
         "similarity-model",
         "FILE",
-        "Embeddings for --similarity from an ONNX image-embedding network named ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx (iVS3D's naming; RGB, ImageNet mean/std) instead of the built-in descriptor",
+        "Embeddings for --similarity from an image-embedding network instead of the built-in descriptor: a model description (.toml, output kind \"embedding\") or an ONNX file named ImageEmbedding_<NAME>_<DIM>_<W>x<H>.onnx (iVS3D's naming; RGB, ImageNet mean/std)",
     )
     .sets(ID, "model"),
+    Flag::value::<SegRuntime>(
+        "similarity-runtime",
+        "RUNTIME",
+        "Runtime of the --similarity-model network (the runtimes of --mask-backend)",
+    )
+    .choices::<SegRuntime>()
+    .sets(ID, "runtime"),
 ];
 
 /// The step when `--similarity` or `--similarity-threshold` is given.
@@ -52,11 +62,19 @@ pub fn from_flags(v: &FlagValues) -> Result<Option<Step>> {
     let k = v.get::<usize>("similarity")?;
     let threshold = v.get::<f64>("similarity-threshold")?;
     let model = v.get::<PathBuf>("similarity-model")?;
+    let runtime = v.get::<SegRuntime>("similarity-runtime")?;
+    if runtime.is_some() && model.is_none() {
+        return Err(Error::param(
+            "similarity-runtime",
+            "needs --similarity-model FILE (the built-in descriptor runs on --backend)",
+        ));
+    }
     match (k.is_some() || threshold.is_some(), model) {
         (true, model) => Ok(Some(Step::Similarity {
             k,
             threshold,
             model,
+            runtime,
         })),
         (false, Some(_)) => Err(Error::param(
             "similarity-model",
@@ -108,15 +126,6 @@ pub fn model_name(path: &Path) -> Result<ModelName> {
     })
 }
 
-/// The embedder a chain's similarity step reads: the built-in descriptor (None) or its model,
-/// named `onnx:<file name>:<bytes>` in the cache (a model replaced by another of the same name
-/// and size is not noticed).
-pub fn model_embedder(model: &Path) -> Option<String> {
-    let bytes = std::fs::metadata(model).ok()?.len();
-    let file = model.file_name()?.to_string_lossy().into_owned();
-    Some(format!("onnx:{file}:{bytes}"))
-}
-
 /// Checks the parameters: one mode, K at least 1, D in (0, 2].
 pub fn check(
     k: Option<usize>,
@@ -140,51 +149,111 @@ pub fn check(
     }
 }
 
-/// The embeddings a similarity step reads: what computed them and one encoded vector per frame.
+/// The embeddings a similarity step reads: what computed them and each frame's vector.
 #[derive(Debug, Clone, Copy)]
 pub struct Embeddings<'a> {
     /// The embedder's name (`builtin-grid-hog-colour-v1`).
     pub embedder: &'a str,
     /// Backend that computed them.
     pub backend: Backend,
-    /// One [`encode`]d embedding per frame.
-    pub frames: &'a [String],
+    /// The runtime that ran the network, when a network computed them.
+    pub runtime: Option<SegRuntime>,
+    /// Where the vectors are.
+    pub frames: Stored<'a>,
+}
+
+/// Where a series' vectors are kept.
+#[derive(Debug, Clone, Copy)]
+pub enum Stored<'a> {
+    /// One [`encode`]d vector per frame (projects written before the side files).
+    Hex(&'a [String]),
+    /// A side file (`embedding_file`) of `count` frames of `dim` values.
+    File {
+        /// The folder it is in (the project's).
+        dir: &'a Path,
+        /// Its name.
+        name: &'a str,
+        /// Values per frame.
+        dim: usize,
+        /// Frames it holds.
+        count: usize,
+    },
+}
+
+impl Stored<'_> {
+    /// The unit vectors of `frames`, in that order: only those are read (memory: 8 bytes per
+    /// value of the frames asked for).
+    pub fn vectors(&self, frames: &[usize]) -> Result<Vec<Vec<f64>>> {
+        match *self {
+            Stored::Hex(all) => (frames.iter())
+                .map(|&f| {
+                    let text = all.get(f).ok_or_else(|| {
+                        Error::step(ID, format!("the cache has no embedding of frame {f}"))
+                    })?;
+                    decode(text).ok_or_else(|| {
+                        Error::step(
+                            ID,
+                            format!("frame {f}: the cached embedding is not readable"),
+                        )
+                    })
+                })
+                .collect(),
+            Stored::File {
+                dir,
+                name,
+                dim,
+                count,
+            } => {
+                let q = crate::embedding_file::read(&dir.join(name), dim, count, frames)?;
+                Ok(q.iter().map(|v| unit(v)).collect())
+            }
+        }
+    }
 }
 
 /// Scale of the 16-bit quantisation of a unit vector's components.
 const QUANT: f64 = 32767.0;
 
-/// A vector stored per frame: normalised to unit length (a zero vector stays zero), each
-/// component rounded to a multiple of 1/32767, as 4 hex digits (two's complement).
-pub fn encode(v: &[f64]) -> String {
+/// A vector as stored per frame: normalised to unit length (a zero vector stays zero), each
+/// component rounded to a multiple of 1/32767.
+pub fn quantise(v: &[f64]) -> Vec<i16> {
     let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
     v.iter()
-        .map(|x| {
-            let q = match norm > 0.0 {
-                true => (x / norm * QUANT).round().clamp(-QUANT, QUANT) as i16,
-                false => 0,
-            };
-            format!("{:04x}", q as u16)
+        .map(|x| match norm > 0.0 {
+            true => (x / norm * QUANT).round().clamp(-QUANT, QUANT) as i16,
+            false => 0,
         })
         .collect()
 }
 
-/// The unit vector of an [`encode`]d one (renormalised after the quantisation); None when the
-/// text is not whole 4-digit hex numbers.
+/// The [`quantise`]d vector as 4 hex digits a component (two's complement): how projects kept
+/// them before the side files.
+pub fn encode(v: &[f64]) -> String {
+    quantise(v)
+        .iter()
+        .map(|&q| format!("{:04x}", q as u16))
+        .collect()
+}
+
+/// The unit vector of a [`quantise`]d one (renormalised after the quantisation).
+pub fn unit(q: &[i16]) -> Vec<f64> {
+    let v: Vec<f64> = q.iter().map(|&x| f64::from(x)).collect();
+    let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    v.iter()
+        .map(|x| if norm > 0.0 { x / norm } else { 0.0 })
+        .collect()
+}
+
+/// The unit vector of an [`encode`]d one; None when the text is not whole 4-digit hex numbers.
 pub fn decode(text: &str) -> Option<Vec<f64>> {
     if !text.len().is_multiple_of(4) || !text.is_ascii() {
         return None;
     }
-    let v = (0..text.len() / 4)
-        .map(|i| u16::from_str_radix(&text[4 * i..4 * i + 4], 16).map(|q| f64::from(q as i16)))
-        .collect::<std::result::Result<Vec<f64>, _>>()
+    let q = (0..text.len() / 4)
+        .map(|i| u16::from_str_radix(&text[4 * i..4 * i + 4], 16).map(|q| q as i16))
+        .collect::<std::result::Result<Vec<i16>, _>>()
         .ok()?;
-    let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-    Some(
-        v.iter()
-            .map(|x| if norm > 0.0 { x / norm } else { 0.0 })
-            .collect(),
-    )
+    Some(unit(&q))
 }
 
 /// Cosine distance of two unit vectors (1 - their dot product; 1 when one is zero).
@@ -205,19 +274,7 @@ pub fn apply(
             "needs each frame's embedding, which the project's cache lacks: run `keyframer select` with the step",
         )
     })?;
-    let points = (keys.iter())
-        .map(|&f| {
-            let text = e.frames.get(f).ok_or_else(|| {
-                Error::step(ID, format!("the cache has no embedding of frame {f}"))
-            })?;
-            decode(text).ok_or_else(|| {
-                Error::step(
-                    ID,
-                    format!("frame {f}: the cached embedding is not readable"),
-                )
-            })
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let points = e.frames.vectors(keys)?;
     let dim = points.first().map_or(0, Vec::len);
     let (chosen, clusters) = match (k, threshold) {
         (Some(k), _) => {
@@ -243,6 +300,7 @@ pub fn apply(
         embedder: e.embedder.to_string(),
         k,
         model: model.map(crate::fsutil::absolute),
+        runtime: e.runtime,
         threshold,
     })
 }

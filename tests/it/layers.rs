@@ -187,6 +187,7 @@ const LAYERS: [(&str, &[&str]); 4] = [
             "names",
             "numbers",
             "equirect",
+            "embedding_file",
         ],
     ),
 ];

@@ -35,6 +35,7 @@ mod scene;
 mod segment;
 mod sharpness;
 mod similarity;
+mod similarity_models;
 mod standalone;
 mod telemetry;
 mod walk;

@@ -13,7 +13,7 @@ use opencv::{imgcodecs, imgproc};
 use std::path::{Path, PathBuf};
 
 /// Frames per scene.
-const SCENE: usize = 12;
+pub(crate) const SCENE: usize = 12;
 /// The photos panned over, in order; the first comes back as the fifth scene.
 const PHOTOS: [&str; 5] = [
     "baboon.jpg",
@@ -26,7 +26,7 @@ const PHOTOS: [&str; 5] = [
 /// The clip (320x180, 30 fps): per scene a 2-pixel-per-frame pan over a 400x225 window of its
 /// photo (the revisit starts 1 pixel later than the first visit). Returns it with each frame's
 /// scene group (the revisit is group 0).
-fn scenes_clip(dir: &Path) -> (PathBuf, Vec<usize>) {
+pub(crate) fn scenes_clip(dir: &Path) -> (PathBuf, Vec<usize>) {
     let frames = dir.join("scenes-frames");
     std::fs::create_dir_all(&frames).unwrap();
     let mut groups = Vec::new();
@@ -68,7 +68,7 @@ fn cos_dist(a: &[f64], b: &[f64]) -> f64 {
     1.0 - a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>()
 }
 
-fn select(clip: &Path, p: &Path, args: &[&str]) -> (i32, String) {
+pub(crate) fn select(clip: &Path, p: &Path, args: &[&str]) -> (i32, String) {
     let mut all = vec!["select", s(clip), "-o", s(p), "--force"];
     all.extend(args);
     code_and_stderr(&kf(&all))
@@ -92,7 +92,7 @@ fn similarity_keeps_one_frame_per_cluster_and_leaves_revisits_out() {
         let project = json(&p);
         let series = project["cache"]["embeddings"][0].clone();
         assert_eq!(series["backend"], backend, "{backend}");
-        runs.push((keyframes(&p), series["frames"].clone(), p));
+        runs.push((keyframes(&p), series_bytes(&p, 0), p));
     }
     for r in &runs[1..] {
         assert_eq!(r.0, runs[0].0, "keyframes differ between runs/backends");
@@ -305,7 +305,7 @@ fn descriptor_reproduces_the_reference_totals() {
 }
 
 /// Weights of the tiny embedding network: four mixes of R, G and B.
-const MIX: [[f32; 3]; 4] = [
+pub(crate) const MIX: [[f32; 3]; 4] = [
     [1.0, 0.0, 0.0],
     [0.0, 1.0, 0.0],
     [0.0, 0.0, 1.0],
@@ -332,17 +332,18 @@ fn similarity_with_an_onnx_embedding_network() {
     assert_eq!(code, 0, "{err}");
     let project = json(&p);
     let series = &project["cache"]["embeddings"][0];
-    let bytes = std::fs::metadata(&model).unwrap().len();
-    assert_eq!(
-        series["embedder"],
-        format!("onnx:ImageEmbedding_Tiny_4_12x8.onnx:{bytes}")
+    let embedder = series["embedder"].as_str().unwrap();
+    let hash = embedder.strip_prefix("onnx:ImageEmbedding_Tiny_4_12x8.onnx:");
+    assert!(
+        hash.is_some_and(|h| h.len() == 16 && h.chars().all(|c| c.is_ascii_hexdigit())),
+        "{embedder}"
     );
     assert_eq!(series["dim"], 4);
     assert_eq!(
         (series["width"].clone(), series["height"].clone()),
         (12.into(), 8.into())
     );
-    let n = series["frames"].as_array().unwrap().len();
+    let n = embeddings_of(&p, 0).len();
     assert_eq!(n, SCENE * PHOTOS.len());
     assert_eq!(keyframes(&p).len(), n.div_ceil(15));
     // The first frame's embedding as an independent computation gives it: the mean of each mix
@@ -427,18 +428,54 @@ fn similarity_with_an_onnx_embedding_network() {
     }
 }
 
-/// The embeddings of series `i` of a project, decoded as [`embeddings`] does.
-fn embeddings_of(project: &Path, i: usize) -> Vec<Vec<f64>> {
+/// The embeddings of series `i` of a project, decoded independently of keyframer: from its
+/// series file (16-byte header with the dimension at bytes 8..12, then little-endian i16 per
+/// value), or from the hex text of older projects (16-bit two's complement per component);
+/// renormalised.
+pub(crate) fn embeddings_of(project: &Path, i: usize) -> Vec<Vec<f64>> {
     let p = json(project);
     let series = &p["cache"]["embeddings"][i];
-    (series["frames"].as_array().unwrap().iter())
-        .map(|f| {
-            let t = f.as_str().unwrap();
-            let v: Vec<f64> = (0..t.len() / 4)
-                .map(|i| f64::from(u16::from_str_radix(&t[4 * i..4 * i + 4], 16).unwrap() as i16))
-                .collect();
-            let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-            v.iter().map(|x| x / n).collect()
+    let unit = |v: Vec<f64>| {
+        let n = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        v.iter().map(|x| x / n).collect::<Vec<f64>>()
+    };
+    if let Some(frames) = series["frames"].as_array() {
+        return (frames.iter())
+            .map(|f| {
+                let t = f.as_str().unwrap();
+                unit(
+                    (0..t.len() / 4)
+                        .map(|i| {
+                            f64::from(u16::from_str_radix(&t[4 * i..4 * i + 4], 16).unwrap() as i16)
+                        })
+                        .collect(),
+                )
+            })
+            .collect();
+    }
+    let bytes = series_bytes(project, i);
+    assert_eq!(&bytes[..8], b"KFEMB\0\0\x01");
+    let dim = u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize;
+    assert_eq!(dim as u64, series["dim"].as_u64().unwrap());
+    assert_eq!((bytes.len() - 16) % (2 * dim), 0);
+    (bytes[16..].chunks(2 * dim))
+        .map(|rec| {
+            unit(
+                rec.chunks(2)
+                    .map(|b| f64::from(i16::from_le_bytes([b[0], b[1]])))
+                    .collect(),
+            )
         })
         .collect()
+}
+
+/// The bytes of the series file of series `i` of a project (beside it, named by `file`).
+pub(crate) fn series_bytes(project: &Path, i: usize) -> Vec<u8> {
+    let p = json(project);
+    let name = p["cache"]["embeddings"][i]["file"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(!name.contains('/'), "{name}");
+    std::fs::read(project.with_file_name(name)).unwrap()
 }
