@@ -12,7 +12,6 @@ pub mod bench;
 pub mod bench_pipeline;
 #[cfg(feature = "opencv")]
 pub mod colmap;
-#[cfg(feature = "opencv")]
 pub mod embedding_file;
 #[cfg(feature = "opencv")]
 pub mod encode;
@@ -34,7 +33,6 @@ pub mod gpu;
 pub mod info;
 pub mod kernels;
 pub mod manifest;
-#[cfg(feature = "opencv")]
 pub mod model_desc;
 pub mod names;
 #[cfg(feature = "opencv")]
@@ -61,7 +59,6 @@ pub mod source;
 pub mod sparse;
 pub mod steps;
 pub mod synthetic;
-#[cfg(feature = "opencv")]
 pub mod tomlfile;
 #[cfg(feature = "opencv")]
 pub mod workflow;
