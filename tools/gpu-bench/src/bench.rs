@@ -218,6 +218,8 @@ pub fn select_request(width: u32, analysis_width: u32) -> Request {
         }),
         descriptor: None,
         network: None,
+        runtime: None,
+        store: None,
     }
 }
 
