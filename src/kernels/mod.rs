@@ -10,6 +10,7 @@ pub mod movement;
 pub mod remap;
 pub mod resize_area;
 pub mod sharpness;
+pub mod sphere;
 pub mod stationary;
 pub mod strip;
 pub mod tenengrad;

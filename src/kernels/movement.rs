@@ -43,7 +43,9 @@ pub struct RotationField {
     f: f32,
     cx: f32,
     cy: f32,
-    /// Inverse of the normal matrix sum(e_k . e_l) over the grid (geometry only).
+    /// The normal matrix sum(e_k . e_l) over the grid (geometry only).
+    normal: [[f64; 3]; 3],
+    /// Its inverse.
     inverse: [[f64; 3]; 3],
 }
 
@@ -62,6 +64,7 @@ impl RotationField {
             f,
             cx,
             cy,
+            normal: [[0.0; 3]; 3],
             inverse: [[0.0; 3]; 3],
         };
         let mut m = [[0.0f64; 3]; 3];
@@ -78,7 +81,18 @@ impl RotationField {
         }
         field.inverse =
             invert3(&m).ok_or_else(|| Error::param("derotate", "the rotation fit is singular"))?;
+        field.normal = m;
         Ok(field)
+    }
+
+    /// The normal matrix sum(e_k . e_l) over the grid.
+    pub(crate) fn normal(&self) -> [[f64; 3]; 3] {
+        self.normal
+    }
+
+    /// Focal length and principal point (f, cx, cy) in grid pixels, in f32 as the shader has them.
+    pub(crate) fn intrinsics(&self) -> (f32, f32, f32) {
+        (self.f, self.cx, self.cy)
     }
 
     /// Normalised coordinates of pixel (i, j).
@@ -185,7 +199,7 @@ pub fn matrix(omega: [f64; 3]) -> Rotation {
 }
 
 /// Inverse of a 3x3 matrix (None when singular: determinant not finite or below 1e-12).
-fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+pub(crate) fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
     let m = Matrix3::from_fn(|i, j| m[i][j]);
     let det = m.determinant();
     if !det.is_finite() || det.abs() < 1e-12 {
