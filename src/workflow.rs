@@ -436,6 +436,7 @@ fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
         derotate: (an.derotate == Some(true)).then(|| Derotate {
             hfov_deg: an.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
         }),
+        sphere: None,
     };
     Ok(request)
 }

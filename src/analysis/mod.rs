@@ -12,6 +12,7 @@ mod embedding;
 mod ingest;
 mod movement;
 mod sharpness;
+mod sphere;
 #[cfg(test)]
 mod tests;
 

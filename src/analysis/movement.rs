@@ -9,11 +9,13 @@
 use super::checkpoint::MovementState;
 use super::device::{DeviceMovement, Record, Work, REFERENCE};
 use super::ingest::{prepare, Pixels};
+use super::sphere::Sphere;
 use super::{analysis_size, MovementRequest, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::kernels::farneback::{self, SLOTS};
 use crate::kernels::movement::{self, checked, RotationField};
+use crate::kernels::remap::{self, Interp};
 use crate::kernels::resize_area;
 use crate::params::{Backend, FarnebackParams, Statistic};
 use crate::source::{self, Metadata, OpenOptions};
@@ -36,19 +38,34 @@ pub(crate) trait MovementEngine {
     }
 }
 
-/// OpenCV's Farneback and the host twin of the statistic.
+/// How the opencv engine derotates: not at all, one pinhole rotation (`--derotate`), or one
+/// rotation of the sphere over the horizon views.
+enum Fit {
+    None,
+    Pinhole(RotationField),
+    Sphere(Sphere),
+}
+
+/// OpenCV's Farneback and the host twin of the statistic. On a 360° input each slot holds the
+/// horizon views of its frame (cv::remap), and the statistic is taken over every view's flow.
 struct Opencv {
     params: FarnebackParams,
     statistic: Statistic,
-    frames: Vec<Option<Mat>>,
-    field: Option<RotationField>,
+    /// Per slot: the frame, or its views.
+    frames: Vec<Option<Vec<Mat>>>,
+    fit: Fit,
 }
 
 impl MovementEngine for Opencv {
     fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
         match px {
             Pixels::Small(gray) => {
-                self.frames[slot] = Some(gray);
+                self.frames[slot] = Some(match &self.fit {
+                    Fit::Sphere(sphere) => (sphere.tables.iter())
+                        .map(|t| remap::opencv(&gray, t, Interp::Bilinear))
+                        .collect::<Result<Vec<_>>>()?,
+                    _ => vec![gray],
+                });
                 Ok(())
             }
             Pixels::Staged(_) => Err(Error::param(
@@ -83,18 +100,32 @@ impl MovementEngine for Opencv {
 }
 
 impl Opencv {
-    /// The frames in slots `from` and `to`.
-    fn pair(&self, from: usize, to: usize) -> Result<(&Mat, &Mat)> {
+    /// The frames (or views) in slots `from` and `to`.
+    fn pair(&self, from: usize, to: usize) -> Result<(&[Mat], &[Mat])> {
         match (&self.frames[from], &self.frames[to]) {
             (Some(a), Some(b)) => Ok((a, b)),
             _ => Err(Error::param("slots", "frame not loaded")),
         }
     }
 
-    /// The statistic of the flow from `a` to `b`.
-    fn measure(&self, a: &Mat, b: &Mat) -> Result<f64> {
-        let f = farneback::opencv(a, b, &self.params, None)?;
-        movement::cpu_flow(&f, self.statistic, self.field.as_ref())
+    /// The statistic of the flow from `a` to `b` (of every view's flow, derotated together, on
+    /// a 360° input).
+    fn measure(&self, a: &[Mat], b: &[Mat]) -> Result<f64> {
+        let flows = (a.iter().zip(b))
+            .map(|(a, b)| farneback::opencv(a, b, &self.params, None))
+            .collect::<Result<Vec<_>>>()?;
+        match (&self.fit, flows.as_slice()) {
+            (Fit::None, [f]) => movement::cpu_flow(f, self.statistic, None),
+            (Fit::Pinhole(field), [f]) => movement::cpu_flow(f, self.statistic, Some(field)),
+            (Fit::Sphere(sphere), _) => {
+                let mut stacked = Vec::new();
+                for f in &flows {
+                    stacked.extend(movement::flow_values(f)?);
+                }
+                movement::cpu(&sphere.field.derotated(&stacked)?, self.statistic)
+            }
+            _ => Err(Error::param("movement", "one flow per frame expected")),
+        }
     }
 }
 
@@ -125,17 +156,20 @@ fn engine(
     (w, h): (u32, u32),
     scale: f64,
 ) -> Result<(Engine, Backend)> {
+    let sphere = || req.sphere.map(|v| Sphere::new(v, (w, h))).transpose();
+    let fit = match (sphere()?, req.derotate) {
+        (Some(s), _) => Fit::Sphere(s),
+        (None, Some(d)) => Fit::Pinhole(RotationField::new(w, h, d)?),
+        (None, None) => Fit::None,
+    };
     let cpu = Opencv {
         params: req.farneback,
         statistic: req.statistic,
         frames: vec![None; SLOTS],
-        field: req
-            .derotate
-            .map(|d| RotationField::new(w, h, d))
-            .transpose()?,
+        fit,
     };
     if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
-        match DeviceMovement::new(ctx, req, stationary, scale, (w, h)) {
+        match DeviceMovement::new(ctx, req, stationary, scale, (w, h), sphere()?) {
             Ok(e) => return Ok((Engine::Device(Box::new(e)), Backend::Gpu)),
             Err(e) => log::warn!("{e}; movement uses the opencv backend"),
         }
@@ -172,6 +206,9 @@ pub(crate) struct MovementPass {
     stride: usize,
     /// Analysis size.
     pub size: (i32, i32),
+    /// Frames are 360° ones measured on their horizon views (rendered from the analysis gray
+    /// on the host side of the hand-off, never staged).
+    sphere: bool,
     /// Factor from analysis pixels to full-resolution pixels.
     pub scale: f64,
     /// values[i] = movement from frame i-1 to frame i (full-resolution pixels).
@@ -230,6 +267,7 @@ impl MovementPass {
             engine,
             stride: req.stride as usize,
             size: (w as i32, h as i32),
+            sphere: req.sphere.is_some(),
             scale,
             values: Vec::new(),
             anchor: None,
@@ -245,6 +283,7 @@ impl MovementPass {
     /// the CPU prepare).
     pub(crate) fn can_stage(&self, frame: (u32, u32)) -> bool {
         matches!(self.engine, Engine::Device(_))
+            && !self.sphere
             && resize_area::factors(frame, (self.size.0 as u32, self.size.1 as u32)).is_some()
     }
 

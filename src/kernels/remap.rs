@@ -241,15 +241,24 @@ impl RemapGpu {
         })
     }
 
-    /// Renders `frame` (8-bit, of the source size and channels) through every table and reads the
-    /// outputs back, in the order of the tables.
-    pub fn render(&self, frame: &Mat) -> Result<Vec<Mat>> {
-        let typ = if self.channels == 3 {
+    fn typ(&self) -> i32 {
+        if self.channels == 3 {
             opencv::core::CV_8UC3
         } else {
             opencv::core::CV_8UC1
-        };
-        let bytes = mat_bytes(frame, typ, self.src_size, "remap")?;
+        }
+    }
+
+    /// The device buffer output `k` is rendered into (its table's size times the channels in
+    /// bytes, 4 per u32, rows not padded), until the next frame.
+    pub fn output(&self, k: usize) -> Option<&wgpu::Buffer> {
+        self.outputs.get(k).map(|o| &o.dst)
+    }
+
+    /// Uploads `frame` (8-bit, of the source size and channels) and records its rendering
+    /// through every table into the outputs.
+    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, frame: &Mat) -> Result<()> {
+        let bytes = mat_bytes(frame, self.typ(), self.src_size, "remap")?;
         let mut padded;
         let upload: &[u8] = if bytes.len() % 4 == 0 {
             &bytes
@@ -259,15 +268,21 @@ impl RemapGpu {
             &padded
         };
         self.ctx.write(&self.src, 0, upload);
-        let mut enc = self.ctx.encoder("remap");
-        {
-            let mut pass = compute_pass(&mut enc, "remap");
-            for o in &self.outputs {
-                let words = o.bytes.div_ceil(4) as u32;
-                self.ctx
-                    .dispatch(&mut pass, &self.pipe, &o.bind, groups(words));
-            }
+        let mut pass = compute_pass(enc, "remap");
+        for o in &self.outputs {
+            let words = o.bytes.div_ceil(4) as u32;
+            self.ctx
+                .dispatch(&mut pass, &self.pipe, &o.bind, groups(words));
         }
+        Ok(())
+    }
+
+    /// Renders `frame` (8-bit, of the source size and channels) through every table and reads the
+    /// outputs back, in the order of the tables.
+    pub fn render(&self, frame: &Mat) -> Result<Vec<Mat>> {
+        let typ = self.typ();
+        let mut enc = self.ctx.encoder("remap");
+        self.encode(&mut enc, frame)?;
         let mut at = 0;
         for o in &self.outputs {
             let n = o.bytes.next_multiple_of(4);

@@ -9,10 +9,18 @@
 //! frame → sphere frame), so the normal equations add up: `A = Σ Vk Ak Vkᵀ`, `b = Σ Vk bk`, with
 //! `Ak` the (shared) normal matrix of one view's grid and `bk` view k's sums.
 
-use super::movement::{invert3, matrix, Rotation, RotationField, IDENTITY, ROTATION_REFINEMENTS};
+use super::movement::{invert3, matrix, Rotation, RotationField, IDENTITY};
 use crate::equirect::View;
 use crate::error::{Error, Result};
 use crate::params::Derotate;
+
+/// The residual clamps (view pixels) of the refinements after the least-squares start. Flow
+/// fails where a view is flat or where content enters it, and such pixels pull a least-squares
+/// fit towards no rotation: on a yaw of 2.25° / 4.5° rendered from a photograph (320 x 160 ERP,
+/// four 90° views of 102 px, OpenCV's Farneback) the least-squares fit leaves a median residual
+/// of 0.38 / 0.81 px, these clamps 0.26 / 0.44 px; the true rotation itself leaves 0.19 / 0.38
+/// px (the flow's own error).
+pub const CLAMPS_PX: [f32; 6] = [4.0, 2.0, 1.0, 1.0, 1.0, 1.0];
 
 /// Most views the device fit takes (the shader's uniform holds this many rotations).
 pub const MAX_VIEWS: usize = 8;
@@ -100,8 +108,9 @@ impl SphereField {
     /// The sphere rotation `r` seen from view k: `Vkᵀ r Vk` (f32, as the shader's `solve`).
     pub fn view_rotation(&self, k: usize, r: &Rotation) -> Rotation {
         let v = &self.rotations[k];
-        let rv: Rotation =
-            std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|l| r[i][l] * v[l][j]).sum()));
+        let rv: Rotation = std::array::from_fn(|i| {
+            std::array::from_fn(|j| (0..3).map(|l| r[i][l] * v[l][j]).sum())
+        });
         std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|l| v[l][i] * rv[l][j]).sum()))
     }
 
@@ -126,7 +135,23 @@ impl SphereField {
     pub fn sums(&self, flow: &[f32], r: &Rotation) -> Result<[f64; 3]> {
         let mut b = [0.0f64; 3];
         for k in 0..self.views() {
-            let bk = self.field.sums(self.part(flow, k)?, &self.view_rotation(k, r))?;
+            let bk = self
+                .field
+                .sums(self.part(flow, k)?, &self.view_rotation(k, r))?;
+            let v = &self.rotations[k];
+            for (i, bi) in b.iter_mut().enumerate() {
+                *bi += (0..3).map(|l| f64::from(v[i][l]) * bk[l]).sum::<f64>();
+            }
+        }
+        Ok(b)
+    }
+
+    /// [`SphereField::sums`] with residuals clamped to `clamp` pixels.
+    pub fn sums_within(&self, flow: &[f32], r: &Rotation, clamp: f32) -> Result<[f64; 3]> {
+        let mut b = [0.0f64; 3];
+        for k in 0..self.views() {
+            let bk =
+                (self.field).sums_within(self.part(flow, k)?, &self.view_rotation(k, r), clamp)?;
             let v = &self.rotations[k];
             for (i, bi) in b.iter_mut().enumerate() {
                 *bi += (0..3).map(|l| f64::from(v[i][l]) * bk[l]).sum::<f64>();
@@ -140,12 +165,13 @@ impl SphereField {
         std::array::from_fn(|k| r[k][0] * b[0] + r[k][1] * b[1] + r[k][2] * b[2])
     }
 
-    /// The sphere rotation fitted to a stacked flow: a linear fit, then the refinements (as
-    /// `RotationField::fit_cpu` does for one view).
+    /// The sphere rotation fitted to a stacked flow: a linear least-squares fit, then one
+    /// Gauss-Newton step per clamp of [`CLAMPS_PX`] on the modified residuals (Huber's
+    /// iteration with the normal matrix kept).
     pub fn fit_cpu(&self, flow: &[f32]) -> Result<Rotation> {
         let mut omega = self.solve(self.sums(flow, &IDENTITY)?);
-        for _ in 0..ROTATION_REFINEMENTS {
-            let step = self.solve(self.sums(flow, &matrix(omega))?);
+        for &clamp in &CLAMPS_PX {
+            let step = self.solve(self.sums_within(flow, &matrix(omega), clamp)?);
             for (o, d) in omega.iter_mut().zip(step) {
                 *o += d;
             }

@@ -34,5 +34,6 @@ mod scene;
 mod segment;
 mod sharpness;
 mod similarity;
+mod sphere;
 mod standalone;
 mod telemetry;

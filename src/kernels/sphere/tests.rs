@@ -24,7 +24,11 @@ fn stacked_flow(views: &[View], motion: impl Fn(V3) -> V3) -> Vec<f32> {
         let (r, f, c) = (v.rotation(), v.focal(), f64::from(v.size) / 2.0);
         for y in 0..v.size {
             for x in 0..v.size {
-                let p = [(f64::from(x) + 0.5 - c) / f, (f64::from(y) + 0.5 - c) / f, 1.0];
+                let p = [
+                    (f64::from(x) + 0.5 - c) / f,
+                    (f64::from(y) + 0.5 - c) / f,
+                    1.0,
+                ];
                 let q = apply(&transpose(&r), motion(apply(&r, p)));
                 flow.push((f * (q[0] / q[2] - p[0])) as f32);
                 flow.push((f * (q[1] / q[2] - p[1])) as f32);
@@ -37,8 +41,16 @@ fn stacked_flow(views: &[View], motion: impl Fn(V3) -> V3) -> Vec<f32> {
 /// A turn of `yaw` and `pitch` degrees.
 fn turn(yaw: f64, pitch: f64) -> impl Fn(V3) -> V3 {
     let (a, b) = (yaw.to_radians(), pitch.to_radians());
-    let ry = [[a.cos(), 0.0, a.sin()], [0.0, 1.0, 0.0], [-a.sin(), 0.0, a.cos()]];
-    let rx = [[1.0, 0.0, 0.0], [0.0, b.cos(), -b.sin()], [0.0, b.sin(), b.cos()]];
+    let ry = [
+        [a.cos(), 0.0, a.sin()],
+        [0.0, 1.0, 0.0],
+        [-a.sin(), 0.0, a.cos()],
+    ];
+    let rx = [
+        [1.0, 0.0, 0.0],
+        [0.0, b.cos(), -b.sin()],
+        [0.0, b.sin(), b.cos()],
+    ];
     move |d| apply(&ry, apply(&rx, d))
 }
 
@@ -49,7 +61,13 @@ fn walk(step: f64) -> impl Fn(V3) -> V3 {
         let (lo, hi) = ([-1.5, -1.2, -3.0], [2.5, 1.5, 4.0]);
         let t = (0..3)
             .filter(|&i| d[i].abs() > 1e-12)
-            .map(|i| if d[i] > 0.0 { hi[i] / d[i] } else { lo[i] / d[i] })
+            .map(|i| {
+                if d[i] > 0.0 {
+                    hi[i] / d[i]
+                } else {
+                    lo[i] / d[i]
+                }
+            })
             .fold(f64::INFINITY, f64::min);
         [t * d[0], t * d[1], t * d[2] - step]
     }
@@ -102,7 +120,10 @@ fn a_pure_turn_leaves_no_movement() {
              per-view residual {single:.6} px"
         );
         assert!(raw > 1.0, "the turn moves the views ({raw} px)");
-        assert!(joint < 0.01 && joint < 0.005 * raw, "joint residual {joint} px");
+        assert!(
+            joint < 0.01 && joint < 0.005 * raw,
+            "joint residual {joint} px"
+        );
     }
 }
 
@@ -135,7 +156,10 @@ fn a_step_with_a_turn_keeps_the_steps_movement() {
          {alone:.4} px"
     );
     assert!(raw > 3.0 * alone, "the turn dominates the raw flow");
-    assert!((joint - alone).abs() < 0.25 * alone, "the residual is the step's");
+    assert!(
+        (joint - alone).abs() < 0.25 * alone,
+        "the residual is the step's"
+    );
 }
 
 #[test]
