@@ -134,7 +134,7 @@ impl SelectSettings {
             force: true,
             checkpoint_every_s: Self::CHECKPOINT_EVERY_S,
             preview: an.preview == Some(true),
-            projection: None,
+            projection: an.projection,
             quiet,
         }
     }

@@ -175,3 +175,42 @@ fn turning_on_the_spot_adds_no_keyframes_on_an_equirect_input() {
         );
     }
 }
+
+/// `workflow save` keeps the projection, `run` measures on the sphere again; a bad projection in
+/// a workflow is refused naming the file, line and key.
+#[test]
+fn workflows_carry_the_projection() {
+    let d = tempfile::tempdir().unwrap();
+    let frames = turn_then_zoom(d.path());
+    let p = d.path().join("p.json");
+    let flags = [
+        "--spacing",
+        "20",
+        "--backend",
+        "opencv",
+        "--projection",
+        "equirect",
+    ];
+    let (keys, _) = select(&frames, &p, &flags);
+    let w = d.path().join("w.toml");
+    kf_ok(&["workflow", "save", s(&p), "-o", s(&w)]);
+    let text = std::fs::read_to_string(&w).unwrap();
+    assert!(text.contains("projection = \"equirect\""), "{text}");
+    let runs = d.path().join("runs");
+    kf_ok(&["run", s(&w), s(&frames), "--out", s(&runs)]);
+    let ran = runs
+        .join(keyframer::batch::folder_name(&frames))
+        .join("project.json");
+    assert_eq!(keyframes(&ran), keys);
+    assert_eq!(json(&ran)["projection"], "equirect");
+
+    let bad = d.path().join("bad.toml");
+    std::fs::write(&bad, text.replace("\"equirect\"", "\"fisheye\"")).unwrap();
+    let out = crate::common::kf(&["run", s(&bad), s(&frames), "--out", s(&runs)]);
+    let (code, err) = crate::common::code_and_stderr(&out);
+    assert_ne!(code, 0);
+    assert!(
+        err.contains("bad.toml:") && err.contains("analysis.projection"),
+        "{err}"
+    );
+}
