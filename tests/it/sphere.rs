@@ -249,3 +249,59 @@ fn stationary_on_the_sphere_agrees_across_backends() {
     );
     assert!(got[1].iter().any(|&i| i >= TURN), "the zoom is movement");
 }
+
+/// The device's joint fit (shaders/movement.wgsl, `derotate = 2`) equals its host twin on one
+/// stacked flow: a turn of the sphere with a fifth of every view's pixels failed (zero flow).
+#[test]
+fn joint_fit_on_device_equals_the_hosts() {
+    use keyframer::equirect::analysis_views;
+    use keyframer::kernels::movement::{self, MovementGpu};
+    use keyframer::kernels::sphere::SphereField;
+    use keyframer::kernels::tolerance::{rel_err, DEROTATED_SAME_FLOW_REL, ROTATION_ABS};
+    use keyframer::params::Statistic;
+    let views = analysis_views(4, 90.0, 400);
+    let field = SphereField::new(&views).unwrap();
+    let n = views[0].size;
+    let truth = movement::matrix([0.01, -0.05, 0.02]);
+    let mut flow = Vec::new();
+    for k in 0..views.len() {
+        let r = field.view_rotation(k, &truth);
+        for j in 0..n {
+            for i in 0..n {
+                let failed = (i * 7 + j * 3 + k as u32) % 5 == 0;
+                let f = field.field().rotation_flow(i, j, &r);
+                flow.extend_from_slice(if failed { &[0.0, 0.0] } else { &f });
+            }
+        }
+    }
+    let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None).unwrap());
+    let buf = ctx.storage_buffer("flow", (flow.len() * 4) as u64);
+    ctx.write(&buf, 0, bytemuck::cast_slice(&flow));
+    let stat = MovementGpu::joint(ctx.clone(), &buf, &field).unwrap();
+    let on_device = stat.rotation().unwrap().unwrap();
+    let host = field.fit_cpu(&flow).unwrap();
+    let diff = (0..9)
+        .map(|k| (on_device[k / 3][k % 3] - host[k / 3][k % 3]).abs())
+        .fold(0.0f32, f32::max);
+    let error = (0..9)
+        .map(|k| (host[k / 3][k % 3] - truth[k / 3][k % 3]).abs())
+        .fold(0.0f32, f32::max);
+    eprintln!("joint rotation: device vs host {diff:e}, host vs truth {error:e}");
+    assert!(diff <= ROTATION_ABS, "device {on_device:?} host {host:?}");
+    // The failed fifth still pulls, each pixel by at most the last clamp (1 px): 2.6e-3 of a
+    // 0.055 rad turn here.
+    assert!(
+        error < 5e-3,
+        "the clamped fit finds the turn despite the failed pixels"
+    );
+    for s in [Statistic::Median, Statistic::TrimmedMean { trim: 0.1 }] {
+        let device = stat.compute(s).unwrap();
+        let residual = field.residual_magnitudes(&flow, &host).unwrap();
+        let host = movement::cpu(&residual, s).unwrap();
+        eprintln!("{s:?}: device {device}, host {host}");
+        assert!(
+            rel_err(device, host) <= DEROTATED_SAME_FLOW_REL || (device - host).abs() < 1e-5,
+            "{s:?}: device {device} host {host}"
+        );
+    }
+}
