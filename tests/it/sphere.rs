@@ -268,7 +268,7 @@ fn joint_fit_on_device_equals_the_hosts() {
         let r = field.view_rotation(k, &truth);
         for j in 0..n {
             for i in 0..n {
-                let failed = (i * 7 + j * 3 + k as u32) % 5 == 0;
+                let failed = (i * 7 + j * 3 + k as u32).is_multiple_of(5);
                 let f = field.field().rotation_flow(i, j, &r);
                 flow.extend_from_slice(if failed { &[0.0, 0.0] } else { &f });
             }
