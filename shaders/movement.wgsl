@@ -13,7 +13,15 @@
 // passes use |d - r| as the magnitude. `rotation_sums` writes per-workgroup sums of
 // e_k . (d - r) / f for the first-order rotation fields e_x = (x y, 1 + y^2),
 // e_y = (-(1 + x^2), -x y), e_z = (y, -x); `solve` adds them (compensated), takes a Gauss-Newton
-// step omega += N^-1 b (N^-1: consts.inverse) and sets sel.rot to the rotation of omega.
+// step omega += N^-1 b (N^-1: consts.inverse) and sets sel.rot to the rotation of omega. Round k
+// shortens residuals longer than consts.clamps[k] pixels to it first (Huber's modified residuals;
+// 1e30 for least squares).
+// Joint derotation over views (consts.derotate = 2): the flow holds the flows of
+// n / (width * view_rows) square views stacked (view k's rows after view k - 1's); pixel
+// coordinates are local to their view, `rotation_sums` turns each pixel's sums into the sphere's
+// frame (consts.view_rot: view k -> sphere rotation rows), so consts.inverse (the joint normal
+// matrix's inverse) solves for one rotation of the sphere, and `solve` also writes each view's
+// own rotation V_k^T R V_k (sel.view_rot) that the residuals use.
 // Bindings: 0 flow (f32 x2), 1 hist (atomic u32: 3 rounds x 2 ranks x 4096, then 2 counts),
 //           3 partials (f32, three per workgroup), 4 consts, 5 radix (uniform), 6 sel (state),
 //           7 results (u32 records), 8 frame, 9 dest (uniform).
@@ -35,9 +43,15 @@ struct Consts {
     f: f32,
     cx: f32,
     cy: f32,
-    pad: f32,
+    // Rows per view (the grid's height when there is one view).
+    view_rows: u32,
     // Rows of the inverse normal matrix of the rotation fit, padded to vec4.
     inverse: array<vec4<f32>, 3>,
+    // Per fit round (sel.round): residuals longer than this many pixels are shortened to it
+    // (1e30: least squares).
+    clamps: array<vec4<f32>, 2>,
+    // Rows of each view's rotation to the sphere's frame (derotate = 2), three per view.
+    view_rot: array<vec4<f32>, 24>,
 }
 
 struct Radix {
@@ -51,9 +65,12 @@ struct Sel {
     prefix: array<u32, 2>,
     rank: array<u32, 2>,
     failed: u32,
-    pad: u32,
+    // Rotation fit rounds solved so far.
+    round: u32,
     omega: array<f32, 4>,
     rot: array<vec4<f32>, 3>,
+    // Per view (derotate = 2): the sphere's rotation seen from the view, three rows each.
+    view_rot: array<vec4<f32>, 24>,
 }
 
 struct Frame {
@@ -87,7 +104,20 @@ var<workgroup> acc_z: array<f32, 256>;
 
 fn normalised(i: u32) -> vec2<f32> {
     return vec2<f32>((f32(i % consts.width) - consts.cx) / consts.f,
-                     (f32(i / consts.width) - consts.cy) / consts.f);
+                     (f32((i / consts.width) % consts.view_rows) - consts.cy) / consts.f);
+}
+
+// The view pixel i belongs to.
+fn view_of(i: u32) -> u32 {
+    return (i / consts.width) / consts.view_rows;
+}
+
+// Row `row` of the rotation whose flow pixel i loses: the fitted one, or its view's own.
+fn rot_row(i: u32, row: u32) -> vec4<f32> {
+    if (consts.derotate == 2u) {
+        return sel.view_rot[3u * view_of(i) + row];
+    }
+    return sel.rot[row];
 }
 
 // The three first-order rotation fields at pixel i: (e_x, e_y, e_z) as (u, v) pairs.
@@ -105,7 +135,7 @@ fn basis(i: u32) -> array<vec2<f32>, 3> {
 // The flow of rotation sel.rot at pixel i (grid pixels).
 fn rotation_flow(i: u32) -> vec2<f32> {
     let n = normalised(i);
-    let r = sel.rot;
+    let r = array<vec4<f32>, 3>(rot_row(i, 0u), rot_row(i, 1u), rot_row(i, 2u));
     let q = vec3<f32>(r[0].x * n.x + r[0].y * n.y + r[0].z,
                       r[1].x * n.x + r[1].y * n.y + r[1].z,
                       r[2].x * n.x + r[2].y * n.y + r[2].z);
@@ -115,7 +145,7 @@ fn rotation_flow(i: u32) -> vec2<f32> {
 fn magnitude_bits(i: u32) -> u32 {
     var dx = flow[2u * i];
     var dy = flow[2u * i + 1u];
-    if (consts.derotate == 1u) {
+    if (consts.derotate != 0u) {
         let r = rotation_flow(i);
         dx = dx - r.x;
         dy = dy - r.y;
@@ -132,9 +162,15 @@ fn init() {
     sel.prefix = array<u32, 2>(0u, 0u);
     sel.rank = array<u32, 2>(consts.lo, consts.hi);
     sel.failed = 0u;
+    sel.round = 0u;
     sel.omega = array<f32, 4>(0.0, 0.0, 0.0, 0.0);
     sel.rot = array<vec4<f32>, 3>(vec4<f32>(1.0, 0.0, 0.0, 0.0), vec4<f32>(0.0, 1.0, 0.0, 0.0),
                                   vec4<f32>(0.0, 0.0, 1.0, 0.0));
+    for (var k = 0u; k < 8u; k = k + 1u) {
+        sel.view_rot[3u * k] = sel.rot[0];
+        sel.view_rot[3u * k + 1u] = sel.rot[1];
+        sel.view_rot[3u * k + 2u] = sel.rot[2];
+    }
 }
 
 @compute @workgroup_size(256, 1, 1)
@@ -246,10 +282,23 @@ fn rotation_sums(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocatio
     var s = vec3<f32>(0.0, 0.0, 0.0);
     if (i < consts.n) {
         let r = rotation_flow(i);
-        let d = vec2<f32>((flow[2u * i] - r.x) / consts.f, (flow[2u * i + 1u] - r.y) / consts.f);
+        var dx = flow[2u * i] - r.x;
+        var dy = flow[2u * i + 1u] - r.y;
+        let clamp = consts.clamps[sel.round / 4u][sel.round % 4u];
+        let m = sqrt(dx * dx + dy * dy);
+        if (m > clamp) {
+            dx = dx * (clamp / m);
+            dy = dy * (clamp / m);
+        }
+        let d = vec2<f32>(dx / consts.f, dy / consts.f);
         let e = basis(i);
         s = vec3<f32>(e[0].x * d.x + e[0].y * d.y, e[1].x * d.x + e[1].y * d.y,
                       e[2].x * d.x + e[2].y * d.y);
+        if (consts.derotate == 2u) {
+            let k = 3u * view_of(i);
+            s = vec3<f32>(dot(consts.view_rot[k].xyz, s), dot(consts.view_rot[k + 1u].xyz, s),
+                          dot(consts.view_rot[k + 2u].xyz, s));
+        }
     }
     acc[li] = s.x;
     acc_y[li] = s.y;
@@ -311,5 +360,24 @@ fn solve() {
     let omega = vec3<f32>(sel.omega[0], sel.omega[1], sel.omega[2])
         + vec3<f32>(dot(inv[0].xyz, b), dot(inv[1].xyz, b), dot(inv[2].xyz, b));
     sel.omega = array<f32, 4>(omega.x, omega.y, omega.z, 0.0);
-    sel.rot = rotation_of(omega);
+    let r = rotation_of(omega);
+    sel.rot = r;
+    sel.round = sel.round + 1u;
+    if (consts.derotate == 2u) {
+        let views = consts.n / (consts.width * consts.view_rows);
+        for (var k = 0u; k < views; k = k + 1u) {
+            let v = array<vec3<f32>, 3>(consts.view_rot[3u * k].xyz,
+                                        consts.view_rot[3u * k + 1u].xyz,
+                                        consts.view_rot[3u * k + 2u].xyz);
+            // rv = r v, then v^T rv, summed in the host twin's order (SphereField::view_rotation).
+            var rv: array<vec3<f32>, 3>;
+            for (var a = 0u; a < 3u; a = a + 1u) {
+                rv[a] = r[a].x * v[0] + r[a].y * v[1] + r[a].z * v[2];
+            }
+            for (var a = 0u; a < 3u; a = a + 1u) {
+                let row = v[0][a] * rv[0] + v[1][a] * rv[1] + v[2][a] * rv[2];
+                sel.view_rot[3u * k + a] = vec4<f32>(row, 0.0);
+            }
+        }
+    }
 }

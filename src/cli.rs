@@ -437,6 +437,7 @@ impl MovementArgs {
             analysis_width: self.analysis_width,
             stride: self.flow_stride,
             derotate,
+            sphere: None,
         }
     }
 }

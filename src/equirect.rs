@@ -312,6 +312,24 @@ impl ViewSet {
     }
 }
 
+/// The size of a square view of `fov_deg` whose centre samples the sphere as densely as the
+/// equator of a `erp_width`-wide ERP frame (focal length = ERP pixels per radian, W / 2π):
+/// `W · tan(fov / 2) / π`, rounded (at least 16).
+pub fn native_view_size(erp_width: u32, fov_deg: f64) -> u32 {
+    let s = f64::from(erp_width) * (fov_deg.to_radians() / 2.0).tan() / std::f64::consts::PI;
+    (s.round() as u32).max(16)
+}
+
+/// The views the analysis measures an ERP frame on: `count` views evenly around the horizon
+/// (the first forward), `fov_deg` wide, at the native size of an `erp_width`-wide frame.
+pub fn analysis_views(count: u32, fov_deg: f64, erp_width: u32) -> Vec<View> {
+    let ring = ViewSet::Ring {
+        n: count,
+        pitch: 0.0,
+    };
+    ring.views(fov_deg, native_view_size(erp_width, fov_deg))
+}
+
 /// Longitude and latitude in degrees of the centre of ERP pixel `(x, y)` of a `w` x `h` frame.
 pub fn lon_lat(x: f64, y: f64, (w, h): (u32, u32)) -> (f64, f64) {
     (

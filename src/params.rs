@@ -245,6 +245,40 @@ impl Derotate {
     }
 }
 
+/// Movement on 360° (equirectangular) frames: measured on square pinhole views around the
+/// horizon, with one rotation of the sphere fitted to all views' flows together and removed
+/// (`kernels::sphere`), so that turning on the spot is no movement.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SphereViews {
+    /// Views evenly around the horizon (the first forward).
+    pub views: u32,
+    /// Field of view of each view in degrees (its size follows from the analysis width:
+    /// `equirect::native_view_size`).
+    pub fov_deg: f64,
+}
+
+impl SphereViews {
+    /// Four views of 90°: two thirds of the sphere (latitudes within ±45° at the views' centres,
+    /// ±54.7° at their corners), no direction seen twice, 0.81 times the ERP frame's pixels.
+    pub const DEFAULT: SphereViews = SphereViews {
+        views: 4,
+        fov_deg: 90.0,
+    };
+
+    /// Checks the view count (1 to `kernels::sphere::MAX_VIEWS`, 8) and field of view.
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=8).contains(&self.views) {
+            let msg = format!("{} views: 1 to 8", self.views);
+            return Err(Error::param("sphere views", msg));
+        }
+        if !(self.fov_deg >= 10.0 && self.fov_deg <= 170.0) {
+            let msg = format!("{} degrees: 10 to 170", self.fov_deg);
+            return Err(Error::param("sphere view fov", msg));
+        }
+        Ok(())
+    }
+}
+
 /// How movement is measured.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MovementRequest {
@@ -263,6 +297,10 @@ pub struct MovementRequest {
     /// movement then follows translation, which gives reconstructions their baseline).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub derotate: Option<Derotate>,
+    /// On 360° frames: the horizon views measured and derotated together (`derotate` is then
+    /// unused: the sphere's rotation is always removed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sphere: Option<SphereViews>,
 }
 
 impl MovementRequest {
@@ -280,6 +318,9 @@ impl MovementRequest {
         if let Some(d) = &self.derotate {
             d.validate()?;
         }
+        if let Some(v) = &self.sphere {
+            v.validate()?;
+        }
         self.farneback.validate()
     }
 
@@ -294,6 +335,7 @@ impl MovementRequest {
             ("analysis-width", Some(self.analysis_width.to_string())),
             ("flow-stride", Some(self.stride.to_string())),
             ("hfov", self.derotate.map(|r| r.hfov_deg.to_string())),
+            ("projection", self.sphere.map(|_| "equirect".to_string())),
         ];
         let unless_default = |k, v: fn(&FarnebackParams) -> String| {
             let value = v(&f);

@@ -52,6 +52,10 @@ pub struct AnalysisSection {
     pub telemetry_offset: Option<f64>,
     /// Farnebäck parameters.
     pub farneback: Option<FarnebackSection>,
+    /// How the inputs' frames map to directions (`--projection`): `pinhole` or `equirect`
+    /// (360°: movement measured on horizon views with the sphere's rotation removed). Absent:
+    /// from each video's spherical metadata, else pinhole.
+    pub projection: Option<crate::equirect::Projection>,
 }
 
 /// `[analysis.farneback]`.
@@ -436,6 +440,7 @@ fn movement_request(an: &AnalysisSection) -> Result<MovementRequest> {
         derotate: (an.derotate == Some(true)).then(|| Derotate {
             hfov_deg: an.hfov.unwrap_or(Derotate::DEFAULT_HFOV_DEG),
         }),
+        sphere: None,
     };
     Ok(request)
 }
@@ -711,7 +716,10 @@ pub fn from_project(project: &Path, exports: &[PathBuf]) -> Result<String> {
 /// yet written); `project` is where it lives (relative paths in it are relative to its folder).
 pub fn from_loaded(p: &Project, project: &Path, exports: &[PathBuf]) -> Result<String> {
     let bad = |msg: String| Error::file(project, None, "project file", "history", msg);
-    let mut analysis = AnalysisSection::default();
+    let mut analysis = AnalysisSection {
+        projection: (!p.projection.is_pinhole()).then_some(p.projection),
+        ..AnalysisSection::default()
+    };
     let mut sample = Vec::new();
     let mut reconstruct = None;
     for (k, entry) in p.history.iter().enumerate() {

@@ -4,12 +4,14 @@
 //! blocks only when [`DEPTH`] batches are still in flight, or when it asks for every result (a
 //! checkpoint, the end of the input).
 
+use super::sphere::Sphere;
 use crate::error::{Error, Result};
 use crate::gpu::readback::Readback;
 use crate::gpu::readback::Until;
 use crate::gpu::{Gate, GpuContext};
 use crate::kernels::farneback::{FarnebackGpu, SLOTS};
 use crate::kernels::movement::{checked, Destination, FrameParams, MovementGpu, RECORD_WORDS};
+use crate::kernels::remap::{Interp, RemapGpu};
 use crate::kernels::stationary::{StationarySamplerGpu, CANDIDATE, FROM_PREVIOUS};
 use crate::params::Statistic;
 use crate::params::{MovementRequest, StationaryRequest};
@@ -30,6 +32,11 @@ pub(crate) enum Pixels {
     #[cfg(feature = "opencv")]
     Small(opencv::core::Mat),
     Staged(usize),
+}
+
+/// Bytes of one `size` x `size` flow (two f32 per pixel).
+fn flow_bytes(size: u32) -> u64 {
+    u64::from(size) * u64::from(size) * 8
 }
 
 /// What to measure at one frame.
@@ -64,10 +71,18 @@ impl Record {
     }
 }
 
-/// The WGSL Farneback, movement and stationary kernels over one results ring.
+/// The WGSL Farneback, movement and stationary kernels over one results ring. On a 360° input
+/// each frame is rendered into its horizon views on the device (remap), every view has its own
+/// Farneback slots, and the views' flows are copied into one stacked buffer for the joint
+/// statistic: the host reads back the same 32-byte record per frame as for a pinhole input.
 pub(crate) struct DeviceMovement {
     ctx: Arc<GpuContext>,
-    flow: FarnebackGpu,
+    /// One Farneback per view (one for a pinhole input).
+    flows: Vec<FarnebackGpu>,
+    /// The horizon views' renderer (360° inputs).
+    remap: Option<RemapGpu>,
+    /// The views' flows stacked, view after view (360° inputs).
+    stacked: Option<wgpu::Buffer>,
     stat: MovementGpu,
     statistic: Statistic,
     /// The sharpness engine's resized-gray buffers (empty unless frames stay on the device).
@@ -95,10 +110,28 @@ impl DeviceMovement {
         stationary: Option<&StationaryRequest>,
         scale: f64,
         (w, h): (u32, u32),
+        sphere: Option<Sphere>,
     ) -> Result<DeviceMovement> {
-        let flow = FarnebackGpu::new(ctx.clone(), req.farneback, w, h)?;
-        let stat = MovementGpu::new(ctx.clone(), flow.flow_buffer(), w, h, req.derotate)?;
+        let (flows, remap, stacked, stat) = match sphere {
+            None => {
+                let flow = FarnebackGpu::new(ctx.clone(), req.farneback, w, h)?;
+                let stat = MovementGpu::new(ctx.clone(), flow.flow_buffer(), w, h, req.derotate)?;
+                (vec![flow], None, None, stat)
+            }
+            Some(sp) => {
+                let size = sp.size();
+                let flows = (0..sp.views.len())
+                    .map(|_| FarnebackGpu::new(ctx.clone(), req.farneback, size, size))
+                    .collect::<Result<Vec<_>>>()?;
+                let remap = RemapGpu::new(ctx.clone(), (w, h), 1, Interp::Bilinear, &sp.tables)?;
+                let bytes = flow_bytes(size) * sp.views.len() as u64;
+                let stacked = ctx.storage_buffer("sphere flows", bytes);
+                let stat = MovementGpu::joint(ctx.clone(), &stacked, &sp.field)?;
+                (flows, Some(remap), Some(stacked), stat)
+            }
+        };
         stat.prepare(req.statistic)?;
+        let flow = &flows[0];
         let results = ctx.storage_buffer("movement records", (BATCH * RECORD_BYTES) as u64);
         let frame = ctx.storage_buffer("movement frame", 16);
         let dest = [0, 1].map(|field| stat.destination(&results, &frame, field));
@@ -112,7 +145,9 @@ impl DeviceMovement {
             .transpose()?;
         Ok(DeviceMovement {
             ctx: ctx.clone(),
-            flow,
+            flows,
+            remap,
+            stacked,
             stat,
             statistic: req.statistic,
             staged: Vec::new(),
@@ -134,24 +169,60 @@ impl DeviceMovement {
 
     /// Puts a frame's analysis pixels in `slot`.
     pub(crate) fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
-        match px {
+        match (px, &self.remap) {
             #[cfg(feature = "opencv")]
-            Pixels::Small(gray) => self.flow.load(slot, &gray),
-            Pixels::Staged(k) => {
+            (Pixels::Small(gray), Some(remap)) => {
+                let mut enc = self.ctx.encoder("sphere views");
+                remap.encode(&mut enc, &gray)?;
+                self.ctx.queue.submit([enc.finish()]);
+                for (k, flow) in self.flows.iter_mut().enumerate() {
+                    let view = (remap.output(k))
+                        .ok_or_else(|| Error::gpu("a horizon view without its output"))?;
+                    flow.load_buffer(slot, view)?;
+                }
+                Ok(())
+            }
+            #[cfg(feature = "opencv")]
+            (Pixels::Small(gray), None) => self.flows[0].load(slot, &gray),
+            (Pixels::Staged(k), None) => {
                 let buf = self
                     .staged
                     .get(k)
                     .ok_or_else(|| Error::param("movement", "no device gray staged"))?;
-                self.flow.load_buffer(slot, buf)
+                self.flows[0].load_buffer(slot, buf)
             }
+            (Pixels::Staged(_), Some(_)) => Err(Error::param(
+                "movement",
+                "360° frames come as gray images, not staged buffers",
+            )),
         }
     }
 
     /// The frame in `slot` becomes the stationary step's reference.
     pub(crate) fn keep(&mut self, slot: usize) -> Result<()> {
         let mut enc = self.ctx.encoder("movement reference");
-        self.flow.encode_copy(&mut enc, slot, REFERENCE, None)?;
+        for flow in &self.flows {
+            flow.encode_copy(&mut enc, slot, REFERENCE, None)?;
+        }
         self.ctx.queue.submit([enc.finish()]);
+        Ok(())
+    }
+
+    /// Records every view's flow of `pair` (gated by `gate`) and, on a 360° input, their copy
+    /// into the stacked buffer (not gated: a stale copy only feeds passes the same gate closes).
+    fn encode_flows(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pair: (usize, usize),
+        gate: Option<Gate<'_>>,
+    ) -> Result<()> {
+        for (k, flow) in self.flows.iter().enumerate() {
+            flow.encode_flow(enc, pair, gate)?;
+            if let Some(stacked) = &self.stacked {
+                let bytes = stacked.size() / self.flows.len() as u64;
+                enc.copy_buffer_to_buffer(flow.flow_buffer(), 0, stacked, k as u64 * bytes, bytes);
+            }
+        }
         Ok(())
     }
 
@@ -175,7 +246,7 @@ impl DeviceMovement {
         self.ctx.write(&self.frame, 0, bytemuck::bytes_of(&params));
         let mut enc = self.ctx.encoder("movement");
         if let Some(from) = w.from {
-            self.flow.encode_flow(&mut enc, (from, w.slot), None)?;
+            self.encode_flows(&mut enc, (from, w.slot), None)?;
             self.stat
                 .encode(&mut enc, self.statistic, Some(&self.dest[0]), None);
         }
@@ -189,13 +260,14 @@ impl DeviceMovement {
             let [statistic, keep] = self.gates;
             st.encode_plan(&mut enc);
             let pair = (REFERENCE, w.slot);
-            self.flow.encode_flow(&mut enc, pair, gate(0))?;
+            self.encode_flows(&mut enc, pair, gate(0))?;
             let dest = Some(&self.dest[1]);
             self.stat
                 .encode(&mut enc, self.statistic, dest, gate(statistic));
             st.encode_decide(&mut enc);
-            self.flow
-                .encode_copy(&mut enc, w.slot, REFERENCE, gate(keep))?;
+            for flow in &self.flows {
+                flow.encode_copy(&mut enc, w.slot, REFERENCE, gate(keep))?;
+            }
         }
         self.filled += 1;
         self.close(enc, self.filled == BATCH)

@@ -20,6 +20,7 @@ mod ingest;
 mod movement;
 #[cfg(feature = "opencv")]
 mod sharpness;
+mod sphere;
 mod stream;
 #[cfg(all(test, feature = "opencv"))]
 mod tests;

@@ -10,6 +10,7 @@ use super::checkpoint::MovementState;
 use super::device::{DeviceMovement, Pixels, Record, Work, REFERENCE};
 #[cfg(feature = "opencv")]
 use super::ingest::prepare;
+use super::sphere::Sphere;
 use super::{analysis_size, MovementRequest, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
@@ -19,6 +20,8 @@ use crate::kernels::farneback::SLOTS;
 use crate::kernels::movement::checked;
 #[cfg(feature = "opencv")]
 use crate::kernels::movement::{self, RotationField};
+#[cfg(feature = "opencv")]
+use crate::kernels::remap::{self, Interp};
 use crate::kernels::resize_area;
 use crate::params::Backend;
 #[cfg(feature = "opencv")]
@@ -47,13 +50,24 @@ pub(crate) trait MovementEngine: Send {
     }
 }
 
-/// OpenCV's Farneback and the host twin of the statistic.
+/// How the opencv engine derotates: not at all, one pinhole rotation (`--derotate`), or one
+/// rotation of the sphere over the horizon views.
+#[cfg(feature = "opencv")]
+enum Fit {
+    None,
+    Pinhole(RotationField),
+    Sphere(Sphere),
+}
+
+/// OpenCV's Farneback and the host twin of the statistic. On a 360° input each slot holds the
+/// horizon views of its frame (cv::remap), and the statistic is taken over every view's flow.
 #[cfg(feature = "opencv")]
 struct Opencv {
     params: FarnebackParams,
     statistic: Statistic,
-    frames: Vec<Option<Mat>>,
-    field: Option<RotationField>,
+    /// Per slot: the frame, or its views.
+    frames: Vec<Option<Vec<Mat>>>,
+    fit: Fit,
 }
 
 #[cfg(feature = "opencv")]
@@ -61,7 +75,12 @@ impl MovementEngine for Opencv {
     fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
         match px {
             Pixels::Small(gray) => {
-                self.frames[slot] = Some(gray);
+                self.frames[slot] = Some(match &self.fit {
+                    Fit::Sphere(sphere) => (sphere.tables.iter())
+                        .map(|t| remap::opencv(&gray, t, Interp::Bilinear))
+                        .collect::<Result<Vec<_>>>()?,
+                    _ => vec![gray],
+                });
                 Ok(())
             }
             Pixels::Staged(_) => Err(Error::param(
@@ -97,18 +116,32 @@ impl MovementEngine for Opencv {
 
 #[cfg(feature = "opencv")]
 impl Opencv {
-    /// The frames in slots `from` and `to`.
-    fn pair(&self, from: usize, to: usize) -> Result<(&Mat, &Mat)> {
+    /// The frames (or views) in slots `from` and `to`.
+    fn pair(&self, from: usize, to: usize) -> Result<(&[Mat], &[Mat])> {
         match (&self.frames[from], &self.frames[to]) {
             (Some(a), Some(b)) => Ok((a, b)),
             _ => Err(Error::param("slots", "frame not loaded")),
         }
     }
 
-    /// The statistic of the flow from `a` to `b`.
-    fn measure(&self, a: &Mat, b: &Mat) -> Result<f64> {
-        let f = farneback::opencv(a, b, &self.params, None)?;
-        movement::cpu_flow(&f, self.statistic, self.field.as_ref())
+    /// The statistic of the flow from `a` to `b` (of every view's flow, derotated together, on
+    /// a 360° input).
+    fn measure(&self, a: &[Mat], b: &[Mat]) -> Result<f64> {
+        let flows = (a.iter().zip(b))
+            .map(|(a, b)| farneback::opencv(a, b, &self.params, None))
+            .collect::<Result<Vec<_>>>()?;
+        match (&self.fit, flows.as_slice()) {
+            (Fit::None, [f]) => movement::cpu_flow(f, self.statistic, None),
+            (Fit::Pinhole(field), [f]) => movement::cpu_flow(f, self.statistic, Some(field)),
+            (Fit::Sphere(sphere), _) => {
+                let mut stacked = Vec::new();
+                for f in &flows {
+                    stacked.extend(movement::flow_values(f)?);
+                }
+                movement::cpu(&sphere.field.derotated(&stacked)?, self.statistic)
+            }
+            _ => Err(Error::param("movement", "one flow per frame expected")),
+        }
     }
 }
 
@@ -140,7 +173,8 @@ fn engine(
     scale: f64,
 ) -> Result<(Engine, Backend)> {
     if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
-        match DeviceMovement::new(ctx, req, stationary, scale, (w, h)) {
+        let sphere = req.sphere.map(|v| Sphere::new(v, (w, h))).transpose()?;
+        match DeviceMovement::new(ctx, req, stationary, scale, (w, h), sphere) {
             Ok(e) => return Ok((Engine::Device(Box::new(e)), Backend::Gpu)),
             #[cfg(feature = "opencv")]
             Err(e) => log::warn!("{e}; movement uses the opencv backend"),
@@ -154,14 +188,17 @@ fn engine(
 /// OpenCV's engine at the analysis size `(w, h)`.
 #[cfg(feature = "opencv")]
 fn host_engine(req: &MovementRequest, (w, h): (u32, u32)) -> Result<(Engine, Backend)> {
+    let sphere = req.sphere.map(|v| Sphere::new(v, (w, h))).transpose()?;
+    let fit = match (sphere, req.derotate) {
+        (Some(s), _) => Fit::Sphere(s),
+        (None, Some(d)) => Fit::Pinhole(RotationField::new(w, h, d)?),
+        (None, None) => Fit::None,
+    };
     let cpu = Opencv {
         params: req.farneback,
         statistic: req.statistic,
         frames: vec![None; SLOTS],
-        field: req
-            .derotate
-            .map(|d| RotationField::new(w, h, d))
-            .transpose()?,
+        fit,
     };
     Ok((Engine::Host(Box::new(cpu)), Backend::Opencv))
 }
@@ -204,6 +241,9 @@ pub(crate) struct MovementPass {
     stride: usize,
     /// Analysis size.
     pub size: (i32, i32),
+    /// Frames are 360° ones measured on their horizon views (rendered from the analysis gray
+    /// on the host side of the hand-off, never staged).
+    sphere: bool,
     /// Factor from analysis pixels to full-resolution pixels.
     pub scale: f64,
     /// values[i] = movement from frame i-1 to frame i (full-resolution pixels).
@@ -262,6 +302,7 @@ impl MovementPass {
             engine,
             stride: req.stride as usize,
             size: (w as i32, h as i32),
+            sphere: req.sphere.is_some(),
             scale,
             values: Vec::new(),
             anchor: None,
@@ -277,6 +318,7 @@ impl MovementPass {
     /// the CPU prepare).
     pub(crate) fn can_stage(&self, frame: (u32, u32)) -> bool {
         matches!(self.engine, Engine::Device(_))
+            && !self.sphere
             && resize_area::factors(frame, (self.size.0 as u32, self.size.1 as u32)).is_some()
     }
 

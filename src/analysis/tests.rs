@@ -186,6 +186,7 @@ fn request(stride: u32, stationary: Option<StationaryRequest>) -> Request {
             analysis_width: 4,
             stride,
             derotate: None,
+            sphere: None,
         }),
         stationary,
         descriptor: None,

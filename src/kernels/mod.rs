@@ -9,10 +9,10 @@ pub mod farneback;
 pub mod gray;
 pub mod laplacian;
 pub mod movement;
-#[cfg(feature = "opencv")]
 pub mod remap;
 pub mod resize_area;
 pub mod sharpness;
+pub mod sphere;
 pub mod stationary;
 pub mod strip;
 pub mod tenengrad;
@@ -35,7 +35,6 @@ pub const SHADERS: &[(&str, &str)] = &[
     ("resize_area", resize_area::WGSL),
     #[cfg(feature = "opencv")]
     ("descriptor", descriptor::WGSL),
-    #[cfg(feature = "opencv")]
     ("remap", remap::WGSL),
 ];
 

@@ -6,6 +6,10 @@
 //! squares, `RotationField`) is subtracted first, so the statistic measures the
 //! translation-induced (parallax) part of the motion.
 
+use super::sphere::{SphereField, CLAMPS_PX, MAX_VIEWS};
+
+/// A residual clamp that never applies (the shader's least-squares rounds).
+const NO_CLAMP: f32 = 1e30;
 use crate::error::{Error, Result};
 use crate::gpu::{compute_pass, Gate, GpuContext};
 use crate::params::{Derotate, Statistic};
@@ -43,7 +47,9 @@ pub struct RotationField {
     f: f32,
     cx: f32,
     cy: f32,
-    /// Inverse of the normal matrix sum(e_k . e_l) over the grid (geometry only).
+    /// The normal matrix sum(e_k . e_l) over the grid (geometry only).
+    normal: [[f64; 3]; 3],
+    /// Its inverse.
     inverse: [[f64; 3]; 3],
 }
 
@@ -62,6 +68,7 @@ impl RotationField {
             f,
             cx,
             cy,
+            normal: [[0.0; 3]; 3],
             inverse: [[0.0; 3]; 3],
         };
         let mut m = [[0.0f64; 3]; 3];
@@ -78,7 +85,18 @@ impl RotationField {
         }
         field.inverse =
             invert3(&m).ok_or_else(|| Error::param("derotate", "the rotation fit is singular"))?;
+        field.normal = m;
         Ok(field)
+    }
+
+    /// The normal matrix sum(e_k . e_l) over the grid.
+    pub(crate) fn normal(&self) -> [[f64; 3]; 3] {
+        self.normal
+    }
+
+    /// Width of the grid in pixels.
+    pub(crate) fn size(&self) -> u32 {
+        self.width
     }
 
     /// Normalised coordinates of pixel (i, j).
@@ -106,8 +124,20 @@ impl RotationField {
     /// Host twin of the shader's `rotation_sums`: sum over pixels of e_k . (flow - rotation
     /// flow of `r`) / f, from an interleaved (dx, dy) flow in grid pixels.
     pub fn sums(&self, flow: &[f32], r: &Rotation) -> Result<[f64; 3]> {
+        self.sums_within(flow, r, f32::INFINITY)
+    }
+
+    /// [`RotationField::sums`] with every residual longer than `clamp` grid pixels shortened to
+    /// it (Huber's modified residuals: a pixel whose flow failed pulls no harder than `clamp`).
+    pub(crate) fn sums_within(&self, flow: &[f32], r: &Rotation, clamp: f32) -> Result<[f64; 3]> {
         let mut b = [0.0f64; 3];
         for (i, j, [dx, dy]) in self.residuals(flow, r)? {
+            let m = (dx * dx + dy * dy).sqrt();
+            let (dx, dy) = if m > clamp {
+                (dx * (clamp / m), dy * (clamp / m))
+            } else {
+                (dx, dy)
+            };
             let (u, v) = (dx / self.f, dy / self.f);
             for (bk, ek) in b.iter_mut().zip(self.basis(i, j)) {
                 *bk += f64::from(ek[0] * u + ek[1] * v);
@@ -185,7 +215,7 @@ pub fn matrix(omega: [f64; 3]) -> Rotation {
 }
 
 /// Inverse of a 3x3 matrix (None when singular: determinant not finite or below 1e-12).
-fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+pub(crate) fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
     let m = Matrix3::from_fn(|i, j| m[i][j]);
     let det = m.determinant();
     if !det.is_finite() || det.abs() < 1e-12 {
@@ -301,16 +331,19 @@ struct Consts {
     f: f32,
     cx: f32,
     cy: f32,
-    pad: f32,
+    view_rows: u32,
     inverse: [[f32; 4]; 3],
+    clamps: [f32; 8],
+    view_rot: [[f32; 4]; 3 * MAX_VIEWS],
 }
 
 /// (shift, bits, prefix shift) of the three radix rounds over bits 30..0.
 const RADIX: [(u32, u32, u32); 3] = [(19, 12, 31), (7, 12, 19), (0, 7, 7)];
 /// Histogram words: 3 rounds x 2 ranks x 4096 bins, then the counts of `sums`.
 const HIST_WORDS: u64 = 3 * 2 * 4096 + 4;
-/// Bytes of the selection state (shader `Sel`); the rotation rows start at byte 48.
-const SEL_BYTES: u64 = 96;
+/// Bytes of the selection state (shader `Sel`); the rotation rows start at byte 48, the views'
+/// rotations (joint derotation) at 96.
+const SEL_BYTES: u64 = 96 + 48 * MAX_VIEWS as u64;
 
 type Pass = (Arc<wgpu::ComputePipeline>, wgpu::BindGroup);
 
@@ -327,8 +360,12 @@ pub struct MovementGpu {
     ctx: Arc<GpuContext>,
     n: u32,
     width: u32,
+    /// Rows of one view (the grid's height unless several views are stacked).
+    view_rows: u32,
     groups: (u32, u32),
     field: Option<RotationField>,
+    /// The joint fit over stacked views (`field` is then one view's grid).
+    joint: Option<SphereField>,
     consts: wgpu::Buffer,
     hist: wgpu::Buffer,
     partials: wgpu::Buffer,
@@ -353,13 +390,34 @@ impl MovementGpu {
         height: u32,
         derotate: Option<Derotate>,
     ) -> Result<Self> {
+        let field = derotate
+            .map(|d| RotationField::new(width, height, d))
+            .transpose()?;
+        Self::build(ctx, flow, (width, height), height, field, None)
+    }
+
+    /// Binds the statistic to `flow` holding the stacked flows of `joint`'s views (view after
+    /// view, each `size` x `size`); every statistic is taken after subtracting the rotation of
+    /// the sphere fitted to all of them together.
+    pub fn joint(ctx: Arc<GpuContext>, flow: &wgpu::Buffer, joint: &SphereField) -> Result<Self> {
+        let size = joint.field().size();
+        let height = size * joint.views() as u32;
+        let field = Some(joint.field().clone());
+        Self::build(ctx, flow, (size, height), size, field, Some(joint.clone()))
+    }
+
+    fn build(
+        ctx: Arc<GpuContext>,
+        flow: &wgpu::Buffer,
+        (width, height): (u32, u32),
+        view_rows: u32,
+        field: Option<RotationField>,
+        joint: Option<SphereField>,
+    ) -> Result<Self> {
         let n = width * height;
         if n == 0 {
             return Err(Error::param("flow", "empty flow field"));
         }
-        let field = derotate
-            .map(|d| RotationField::new(width, height, d))
-            .transpose()?;
         let total = n.div_ceil(256);
         let gx = total.min(65_535);
         let groups = (gx, total.div_ceil(gx));
@@ -406,8 +464,10 @@ impl MovementGpu {
             ctx: ctx.clone(),
             n,
             width,
+            view_rows,
             groups,
             field,
+            joint,
             consts,
             hist,
             partials,
@@ -454,14 +514,35 @@ impl MovementGpu {
             .field
             .as_ref()
             .map_or((1.0, 0.0, 0.0), |r| (r.f, r.cx, r.cy));
-        let inverse = self.field.as_ref().map_or([[0.0; 4]; 3], |r| {
-            r.inverse
-                .map(|row| [row[0] as f32, row[1] as f32, row[2] as f32, 0.0])
-        });
+        let rows =
+            |m: [[f64; 3]; 3]| m.map(|row| [row[0] as f32, row[1] as f32, row[2] as f32, 0.0]);
+        let inverse = match (&self.joint, &self.field) {
+            (Some(j), _) => rows(j.inverse()),
+            (None, Some(r)) => rows(r.inverse),
+            (None, None) => [[0.0; 4]; 3],
+        };
+        let mut view_rot = [[0.0f32; 4]; 3 * MAX_VIEWS];
+        if let Some(j) = &self.joint {
+            for k in 0..j.views() {
+                for (i, row) in j.rotation(k).iter().enumerate() {
+                    view_rot[3 * k + i] = [row[0], row[1], row[2], 0.0];
+                }
+            }
+        }
+        // Round 0 is least squares; the joint fit's refinements clamp (kernels::sphere).
+        let mut clamps = [NO_CLAMP; 8];
+        if self.joint.is_some() {
+            clamps[1..=CLAMPS_PX.len()].copy_from_slice(&CLAMPS_PX);
+        }
+        let derotate = match (&self.joint, &self.field) {
+            (Some(_), _) => 2,
+            (None, Some(_)) => 1,
+            (None, None) => 0,
+        };
         let c = Consts {
             n: self.n,
             groups_x: self.groups.0,
-            derotate: u32::from(self.field.is_some()),
+            derotate,
             width: self.width,
             lo,
             hi,
@@ -470,8 +551,10 @@ impl MovementGpu {
             f,
             cx,
             cy,
-            pad: 0.0,
+            view_rows: self.view_rows,
             inverse,
+            clamps,
+            view_rot,
         };
         self.ctx.write(&self.consts, 0, bytemuck::bytes_of(&c));
         Ok(())
@@ -502,7 +585,11 @@ impl MovementGpu {
         };
         run(pair(&self.init), false);
         if self.field.is_some() {
-            for _ in 0..=ROTATION_REFINEMENTS {
+            let refinements = match self.joint {
+                Some(_) => CLAMPS_PX.len(),
+                None => ROTATION_REFINEMENTS,
+            };
+            for _ in 0..=refinements {
                 run(pair(&self.rotation_sums), true);
                 run(pair(&self.solve), false);
             }

@@ -4,16 +4,21 @@
 //! Twin: [`opencv`] (cv::remap on the same maps); bounds in `tolerance::REMAP_*`.
 
 pub use crate::equirect::Interp;
-use crate::error::{CvContext, Error, Result};
-use crate::gpu::{compute_pass, mat_bytes, GpuContext};
+#[cfg(feature = "opencv")]
+use crate::error::CvContext;
+use crate::error::{Error, Result};
+use crate::gpu::{compute_pass, GpuContext, HostImage};
 use bytemuck::{Pod, Zeroable};
+#[cfg(feature = "opencv")]
 use opencv::core::{Mat, Scalar};
+#[cfg(feature = "opencv")]
 use opencv::prelude::*;
 use std::sync::Arc;
 
 /// WGSL source.
 pub const WGSL: &str = include_str!("../../shaders/remap.wgsl");
 
+#[cfg(feature = "opencv")]
 impl Interp {
     fn cv_flag(self) -> i32 {
         match self {
@@ -51,6 +56,7 @@ impl Table {
         Ok(Table { size, xs, ys })
     }
 
+    #[cfg(feature = "opencv")]
     fn mat(&self, v: &[f32]) -> Result<Mat> {
         let m = Mat::from_slice(v).cv(|| "remap map".into())?;
         m.reshape(1, self.size.1 as i32)
@@ -62,6 +68,7 @@ impl Table {
 
 /// OpenCV twin: `src` (8-bit, 1 or 3 channels) through `table` with cv::remap(`interp`,
 /// BORDER_WRAP).
+#[cfg(feature = "opencv")]
 pub fn opencv(src: &Mat, table: &Table, interp: Interp) -> Result<Mat> {
     let (mx, my) = (table.mat(&table.xs)?, table.mat(&table.ys)?);
     let mut out = Mat::default();
@@ -151,6 +158,8 @@ pub fn groups(words: u32) -> (u32, u32) {
 }
 
 struct Output {
+    // Read by `render` (OpenCV Mats) only.
+    #[cfg_attr(not(feature = "opencv"), allow(dead_code))]
     params: RemapParams,
     bind: wgpu::BindGroup,
     dst: wgpu::Buffer,
@@ -166,6 +175,7 @@ pub struct RemapGpu {
     channels: u32,
     src: wgpu::Buffer,
     outputs: Vec<Output>,
+    #[cfg_attr(not(feature = "opencv"), allow(dead_code))]
     staging: wgpu::Buffer,
 }
 
@@ -241,15 +251,29 @@ impl RemapGpu {
         })
     }
 
-    /// Renders `frame` (8-bit, of the source size and channels) through every table and reads the
-    /// outputs back, in the order of the tables.
-    pub fn render(&self, frame: &Mat) -> Result<Vec<Mat>> {
-        let typ = if self.channels == 3 {
+    #[cfg(feature = "opencv")]
+    fn typ(&self) -> i32 {
+        if self.channels == 3 {
             opencv::core::CV_8UC3
         } else {
             opencv::core::CV_8UC1
-        };
-        let bytes = mat_bytes(frame, typ, self.src_size, "remap")?;
+        }
+    }
+
+    /// The device buffer output `k` is rendered into (its table's size times the channels in
+    /// bytes, 4 per u32, rows not padded), until the next frame.
+    pub fn output(&self, k: usize) -> Option<&wgpu::Buffer> {
+        self.outputs.get(k).map(|o| &o.dst)
+    }
+
+    /// Uploads `frame` (8-bit, of the source size and channels) and records its rendering
+    /// through every table into the outputs.
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        frame: &(impl HostImage + ?Sized),
+    ) -> Result<()> {
+        let bytes = frame.pixel_bytes(self.channels, self.src_size, "remap")?;
         let mut padded;
         let upload: &[u8] = if bytes.len() % 4 == 0 {
             &bytes
@@ -259,15 +283,22 @@ impl RemapGpu {
             &padded
         };
         self.ctx.write(&self.src, 0, upload);
-        let mut enc = self.ctx.encoder("remap");
-        {
-            let mut pass = compute_pass(&mut enc, "remap");
-            for o in &self.outputs {
-                let words = o.bytes.div_ceil(4) as u32;
-                self.ctx
-                    .dispatch(&mut pass, &self.pipe, &o.bind, groups(words));
-            }
+        let mut pass = compute_pass(enc, "remap");
+        for o in &self.outputs {
+            let words = o.bytes.div_ceil(4) as u32;
+            self.ctx
+                .dispatch(&mut pass, &self.pipe, &o.bind, groups(words));
         }
+        Ok(())
+    }
+
+    /// Renders `frame` (8-bit, of the source size and channels) through every table and reads the
+    /// outputs back, in the order of the tables.
+    #[cfg(feature = "opencv")]
+    pub fn render(&self, frame: &Mat) -> Result<Vec<Mat>> {
+        let typ = self.typ();
+        let mut enc = self.ctx.encoder("remap");
+        self.encode(&mut enc, frame)?;
         let mut at = 0;
         for o in &self.outputs {
             let n = o.bytes.next_multiple_of(4);

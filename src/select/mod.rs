@@ -135,7 +135,7 @@ impl SelectSettings {
             force: true,
             checkpoint_every_s: Self::CHECKPOINT_EVERY_S,
             preview: an.preview == Some(true),
-            projection: None,
+            projection: an.projection,
             quiet,
         }
     }
@@ -343,12 +343,6 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let boundaries = steps::boundaries(&s.steps);
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;
-    let auto = AutoThresholds::find(s, open, &known)?;
-    let ts = known.cache.timestamps_s.as_deref();
-    let stationary_req = match auto.resolved.stationary {
-        Some(st) => Some(st.request(&boundaries, &known.metadata(s, open)?, ts)?),
-        None => None,
-    };
     let projection = {
         let m = known.metadata(s, open)?;
         crate::equirect::resolve_projection(
@@ -357,6 +351,20 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
             input_ref.kind == SourceKind::Video,
             (m.width, m.height),
         )?
+    };
+    let on_sphere;
+    let s = match projection {
+        crate::equirect::Projection::Equirect => {
+            on_sphere = on_the_sphere(s);
+            &on_sphere
+        }
+        crate::equirect::Projection::Pinhole => s,
+    };
+    let auto = AutoThresholds::find(s, open, &known)?;
+    let ts = known.cache.timestamps_s.as_deref();
+    let stationary_req = match auto.resolved.stationary {
+        Some(st) => Some(st.request(&boundaries, &known.metadata(s, open)?, ts)?),
+        None => None,
     };
     let plan = Plan::of(s, &known, stationary_req);
     let metadata = match known.metadata.take() {
@@ -406,6 +414,33 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         decoded: known.decoded,
         proposals: auto.proposals,
     })
+}
+
+/// `s` for 360° frames: movement measured on the horizon views with the sphere's rotation
+/// removed (always: a turn on the spot is no movement on a 360° input), said on stderr.
+fn on_the_sphere(s: &SelectSettings) -> SelectSettings {
+    let mut s = s.clone();
+    let views = s
+        .movement
+        .sphere
+        .unwrap_or(crate::params::SphereViews::DEFAULT);
+    if s.needs(Need::Movement) {
+        log::info!(
+            "360° input: movement is measured on {} views of {}° around the horizon, with the \
+             rotation of the sphere removed from all of them together (turning on the spot is not \
+             movement{})",
+            views.views,
+            views.fov_deg,
+            if s.movement.derotate.is_some() {
+                "; --derotate and --hfov are implied and not used"
+            } else {
+                ""
+            }
+        );
+    }
+    s.movement.sphere = Some(views);
+    s.movement.derotate = None;
+    s
 }
 
 /// The project's reference to its input: kind, fingerprint and a path relative to the project.

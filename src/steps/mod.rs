@@ -62,6 +62,7 @@ pub mod defaults {
             analysis_width: ANALYSIS_WIDTH,
             stride: FLOW_STRIDE,
             derotate: None,
+            sphere: None,
         }
     }
 }

@@ -36,6 +36,7 @@ mod segment;
 mod sharpness;
 mod similarity;
 mod similarity_models;
+mod sphere;
 mod standalone;
 mod telemetry;
 mod walk;

@@ -274,6 +274,7 @@ fn to_flags_give_select_the_same_request_and_steps() {
         analysis_width: 96,
         stride: 3,
         derotate: Some(Derotate { hfov_deg: 80.5 }),
+        sphere: None,
     };
     let steps = [
         Step::Spacing {
