@@ -9,6 +9,7 @@
 use crate::error::{Error, Result};
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 
 /// The first 8 bytes of every series file (format version 1).
@@ -95,6 +96,7 @@ impl Writer {
         }
         let f = File::options()
             .write(true)
+            .custom_flags(libc::O_NOFOLLOW)
             .open(path)
             .map_err(|e| Error::io(path, e))?;
         let end = HEADER + frames as u64 * record(dim);
@@ -110,7 +112,15 @@ impl Writer {
     pub fn push(&mut self, values: &[i16]) -> Result<()> {
         let path = &self.path;
         if self.file.is_none() {
-            let mut f = BufWriter::new(File::create(path).map_err(|e| Error::io(path, e))?);
+            // Not through a symbolic link (check_outputs refused one; this closes the race).
+            let f = File::options()
+                .write(true)
+                .create(true)
+                .truncate(true)
+                .custom_flags(libc::O_NOFOLLOW)
+                .open(path)
+                .map_err(|e| Error::io(path, e))?;
+            let mut f = BufWriter::new(f);
             f.write_all(&header(values.len()))
                 .map_err(|e| Error::io(path, e))?;
             (self.file, self.dim) = (Some(f), values.len());

@@ -546,8 +546,16 @@ fn rig_image_names(images: &Path) -> Result<Vec<String>> {
         let vname = view.file_name().map(|n| n.to_string_lossy().to_string());
         for f in read(&view)? {
             let f = f.map_err(|e| Error::io(&view, e))?;
-            if let Some(v) = &vname {
-                out.push(format!("{v}/{}", f.file_name().to_string_lossy()));
+            let name = f.file_name().to_string_lossy().to_string();
+            // Images only: no hidden or stray files (matches_importer would name images that
+            // are not in the database).
+            let image = (Path::new(&name).extension())
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| {
+                    ["jpg", "jpeg", "png", "tif", "tiff"].contains(&e.to_ascii_lowercase().as_str())
+                });
+            if let (Some(v), true) = (&vname, image && !name.starts_with('.')) {
+                out.push(format!("{v}/{name}"));
             }
         }
     }

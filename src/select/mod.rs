@@ -224,6 +224,9 @@ pub(crate) fn check_outputs(s: &SelectSettings) -> Result<[Lock; 2]> {
             "",
             (0, 0),
         )))?;
+        // Never an input, never through a link, a FIFO or a device, even with --force.
+        crate::output::check_not_input(&running, &inputs)?;
+        crate::output::check_replaceable(&running)?;
         if running.exists() && !s.force && !embedding_file::is_ours(&running) {
             return Err(Error::output(
                 running,
@@ -297,7 +300,17 @@ pub fn write(project: &Project, output: &Path) -> Result<()> {
         }
     }
     let kept = series_files(project);
-    for f in old.iter().filter(|f| !kept.contains(f)) {
+    // Only names this output makes (`<output name>.<key hash>.emb`): a copied project names its
+    // original's series, which are not this output's to remove.
+    let prefix = format!(
+        "{}.",
+        output.file_name().unwrap_or_default().to_string_lossy()
+    );
+    let own = |f: &&PathBuf| {
+        f.parent() == output.parent()
+            && (f.file_name()).is_some_and(|n| n.to_string_lossy().starts_with(&prefix))
+    };
+    for f in old.iter().filter(own).filter(|f| !kept.contains(f)) {
         embedding_file::remove_ours(f);
     }
     embedding_file::remove_ours(&series_partial_path(output));
@@ -633,6 +646,7 @@ impl Known {
                     "exists and is not a keyframer embeddings file; pass --force to replace it";
                 return Err(Error::output(to, msg));
             }
+            crate::output::check_replaceable(&to)?;
             std::fs::rename(&e.file, &to).map_err(|err| Error::io(&to, err))?;
             cache
                 .embeddings

@@ -479,3 +479,28 @@ pub(crate) fn series_bytes(project: &Path, i: usize) -> Vec<u8> {
     assert!(!name.contains('/'), "{name}");
     std::fs::read(project.with_file_name(name)).unwrap()
 }
+
+/// The running embeddings file (`P.partial.emb`) follows the output rules: a symbolic link there
+/// (dangling or not) is refused even with `--force`, before any frame, and its target is intact.
+#[test]
+fn the_embeddings_file_is_never_written_through_a_link() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (clip, _) = scenes_clip(tmp.path());
+    let p = tmp.path().join("p.json");
+    let running = tmp.path().join("p.json.partial.emb");
+    let theirs = tmp.path().join("theirs.txt");
+    std::fs::write(&theirs, "their data").unwrap();
+    std::os::unix::fs::symlink(&theirs, &running).unwrap();
+    let (code, err) = select(&clip, &p, &["--similarity", "15"]);
+    assert_ne!(code, 0, "{err}");
+    assert!(err.contains("symbolic link"), "{err}");
+    assert_eq!(std::fs::read_to_string(&theirs).unwrap(), "their data");
+    assert!(!p.exists());
+    // Dangling: nothing is created where it points.
+    std::fs::remove_file(&running).unwrap();
+    let elsewhere = tmp.path().join("elsewhere.emb");
+    std::os::unix::fs::symlink(&elsewhere, &running).unwrap();
+    let (code, err) = select(&clip, &p, &["--similarity", "15"]);
+    assert_ne!(code, 0, "{err}");
+    assert!(!elsewhere.exists(), "written through a dangling link");
+}
