@@ -58,6 +58,12 @@ pub fn frames_in(path: &Path) -> Option<usize> {
     }
 }
 
+/// Whether `path` is a series file of exactly `n` records of `dim` values: what [`read`] accepts
+/// (a file with a torn last record or another dimension is recomputed, not read).
+pub fn holds(path: &Path, dim: usize, n: usize) -> bool {
+    read_header(path).is_some_and(|(got, len)| got == dim && len == HEADER + n as u64 * record(dim))
+}
+
 /// Removes `path` when it is keyframer's series file; anything else is left alone.
 pub fn remove_ours(path: &Path) {
     if is_ours(path) {
@@ -110,21 +116,10 @@ impl Writer {
 
     /// Appends the next frame's record; every record of a series has the first one's length.
     pub fn push(&mut self, values: &[i16]) -> Result<()> {
-        let path = &self.path;
         if self.file.is_none() {
-            // Not through a symbolic link (check_outputs refused one; this closes the race).
-            let f = File::options()
-                .write(true)
-                .create(true)
-                .truncate(true)
-                .custom_flags(libc::O_NOFOLLOW)
-                .open(path)
-                .map_err(|e| Error::io(path, e))?;
-            let mut f = BufWriter::new(f);
-            f.write_all(&header(values.len()))
-                .map_err(|e| Error::io(path, e))?;
-            (self.file, self.dim) = (Some(f), values.len());
+            self.create(values.len())?;
         }
+        let path = &self.path;
         if values.len() != self.dim {
             let msg = format!(
                 "frame {}: {} values after {} per frame",
@@ -142,6 +137,23 @@ impl Writer {
         Ok(())
     }
 
+    /// Starts the file with the header of `dim` values a record, not through a symbolic link
+    /// (`select`'s output checks refused one; this closes the race).
+    fn create(&mut self, dim: usize) -> Result<()> {
+        let path = &self.path;
+        let f = File::options()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .custom_flags(libc::O_NOFOLLOW)
+            .open(path)
+            .map_err(|e| Error::io(path, e))?;
+        let mut f = BufWriter::new(f);
+        f.write_all(&header(dim)).map_err(|e| Error::io(path, e))?;
+        (self.file, self.dim) = (Some(f), dim);
+        Ok(())
+    }
+
     /// Puts every record pushed so far on disk (before a checkpoint names them).
     pub fn flush(&mut self) -> Result<()> {
         if let Some(f) = self.file.as_mut() {
@@ -152,8 +164,12 @@ impl Writer {
         Ok(())
     }
 
-    /// Flushes and closes the file; returns the dimension and the frames written.
+    /// Flushes and closes the file; returns the dimension and the frames written. With no frame
+    /// pushed the file is still made (a header of 0 values: an empty series).
     pub fn finish(mut self) -> Result<(usize, usize)> {
+        if self.file.is_none() {
+            self.create(0)?;
+        }
         self.flush()?;
         Ok((self.dim, self.frames))
     }
@@ -223,5 +239,29 @@ mod tests {
         assert!(other.exists());
         remove_ours(&p);
         assert!(!p.exists());
+    }
+
+    /// `holds` accepts exactly what `read` accepts: a torn last record or another dimension
+    /// is not a usable series; a series of no frames is made and reads back empty.
+    #[test]
+    fn holds_agrees_with_read_and_empty_series_exist() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.json.partial.emb");
+        let mut w = Writer::open(&path, 0).unwrap();
+        w.push(&[1, 2, 3]).unwrap();
+        w.push(&[4, 5, 6]).unwrap();
+        assert_eq!(w.finish().unwrap(), (3, 2));
+        assert!(holds(&path, 3, 2));
+        assert!(read(&path, 3, 2, &[1]).is_ok());
+        assert!(!holds(&path, 2, 3) && !holds(&path, 3, 1));
+        let f = File::options().append(true).open(&path).unwrap();
+        f.set_len(f.metadata().unwrap().len() - 1).unwrap();
+        assert!(!holds(&path, 3, 2) && read(&path, 3, 2, &[0]).is_err());
+        assert_eq!(frames_in(&path), Some(1), "whole records only");
+
+        let empty = dir.path().join("e.emb");
+        assert_eq!(Writer::open(&empty, 0).unwrap().finish().unwrap(), (0, 0));
+        assert!(holds(&empty, 0, 0));
+        assert_eq!(read(&empty, 0, 0, &[]).unwrap().len(), 0);
     }
 }

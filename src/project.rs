@@ -136,7 +136,7 @@ impl EmbeddingCache {
     /// series file of keyframer's holding exactly `n` records of `dim` values.
     pub fn usable(&self, n: usize) -> bool {
         match self.path() {
-            Some(p) => crate::embedding_file::frames_in(&p) == Some(n),
+            Some(p) => crate::embedding_file::holds(&p, self.dim, n),
             None => self.frames.len() == n,
         }
     }
