@@ -215,6 +215,33 @@ fn read_bin<K: Ord, V>(
     Ok(out)
 }
 
+/// The bytes of a `cameras.bin` holding `cameras` (COLMAP's binary format: a `u64` count, then
+/// per camera `u32` id, `i32` model id, `u64` width, `u64` height and the `f64` parameters).
+pub fn cameras_bin(cameras: &BTreeMap<u32, Camera>) -> Result<Vec<u8>> {
+    let mut out = (cameras.len() as u64).to_le_bytes().to_vec();
+    for cam in cameras.values() {
+        let (id, _, np) = (crate::sparse::CAMERA_MODELS.iter())
+            .find(|m| m.1 == cam.model)
+            .ok_or_else(|| Error::Colmap(format!("unknown camera model {}", cam.model)))?;
+        if cam.params.len() != *np {
+            return Err(Error::Colmap(format!(
+                "camera {} ({}) has {} parameters, needs {np}",
+                cam.id,
+                cam.model,
+                cam.params.len()
+            )));
+        }
+        out.extend(cam.id.to_le_bytes());
+        out.extend(id.to_le_bytes());
+        out.extend(cam.width.to_le_bytes());
+        out.extend(cam.height.to_le_bytes());
+        for v in &cam.params {
+            out.extend(v.to_le_bytes());
+        }
+    }
+    Ok(out)
+}
+
 /// One `cameras.bin` record.
 fn bin_camera(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Camera> {
     let id = b.u32(f)?;

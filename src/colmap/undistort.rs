@@ -197,6 +197,33 @@ fn warp_mask(
 /// Runs `image_undistorter` on `model_dir` into `WORKSPACE/dataset`, moves its model into
 /// `sparse/0/`, removes its dense-stereo scripts and configuration, warps the masks and writes
 /// `transforms.json` (`world` says what the model's world frame is).
+/// Turns every camera of the undistorted model `m` (read from `dir`) into a `PINHOLE` one:
+/// `image_undistorter` leaves a camera without distortion (a known-intrinsics `PINHOLE`,
+/// `SIMPLE_PINHOLE`, or a radial model whose coefficients are all zero) as it was, and trainers
+/// read only pinhole cameras. Returns whether any camera changed; a camera that still has
+/// distortion is an error naming it.
+fn as_pinhole(m: &mut Model, dir: &Path) -> Result<bool> {
+    let mut changed = false;
+    for cam in m.cameras.values_mut() {
+        if cam.model == "PINHOLE" {
+            continue;
+        }
+        let (fx, fy, cx, cy, k) = intrinsics(cam)?;
+        if k.iter().any(|&v| v != 0.0) {
+            return Err(Error::Colmap(format!(
+                "{}: camera {} is {} with distortion {k:?} after undistortion, not PINHOLE",
+                dir.display(),
+                cam.id,
+                cam.model
+            )));
+        }
+        cam.model = "PINHOLE".into();
+        cam.params = vec![fx, fy, cx, cy];
+        changed = true;
+    }
+    Ok(changed)
+}
+
 /// What `image_undistorter` writes beside the dataset for COLMAP's dense stereo.
 const DENSE_EXTRAS: [&str; 3] = [
     "run-colmap-geometric.sh",
@@ -248,16 +275,10 @@ pub(super) fn make_dataset(
             Err(_) => {}
         }
     }
-    let (dataset, _) = model::read(&zero)?;
-    for cam in dataset.cameras.values() {
-        if cam.model != "PINHOLE" {
-            return Err(Error::Colmap(format!(
-                "{}: camera {} is {}, not PINHOLE",
-                zero.display(),
-                cam.id,
-                cam.model
-            )));
-        }
+    let (mut dataset, _) = model::read(&zero)?;
+    if as_pinhole(&mut dataset, &zero)? {
+        let bin = zero.join("cameras.bin");
+        fsutil::write_atomic(&bin, &model::cameras_bin(&dataset.cameras)?)?;
     }
     let masks = if ws.join("masks").is_dir() {
         let (source, _) = model::read(model_dir)?;
@@ -361,6 +382,39 @@ mod tests {
         let (x, _) = project(&cv, 0.1, -0.2).unwrap();
         assert!((x - (32.0 + 50.0 * (0.1 + 2.0 * 0.01 * 0.1 * -0.2))).abs() < 1e-12);
         assert!(project(&cam("THIN_PRISM_FISHEYE", &[0.0; 12]), 0.0, 0.0).is_err());
+    }
+
+    #[test]
+    fn distortion_free_cameras_become_pinhole_and_are_written_back() {
+        let dir = std::env::temp_dir().join(format!("kf-as-pinhole-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut m = Model::default();
+        let mut second = cam("SIMPLE_PINHOLE", &[40.0, 32.0, 24.0]);
+        second.id = 2;
+        m.cameras
+            .insert(1, cam("SIMPLE_RADIAL", &[50.0, 32.0, 24.0, 0.0]));
+        m.cameras.insert(2, second);
+        assert!(as_pinhole(&mut m, &dir).unwrap());
+        assert_eq!(m.cameras[&1], cam("PINHOLE", &[50.0, 50.0, 32.0, 24.0]));
+        assert_eq!(m.cameras[&2].params, [40.0, 40.0, 32.0, 24.0]);
+        // Written as COLMAP's cameras.bin and read back by the model reader.
+        std::fs::write(
+            dir.join("cameras.bin"),
+            model::cameras_bin(&m.cameras).unwrap(),
+        )
+        .unwrap();
+        for (name, empty) in [("images.bin", 0u64), ("points3D.bin", 0)] {
+            std::fs::write(dir.join(name), empty.to_le_bytes()).unwrap();
+        }
+        assert_eq!(model::read_binary(&dir).unwrap().cameras, m.cameras);
+        // Already pinhole: nothing to rewrite; real distortion left: an error naming the camera.
+        assert!(!as_pinhole(&mut m, &dir).unwrap());
+        let mut d = Model::default();
+        d.cameras
+            .insert(1, cam("SIMPLE_RADIAL", &[50.0, 32.0, 24.0, 0.01]));
+        let e = as_pinhole(&mut d, &dir).unwrap_err().to_string();
+        assert!(e.contains("camera 1 is SIMPLE_RADIAL"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
