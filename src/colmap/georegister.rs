@@ -224,6 +224,25 @@ pub fn residuals(
     })
 }
 
+/// The registered images of `model` (ENU) whose centre lies farther than `max_m` from their
+/// position, in name order.
+pub fn outliers(
+    model: &Model,
+    positions: &[GeoPosition],
+    origin: &GeoPosition,
+    max_m: f64,
+) -> Vec<String> {
+    let mut out: Vec<String> = (model.images.values())
+        .filter(|im| {
+            (positions.iter().find(|p| p.name == im.name))
+                .is_some_and(|p| align::dist(&im.centre(), &enu(origin, p)) > max_m)
+        })
+        .map(|im| im.name.clone())
+        .collect();
+    out.sort();
+    out
+}
+
 /// What `georegistration.json` (and `colmap.json`) record.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Georegistration {
@@ -250,6 +269,11 @@ pub struct Georegistration {
     pub translation: Vec3,
     /// Aligned camera centres against the positions.
     pub residuals: Residuals,
+    /// Images whose aligned centre lies farther than `max_error_m` from their position: where
+    /// the model and the positions disagree (a mis-assembled part of the model, or wrong
+    /// positions). Empty when they agree.
+    #[serde(default)]
+    pub outliers: Vec<String>,
 }
 
 /// Reads a workspace's `georegistered/georegistration.json`, if there is one.
@@ -345,6 +369,23 @@ pub(super) fn georegister(
     })?;
     let residuals = residuals(&aligned, &pos, &origin)
         .ok_or_else(|| Error::Colmap("no aligned image has a position".into()))?;
+    let outliers = outliers(&aligned, &pos, &origin, max_error_m);
+    if !outliers.is_empty() {
+        let shown: Vec<&str> = outliers.iter().take(5).map(String::as_str).collect();
+        log::warn!(
+            "{} of {} aligned cameras lie more than {max_error_m} m from their positions ({}{}): \
+             the model and the positions disagree there (a mis-assembled model, or wrong \
+             positions); `keyframer reconstruct` rebuilds such models",
+            outliers.len(),
+            residuals.images,
+            shown.join(", "),
+            if outliers.len() > shown.len() {
+                ", ..."
+            } else {
+                ""
+            }
+        );
+    }
     let g = Georegistration {
         from_model: fsutil::relative_to(model_dir, ws).display().to_string(),
         model: GEOREGISTERED.into(),
@@ -357,6 +398,7 @@ pub(super) fn georegister(
         rotation: sim.rotation,
         translation: sim.translation,
         residuals,
+        outliers,
     };
     fsutil::write_json(&out.join(RECORD), &g)?;
     fsutil::write_json(&out.join(CAMERAS), &cameras_geojson(&aligned, &pos, &g))?;
@@ -422,6 +464,38 @@ pub fn evaluate(ws: &Path, manifest: &Manifest) -> Result<Option<Residuals>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cameras_beyond_the_max_error_are_outliers() {
+        let origin = at(-33.85, -70.6, 500.0);
+        let mut model = Model::default();
+        let mut positions = Vec::new();
+        for (k, off) in [0.5, 4.0, 2.9].into_iter().enumerate() {
+            let name = format!("f{k}.jpg");
+            let p = GeoPosition {
+                name: name.clone(),
+                ..at(-33.85 + 1e-4 * k as f64, -70.6, 500.0)
+            };
+            let mut c = enu(&origin, &p);
+            c[2] += off;
+            model.images.insert(
+                k as u32,
+                model::Image {
+                    id: k as u32,
+                    qvec: [1.0, 0.0, 0.0, 0.0],
+                    tvec: c.map(|v| -v),
+                    camera_id: 1,
+                    name,
+                    points2d: Vec::new(),
+                },
+            );
+            positions.push(p);
+        }
+        assert_eq!(outliers(&model, &positions, &origin, 3.0), ["f1.jpg"]);
+        assert!(outliers(&model, &positions, &origin, 5.0).is_empty());
+        let r = residuals(&model, &positions, &origin).unwrap();
+        assert!((r.max_m - 4.0).abs() < 1e-6, "{r:?}");
+    }
 
     fn at(lat: f64, lon: f64, alt: f64) -> GeoPosition {
         GeoPosition {
