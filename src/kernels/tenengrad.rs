@@ -43,7 +43,6 @@ pub fn opencv(gray: &Mat) -> Result<f64> {
 
 /// Pixels per partial sum in [`inside_total_generic`]: each adds at most 2 * 1020^2, so an i32
 /// holds 1024 of them (1024 * 2 * 1020^2 = 2 130 739 200 < 2^31).
-#[cfg(feature = "opencv")]
 const CHUNK: usize = 1024;
 
 /// The Tenengrad of an 8-bit gray image as [`opencv`] computes it (the same exact integer total
@@ -58,6 +57,11 @@ pub fn host(gray: &Mat) -> Result<f64> {
         .map(|y| gray.at_row::<u8>(y))
         .collect::<std::result::Result<Vec<&[u8]>, _>>()
         .cv(|| "rows of the gray image".into())?;
+    Ok(host_rows(&rows))
+}
+
+/// [`host`] on the rows of a gray image (all of one width; none: 0): needs no OpenCV.
+pub fn host_rows(rows: &[&[u8]]) -> f64 {
     let h = rows.len();
     let mut total = 0u64;
     for y in 0..h {
@@ -67,12 +71,11 @@ pub fn host(gray: &Mat) -> Result<f64> {
         );
         total += row_total(a, rows[y], c);
     }
-    let n = (gray.rows() as f64) * (gray.cols() as f64);
-    Ok(total as f64 / n.max(1.0))
+    let n = (h as f64) * (rows.first().map_or(0, |r| r.len()) as f64);
+    total as f64 / n.max(1.0)
 }
 
 /// Index `i` in `0..n` with OpenCV's BORDER_REFLECT_101 (n = 1: 0).
-#[cfg(feature = "opencv")]
 fn reflect(i: isize, n: usize) -> usize {
     let n = n as isize;
     if n <= 1 {
@@ -83,7 +86,6 @@ fn reflect(i: isize, n: usize) -> usize {
 }
 
 /// Gx^2 + Gy^2 at column `x` of the row `b` between rows `a` (above) and `c` (below).
-#[cfg(feature = "opencv")]
 fn at(a: &[u8], b: &[u8], c: &[u8], x: usize) -> u64 {
     let w = b.len();
     let (l, r) = (reflect(x as isize - 1, w), reflect(x as isize + 1, w));
@@ -94,7 +96,6 @@ fn at(a: &[u8], b: &[u8], c: &[u8], x: usize) -> u64 {
 }
 
 /// The row's total: its two border columns one by one, the inside by [`inside_total`].
-#[cfg(feature = "opencv")]
 fn row_total(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     let w = b.len();
     if w < 3 {
@@ -105,7 +106,6 @@ fn row_total(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
 
 /// [`inside_total_generic`], compiled for AVX2 when the CPU has it (the same integer arithmetic,
 /// so the same total: `row_total_paths_agree` checks it; 2.5x faster at 1080p here).
-#[cfg(feature = "opencv")]
 fn inside_total(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
@@ -116,7 +116,7 @@ fn inside_total(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     inside_total_generic(a, b, c)
 }
 
-#[cfg(all(feature = "opencv", target_arch = "x86_64"))]
+#[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn inside_total_avx2(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     inside_total_generic(a, b, c)
@@ -126,7 +126,6 @@ fn inside_total_avx2(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
 /// the vertical parts first: `s = a + 2b + c` (Gx = s[x+1] − s[x−1]) and `d = c − a`
 /// (Gy = d[x−1] + 2d[x] + d[x+1]), in i16 (|s|, |Gx|, |Gy| ≤ 1020), then the squares in i32:
 /// straight loops the compiler vectorises.
-#[cfg(feature = "opencv")]
 #[inline(always)]
 fn inside_total_generic(a: &[u8], b: &[u8], c: &[u8]) -> u64 {
     let inside = b.len() - 2;
