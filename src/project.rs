@@ -179,6 +179,11 @@ pub struct TelemetrySource {
     pub offset_s: f64,
     /// The telemetry file's fingerprint (None for EXIF, which the input's fingerprint covers).
     pub fingerprint: Option<Fingerprint>,
+    /// The rule that placed the frames in the telemetry's time
+    /// ([`crate::source::telemetry::PLACEMENT_RULE`]; 0 in older projects): positions placed by
+    /// another rule are placed again.
+    #[serde(default)]
+    pub rule: u32,
 }
 
 /// Cached movement between consecutive frames.

@@ -187,6 +187,7 @@ fn source_of(s: &SelectSettings, file: &Path, kind: TelemetryKind) -> Result<Tel
             TelemetryKind::Exif => None,
             _ => Some(fsutil::fingerprint_file(file)?),
         },
+        rule: telemetry::PLACEMENT_RULE,
     })
 }
 

@@ -671,12 +671,29 @@ pub(crate) fn short_deg(d: f64) -> f64 {
     }
 }
 
+/// The version of [`at`]'s placement of frames in the track, recorded with cached positions:
+/// 1 takes the end's fix within [`SPAN_SLACK_S`] of the span (0: none outside it).
+pub const PLACEMENT_RULE: u32 = 1;
+
+/// How far outside the track's time span a frame may lie and still take the end's fix: SRT
+/// times are whole milliseconds, and a frame's timestamp (stream time base, or index / rate in
+/// floating point) can miss the entry it sits on by a rounding (107 / 5 fps is 21.400000000000002,
+/// after the 21.400 s of the last entry).
+const SPAN_SLACK_S: f64 = 5e-4;
+
 /// The fix at time `t_s`, linear between the two entries around it (positions, altitudes and
-/// pitch; the camera facts of the earlier one); `None` outside the track's time span.
+/// pitch; the camera facts of the earlier one); `None` outside the track's time span (widened by
+/// [`SPAN_SLACK_S`] at both ends, where the end's fix is taken).
 pub fn at(fixes: &[Fix], t_s: f64) -> Option<Fix> {
     let (first, last) = (fixes.first()?, fixes.last()?);
-    if t_s < first.t_s || t_s > last.t_s {
+    if t_s < first.t_s - SPAN_SLACK_S || t_s > last.t_s + SPAN_SLACK_S {
         return None;
+    }
+    if t_s <= first.t_s {
+        return Some(Fix {
+            t_s,
+            ..first.clone()
+        });
     }
     let k = fixes.partition_point(|f| f.t_s <= t_s);
     let a = &fixes[k.saturating_sub(1)];
@@ -1092,6 +1109,13 @@ mod tests {
         assert_eq!((f.rel_alt_m, f.abs_alt_m), (Some(12.5), Some(502.5)));
         assert_eq!(at(&t.fixes, 1.0).unwrap().lat_deg, 47.001);
         assert!(at(&t.fixes, 1.5).is_none() && at(&t.fixes, -0.1).is_none());
+        // A frame a rounding past either end takes that end's fix (frame 107 at 5 fps is at
+        // 107 * 0.2 = 21.400000000000002 s, past an entry at 21.400); a millisecond past has none.
+        assert!(107.0 * 0.2 > 21.4);
+        let end = at(&t.fixes, 1.0 + 1e-12).unwrap();
+        assert_eq!((end.lat_deg, end.t_s), (47.001, 1.0 + 1e-12));
+        assert_eq!(at(&t.fixes, -1e-9).unwrap().lat_deg, 47.0);
+        assert!(at(&t.fixes, 1.001).is_none() && at(&t.fixes, -0.001).is_none());
         // 0.001 degree of latitude at 47.0005° N: the WGS84 meridian radius there is
         // 6 369 620.58 m (a (1 - e²) / (1 - e² sin² φ)^1.5), so the arc is 111.1709 m.
         let d = distance_m(
