@@ -400,9 +400,9 @@ fn select_and_export(
         .iter()
         .map(|p| p.to_string())
         .collect();
-    for (name, es) in &w.exports {
+    for (i, (name, es)) in w.exports.iter().enumerate() {
         let out = folder.join(name);
-        let m = export::export(&project, &out, es, true, true)?;
+        let m = export::export(&project, &out, es, true, true).map_err(|e| w.export_error(i, e))?;
         report.exported.push(m.frames.len());
         partial.extend(
             m.missing
