@@ -392,7 +392,12 @@ fn select_and_export(
 ) -> Result<Status> {
     let project = folder.join("project.json");
     let settings = select::SelectSettings::from_workflow(w, input, &project, true);
-    let sel = select::select(&settings)?;
+    // A rig export of pinhole frames is refused by the select, before any frame is analysed.
+    let rig = w.exports.iter().position(|(_, e)| e.views.is_some());
+    let sel = select::select(&settings).map_err(|e| match (&e, rig) {
+        (Error::Param { name, .. }, Some(i)) if name == "--views" => w.export_error(i, e),
+        _ => e,
+    })?;
     report.keyframes = Some(sel.project.keyframes.len());
     let mut partial: Vec<String> = sel
         .project

@@ -765,6 +765,7 @@ impl SelectArgs {
                 .map_err(|m| Error::param("--checkpoint-every", m))?,
             preview: self.preview,
             projection: self.projection,
+            require_equirect: false,
             quiet,
         })
     }

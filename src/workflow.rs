@@ -418,7 +418,7 @@ impl Workflow {
     }
 
     /// A refusal of `[[export]]` `i`'s settings found while running (a rig export of an input
-    /// whose frames are pinhole ones), put on its key (`export[i].views`) in the workflow file;
+    /// whose frames turn out to be pinhole ones), put on its key (`export[i].views`) in the workflow file;
     /// other errors as they are.
     pub fn export_error(&self, i: usize, e: Error) -> Error {
         match e {

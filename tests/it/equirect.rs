@@ -448,7 +448,8 @@ fn workflow_rig_keys_are_refused_with_file_and_key() {
         "{err}"
     );
     assert!(!out.exists());
-    // ... else when the input turns out to be pinhole (no spherical metadata in a folder).
+    // ... else when the input turns out to be pinhole (no spherical metadata in a folder),
+    // before its frames are analysed.
     rig_workflow(&wf, None, "views = \"cube\"\n");
     let (code, err, folder) = run_rig(&wf, &frames, &out);
     assert_ne!(code, 0);
@@ -456,5 +457,7 @@ fn workflow_rig_keys_are_refused_with_file_and_key() {
         named(&err) && err.contains("--projection equirect"),
         "{err}"
     );
+    assert!(folder.is_dir(), "the input's folder: {}", out.display());
+    assert!(!folder.join("project.json").exists(), "no selection");
     assert!(!folder.join("rig").exists(), "nothing exported");
 }
