@@ -392,7 +392,12 @@ fn select_and_export(
 ) -> Result<Status> {
     let project = folder.join("project.json");
     let settings = select::SelectSettings::from_workflow(w, input, &project, true);
-    let sel = select::select(&settings)?;
+    // A rig export of pinhole frames is refused by the select, before any frame is analysed.
+    let rig = w.exports.iter().position(|(_, e)| e.views.is_some());
+    let sel = select::select(&settings).map_err(|e| match (&e, rig) {
+        (Error::Param { name, .. }, Some(i)) if name == "--views" => w.export_error(i, e),
+        _ => e,
+    })?;
     report.keyframes = Some(sel.project.keyframes.len());
     let mut partial: Vec<String> = sel
         .project
@@ -400,9 +405,9 @@ fn select_and_export(
         .iter()
         .map(|p| p.to_string())
         .collect();
-    for (name, es) in &w.exports {
+    for (i, (name, es)) in w.exports.iter().enumerate() {
         let out = folder.join(name);
-        let m = export::export(&project, &out, es, true, true)?;
+        let m = export::export(&project, &out, es, true, true).map_err(|e| w.export_error(i, e))?;
         report.exported.push(m.frames.len());
         partial.extend(
             m.missing

@@ -478,10 +478,10 @@ pub struct ExportArgs {
     #[arg(long, value_name = "SET")]
     pub views: Option<String>,
     /// Field of view of every view in degrees.
-    #[arg(long, value_name = "DEG", default_value_t = 90.0, requires = "views")]
+    #[arg(long, value_name = "DEG", default_value_t = keyframer::manifest::DEFAULT_VIEW_FOV, requires = "views")]
     pub view_fov: f64,
     /// Width = height of every view in pixels.
-    #[arg(long, value_name = "PX", default_value_t = 1024, requires = "views")]
+    #[arg(long, value_name = "PX", default_value_t = keyframer::manifest::DEFAULT_VIEW_SIZE, requires = "views")]
     pub view_size: u32,
     /// Hide a cap of this radius in degrees around the nadir (the operator, the tripod) in the
     /// masks of every view that sees it.
@@ -765,6 +765,7 @@ impl SelectArgs {
                 .map_err(|m| Error::param("--checkpoint-every", m))?,
             preview: self.preview,
             projection: self.projection,
+            require_equirect: false,
             quiet,
         })
     }
@@ -819,14 +820,13 @@ impl ExportArgs {
             !self.no_geotag,
         )?;
         if let Some(set) = &self.views {
-            let set: keyframer::equirect::ViewSet = set.parse()?;
-            s.views = Some(keyframer::manifest::ViewSettings {
-                set: set.to_string(),
-                fov_deg: self.view_fov,
-                size: self.view_size,
-                mask_nadir_deg: self.mask_nadir,
-                interp: self.view_interp,
-            });
+            s.views = Some(keyframer::manifest::ViewSettings::from_parts(
+                set,
+                self.view_fov,
+                self.view_size,
+                self.mask_nadir,
+                self.view_interp,
+            )?);
         }
         Ok(s)
     }

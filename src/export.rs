@@ -11,7 +11,7 @@ use crate::fsutil;
 use crate::geotag::{tag_jpeg, GeoTag};
 use crate::manifest::{
     listed_files, ExportSettings, ExportedFrame, Format, Manifest, MaskSettings, MissingFrame,
-    Resize, IMAGE_DIR, LAYOUT, MANIFEST, MASK_DIR, OVERLAY_DIR, PENDING,
+    Resize, IMAGE_DIR, LAYOUT, MANIFEST, MASK_DIR, MAX_PIXELS, MAX_SIDE, OVERLAY_DIR, PENDING,
 };
 use crate::output::Inputs;
 use crate::project::Project;
@@ -81,11 +81,6 @@ pub fn transform(image: &Mat, settings: &ExportSettings, out: (u32, u32)) -> Res
     crate::encode::resize(&cropped, size, imgproc::INTER_AREA)
         .cv(|| format!("resize to {}x{}", out.0, out.1))
 }
-
-/// Largest exported image side: JPEG stores at most 65535 and libjpeg accepts 65500.
-const MAX_SIDE: u32 = 65_500;
-/// Largest exported image in pixels: OpenCV's own image I/O limit (`CV_IO_MAX_IMAGE_PIXELS`).
-const MAX_PIXELS: u64 = 1 << 30;
 
 /// Refuses an output size the encoders cannot write (before any memory is allocated for it).
 fn check_size(settings: &ExportSettings, size: (u32, u32)) -> Result<()> {
@@ -163,10 +158,7 @@ pub fn export_project(
     // A 360° project's views: checked (and their tables made) before anything is written.
     let rig = match &settings.views {
         Some(vs) => {
-            if settings.crop.is_some() || settings.resize.is_some() {
-                let msg = "views are rendered from the whole 360° frame: drop --crop, --resize and --scale (--view-size sets their size)";
-                return Err(Error::param("--views", msg));
-            }
+            settings.check_whole_frame()?;
             let views = crate::rig::views_of(vs, project.projection, (MAX_SIDE, MAX_PIXELS))?;
             if views.is_empty() {
                 None

@@ -108,6 +108,67 @@ pub struct ViewSettings {
     pub interp: crate::equirect::Interp,
 }
 
+/// `--view-fov` when not given.
+pub const DEFAULT_VIEW_FOV: f64 = 90.0;
+/// `--view-size` when not given.
+pub const DEFAULT_VIEW_SIZE: u32 = 1024;
+/// Smallest view side accepted.
+pub const MIN_VIEW_SIZE: u32 = 16;
+/// Largest exported image side: JPEG stores at most 65535 and libjpeg accepts 65500.
+pub const MAX_SIDE: u32 = 65_500;
+/// Largest exported image in pixels: OpenCV's own image I/O limit (`CV_IO_MAX_IMAGE_PIXELS`).
+pub const MAX_PIXELS: u64 = 1 << 30;
+
+impl ViewSettings {
+    /// Checked view settings from their parts as a user writes them (`--views ring:8,10
+    /// --view-fov 96 ...`, or the same keys of a workflow's `[[export]]`): the set parsed and
+    /// written in its normal form, the numbers checked by [`ViewSettings::check`] against the
+    /// encoders' limits; errors name the flag (`--views`, `--view-fov`, ...).
+    pub fn from_parts(
+        set: &str,
+        fov_deg: f64,
+        size: u32,
+        mask_nadir_deg: Option<f64>,
+        interp: crate::equirect::Interp,
+    ) -> Result<ViewSettings> {
+        let set: crate::equirect::ViewSet = set.parse()?;
+        let s = ViewSettings {
+            set: set.to_string(),
+            fov_deg,
+            size,
+            mask_nadir_deg,
+            interp,
+        };
+        s.check((MAX_SIDE, MAX_PIXELS))?;
+        Ok(s)
+    }
+
+    /// The view set, after checking the view side against [`MIN_VIEW_SIZE`] and the encoders'
+    /// limits (`max_side`, `max_pixels`), the field of view and the nadir cap; errors name the
+    /// flag.
+    pub fn check(&self, (max_side, max_pixels): (u32, u64)) -> Result<crate::equirect::ViewSet> {
+        let set: crate::equirect::ViewSet = self.set.parse()?;
+        let s = self.size;
+        if s < MIN_VIEW_SIZE || s > max_side || u64::from(s) * u64::from(s) > max_pixels {
+            return Err(Error::param(
+                "--view-size",
+                format!("{s} px: views are {MIN_VIEW_SIZE} to {max_side} px a side and at most {max_pixels} pixels (JPEG, PNG and OpenCV's limits)"),
+            ));
+        }
+        if !(self.fov_deg > 1.0 && self.fov_deg < 179.0) {
+            let msg = format!("{}°: must be within (1, 179) degrees", self.fov_deg);
+            return Err(Error::param("--view-fov", msg));
+        }
+        if let Some(n) = self.mask_nadir_deg {
+            if !(n > 0.0 && n <= 90.0) {
+                let msg = format!("{n}°: the cap's radius must be within (0, 90] degrees");
+                return Err(Error::param("--mask-nadir", msg));
+            }
+        }
+        Ok(set)
+    }
+}
+
 fn on() -> bool {
     true
 }
@@ -151,6 +212,18 @@ impl ExportSettings {
             geotag,
             views: None,
         })
+    }
+}
+
+impl ExportSettings {
+    /// Refuses views together with a crop or a resize: views are rendered from the whole 360°
+    /// frame at their own size.
+    pub fn check_whole_frame(&self) -> Result<()> {
+        if self.views.is_some() && (self.crop.is_some() || self.resize.is_some()) {
+            let msg = "views are rendered from the whole 360° frame: drop --crop, --resize and --scale (--view-size sets their size)";
+            return Err(Error::param("--views", msg));
+        }
+        Ok(())
     }
 }
 

@@ -2,7 +2,7 @@
 //! tables computed once (`kernels::remap`, on the device when `auto` picks the gpu, else its
 //! OpenCV twin), their nadir masks, and COLMAP rig_configurator's `rig_config.json`.
 
-use crate::equirect::{cam_from_rig, nadir_mask, view_map, Projection, View, ViewSet};
+use crate::equirect::{cam_from_rig, nadir_mask, view_map, Projection, View};
 use crate::error::{CvContext, Error, Result};
 use crate::kernels::remap::{opencv as cv_remap, Interp, RemapGpu, Table};
 use crate::manifest::ViewSettings;
@@ -12,42 +12,29 @@ use opencv::prelude::*;
 /// The record of a rig export beside `manifest.json` (COLMAP rig_configurator's input).
 pub const RIG_CONFIG: &str = "rig_config.json";
 
-/// Smallest view side accepted.
-pub const MIN_VIEW_SIZE: u32 = 16;
-
 /// The checked views of `settings` for a project of `projection`: refuses views on a pinhole
-/// project and sizes the encoders cannot write (`max_side`, `max_pixels`), before anything is
-/// written. Empty for `equirect` (the frames are exported unchanged).
+/// project ([`check_projection`]) and settings [`ViewSettings::check`] refuses (sizes the
+/// encoders cannot write: `max_side`, `max_pixels`), before anything is written. Empty for
+/// `equirect` (the frames are exported unchanged).
 pub fn views_of(
     settings: &ViewSettings,
     projection: Projection,
-    (max_side, max_pixels): (u32, u64),
+    limits: (u32, u64),
 ) -> Result<Vec<View>> {
+    check_projection(projection)?;
+    let set = settings.check(limits)?;
+    Ok(set.views(settings.fov_deg, settings.size))
+}
+
+/// Refuses views on a project whose frames are not 360° (equirectangular) ones.
+pub fn check_projection(projection: Projection) -> Result<()> {
     if projection != Projection::Equirect {
         return Err(Error::param(
             "--views",
             "the project's frames are pinhole ones; views are cut from 360° (equirectangular) projects: select with --projection equirect",
         ));
     }
-    let set: ViewSet = settings.set.parse()?;
-    let s = settings.size;
-    if s < MIN_VIEW_SIZE || s > max_side || u64::from(s) * u64::from(s) > max_pixels {
-        return Err(Error::param(
-            "--view-size",
-            format!("{s} px: views are {MIN_VIEW_SIZE} to {max_side} px a side and at most {max_pixels} pixels (JPEG, PNG and OpenCV's limits)"),
-        ));
-    }
-    if !(settings.fov_deg > 1.0 && settings.fov_deg < 179.0) {
-        let msg = format!("{}°: must be within (1, 179) degrees", settings.fov_deg);
-        return Err(Error::param("--view-fov", msg));
-    }
-    if let Some(n) = settings.mask_nadir_deg {
-        if !(n > 0.0 && n <= 90.0) {
-            let msg = format!("{n}°: the cap's radius must be within (0, 90] degrees");
-            return Err(Error::param("--mask-nadir", msg));
-        }
-    }
-    Ok(set.views(settings.fov_deg, settings.size))
+    Ok(())
 }
 
 enum Backend {
@@ -162,6 +149,7 @@ pub fn combine(mask: &Mat, nadir: &Mat) -> Result<Mat> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::equirect::ViewSet;
 
     fn settings(set: &str, size: u32) -> ViewSettings {
         ViewSettings {

@@ -82,6 +82,21 @@ impl<T> TomlFile<T> {
     }
 }
 
+/// An error about the key at `field` of the TOML `text` read from `path` (as
+/// [`TomlFile::error`], for a file no longer held parsed).
+pub fn error_in(
+    path: &Path,
+    what: &'static str,
+    text: &str,
+    field: &str,
+    msg: impl Into<String>,
+) -> Error {
+    let line = toml_edit::ImDocument::parse(text.to_string())
+        .ok()
+        .and_then(|d| key_line(&d, text, field));
+    Error::file(path, line, what, field, msg)
+}
+
 fn key_line(doc: &toml_edit::ImDocument<String>, text: &str, field: &str) -> Option<usize> {
     let mut item: &toml_edit::Item = doc.as_item();
     let mut best = None;

@@ -3,7 +3,7 @@
 //! and turned into the same validated settings the `select` / `export` flags produce.
 
 use crate::error::{Error, Result};
-use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime};
+use crate::manifest::{ExportSettings, Format, MaskSettings, Resize, SegRuntime, ViewSettings};
 use crate::names::Names;
 use crate::output::Inputs;
 use crate::params::{
@@ -116,6 +116,53 @@ pub struct Export {
     /// `false` is `export --no-geotag` (absent: on).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geotag: Option<bool>,
+    /// 360° projects: the views to export, `cube`, `ring:N[,PITCH]` or `equirect` (`--views`).
+    pub views: Option<String>,
+    /// Field of view of every view in degrees (`--view-fov`); needs `views`.
+    pub view_fov: Option<f64>,
+    /// Width = height of every view in pixels (`--view-size`); needs `views`.
+    pub view_size: Option<u32>,
+    /// Radius in degrees of the cap around the nadir the masks hide (`--mask-nadir`); needs
+    /// `views`.
+    pub mask_nadir: Option<f64>,
+    /// `bilinear` or `bicubic` (`--view-interp`); needs `views`.
+    pub view_interp: Option<crate::equirect::Interp>,
+}
+
+/// The `[[export]]` keys that only go with `views`.
+const VIEW_KEYS: [&str; 4] = ["view_fov", "view_size", "mask_nadir", "view_interp"];
+
+impl Export {
+    /// The view keys given (of [`VIEW_KEYS`]).
+    fn view_keys(&self) -> Vec<&'static str> {
+        let given = [
+            self.view_fov.is_some(),
+            self.view_size.is_some(),
+            self.mask_nadir.is_some(),
+            self.view_interp.is_some(),
+        ];
+        (VIEW_KEYS.iter().zip(given))
+            .filter(|(_, g)| *g)
+            .map(|(k, _)| *k)
+            .collect()
+    }
+
+    /// The view settings of the table, checked as the `export` flags are (their defaults for
+    /// what is not given); errors name the flag.
+    fn view_settings(&self) -> Result<Option<ViewSettings>> {
+        let Some(set) = &self.views else {
+            return Ok(None);
+        };
+        ViewSettings::from_parts(
+            set,
+            self.view_fov.unwrap_or(crate::manifest::DEFAULT_VIEW_FOV),
+            self.view_size.unwrap_or(crate::manifest::DEFAULT_VIEW_SIZE),
+            self.mask_nadir,
+            self.view_interp
+                .unwrap_or(crate::equirect::Interp::Bilinear),
+        )
+        .map(Some)
+    }
 }
 
 /// `max_added` of a `[[reconstruct]]`: a frame count (`40`) or a percentage (`"50%"`).
@@ -275,6 +322,8 @@ pub struct Workflow {
     /// The files it names (telemetry, mask model descriptions and their files), which running it
     /// reads; the workflow file itself is not among them.
     pub inputs: Inputs,
+    /// The file's text as read (errors found while running point at its lines).
+    text: String,
 }
 
 impl Workflow {
@@ -364,7 +413,21 @@ impl Workflow {
             exports,
             reconstructs,
             inputs,
+            text: file.text().to_string(),
         })
+    }
+
+    /// A refusal of `[[export]]` `i`'s settings found while running (a rig export of an input
+    /// whose frames turn out to be pinhole ones), put on its key (`export[i].views`) in the workflow file;
+    /// other errors as they are.
+    pub fn export_error(&self, i: usize, e: Error) -> Error {
+        match e {
+            Error::Param { name, msg } => {
+                let field = format!("export[{i}].{}", flag_key(&name));
+                crate::tomlfile::error_in(&self.path, "workflow", &self.text, &field, msg)
+            }
+            other => other,
+        }
     }
 }
 
@@ -667,7 +730,12 @@ fn export_settings(
     let earlier: Vec<&str> = w.export[..i].iter().map(|x| x.name.as_str()).collect();
     check_name(file, &format!("export[{i}]"), &e.name, &earlier)?;
     let masks = mask_settings(file, &e.masks);
-    ExportSettings::from_parts(
+    // The settings name their parameters by key (`resize`, `crop`) or flag (`--view-fov`).
+    let located = |err: Error| match err {
+        Error::Param { name, msg } => file.error(&at(&flag_key(&name)), msg),
+        other => other,
+    };
+    let mut settings = ExportSettings::from_parts(
         e.resize.as_deref(),
         e.scale,
         e.crop.as_deref(),
@@ -676,11 +744,22 @@ fn export_settings(
         masks,
         e.geotag != Some(false),
     )
-    .map_err(|err| match err {
-        // from_parts names its parameters by key (`resize`, `scale`, `crop`, `quality`).
-        Error::Param { name, msg } => file.error(&at(&flag_key(&name)), msg),
-        other => other,
-    })
+    .map_err(located)?;
+    if e.views.is_none() {
+        if let Some(key) = e.view_keys().first() {
+            let msg =
+                "only goes with `views` (as its flag with --views): add `views`, or remove it";
+            return Err(file.error(&at(key), msg));
+        }
+    }
+    settings.views = e.view_settings().map_err(located)?;
+    settings.check_whole_frame().map_err(located)?;
+    // A project analysed as pinhole is refused as `export --views` refuses it.
+    let projection = w.analysis.as_ref().and_then(|a| a.projection);
+    if let (Some(p), Some(_)) = (projection, &settings.views) {
+        crate::rig::check_projection(p).map_err(located)?;
+    }
+    Ok(settings)
 }
 
 /// `[analysis]` keys that reproduce the movement measure `req`.
@@ -825,6 +904,11 @@ fn export_from_folder(dir: &Path) -> Result<Export> {
             .map(|c| format!("{},{},{},{}", c.x, c.y, c.width, c.height)),
         masks: s.masks.as_ref().map(masks_table),
         geotag: (!s.geotag).then_some(false),
+        views: s.views.as_ref().map(|v| v.set.clone()),
+        view_fov: s.views.as_ref().map(|v| v.fov_deg),
+        view_size: s.views.as_ref().map(|v| v.size),
+        mask_nadir: s.views.as_ref().and_then(|v| v.mask_nadir_deg),
+        view_interp: s.views.as_ref().map(|v| v.interp),
     })
 }
 

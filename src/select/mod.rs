@@ -102,6 +102,10 @@ pub struct SelectSettings {
     pub preview: bool,
     /// The frames' projection; None: from the container's spherical metadata, else pinhole.
     pub projection: Option<crate::equirect::Projection>,
+    /// Refuse frames that are not 360° ones, as `export --views` refuses them
+    /// ([`crate::rig::check_projection`]), once the projection is known and before any frame is
+    /// analysed: a workflow whose exports are rigs.
+    pub require_equirect: bool,
     /// No progress bars.
     pub quiet: bool,
 }
@@ -136,6 +140,7 @@ impl SelectSettings {
             checkpoint_every_s: Self::CHECKPOINT_EVERY_S,
             preview: an.preview == Some(true),
             projection: an.projection,
+            require_equirect: w.exports.iter().any(|(_, e)| e.views.is_some()),
             quiet,
         }
     }
@@ -365,6 +370,9 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
             (m.width, m.height),
         )?
     };
+    if s.require_equirect {
+        crate::rig::check_projection(projection)?;
+    }
     let on_sphere;
     let s = match projection {
         crate::equirect::Projection::Equirect => {

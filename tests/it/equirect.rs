@@ -254,3 +254,210 @@ fn colmap_takes_one_camera_per_view_folder() {
         .unwrap();
     assert_eq!(images, 12, "2 keyframes x 6 views");
 }
+
+/// The rig keys of a workflow's `[[export]]` (the `export` flags' values) below `[analysis]
+/// projection = "equirect"`.
+const RIG_FLAGS: [&str; 12] = [
+    "--views",
+    "ring:3,-30",
+    "--view-fov",
+    "100",
+    "--view-size",
+    "48",
+    "--mask-nadir",
+    "40",
+    "--view-interp",
+    "bicubic",
+    "--format",
+    "png",
+];
+
+/// A workflow of one `[[export]]` named `rig` with `keys` (TOML lines) on equirect frames.
+fn rig_workflow(path: &Path, projection: Option<&str>, keys: &str) {
+    let analysis = projection
+        .map(|p| format!("[analysis]\nprojection = \"{p}\"\n"))
+        .unwrap_or_default();
+    let text = format!("version = 1\n{analysis}[[export]]\nname = \"rig\"\n{keys}");
+    std::fs::write(path, text).unwrap();
+}
+
+/// `keyframer run` of `wf` on `input` into `out`: exit code, stderr, the input's folder.
+fn run_rig(wf: &Path, input: &Path, out: &Path) -> (i32, String, PathBuf) {
+    let (code, err) = code_and_stderr(&kf(&["run", s(wf), s(input), "--out", s(out)]));
+    let folder = (crate::common::listing(out).into_iter())
+        .find(|n| !n.starts_with('.'))
+        .map(|n| out.join(n))
+        .unwrap_or_default();
+    (code, err, folder)
+}
+
+/// What two rig exports must share: every file under `images/` and `masks/` (path and bytes),
+/// `rig_config.json`, the manifest's view list and its frames' files.
+fn rig_content(export: &Path) -> (Vec<(String, Vec<u8>)>, serde_json::Value, serde_json::Value) {
+    fn walk(root: &Path, dir: &Path, out: &mut Vec<(String, Vec<u8>)>) {
+        for name in crate::common::listing(dir) {
+            let p = dir.join(&name);
+            if p.is_dir() {
+                walk(root, &p, out);
+            } else {
+                let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+                out.push((rel, std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    let mut files = Vec::new();
+    for sub in ["images", "masks"] {
+        walk(export, &export.join(sub), &mut files);
+    }
+    let m = json(&export.join("manifest.json"));
+    let frames: Vec<serde_json::Value> = (m["frames"].as_array().unwrap().iter())
+        .map(|f| f["file"].clone())
+        .collect();
+    (
+        files,
+        json(&export.join("rig_config.json")),
+        serde_json::json!({"views": m["views"], "frames": frames, "settings": m["settings"]}),
+    )
+}
+
+/// `[[export]]` with `views`, `view_fov`, `view_size`, `mask_nadir`, `view_interp`: `run`
+/// writes what `export` with the same flags writes on the run's project; `workflow save` writes
+/// the keys and the saved workflow runs to the same export.
+#[test]
+fn workflow_rig_keys_export_as_the_flags_do_and_round_trip_through_save() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let frames = erp_folder(d, 240, 120, 2);
+    let wf = d.join("rig.toml");
+    let keys = "views = \"ring:3,-30\"\nview_fov = 100.0\nview_size = 48\nmask_nadir = 40.0\n\
+                view_interp = \"bicubic\"\nformat = \"png\"\n";
+    rig_workflow(&wf, Some("equirect"), keys);
+    let out = d.join("run");
+    let (code, err, folder) = run_rig(&wf, &frames, &out);
+    assert_eq!(code, 0, "{err}");
+    let by_run = rig_content(&folder.join("rig"));
+    let names: Vec<&str> = (by_run.2["views"].as_array().unwrap().iter())
+        .map(|v| v["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["ring00", "ring01", "ring02"]);
+    assert_eq!(
+        by_run.2["frames"].as_array().unwrap().len(),
+        6,
+        "2 x 3 views"
+    );
+    assert!(
+        by_run.0.iter().any(|(f, _)| f.starts_with("masks/ring00/")),
+        "the nadir cap is masked: {:?}",
+        by_run.0.iter().map(|(f, _)| f).collect::<Vec<_>>()
+    );
+    // The flags on the run's project.
+    let project = folder.join("project.json");
+    let flags_out = d.join("flags");
+    let mut args = vec!["export", s(&project), "--out", s(&flags_out)];
+    args.extend_from_slice(&RIG_FLAGS);
+    kf_ok(&args);
+    assert_eq!(by_run, rig_content(&flags_out));
+    // Saved from the project and the flags' export: the keys are in the file, and it runs alike.
+    let saved = d.join("saved.toml");
+    kf_ok(&[
+        "workflow",
+        "save",
+        s(&project),
+        "-o",
+        s(&saved),
+        "--export",
+        s(&flags_out),
+    ]);
+    let text = std::fs::read_to_string(&saved).unwrap();
+    for key in [
+        "views = \"ring:3,-30\"",
+        "view_fov = 100.0",
+        "view_size = 48",
+        "mask_nadir = 40.0",
+        "view_interp = \"bicubic\"",
+        "projection = \"equirect\"",
+    ] {
+        assert!(text.contains(key), "no `{key}` in\n{text}");
+    }
+    let (code, err, again) = run_rig(&saved, &frames, &d.join("run2"));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(rig_content(&again.join("flags")), by_run);
+}
+
+/// Bad rig keys are refused before any input is read, naming the workflow file and the key; a
+/// rig export of frames analysed as pinhole ones is refused as `export --views` refuses it.
+#[test]
+fn workflow_rig_keys_are_refused_with_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let frames = erp_folder(d, 240, 120, 1);
+    let cases = [
+        (
+            "views = \"ring:0\"\n",
+            "export[0].views",
+            "N must be 1 to 64",
+        ),
+        (
+            "views = \"cube\"\nview_fov = 200.0\n",
+            "export[0].view_fov",
+            "(1, 179)",
+        ),
+        (
+            "views = \"cube\"\nview_size = 0\n",
+            "export[0].view_size",
+            "0 px",
+        ),
+        (
+            "views = \"cube\"\nmask_nadir = 95.0\n",
+            "export[0].mask_nadir",
+            "(0, 90]",
+        ),
+        (
+            "views = \"cube\"\nview_interp = \"nearest\"\n",
+            "export[0].view_interp",
+            "bicubic",
+        ),
+        ("view_size = 64\n", "export[0].view_size", "`views`"),
+        (
+            "views = \"cube\"\nresize = \"64x32\"\n",
+            "export[0].views",
+            "whole 360°",
+        ),
+    ];
+    for (k, (keys, key, why)) in cases.iter().enumerate() {
+        let wf = d.join(format!("bad{k}.toml"));
+        rig_workflow(&wf, Some("equirect"), keys);
+        let out = d.join(format!("out{k}"));
+        let (code, err, _) = run_rig(&wf, &frames, &out);
+        assert_ne!(code, 0, "{keys}");
+        assert!(
+            err.contains(s(&wf)) && err.contains(key) && err.contains(why),
+            "{keys}: {err}"
+        );
+        assert!(!out.exists(), "{keys}: refused before the run's folder");
+    }
+    // Pinhole frames: said at load when the workflow says so ...
+    let wf = d.join("pinhole.toml");
+    rig_workflow(&wf, Some("pinhole"), "views = \"cube\"\n");
+    let out = d.join("pinhole");
+    let (code, err, _) = run_rig(&wf, &frames, &out);
+    assert_ne!(code, 0);
+    let named = |err: &str| err.contains(s(&wf)) && err.contains("export[0].views");
+    assert!(
+        named(&err) && err.contains("--projection equirect"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    // ... else when the input turns out to be pinhole (no spherical metadata in a folder),
+    // before its frames are analysed.
+    rig_workflow(&wf, None, "views = \"cube\"\n");
+    let (code, err, folder) = run_rig(&wf, &frames, &out);
+    assert_ne!(code, 0);
+    assert!(
+        named(&err) && err.contains("--projection equirect"),
+        "{err}"
+    );
+    assert!(folder.is_dir(), "the input's folder: {}", out.display());
+    assert!(!folder.join("project.json").exists(), "no selection");
+    assert!(!folder.join("rig").exists(), "nothing exported");
+}
