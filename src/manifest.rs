@@ -120,6 +120,17 @@ pub const MAX_SIDE: u32 = 65_500;
 pub const MAX_PIXELS: u64 = 1 << 30;
 
 impl ViewSettings {
+    /// Refuses views on a project whose frames are not 360° (equirectangular) ones.
+    pub fn check_projection(projection: crate::equirect::Projection) -> Result<()> {
+        if projection != crate::equirect::Projection::Equirect {
+            return Err(Error::param(
+                "--views",
+                "the project's frames are pinhole ones; views are cut from 360° (equirectangular) projects: select with --projection equirect",
+            ));
+        }
+        Ok(())
+    }
+
     /// Checked view settings from their parts as a user writes them (`--views ring:8,10
     /// --view-fov 96 ...`, or the same keys of a workflow's `[[export]]`): the set parsed and
     /// written in its normal form, the numbers checked by [`ViewSettings::check`] against the

@@ -3,7 +3,7 @@
 //! OpenCV twin), their nadir masks, and COLMAP rig_configurator's `rig_config.json`.
 
 use crate::equirect::{cam_from_rig, nadir_mask, view_map, Projection, View};
-use crate::error::{CvContext, Error, Result};
+use crate::error::{CvContext, Result};
 use crate::kernels::remap::{opencv as cv_remap, Interp, RemapGpu, Table};
 use crate::manifest::ViewSettings;
 use opencv::core::Mat;
@@ -13,7 +13,7 @@ use opencv::prelude::*;
 pub const RIG_CONFIG: &str = "rig_config.json";
 
 /// The checked views of `settings` for a project of `projection`: refuses views on a pinhole
-/// project ([`check_projection`]) and settings [`ViewSettings::check`] refuses (sizes the
+/// project ([`ViewSettings::check_projection`]) and settings [`ViewSettings::check`] refuses (sizes the
 /// encoders cannot write: `max_side`, `max_pixels`), before anything is written. Empty for
 /// `equirect` (the frames are exported unchanged).
 pub fn views_of(
@@ -21,20 +21,9 @@ pub fn views_of(
     projection: Projection,
     limits: (u32, u64),
 ) -> Result<Vec<View>> {
-    check_projection(projection)?;
+    ViewSettings::check_projection(projection)?;
     let set = settings.check(limits)?;
     Ok(set.views(settings.fov_deg, settings.size))
-}
-
-/// Refuses views on a project whose frames are not 360° (equirectangular) ones.
-pub fn check_projection(projection: Projection) -> Result<()> {
-    if projection != Projection::Equirect {
-        return Err(Error::param(
-            "--views",
-            "the project's frames are pinhole ones; views are cut from 360° (equirectangular) projects: select with --projection equirect",
-        ));
-    }
-    Ok(())
 }
 
 enum Backend {

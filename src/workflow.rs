@@ -757,7 +757,7 @@ fn export_settings(
     // A project analysed as pinhole is refused as `export --views` refuses it.
     let projection = w.analysis.as_ref().and_then(|a| a.projection);
     if let (Some(p), Some(_)) = (projection, &settings.views) {
-        crate::rig::check_projection(p).map_err(located)?;
+        ViewSettings::check_projection(p).map_err(located)?;
     }
     Ok(settings)
 }

@@ -103,7 +103,7 @@ pub struct SelectSettings {
     /// The frames' projection; None: from the container's spherical metadata, else pinhole.
     pub projection: Option<crate::equirect::Projection>,
     /// Refuse frames that are not 360° ones, as `export --views` refuses them
-    /// ([`crate::rig::check_projection`]), once the projection is known and before any frame is
+    /// ([`crate::manifest::ViewSettings::check_projection`]), once the projection is known and before any frame is
     /// analysed: a workflow whose exports are rigs.
     pub require_equirect: bool,
     /// No progress bars.
@@ -371,7 +371,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         )?
     };
     if s.require_equirect {
-        crate::rig::check_projection(projection)?;
+        crate::manifest::ViewSettings::check_projection(projection)?;
     }
     let on_sphere;
     let s = match projection {
