@@ -166,7 +166,7 @@ fn best_fit(m: &Model, truth: &[(String, [f64; 3], M3)]) -> Fit {
 /// and 2° of the truth. Measured over 6 COLMAP runs of this export (480x270, free
 /// SIMPLE_RADIAL intrinsics, exhaustive matching): at most 0.54 m and 1.18° (8 runs with the
 /// scene's intrinsics given: 0.49 m, 1.19°); the mis-assembled models COLMAP 3.8 made of the same
-/// flight at 320x180 (5 of 20 runs with the intrinsics given) leave metres and 75–146°.
+/// flight at 320x180 (5 of 20 runs with the intrinsics given) leave metres and 75–144°.
 fn assert_model_right(name: &str, best_m: f64, best_deg: f64) {
     assert!(
         best_m < 1.0 && best_deg < 2.0,
