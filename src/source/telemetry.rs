@@ -689,7 +689,7 @@ pub fn at(fixes: &[Fix], t_s: f64) -> Option<Fix> {
     if t_s < first.t_s - SPAN_SLACK_S || t_s > last.t_s + SPAN_SLACK_S {
         return None;
     }
-    if t_s <= first.t_s {
+    if t_s < first.t_s {
         return Some(Fix {
             t_s,
             ..first.clone()
