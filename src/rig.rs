@@ -2,7 +2,7 @@
 //! tables computed once (`kernels::remap`, on the device when `auto` picks the gpu, else its
 //! OpenCV twin), their nadir masks, and COLMAP rig_configurator's `rig_config.json`.
 
-use crate::equirect::{cam_from_rig, nadir_mask, view_map, Projection, View};
+use crate::equirect::{cam_from_rig, nadir_mask, Projection, View};
 use crate::error::{CvContext, Result};
 use crate::kernels::remap::{opencv as cv_remap, Interp, RemapGpu, Table};
 use crate::manifest::ViewSettings;
@@ -45,13 +45,7 @@ impl Rig {
     /// The rig of `views` from `erp`-sized BGR frames: tables computed once, the device used
     /// when `auto` would pick it (a hardware adapter).
     pub fn new(views: Vec<View>, erp: (u32, u32), settings: &ViewSettings) -> Result<Rig> {
-        let tables = views
-            .iter()
-            .map(|v| {
-                let (xs, ys) = view_map(v, erp);
-                Table::new((v.size, v.size), xs, ys)
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let tables = Table::of_views(&views, erp)?;
         let nadir = views
             .iter()
             .map(|v| {

@@ -3,7 +3,7 @@
 //! backends render the views through these tables (`kernels::remap`, bit-identical) and fit with
 //! the same [`SphereField`].
 
-use crate::equirect::{analysis_views, view_map, View};
+use crate::equirect::{analysis_views, View};
 use crate::error::Result;
 use crate::kernels::remap::Table;
 use crate::kernels::sphere::SphereField;
@@ -24,13 +24,7 @@ impl Sphere {
     pub(crate) fn new(req: SphereViews, erp: (u32, u32)) -> Result<Sphere> {
         req.validate()?;
         let views = analysis_views(req.views, req.fov_deg, erp.0);
-        let tables = views
-            .iter()
-            .map(|v| {
-                let (xs, ys) = view_map(v, erp);
-                Table::new((v.size, v.size), xs, ys)
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let tables = Table::of_views(&views, erp)?;
         let field = SphereField::new(&views)?;
         Ok(Sphere {
             views,

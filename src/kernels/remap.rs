@@ -56,6 +56,17 @@ impl Table {
         Ok(Table { size, xs, ys })
     }
 
+    /// One table per pinhole view in `views`, sampling an ERP frame of `erp` (width, height)
+    /// pixels ([`crate::equirect::view_map`]).
+    pub fn of_views(views: &[crate::equirect::View], erp: (u32, u32)) -> Result<Vec<Table>> {
+        (views.iter())
+            .map(|v| {
+                let (xs, ys) = crate::equirect::view_map(v, erp);
+                Table::new((v.size, v.size), xs, ys)
+            })
+            .collect()
+    }
+
     #[cfg(feature = "opencv")]
     fn mat(&self, v: &[f32]) -> Result<Mat> {
         let m = Mat::from_slice(v).cv(|| "remap map".into())?;
