@@ -7,8 +7,9 @@
 # 1. Renders `keyframer-scene --preset walk --projection equirect` with motion blur (scene.json's
 #    fast turn = the truly blurred frames; its hovers = the stop and the pauses around the turn).
 # 2. Scores every frame with keyframer's own `select --every 1 --blur` (scores from the project's
-#    cache) on: the whole ERP; the ERP's middle half of rows (|latitude| < 45°, poles excluded),
-#    its top and its bottom quarter (exported with `--crop` as PNG); the ring of 4 views of 90° at
+#    cache) on: the whole ERP (`--projection pinhole`); the ERP's middle half of rows (|latitude|
+#    < 45°, poles excluded), its top and its bottom quarter (exported with `--crop` as PNG; the
+#    middle half is checked to equal what `select --projection equirect` scores); the ring of 4 views of 90° at
 #    the ERP's equator resolution (`export --views ring:4 --view-fov 90`, PNG), per view, then the
 #    mean and the min over the 4 views per frame. Both metrics: tenengrad and laplacian.
 # 3. Prints per metric: Spearman rank correlation of every series with the views' mean (raw
@@ -72,8 +73,12 @@ folders="ring/images/ring00 ring/images/ring01 ring/images/ring02 ring/images/ri
 for metric in tenengrad laplacian; do
     for window in 10 30; do
         echo "select --blur --blur-metric $metric --blur-window $window on the ERP and 7 folders" >&2
+        # The whole ERP: its frames scored as ordinary (pinhole) ones.
+        "$KF" -q select "$video" --projection pinhole --every 1 --blur --blur-metric "$metric" \
+            --blur-window "$window" -o "$work/erp-$metric-$window.json" --force 2>/dev/null
+        # What keyframer scores on a 360° input: the band |latitude| < 45° (= the mid crop).
         "$KF" -q select "$video" --projection equirect --every 1 --blur --blur-metric "$metric" \
-            --blur-window "$window" -o "$work/erp-$metric-$window.json" --force
+            --blur-window "$window" -o "$work/band-$metric-$window.json" --force
         for f in $folders; do
             name=$(basename "$(dirname "$f")")
             case "$f" in ring/*) name=$(basename "$f") ;; esac
@@ -176,6 +181,10 @@ for metric in ["tenengrad", "laplacian"]:
     series["views-mean"] = [sum(x) / 4 for x in zip(*per_view.values())]
     series["views-min"] = [min(x) for x in zip(*per_view.values())]
     series.update(per_view)
+    # keyframer's own 360° scores are those of the band (the mid crop, exported as PNG).
+    band = scores("band", metric)
+    assert all(abs(a - b) <= 1e-9 * max(abs(b), 1.0) for a, b in zip(band, series["erp-mid"])), \
+        f"{metric}: select --projection equirect does not score the band"
     # Check the re-applied rule against what keyframer kept on the series it ran on.
     for name in ["erp", *bands, *views]:
         s = series["erp" if name == "erp" else (f"erp-{name}" if name in bands else name)]

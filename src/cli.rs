@@ -143,6 +143,11 @@ pub struct ScoreArgs {
     /// Print one JSON object instead of `index<TAB>timestamp<TAB>score` lines.
     #[arg(long)]
     pub json: bool,
+    /// How the frames map to directions, as for `select`: 360° (`equirect`) frames are scored
+    /// on their band |latitude| < 45° (see docs/360.md). Default: equirect when the container's
+    /// spherical metadata says so, else pinhole.
+    #[arg(long, value_name = "pinhole|equirect", value_parser = |v: &str| v.parse::<keyframer::equirect::Projection>())]
+    pub projection: Option<keyframer::equirect::Projection>,
     /// Backend flags.
     #[command(flatten)]
     pub analysis: AnalysisArgs,

@@ -5,7 +5,7 @@ use anyhow::Result;
 mod cli;
 
 use cli::{Cli, Command};
-use keyframer::{analysis, gpu, source};
+use keyframer::{analysis, equirect, gpu, source};
 use std::process::ExitCode;
 
 /// How a command ended when it did not fail outright: 0, or 2 when some of the work could not be
@@ -388,13 +388,29 @@ fn probe(a: &cli::ProbeArgs, quiet: bool) -> Result<ExitCode> {
 }
 
 fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<ExitCode> {
+    let open = source::OpenOptions::default();
+    let size = {
+        let m = source::open(&a.input, &open)?;
+        (m.metadata().width, m.metadata().height)
+    };
+    let is_video = source::kind_of(&a.input)? == source::SourceKind::Video;
+    let projection = equirect::resolve_projection(a.projection, &a.input, is_video, size)?;
+    let rows = (projection == equirect::Projection::Equirect).then(|| {
+        let band = equirect::sharpness_rows(size.1);
+        log::info!(
+            "360° input: scoring rows {}..{} (|latitude| < 45°)",
+            band.first,
+            band.first + band.count
+        );
+        band
+    });
     let (backend, ctx) = gpu::resolve_backend(a.analysis.backend, a.analysis.adapter.as_deref());
     let request = analysis::Request {
         sharpness: vec![a.metric],
+        sharpness_rows: rows,
         ..Default::default()
     };
     let r = gpu::or_opencv("the analysis", backend, ctx.as_ref(), |backend, ctx| {
-        let open = source::OpenOptions::default();
         analysis::analyse(&a.input, &open, &request, backend, ctx, quiet, None)
     })?;
     let scores = &r.sharpness[0].1;
@@ -403,6 +419,8 @@ fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<ExitCode> {
         let v = serde_json::json!({
             "input": a.input,
             "metric": a.metric,
+            "projection": projection,
+            "rows": rows,
             "backend": r.backend,
             "width": r.metadata.width,
             "height": r.metadata.height,

@@ -279,6 +279,29 @@ impl SphereViews {
     }
 }
 
+/// The rows of a frame a sharpness score is computed on, as an image of its own (its first
+/// and last rows mirror inside it): on 360° frames the band |latitude| < 45°
+/// (`equirect::sharpness_rows`), where a turn's blur is not diluted by the stretched poles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Rows {
+    /// First row.
+    pub first: u32,
+    /// Number of rows.
+    pub count: u32,
+}
+
+impl Rows {
+    /// Checks the rows lie inside a frame `height` rows high and are not empty.
+    pub fn check(&self, height: u32) -> Result<()> {
+        let end = u64::from(self.first) + u64::from(self.count);
+        if self.count == 0 || end > u64::from(height) {
+            let msg = format!("rows {}..{} of a frame {height} rows high", self.first, end);
+            return Err(Error::param("sharpness rows", msg));
+        }
+        Ok(())
+    }
+}
+
 /// How movement is measured.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MovementRequest {

@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use crate::fsutil::{self, Fingerprint};
 use crate::manifest::SegRuntime;
 use crate::numbers::{non_negative_seconds, positive, positive_px};
-use crate::params::{Backend, Metric, MovementRequest, MovementSeries, StationaryRequest};
+use crate::params::{Backend, Metric, MovementRequest, MovementSeries, Rows, StationaryRequest};
 use crate::source::telemetry::{Position, TelemetryKind};
 use crate::source::{Metadata, SourceKind};
 use crate::steps::{Boundaries, Recorded, Stored};
@@ -219,6 +219,10 @@ pub struct SharpnessSeries {
     pub width: u32,
     /// Analysis height in pixels.
     pub height: u32,
+    /// The rows scored, as an image of their own, when not the whole frame (360° frames: the
+    /// band |latitude| < 45°, `equirect::sharpness_rows`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rows: Option<Rows>,
     /// Backend that computed the scores (both agree within the kernel tolerance).
     pub backend: Backend,
     /// One score per frame.
@@ -247,11 +251,17 @@ impl Cache {
         (self.embeddings.iter()).find(|e| e.embedder == embedder && (e.width, e.height) == size)
     }
 
-    /// The cached scores for `metric` at `width` x `height`, if present.
-    pub fn sharpness(&self, metric: Metric, width: u32, height: u32) -> Option<&SharpnessSeries> {
-        self.sharpness
-            .iter()
-            .find(|s| s.metric == metric && s.width == width && s.height == height)
+    /// The cached scores for `metric` on `rows` (None: all) of `width` x `height` frames, if
+    /// present.
+    pub fn sharpness(
+        &self,
+        metric: Metric,
+        (width, height): (u32, u32),
+        rows: Option<Rows>,
+    ) -> Option<&SharpnessSeries> {
+        self.sharpness.iter().find(|s| {
+            s.metric == metric && s.width == width && s.height == height && s.rows == rows
+        })
     }
 }
 
@@ -364,6 +374,9 @@ impl<H> Project<H> {
         for (i, series) in self.cache.sharpness.iter().enumerate() {
             let at = |k: &str| format!("cache.sharpness[{i}].{k}");
             analysis_size(at("width"), series.width, series.height)?;
+            if let Some(Err(e)) = series.rows.map(|r| r.check(series.height)) {
+                return fail(at("rows"), e.to_string());
+            }
             per_frame(at("scores"), "scores", series.scores.len(), n)?;
             if let Some(j) = series
                 .scores

@@ -35,7 +35,7 @@ pub use stream::{DeviceAnalysis, DeviceResults};
 use crate::params::{MovementRequest, MovementSeries, StationaryRequest};
 
 use crate::manifest::SegRuntime;
-use crate::params::{Backend, Metric};
+use crate::params::{Backend, Metric, Rows};
 use crate::source::Metadata;
 use serde::{Deserialize, Serialize};
 
@@ -44,6 +44,9 @@ use serde::{Deserialize, Serialize};
 pub struct Request {
     /// Sharpness metrics to score every frame with.
     pub sharpness: Vec<Metric>,
+    /// The rows sharpness is scored on (360° frames: `equirect::sharpness_rows`); None: all.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sharpness_rows: Option<Rows>,
     /// Camera movement between consecutive frames.
     pub movement: Option<MovementRequest>,
     /// The stationary sampler's reference-mode run (requires `movement`).

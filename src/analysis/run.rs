@@ -69,7 +69,7 @@ impl Engines {
         let mut used = opened.as_ref().map_or(Backend::Opencv, |(_, b)| *b);
         let movement = opened.map(|(pass, _)| pass);
         let sharpness = (!req.sharpness.is_empty()).then(|| {
-            let (s, b) = sharpness::engine(backend, ctx, &req.sharpness, meta);
+            let (s, b) = sharpness::engine(backend, ctx, &req.sharpness, req.sharpness_rows, meta);
             if movement.is_none() || b == Backend::Opencv {
                 used = b;
             }

@@ -1,13 +1,14 @@
 //! Sharpness: one engine (gpu or opencv, behind [`SharpnessEngine`]) scores frames in batches,
-//! in a worker thread that hands `(frame, scores per metric)` back in frame order.
+//! in a worker thread that hands `(frame, scores per metric)` back in frame order. With a row
+//! band (360° frames), both engines score the band as an image of its own.
 
-use crate::error::{Error, Result};
+use crate::error::{CvContext, Error, Result};
 use crate::gpu::GpuContext;
 use crate::kernels::sharpness::{score_gray, SharpnessGpu};
-use crate::params::{Backend, Metric};
+use crate::params::{Backend, Metric, Rows};
 use crate::source::{Frame, Metadata};
-use opencv::core::Mat;
-use opencv::prelude::MatTraitConst;
+use opencv::core::{Mat, Rect};
+use opencv::prelude::{MatTraitConst, MatTraitConstManual};
 use std::collections::VecDeque;
 use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
 use std::sync::Arc;
@@ -42,34 +43,68 @@ pub(crate) trait SharpnessEngine: Send {
     }
 }
 
-/// The engine for `backend`: the gpu one when it can be made (else a warning and opencv).
+/// The engine for `backend`: the gpu one when it can be made (else a warning and opencv),
+/// scoring `rows` of every frame (None: all of it).
 pub(crate) fn engine(
     backend: Backend,
     ctx: Option<&Arc<GpuContext>>,
     metrics: &[Metric],
+    rows: Option<Rows>,
     meta: &Metadata,
 ) -> (Box<dyn SharpnessEngine>, Backend) {
     if let (Backend::Gpu, Some(ctx)) = (backend, ctx) {
+        let height = rows.map_or(meta.height, |r| r.count);
         let runners = metrics
             .iter()
-            .map(|&m| SharpnessGpu::new(ctx.clone(), m, meta.width, meta.height))
+            .map(|&m| SharpnessGpu::new(ctx.clone(), m, meta.width, height))
             .collect::<Result<Vec<_>>>();
         match runners {
             Ok(r) => {
                 let ahead = vec![VecDeque::new(); r.len()];
-                return (Box::new(Gpu(r, ahead)), Backend::Gpu);
+                return (Box::new(Gpu(r, ahead, rows)), Backend::Gpu);
             }
             Err(e) => log::warn!("{e}; using the opencv backend"),
         }
     }
-    (
-        Box::new(Opencv(metrics.to_vec(), Vec::new())),
-        Backend::Opencv,
-    )
+    let cpu = Opencv {
+        metrics: metrics.to_vec(),
+        rows,
+        scores: Vec::new(),
+    };
+    (Box::new(cpu), Backend::Opencv)
 }
 
-/// The WGSL kernels, one runner per metric, and the scores of runners ahead of the others.
-struct Gpu(Vec<SharpnessGpu>, Vec<VecDeque<f64>>);
+/// The bytes of rows `r` of a continuous 8-bit `image`, in place (no copy).
+fn band_bytes(image: &Mat, r: Rows) -> Result<&[u8]> {
+    r.check(image.rows().max(0) as u32)?;
+    let bytes = image
+        .data_bytes()
+        .map_err(|e| Error::gpu(format!("sharpness rows of a frame: {e}")))?;
+    let row = bytes.len() / (image.rows().max(1) as usize);
+    let (a, b) = (r.first as usize * row, (r.first + r.count) as usize * row);
+    bytes
+        .get(a..b)
+        .ok_or_else(|| Error::gpu("sharpness rows of a frame outside its bytes"))
+}
+
+/// The 8-bit gray of rows `r` of a BGR or gray frame, as an image of its own (its first and
+/// last rows mirror inside it, as on the device).
+fn band_gray(image: &Mat, r: Rows) -> Result<Mat> {
+    r.check(image.rows().max(0) as u32)?;
+    let rect = Rect::new(0, r.first as i32, image.cols(), r.count as i32);
+    let roi = image.roi(rect).cv(|| "sharpness rows".into())?;
+    if image.channels() == 1 {
+        return Ok(roi.clone_pointee());
+    }
+    let mut gray = Mat::default();
+    opencv::imgproc::cvt_color(&roi, &mut gray, opencv::imgproc::COLOR_BGR2GRAY, 0)
+        .cv(|| "cvtColor BGR2GRAY".into())?;
+    Ok(gray)
+}
+
+/// The WGSL kernels, one runner per metric, the scores of runners ahead of the others and the
+/// rows scored.
+struct Gpu(Vec<SharpnessGpu>, Vec<VecDeque<f64>>, Option<Rows>);
 
 impl SharpnessEngine for Gpu {
     fn batch(&self) -> usize {
@@ -77,8 +112,14 @@ impl SharpnessEngine for Gpu {
     }
 
     fn submit(&mut self, frames: &[Frame]) -> Result<()> {
-        let mats: Vec<&Mat> = frames.iter().map(|f| &f.image).collect();
-        self.0.iter_mut().try_for_each(|r| r.submit(&mats))
+        let Some(rows) = self.2 else {
+            let mats: Vec<&Mat> = frames.iter().map(|f| &f.image).collect();
+            return self.0.iter_mut().try_for_each(|r| r.submit(&mats));
+        };
+        let bands = (frames.iter())
+            .map(|f| band_bytes(&f.image, rows))
+            .collect::<Result<Vec<&[u8]>>>()?;
+        self.0.iter_mut().try_for_each(|r| r.submit(&bands))
     }
 
     fn take(&mut self, all: bool) -> Result<Vec<Vec<f64>>> {
@@ -92,6 +133,10 @@ impl SharpnessEngine for Gpu {
     }
 
     fn attach_resize(&mut self, size: (u32, u32)) -> Result<Option<Vec<wgpu::Buffer>>> {
+        // A band's gray is not the frame's: the movement pass then resizes on the CPU.
+        if self.2.is_some() {
+            return Ok(None);
+        }
         self.0
             .first_mut()
             .map(|r| r.attach_resize(size))
@@ -99,13 +144,23 @@ impl SharpnessEngine for Gpu {
     }
 
     fn stage(&mut self, image: &Mat) -> Result<()> {
-        let first = self.0.first_mut();
-        first.map_or(Ok(()), |r| r.scores(&[image]).map(drop))
+        let Some(first) = self.0.first_mut() else {
+            return Ok(());
+        };
+        match self.2 {
+            Some(rows) => first.scores(&[band_bytes(image, rows)?]).map(drop),
+            None => first.scores(&[image]).map(drop),
+        }
     }
 }
 
-/// OpenCV's twins of the kernels, frame by frame, and the scores not taken yet.
-struct Opencv(Vec<Metric>, Vec<Vec<f64>>);
+/// OpenCV's twins of the kernels, frame by frame, on `rows` of each, and the scores not taken
+/// yet.
+struct Opencv {
+    metrics: Vec<Metric>,
+    rows: Option<Rows>,
+    scores: Vec<Vec<f64>>,
+}
 
 impl SharpnessEngine for Opencv {
     fn batch(&self) -> usize {
@@ -115,19 +170,23 @@ impl SharpnessEngine for Opencv {
     fn submit(&mut self, frames: &[Frame]) -> Result<()> {
         for f in frames {
             let at = |e: Error| Error::frame(std::path::PathBuf::new(), f.index, e.to_string());
-            let converted = match f.image.channels() {
-                1 => None,
-                _ => Some(crate::kernels::gray::opencv(&f.image).map_err(at)?),
+            let converted = match (self.rows, f.image.channels()) {
+                (Some(r), _) => Some(band_gray(&f.image, r).map_err(at)?),
+                (None, 1) => None,
+                (None, _) => Some(crate::kernels::gray::opencv(&f.image).map_err(at)?),
             };
             let gray = converted.as_ref().unwrap_or(&f.image);
-            let scores = self.0.iter().map(|&m| score_gray(gray, m).map_err(at));
-            self.1.push(scores.collect::<Result<_>>()?);
+            let scores = self
+                .metrics
+                .iter()
+                .map(|&m| score_gray(gray, m).map_err(at));
+            self.scores.push(scores.collect::<Result<_>>()?);
         }
         Ok(())
     }
 
     fn take(&mut self, _all: bool) -> Result<Vec<Vec<f64>>> {
-        Ok(std::mem::take(&mut self.1))
+        Ok(std::mem::take(&mut self.scores))
     }
 
     fn scores_gray(&self) -> bool {

@@ -180,6 +180,7 @@ impl SharpnessEngine for FakeSharpness {
 fn request(stride: u32, stationary: Option<StationaryRequest>) -> Request {
     Request {
         sharpness: vec![Metric::Tenengrad, Metric::Laplacian { ksize: 3 }],
+        sharpness_rows: None,
         movement: Some(MovementRequest {
             farneback: Default::default(),
             statistic: Statistic::Median,

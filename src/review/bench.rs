@@ -48,6 +48,7 @@ pub fn synthetic_project(n: usize) -> Result<Project> {
             metric: Metric::Tenengrad,
             width: 1920,
             height: 1080,
+            rows: None,
             backend: Backend::Opencv,
             scores,
         }],

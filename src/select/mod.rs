@@ -361,15 +361,19 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     let boundaries = steps::boundaries(&s.steps);
     let mut known = Known::from_project(s, full, &input_ref);
     known.scan_for_times(s, open, &boundaries)?;
-    let projection = {
+    let (projection, height) = {
         let m = known.metadata(s, open)?;
-        crate::equirect::resolve_projection(
+        let p = crate::equirect::resolve_projection(
             s.projection,
             &s.input,
             input_ref.kind == SourceKind::Video,
             (m.width, m.height),
-        )?
+        )?;
+        (p, m.height)
     };
+    // 360° frames are scored for sharpness on their band |latitude| < 45°.
+    let sharpness_rows = (projection == crate::equirect::Projection::Equirect)
+        .then(|| crate::equirect::sharpness_rows(height));
     if s.require_equirect {
         crate::manifest::ViewSettings::check_projection(projection)?;
     }
@@ -387,7 +391,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         Some(st) => Some(st.request(&boundaries, &known.metadata(s, open)?, ts)?),
         None => None,
     };
-    let plan = Plan::of(s, &known, stationary_req);
+    let plan = Plan::of(s, &known, stationary_req, sharpness_rows);
     let metadata = match known.metadata.take() {
         Some(m) if plan.is_empty() => {
             if !known.decoded {
@@ -620,10 +624,14 @@ impl Known {
     ) -> Result<Metadata> {
         let cache = &mut self.cache;
         for (metric, scores) in a.sharpness {
+            // One series per metric: one measured on other rows (a 360° project cached
+            // before its band was scored) is replaced.
+            cache.sharpness.retain(|x| x.metric != metric);
             cache.sharpness.push(SharpnessSeries {
                 metric,
                 width: a.metadata.width,
                 height: a.metadata.height,
+                rows: plan.rows,
                 backend: a.backend,
                 scores,
             });
@@ -757,6 +765,8 @@ impl AutoThresholds {
 /// lacks (sharpness metrics, the movement series, the stationary run).
 struct Plan {
     missing: Vec<Metric>,
+    /// The rows sharpness is scored on (360° frames); None: whole frames.
+    rows: Option<crate::params::Rows>,
     movement: bool,
     stationary: Option<StationaryRequest>,
     /// The analysis width to describe the frames at (the similarity step's embeddings).
@@ -766,7 +776,12 @@ struct Plan {
 }
 
 impl Plan {
-    fn of(s: &SelectSettings, known: &Known, stationary: Option<StationaryRequest>) -> Plan {
+    fn of(
+        s: &SelectSettings,
+        known: &Known,
+        stationary: Option<StationaryRequest>,
+        rows: Option<crate::params::Rows>,
+    ) -> Plan {
         let needs: Vec<Need> = s.steps.iter().flat_map(Step::needs).collect();
         let metrics = needs.iter().filter_map(|n| match n {
             Need::Sharpness(m) => Some(*m),
@@ -774,7 +789,7 @@ impl Plan {
         });
         let missing = match &known.metadata {
             Some(m) => metrics
-                .filter(|&k| known.cache.sharpness(k, m.width, m.height).is_none())
+                .filter(|&k| (known.cache.sharpness(k, (m.width, m.height), rows)).is_none())
                 .collect(),
             None => metrics.collect(),
         };
@@ -803,6 +818,7 @@ impl Plan {
             descriptor: need_embeddings.then_some(width),
             embedder,
             missing,
+            rows,
             movement: need_series,
             stationary: stationary
                 .filter(|st| need_run && cache.stationary(&s.movement, st).is_none()),
@@ -821,6 +837,7 @@ impl Plan {
     fn request(&self, s: &SelectSettings) -> Request {
         Request {
             sharpness: self.missing.clone(),
+            sharpness_rows: self.rows,
             movement: (self.movement || self.stationary.is_some()).then_some(s.movement),
             stationary: self.stationary,
             descriptor: self.descriptor,

@@ -1,7 +1,8 @@
 //! Analysis on the sphere: on an equirectangular input a yaw turn is an exact column roll, and
 //! `select --projection equirect` measures it as no movement (the joint derotation of the horizon
 //! views), where the same frames analysed as pinhole ones move by the roll; frames that change
-//! otherwise (a zoom) still move. gpu and opencv agree.
+//! otherwise (a zoom) still move. gpu and opencv agree. Sharpness is scored on the band
+//! |latitude| < 45°.
 
 use crate::common::{json, keyframes, kf_ok, s, testdata};
 use opencv::core::{self, Mat, Rect, Size, Vector};
@@ -306,4 +307,108 @@ fn joint_fit_on_device_equals_the_hosts() {
             "{s:?}: device {device} host {host}"
         );
     }
+}
+
+/// `select` on `frames` into `project` with `extra` flags (no movement asked).
+fn score_only(frames: &Path, project: &Path, extra: &[&str]) {
+    let mut args = vec!["select", s(frames), "-o", s(project), "--images-fps", "10"];
+    args.extend_from_slice(extra);
+    kf_ok(&args);
+}
+
+/// The scores of `project`'s one sharpness series and its `rows` record.
+fn sharpness_series(project: &Path) -> (Vec<f64>, serde_json::Value) {
+    let p = json(project);
+    let series = p["cache"]["sharpness"].as_array().unwrap();
+    assert_eq!(series.len(), 1, "one series per metric: {series:?}");
+    let scores = (series[0]["scores"].as_array().unwrap().iter())
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    (scores, series[0]["rows"].clone())
+}
+
+/// Tenengrad and Laplacian variance (ksize 3) of the rows `first..first + count` of `img`'s gray,
+/// cut out as an image of their own, computed here with OpenCV directly.
+fn band_scores(img: &Mat, first: i32, count: i32) -> (f64, f64) {
+    let band = Mat::roi(img, Rect::new(0, first, W, count))
+        .unwrap()
+        .try_clone()
+        .unwrap();
+    let mut gray = Mat::default();
+    opencv::imgproc::cvt_color(&band, &mut gray, opencv::imgproc::COLOR_BGR2GRAY, 0).unwrap();
+    let sobel = |dx, dy| {
+        let mut g = Mat::default();
+        opencv::imgproc::sobel(&gray, &mut g, core::CV_16S, dx, dy, 3, 1.0, 0.0, 4).unwrap();
+        g.dot(&g).unwrap()
+    };
+    let tenengrad = (sobel(1, 0) + sobel(0, 1)) / f64::from(W * count);
+    let mut lap = Mat::default();
+    opencv::imgproc::laplacian(&gray, &mut lap, core::CV_64F, 3, 1.0, 0.0, 4).unwrap();
+    let (mut mean, mut std) = (Vector::<f64>::new(), Vector::<f64>::new());
+    core::mean_std_dev(&lap, &mut mean, &mut std, &core::no_array()).unwrap();
+    (tenengrad, std.get(0).unwrap().powi(2))
+}
+
+/// On an equirect input both backends score the band |latitude| < 45° (rows H/4 to 3H/4) as an
+/// image of its own, equal to the same scores computed here on the cropped frames; a project
+/// cached with whole-frame scores is re-scored on the band; `score --projection equirect` gives
+/// the same scores.
+#[test]
+fn sharpness_on_the_sphere_scores_the_band() {
+    let d = tempfile::tempdir().unwrap();
+    let frames = turn_then_zoom(d.path());
+    let (first, count) = (H / 4, H / 2);
+    let truth: Vec<(f64, f64)> = (0..TURN + ZOOMED)
+        .map(|i| {
+            let p = frames.join(format!("f{i:03}.png"));
+            let img = imgcodecs::imread(s(&p), imgcodecs::IMREAD_COLOR).unwrap();
+            band_scores(&img, first, count)
+        })
+        .collect();
+    let rel = keyframer::kernels::tolerance::SHARPNESS_REL;
+    let close = |a: f64, b: f64| (a - b).abs() <= rel * b.abs().max(1e-12);
+    for (metric, pick) in [("tenengrad", 0), ("laplacian-k3", 1)] {
+        for backend in ["opencv", "gpu"] {
+            let p = d.path().join(format!("{metric}-{backend}.json"));
+            let flags = ["--blur", "--blur-metric", metric, "--backend", backend];
+            let flags = [&flags[..], &["--projection", "equirect"]].concat();
+            score_only(&frames, &p, &flags);
+            let (scores, rows) = sharpness_series(&p);
+            assert_eq!(rows, serde_json::json!({"first": first, "count": count}));
+            assert_eq!(json(&p)["cache"]["sharpness"][0]["backend"], backend);
+            assert_eq!(scores.len(), truth.len());
+            for (i, (got, t)) in scores.iter().zip(&truth).enumerate() {
+                let want = if pick == 0 { t.0 } else { t.1 };
+                assert!(
+                    close(*got, want),
+                    "{metric} {backend} frame {i}: {got} vs {want}"
+                );
+            }
+        }
+    }
+    // A project whose cache holds whole-frame scores (as before the band) is re-scored.
+    let p = d.path().join("tenengrad-opencv.json");
+    let mut old = json(&p);
+    let series = &mut old["cache"]["sharpness"][0];
+    series.as_object_mut().unwrap().remove("rows");
+    series["scores"] = serde_json::json!(vec![1.0; TURN + ZOOMED]);
+    std::fs::write(&p, serde_json::to_string(&old).unwrap()).unwrap();
+    let flags = ["--blur", "--projection", "equirect", "--force"];
+    score_only(&frames, &p, &flags);
+    let (scores, rows) = sharpness_series(&p);
+    assert_eq!(rows["first"], first);
+    assert!(
+        close(scores[3], truth[3].0),
+        "re-scored: {} vs {}",
+        scores[3],
+        truth[3].0
+    );
+    // `score` on the same frames.
+    let out = kf_ok(&["score", s(&frames), "--projection", "equirect", "--json"]);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["rows"]["count"], count);
+    let scored: Vec<f64> = (v["scores"].as_array().unwrap().iter())
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert_eq!(scored, scores, "score and select agree");
 }

@@ -209,6 +209,7 @@ pub fn select_request(width: u32, analysis_width: u32) -> Request {
     movement.analysis_width = analysis_width;
     Request {
         sharpness: vec![Metric::Tenengrad],
+        sharpness_rows: None,
         movement: Some(movement),
         stationary: Some(StationaryRequest {
             threshold: f64::from(width) * 0.01,
