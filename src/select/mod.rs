@@ -194,6 +194,9 @@ pub struct SelectReport {
     pub decoded: bool,
     /// Explanations of thresholds proposed by `--auto`.
     pub proposals: Vec<String>,
+    /// A series file this run computed: (where it was written while running, the name the
+    /// project gives it), moved into place only when the project is written.
+    new_series: Option<(PathBuf, PathBuf)>,
 }
 
 /// The input's kind and fingerprint, from the file system only.
@@ -282,8 +285,27 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
             codec_keyframes: None,
         },
     )?;
+    let mut report = report;
+    if let Some((running, to)) = report.new_series.take() {
+        publish_series(&mut report.project, &running, &to)?;
+    }
     write(&report.project, &s.output)?;
     Ok(report)
+}
+
+/// Moves the series file an analysis wrote at `running` to `to`, the name its key gives it,
+/// and names it so in `project`'s cache: the last step before the project is written, so that
+/// a step failing earlier leaves the file of that name as it was.
+fn publish_series(project: &mut Project, running: &Path, to: &Path) -> Result<()> {
+    crate::output::check_replaceable(to)?;
+    std::fs::rename(running, to).map_err(|err| Error::io(to, err))?;
+    let name = to.file_name().map(|n| n.to_string_lossy().into_owned());
+    for e in &mut project.cache.embeddings {
+        if e.path().as_deref() == Some(running) {
+            e.file = name.clone();
+        }
+    }
+    Ok(())
 }
 
 /// Writes `project` to `output` atomically and removes the analysis checkpoint beside it: the
@@ -438,6 +460,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         project,
         decoded: known.decoded,
         proposals: auto.proposals,
+        new_series: known.new_series,
     })
 }
 
@@ -513,6 +536,8 @@ struct Known {
     problems: Vec<String>,
     damaged: Vec<usize>,
     decoded: bool,
+    /// The series file the analysis wrote and the name the cache gives it (not moved yet).
+    new_series: Option<(PathBuf, PathBuf)>,
 }
 
 impl Known {
@@ -531,6 +556,7 @@ impl Known {
                 problems: p.decode_problems,
                 damaged: p.damaged_frames,
                 decoded: false,
+                new_series: None,
             },
             None => Known::default(),
         }
@@ -654,19 +680,25 @@ impl Known {
             });
         }
         if let (Some(e), Some((embedder, _))) = (a.embeddings, plan.embedder.clone()) {
-            // The running series file becomes the project's, under a name of its key.
-            let name = series_name(&s.output, &embedder, e.size);
-            let to = s.output.with_file_name(&name);
+            // The running series file becomes the project's, under a name of its key, when
+            // the project is written ([`select`]): a later failing step leaves it where a
+            // re-run resumes it, and the file of that name as it was.
+            let to = s
+                .output
+                .with_file_name(series_name(&s.output, &embedder, e.size));
             if to.exists() && !s.force && !embedding_file::is_ours(&to) {
                 let msg =
                     "exists and is not a keyframer embeddings file; pass --force to replace it";
                 return Err(Error::output(to, msg));
             }
             crate::output::check_replaceable(&to)?;
-            std::fs::rename(&e.file, &to).map_err(|err| Error::io(&to, err))?;
+            let dir = to.parent().unwrap_or(Path::new("")).to_path_buf();
+            let running = e.file.file_name().map(|n| n.to_string_lossy().into_owned());
+            self.new_series = Some((dir.join(running.as_deref().unwrap_or_default()), to));
             cache
                 .embeddings
                 .retain(|c| !(c.embedder == embedder && (c.width, c.height) == e.size));
+            // Named by its running file until [`publish_series`] moves it.
             cache.embeddings.push(EmbeddingCache {
                 embedder,
                 width: e.size.0,
@@ -674,9 +706,9 @@ impl Known {
                 backend: e.backend,
                 runtime: e.runtime,
                 dim: e.dim,
-                file: Some(name),
+                file: running,
                 frames: Vec::new(),
-                dir: to.parent().unwrap_or(Path::new("")).to_path_buf(),
+                dir,
             });
         }
         if cache.timestamps_s.is_none() {

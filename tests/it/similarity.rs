@@ -504,3 +504,69 @@ fn the_embeddings_file_is_never_written_through_a_link() {
     assert_ne!(code, 0, "{err}");
     assert!(!elsewhere.exists(), "written through a dangling link");
 }
+
+/// A step failing after the analysis (here the manual step's frame beyond the input) leaves the
+/// project and its series files as they were: the new series stays the running file a re-run
+/// resumes, and no file of another name appears that no project names.
+#[test]
+fn a_failing_step_leaves_the_series_files_as_they_were() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (clip, _) = scenes_clip(tmp.path());
+    let p = tmp.path().join("p.json");
+    let (code, err) = select(&clip, &p, &["--similarity", "15"]);
+    assert_eq!(code, 0, "{err}");
+    let series = |dir: &Path| -> Vec<String> {
+        let mut names: Vec<String> = (std::fs::read_dir(dir).unwrap())
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".emb"))
+            .collect();
+        names.sort();
+        names
+    };
+    let before = series(tmp.path());
+    assert_eq!(before.len(), 1, "{before:?}");
+    let bytes = std::fs::read(tmp.path().join(&before[0])).unwrap();
+    let project = std::fs::read(&p).unwrap();
+    // Another analysis width: another series key, so another file name.
+    let args = [
+        "--similarity",
+        "15",
+        "--analysis-width",
+        "160",
+        "--add",
+        "99999",
+    ];
+    let (code, err) = select(&clip, &p, &args);
+    assert_ne!(code, 0, "{err}");
+    assert!(err.contains("99999"), "{err}");
+    let after = series(tmp.path());
+    let running = "p.json.partial.emb".to_string();
+    assert!(
+        after == before || after == [before.clone(), vec![running]].concat(),
+        "{after:?}"
+    );
+    assert_eq!(std::fs::read(tmp.path().join(&before[0])).unwrap(), bytes);
+    assert_eq!(
+        std::fs::read(&p).unwrap(),
+        project,
+        "the project is untouched"
+    );
+    // The same run without the bad frame names its new series.
+    let (code, err) = select(
+        &clip,
+        &p,
+        &["--similarity", "15", "--analysis-width", "160"],
+    );
+    assert_eq!(code, 0, "{err}");
+    let named: Vec<String> = (json(&p)["cache"]["embeddings"].as_array().unwrap().iter())
+        .filter_map(|e| e["file"].as_str().map(String::from))
+        .collect();
+    let last = series(tmp.path());
+    assert!(
+        !last.contains(&"p.json.partial.emb".to_string()),
+        "{last:?}"
+    );
+    for n in &named {
+        assert!(last.contains(n), "{n} named, files {last:?}");
+    }
+}
