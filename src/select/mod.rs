@@ -837,9 +837,12 @@ impl Plan {
             ),
             None => (descriptor::NAME.to_string(), None),
         });
-        // The built-in descriptor at this analysis size, or the step's network, readable.
+        // The built-in descriptor at this analysis size, or the step's network, readable and
+        // run by the runtime the step asks for (runtimes differ in their last digits).
+        let runtime = similarity_runtime(&s.steps).unwrap_or_default();
         let described = |m: &Metadata| match model {
-            Some(_) => embeddings(cache, m, width, model).is_some(),
+            Some(_) => embeddings(cache, m, width, model)
+                .is_some_and(|e| e.runtime.unwrap_or_default() == runtime),
             None => {
                 let size = analysis::analysis_size(m.width, m.height, width);
                 (cache.embeddings(descriptor::NAME, size)).is_some_and(|e| e.usable(m.frame_count))
