@@ -837,12 +837,9 @@ impl Plan {
             ),
             None => (descriptor::NAME.to_string(), None),
         });
-        // The built-in descriptor at this analysis size, or the step's network, readable and
-        // run by the runtime the step asks for (runtimes differ in their last digits).
-        let runtime = similarity_runtime(&s.steps).unwrap_or_default();
+        // The built-in descriptor at this analysis size, or the step's network, readable.
         let described = |m: &Metadata| match model {
-            Some(_) => embeddings(cache, m, width, model)
-                .is_some_and(|e| e.runtime.unwrap_or_default() == runtime),
+            Some(_) => embeddings(cache, m, width, model).is_some(),
             None => {
                 let size = analysis::analysis_size(m.width, m.height, width);
                 (cache.embeddings(descriptor::NAME, size)).is_some_and(|e| e.usable(m.frame_count))
