@@ -11,9 +11,9 @@
 //           2 coords (read; per output pixel, row after row, its source (x, y) as two f32),
 //           3 params (uniform),
 //           4 cubic (read; 32 * 32 * 16 i32 weights: entry (fy * 32 + fx) * 16 + ky * 4 + kx).
-// Workgroup: 64 x 1 x 1; one invocation per output word (4 consecutive output bytes, which may
-// belong to two pixels).
-// Dispatch: ceil(words / 64) workgroups, split as x + y * 65535 (see `groups` in remap.rs).
+// Workgroup: 64 x 1 x 1; one invocation per 4 consecutive output pixels (`channels` whole words
+// of the output; the coordinate, weights and wrapped taps of a pixel serve all its channels).
+// Dispatch: ceil(pixels / 4 / 64) workgroups, split as x + y * 65535 (see `groups` in remap.rs).
 // Twin: src/kernels/remap.rs `opencv` (cv::remap, BORDER_WRAP).
 
 struct Params {
@@ -33,17 +33,22 @@ struct Params {
 @group(0) @binding(3) var<uniform> params: Params;
 @group(0) @binding(4) var<storage, read> cubic: array<i32>;
 
+// p wrapped into 0..n (BORDER_WRAP); the common case inside the image without a division.
 fn wrap(p: i32, n: u32) -> u32 {
     let m = i32(n);
+    if (p >= 0 && p < m) {
+        return u32(p);
+    }
     return u32(((p % m) + m) % m);
 }
 
-fn tap(x: i32, y: i32, c: u32) -> i32 {
-    let b = (wrap(y, params.src_h) * params.src_w + wrap(x, params.src_w)) * params.channels + c;
+fn byte_at(b: u32) -> i32 {
     return i32((src[b >> 2u] >> ((b & 3u) * 8u)) & 0xffu);
 }
 
-fn sample(p: u32, c: u32) -> u32 {
+// The channels of output pixel p (in x, y, z, w): its coordinate, weights and wrapped taps are
+// computed once for all channels.
+fn pixel(p: u32) -> vec4<u32> {
     let m = coords[p];
     let ix = i32(round(m.x * 32.0));
     let iy = i32(round(m.y * 32.0));
@@ -51,36 +56,70 @@ fn sample(p: u32, c: u32) -> u32 {
     let y0 = iy >> 5u;
     let fx = ix & 31;
     let fy = iy & 31;
-    var sum = 0;
+    let ch = params.channels;
+    let row = params.src_w * ch;
+    var sum = vec4<i32>(0);
     if (params.bicubic == 0u) {
-        let top = tap(x0, y0, c) * (32 - fx) + tap(x0 + 1, y0, c) * fx;
-        let bottom = tap(x0, y0 + 1, c) * (32 - fx) + tap(x0 + 1, y0 + 1, c) * fx;
-        sum = (top * (32 - fy) + bottom * fy) * 32;
+        let xa = wrap(x0, params.src_w) * ch;
+        let xb = wrap(x0 + 1, params.src_w) * ch;
+        let ra = wrap(y0, params.src_h) * row;
+        let rb = wrap(y0 + 1, params.src_h) * row;
+        // (top * (32 - fy) + bottom * fy) * 32 with top = t00 (32 - fx) + t10 fx: exact
+        // integers, so the products may be distributed.
+        let w00 = (32 - fx) * (32 - fy) * 32;
+        let w10 = fx * (32 - fy) * 32;
+        let w01 = (32 - fx) * fy * 32;
+        let w11 = fx * fy * 32;
+        for (var c = 0u; c < ch; c = c + 1u) {
+            sum[c] = byte_at(ra + xa + c) * w00 + byte_at(ra + xb + c) * w10
+                + byte_at(rb + xa + c) * w01 + byte_at(rb + xb + c) * w11;
+        }
     } else {
         let base = u32(fy * 32 + fx) * 16u;
+        var xs: array<u32, 4>;
+        var rows: array<u32, 4>;
+        for (var k = 0; k < 4; k = k + 1) {
+            xs[k] = wrap(x0 - 1 + k, params.src_w) * ch;
+            rows[k] = wrap(y0 - 1 + k, params.src_h) * row;
+        }
         for (var ky = 0; ky < 4; ky = ky + 1) {
             for (var kx = 0; kx < 4; kx = kx + 1) {
                 let w = cubic[base + u32(ky * 4 + kx)];
-                sum = sum + w * tap(x0 - 1 + kx, y0 - 1 + ky, c);
+                let at = rows[ky] + xs[kx];
+                for (var c = 0u; c < ch; c = c + 1u) {
+                    sum[c] = sum[c] + w * byte_at(at + c);
+                }
             }
         }
     }
-    return u32(clamp((sum + 16384) >> 15u, 0, 255));
+    return vec4<u32>(clamp((sum + vec4<i32>(16384)) >> vec4<u32>(15u), vec4<i32>(0), vec4<i32>(255)));
 }
 
 @compute @workgroup_size(64, 1, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let word = gid.x + gid.y * 65535u * 64u;
-    let n = params.dst_w * params.dst_h * params.channels;
-    if (word * 4u >= n) {
+    let group = gid.x + gid.y * 65535u * 64u;
+    let ch = params.channels;
+    let pixels = params.dst_w * params.dst_h;
+    let first = group * 4u;
+    if (first >= pixels) {
         return;
     }
-    var packed = 0u;
+    // Four pixels are `ch` whole words of the output.
+    var words = array<u32, 4>(0u, 0u, 0u, 0u);
     for (var k = 0u; k < 4u; k = k + 1u) {
-        let b = word * 4u + k;
-        if (b < n) {
-            packed = packed | (sample(b / params.channels, b % params.channels) << (8u * k));
+        if (first + k < pixels) {
+            let v = pixel(first + k);
+            for (var c = 0u; c < ch; c = c + 1u) {
+                let b = k * ch + c;
+                words[b >> 2u] = words[b >> 2u] | (v[c] << ((b & 3u) * 8u));
+            }
         }
     }
-    dst[word] = packed;
+    let n = pixels * ch;
+    for (var w = 0u; w < ch; w = w + 1u) {
+        let word = group * ch + w;
+        if (word * 4u < n) {
+            dst[word] = words[w];
+        }
+    }
 }

@@ -163,9 +163,9 @@ pub struct RemapParams {
     pub pad: [u32; 2],
 }
 
-/// Workgroups (x, y) covering `words` invocations of 64 (x at most 65535).
-pub fn groups(words: u32) -> (u32, u32) {
-    super::resize_area::groups(words)
+/// Workgroups (x, y) covering `invocations` invocations in groups of 64 (x at most 65535).
+pub fn groups(invocations: u32) -> (u32, u32) {
+    super::resize_area::groups(invocations)
 }
 
 struct Output {
@@ -296,9 +296,10 @@ impl RemapGpu {
         self.ctx.write(&self.src, 0, upload);
         let mut pass = compute_pass(enc, "remap");
         for o in &self.outputs {
-            let words = o.bytes.div_ceil(4) as u32;
+            // One invocation per four output pixels.
+            let quads = (o.bytes / u64::from(self.channels)).div_ceil(4) as u32;
             self.ctx
-                .dispatch(&mut pass, &self.pipe, &o.bind, groups(words));
+                .dispatch(&mut pass, &self.pipe, &o.bind, groups(quads));
         }
         Ok(())
     }
