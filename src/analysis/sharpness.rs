@@ -74,17 +74,31 @@ pub(crate) fn engine(
     (Box::new(cpu), Backend::Opencv)
 }
 
-/// The bytes of rows `r` of a continuous 8-bit `image`, in place (no copy).
-fn band_bytes(image: &Mat, r: Rows) -> Result<&[u8]> {
+/// The bytes of rows `r` of an 8-bit BGR `image`: in place when it is continuous (decoded
+/// frames are), else copied.
+fn band_bytes(image: &Mat, r: Rows) -> Result<std::borrow::Cow<'_, [u8]>> {
     r.check(image.rows().max(0) as u32)?;
-    let bytes = image
-        .data_bytes()
-        .map_err(|e| Error::gpu(format!("sharpness rows of a frame: {e}")))?;
-    let row = bytes.len() / (image.rows().max(1) as usize);
-    let (a, b) = (r.first as usize * row, (r.first + r.count) as usize * row);
-    bytes
-        .get(a..b)
-        .ok_or_else(|| Error::gpu("sharpness rows of a frame outside its bytes"))
+    if image.typ() != opencv::core::CV_8UC3 {
+        let msg = format!(
+            "frame of type {}: the gpu engine scores 8-bit BGR",
+            image.typ()
+        );
+        return Err(Error::gpu(msg));
+    }
+    let rect = Rect::new(0, r.first as i32, image.cols(), r.count as i32);
+    if image.is_continuous() {
+        let bytes = image.data_bytes().cv(|| "frame bytes".into())?;
+        let row = image.cols().max(0) as usize * 3;
+        let (a, b) = (r.first as usize * row, (r.first + r.count) as usize * row);
+        if let Some(band) = bytes.get(a..b) {
+            return Ok(std::borrow::Cow::Borrowed(band));
+        }
+    }
+    let roi = image.roi(rect).cv(|| "sharpness rows".into())?;
+    let copy = roi.clone_pointee();
+    Ok(std::borrow::Cow::Owned(
+        copy.data_bytes().cv(|| "band bytes".into())?.to_vec(),
+    ))
 }
 
 /// The 8-bit gray of rows `r` of a BGR or gray frame, as an image of its own (its first and
@@ -118,7 +132,8 @@ impl SharpnessEngine for Gpu {
         };
         let bands = (frames.iter())
             .map(|f| band_bytes(&f.image, rows))
-            .collect::<Result<Vec<&[u8]>>>()?;
+            .collect::<Result<Vec<_>>>()?;
+        let bands: Vec<&[u8]> = bands.iter().map(|b| &**b).collect();
         self.0.iter_mut().try_for_each(|r| r.submit(&bands))
     }
 
@@ -148,7 +163,7 @@ impl SharpnessEngine for Gpu {
             return Ok(());
         };
         match self.2 {
-            Some(rows) => first.scores(&[band_bytes(image, rows)?]).map(drop),
+            Some(rows) => first.scores(&[&*band_bytes(image, rows)?]).map(drop),
             None => first.scores(&[image]).map(drop),
         }
     }

@@ -58,6 +58,10 @@ impl DeviceAnalysis {
         if req.stationary.is_some() && req.movement.is_none() {
             return Err(Error::param("stationary", "needs a movement request"));
         }
+        if req.sharpness_rows.is_some() {
+            let msg = "the device analysis scores whole frames (360° bands are not part of it)";
+            return Err(Error::param("sharpness rows", msg));
+        }
         let mut sharpness = (req.sharpness.iter())
             .map(|&m| SharpnessGpu::new(ctx.clone(), m, width, height))
             .collect::<Result<Vec<_>>>()?;

@@ -587,8 +587,12 @@ fn sharpness_panel(project: &Project, r: &Thresholds, range: Option<(usize, usiz
         } else {
             1.0
         };
+        let rows = match s.rows {
+            Some(r) => format!(", rows {}..{}", r.first, r.first + r.count),
+            None => String::new(),
+        };
         let name = format!(
-            "{} at {}x{}",
+            "{} at {}x{}{rows}",
             metric.as_str().unwrap_or("sharpness"),
             s.width,
             s.height

@@ -287,17 +287,27 @@ pub fn select(s: &SelectSettings) -> Result<SelectReport> {
     )?;
     let mut report = report;
     if let Some((running, to)) = report.new_series.take() {
-        publish_series(&mut report.project, &running, &to)?;
+        publish_series(&mut report.project, &running, &to, s.force)?;
     }
     write(&report.project, &s.output)?;
     Ok(report)
 }
 
+/// Refuses to replace `to` with a series file unless it is keyframer's own (or `force`), and
+/// never through a link or onto a file that is not regular.
+fn check_series_target(to: &Path, force: bool) -> Result<()> {
+    if to.exists() && !force && !embedding_file::is_ours(to) {
+        let msg = "exists and is not a keyframer embeddings file; pass --force to replace it";
+        return Err(Error::output(to, msg));
+    }
+    crate::output::check_replaceable(to)
+}
+
 /// Moves the series file an analysis wrote at `running` to `to`, the name its key gives it,
 /// and names it so in `project`'s cache: the last step before the project is written, so that
 /// a step failing earlier leaves the file of that name as it was.
-fn publish_series(project: &mut Project, running: &Path, to: &Path) -> Result<()> {
-    crate::output::check_replaceable(to)?;
+fn publish_series(project: &mut Project, running: &Path, to: &Path, force: bool) -> Result<()> {
+    check_series_target(to, force)?;
     std::fs::rename(running, to).map_err(|err| Error::io(to, err))?;
     let name = to.file_name().map(|n| n.to_string_lossy().into_owned());
     for e in &mut project.cache.embeddings {
@@ -311,11 +321,7 @@ fn publish_series(project: &mut Project, running: &Path, to: &Path) -> Result<()
 /// Writes `project` to `output` atomically and removes the analysis checkpoint beside it: the
 /// end of every `select` (and of `review`'s save).
 pub fn write(project: &Project, output: &Path) -> Result<()> {
-    // The series files the project being replaced names (its own record of them).
-    let old: Vec<PathBuf> = match output.is_file() {
-        true => Project::load(output).map_or_else(|_| Vec::new(), |p| series_files(&p)),
-        false => Vec::new(),
-    };
+    let old = replaced_series(output);
     project.save(output, true)?;
     let checkpoint = checkpoint_path(output);
     if checkpoint.is_file() {
@@ -326,7 +332,21 @@ pub fn write(project: &Project, output: &Path) -> Result<()> {
             );
         }
     }
-    let kept = series_files(project);
+    drop_series(output, &old, &series_files(project));
+    Ok(())
+}
+
+/// The series files the project at `output`, about to be replaced, names (its own record).
+pub(crate) fn replaced_series(output: &Path) -> Vec<PathBuf> {
+    match output.is_file() {
+        true => Project::load(output).map_or_else(|_| Vec::new(), |p| series_files(&p)),
+        false => Vec::new(),
+    }
+}
+
+/// After the project at `output` was replaced: removes the series files of `old` (the replaced
+/// project's) that the new one does not name (`kept`), and the running series file.
+pub(crate) fn drop_series(output: &Path, old: &[PathBuf], kept: &[PathBuf]) {
     // Only names this output makes (`<output name>.<key hash>.emb`): a copied project names its
     // original's series, which are not this output's to remove.
     let prefix = format!(
@@ -341,7 +361,6 @@ pub fn write(project: &Project, output: &Path) -> Result<()> {
         embedding_file::remove_ours(f);
     }
     embedding_file::remove_ours(&series_partial_path(output));
-    Ok(())
 }
 
 /// The series files `project`'s cache names.
@@ -686,12 +705,7 @@ impl Known {
             let to = s
                 .output
                 .with_file_name(series_name(&s.output, &embedder, e.size));
-            if to.exists() && !s.force && !embedding_file::is_ours(&to) {
-                let msg =
-                    "exists and is not a keyframer embeddings file; pass --force to replace it";
-                return Err(Error::output(to, msg));
-            }
-            crate::output::check_replaceable(&to)?;
+            check_series_target(&to, s.force)?;
             let dir = to.parent().unwrap_or(Path::new("")).to_path_buf();
             let running = e.file.file_name().map(|n| n.to_string_lossy().into_owned());
             self.new_series = Some((dir.join(running.as_deref().unwrap_or_default()), to));
@@ -869,7 +883,8 @@ impl Plan {
     fn request(&self, s: &SelectSettings) -> Request {
         Request {
             sharpness: self.missing.clone(),
-            sharpness_rows: self.rows,
+            // Only with scores to compute: a movement-only checkpoint keeps its key.
+            sharpness_rows: self.rows.filter(|_| !self.missing.is_empty()),
             movement: (self.movement || self.stationary.is_some()).then_some(s.movement),
             stationary: self.stationary,
             descriptor: self.descriptor,

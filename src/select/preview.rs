@@ -102,10 +102,10 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
         }
         false => None,
     };
-    // A preview is never reused as a cache: the embeddings its keyframes gave are dropped.
-    for f in select::series_files(p) {
-        crate::embedding_file::remove_ours(&f);
-    }
+    // A preview is never reused as a cache: the embeddings its keyframes gave are dropped, and
+    // so are the series of the project it replaces.
+    let mut old = select::replaced_series(&s.output);
+    old.extend(select::series_files(p));
     p.cache = Cache {
         timestamps_s: Some(index.timestamps_s.clone()),
         telemetry,
@@ -113,6 +113,7 @@ pub fn select_preview(s: &SelectSettings) -> Result<SelectReport> {
     };
     p.preview = true;
     p.save(&s.output, true)?;
+    select::drop_series(&s.output, &old, &[]);
     Ok(report)
 }
 
