@@ -106,7 +106,7 @@ fn probe(python: &Path) -> std::result::Result<Pycolmap, String> {
         .split('.')
         .next()
         .and_then(|m| m.parse::<u32>().ok());
-    if !major.is_some_and(|m| m >= MIN_MAJOR) {
+    if major.is_none_or(|m| m < MIN_MAJOR) {
         return Err(format!(
             "has pycolmap {version}; keyframer's driver needs pycolmap {MIN_MAJOR}.x or later"
         ));
