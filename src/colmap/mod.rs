@@ -1196,6 +1196,18 @@ pub fn render(rec: &Record) -> String {
         rec.images,
         rec.masks
     );
+    if let Some(py) = &rec.pycolmap {
+        s += &format!(
+            "pycolmap:  {} ({}): the sparse stages{}\n",
+            py.version,
+            py.python.display(),
+            if rec.rig {
+                ", the views of a keyframe one rig frame"
+            } else {
+                ""
+            }
+        );
+    }
     for st in &rec.stages {
         s += &format!("stage:     {:<20} {:>8.1} s\n", st.stage, st.seconds);
     }

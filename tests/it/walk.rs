@@ -240,11 +240,11 @@ fn rig_export() -> &'static PathBuf {
 /// `colmap --sparse --undistort --georegister` on [`rig_export`] into `root/NAME` with `engine`
 /// (each view matched with the views of its keyframe and the next one, 1024 features an image);
 /// the workspace and the run's wall time.
-fn colmap_on_rig(name: &str, engine: &str) -> (PathBuf, f64) {
+fn colmap_on_rig(name: &str, engine: &str) -> (PathBuf, f64, String) {
     let export = rig_export();
     let ws = walk().parent().unwrap().join(name);
     let start = std::time::Instant::now();
-    kf_ok(&[
+    let summary = kf_ok(&[
         "colmap",
         s(export),
         "-o",
@@ -260,7 +260,7 @@ fn colmap_on_rig(name: &str, engine: &str) -> (PathBuf, f64) {
         "1024",
         "--force",
     ]);
-    (ws, start.elapsed().as_secs_f64())
+    (ws, start.elapsed().as_secs_f64(), summary)
 }
 
 /// The rig export and its workspace made by the `colmap` command (COLMAP 3.8: no rigs, each view
@@ -268,7 +268,7 @@ fn colmap_on_rig(name: &str, engine: &str) -> (PathBuf, f64) {
 fn workspace() -> &'static (PathBuf, PathBuf, f64) {
     static WS: OnceLock<(PathBuf, PathBuf, f64)> = OnceLock::new();
     WS.get_or_init(|| {
-        let (ws, seconds) = colmap_on_rig("ws", "colmap");
+        let (ws, seconds, _) = colmap_on_rig("ws", "colmap");
         (rig_export().clone(), ws, seconds)
     })
 }
@@ -495,11 +495,15 @@ fn walk_rig_maps_as_one_rig_through_pycolmap() {
         );
         return;
     }
-    let (ws, seconds) = colmap_on_rig("ws-pycolmap", "pycolmap");
+    let (ws, seconds, summary) = colmap_on_rig("ws-pycolmap", "pycolmap");
     let export = rig_export();
     let rec = json(&ws.join("colmap.json"));
     assert_eq!(rec["rig"], true, "{rec}");
-    assert!(rec["pycolmap"]["version"].is_string(), "{rec}");
+    let version = rec["pycolmap"]["version"].as_str().unwrap();
+    assert!(
+        summary.contains(&format!("pycolmap:  {version} (")) && summary.contains("one rig frame"),
+        "{summary}"
+    );
     let stages: Vec<&str> = (rec["stages"].as_array().unwrap().iter())
         .map(|st| st["stage"].as_str().unwrap())
         .collect();
@@ -603,6 +607,6 @@ fn walk_rig_maps_as_one_rig_through_pycolmap() {
     );
     eprintln!(
         "pycolmap {}: {} of {} textured views in the largest of {} models, sparse stages {:.1} s, run {seconds:.1} s",
-        rec["pycolmap"]["version"].as_str().unwrap(), textured.0, textured.1, models(&rec), sparse_seconds(&rec)
+        version, textured.0, textured.1, models(&rec), sparse_seconds(&rec)
     );
 }
