@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Installs what keyframer needs on Debian 12 (only what is missing), fetches the public test data
 # (Debian's opencv-doc examples) into target/testdata/, ONNX Runtime into target/onnxruntime/ and
-# a person-segmentation model into target/models/selfie/. Safe to run again.
+# a person-segmentation model into target/models/selfie/ and pycolmap (a recent COLMAP, for
+# rig-aware mapping of 360° rig exports) into target/pycolmap/. Safe to run again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates curl unzip colmap chromium jq fonts-dejavu-core libimage-exiftool-perl sqlite3 python3)
+packages=(libopencv-dev clang libclang-dev mesa-vulkan-drivers libvulkan1 ffmpeg pkg-config ca-certificates curl unzip colmap chromium jq fonts-dejavu-core libimage-exiftool-perl sqlite3 python3 python3-venv)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -48,3 +49,18 @@ fi
 # A person-segmentation model for `export --masks models/selfie.toml`: MediaPipe's selfie
 # segmentation (Apache-2.0) from the npm registry's package, converted to ONNX (4 MB download).
 scripts/fetch-selfie.sh target/models/selfie >/dev/null
+
+# pycolmap for `keyframer colmap --engine pycolmap` (rigs; Debian's COLMAP 3.8 has none): a venv
+# with PyPI's CPU wheel, version pinned. keyframer finds target/pycolmap/bin/python beside
+# target/release/.
+pycolmap_version=4.2.1
+if ! target/pycolmap/bin/python -c "import pycolmap, sys; sys.exit(pycolmap.__version__ != '$pycolmap_version')" 2>/dev/null; then
+  echo "setup: installing pycolmap $pycolmap_version into target/pycolmap/" >&2
+  rm -rf target/pycolmap
+  if ! { python3 -m venv target/pycolmap &&
+         target/pycolmap/bin/pip install -q --disable-pip-version-check "pycolmap==$pycolmap_version"; }; then
+    rm -rf target/pycolmap
+    echo "setup: could not install pycolmap $pycolmap_version into target/pycolmap (python3 -m venv, then pip install from PyPI); keyframer colmap --engine pycolmap needs it" >&2
+    exit 1
+  fi
+fi

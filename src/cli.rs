@@ -2,6 +2,7 @@
 
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use keyframer::colmap::pycolmap::Engine;
 use keyframer::error::{Error, Result};
 use keyframer::manifest::{ExportSettings, Format, MaskSettings, SegRuntime, DEFAULT_QUALITY};
 use keyframer::names::Names;
@@ -906,6 +907,11 @@ pub struct ColmapArgs {
     /// COLMAP's options.
     #[command(flatten)]
     pub colmap: ColmapFlags,
+    /// Which COLMAP runs the sparse stages: the colmap command, or pycolmap (found through
+    /// KEYFRAMER_PYTHON, target/pycolmap beside keyframer's folder, or python3 on PATH), which
+    /// maps a rig export as a rig; auto: pycolmap for a rig export when found.
+    #[arg(long, value_parser = named::<Engine>(), default_value = "auto")]
+    pub engine: Engine,
     /// Replace the keyframer-made content of an existing workspace.
     #[arg(long)]
     pub force: bool,
@@ -926,6 +932,7 @@ impl ColmapArgs {
             georegister: self.georegister.then_some(self.georegister_max_error),
             options: self.colmap.options(),
             force: self.force,
+            engine: self.engine,
         }
     }
 }

@@ -1,6 +1,7 @@
 //! `info`: what this machine offers keyframer: wgpu adapters and limits, what `--backend auto`
 //! resolves to and why, OpenCV version and video I/O backends, whether `colmap` is on PATH and
-//! what the COLMAP `keyframer colmap` would run can do (sparse, undistort, georegister, dense).
+//! what the COLMAP `keyframer colmap` would run can do (sparse, undistort, georegister, dense),
+//! and the pycolmap `--engine pycolmap` would run.
 
 use crate::gpu::{self, AdapterSummary, AutoDecision};
 use serde::Serialize;
@@ -26,6 +27,8 @@ pub struct Info {
     /// What the COLMAP `keyframer colmap` would run (`KEYFRAMER_COLMAP`, else PATH) can do, or
     /// why it cannot be run.
     pub colmap_abilities: Result<ColmapAbilities, String>,
+    /// The pycolmap `keyframer colmap --engine pycolmap` would run, or why there is none.
+    pub pycolmap: Result<crate::colmap::pycolmap::Pycolmap, String>,
 }
 
 /// What a COLMAP installation offers `keyframer colmap`, read from its `colmap help`.
@@ -83,6 +86,7 @@ pub fn gather(adapter: Option<&str>) -> Info {
         opencv_video_backends: video_backends(),
         colmap: crate::fsutil::find_on_path("colmap"),
         colmap_abilities: colmap_abilities(),
+        pycolmap: crate::colmap::pycolmap::locate().map_err(|e| e.to_string()),
     }
 }
 
@@ -160,5 +164,13 @@ pub fn render(info: &Info) -> String {
         }
         Err(e) => s += &format!("  {e}\n"),
     }
+    s += &match &info.pycolmap {
+        Ok(p) => format!(
+            "pycolmap: {} ({}): keyframer colmap --engine pycolmap maps rig exports as rigs\n",
+            p.version,
+            p.python.display()
+        ),
+        Err(e) => format!("pycolmap: {e}\n"),
+    };
     s
 }

@@ -9,6 +9,7 @@ pub mod align;
 pub mod extend;
 pub mod georegister;
 pub mod model;
+pub mod pycolmap;
 pub mod rig_pairs;
 pub mod transforms;
 pub mod undistort;
@@ -17,6 +18,7 @@ use crate::error::{Error, Result};
 use crate::fsutil;
 use crate::manifest::{Manifest, MANIFEST, MASK_DIR};
 use crate::sparse::{mapper_keys, Matcher, SparseOptions};
+use pycolmap::{Engine, Pycolmap};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -27,7 +29,7 @@ pub const RECORD: &str = "colmap.json";
 /// Environment variable naming the COLMAP binary to use instead of `colmap` on PATH.
 pub const COLMAP_ENV: &str = "KEYFRAMER_COLMAP";
 /// What keyframer creates in a workspace; `--force` removes exactly these.
-const OURS: [&str; 14] = [
+const OURS: [&str; 15] = [
     "images",
     "masks",
     "sparse",
@@ -41,6 +43,7 @@ const OURS: [&str; 14] = [
     "database.db-wal",
     "project.ini",
     RIG_PAIRS,
+    pycolmap::DRIVER,
     RECORD,
 ];
 /// The match pairs of a rig export (`matches_importer`, [`rig_pairs`]).
@@ -67,6 +70,8 @@ pub struct ColmapSettings {
     pub options: SparseOptions,
     /// Replace the keyframer-made content of an existing workspace.
     pub force: bool,
+    /// Which COLMAP runs the sparse stages.
+    pub engine: Engine,
 }
 
 /// The COLMAP installation used.
@@ -205,6 +210,15 @@ pub struct Record {
     /// (`single_camera_per_folder`), ideal pinholes of known focal length.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub per_folder: bool,
+    /// The pycolmap that ran the sparse stages (`--engine pycolmap`), when it did; the `colmap`
+    /// command then only wrote `project.ini` and ran the later stages (georegistration,
+    /// undistortion).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pycolmap: Option<Pycolmap>,
+    /// The views of each keyframe were made one frame of a rig (`rig_config.json` applied by
+    /// pycolmap's rig configurator) and mapped as one.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub rig: bool,
     /// Every file keyframer and COLMAP wrote in the workspace, relative to it: what a `--force`
     /// re-run may replace or remove (and nothing else).
     #[serde(default)]
@@ -292,6 +306,11 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
     }
     let rigged = rig_settings(a, &manifest);
     let a = rigged.as_ref().unwrap_or(a);
+    let stages = a.sparse || a.dense || a.undistort || a.georegister.is_some();
+    let py = engine(a.engine, rigged.is_some() && stages, &colmap, quiet)?;
+    if py.is_some() && rigged.is_some() {
+        rig_config_of(&export)?;
+    }
     // The workspace stays locked until its record is written last.
     let (masks, _held) = fill_workspace(&ws, &export, &manifest, a.force)?;
     let mut rec = Record {
@@ -302,6 +321,8 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         // are COLMAP's).
         finished: false,
         per_folder: rigged.is_some(),
+        pycolmap: py.clone(),
+        rig: py.is_some() && rigged.is_some(),
         ..Record::new(&colmap, &export, &ws, manifest.frames.len(), masks, a)
     };
     write_record(&ws, &rec)?;
@@ -311,13 +332,56 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         ws: &ws,
         quiet,
     };
-    let result = run_stages(&runner, &mut rec, a, &manifest);
+    let result = run_stages(&runner, &mut rec, a, &manifest, py.as_ref());
     if let Err(e) = &result {
         rec.error = Some(e.to_string());
     }
     rec.files = ours_now(&ws);
     write_record(&ws, &rec)?;
     result.map(|()| rec)
+}
+
+/// The pycolmap that runs the sparse stages, or None for the `colmap` command: `--engine
+/// pycolmap` needs it (an error naming what to install when it is missing); `auto` takes it for
+/// a rig export whose stages run (`rig`) when found and says so, else says how to get rig mapping.
+fn engine(engine: Engine, rig: bool, colmap: &Colmap, quiet: bool) -> Result<Option<Pycolmap>> {
+    match engine {
+        Engine::Colmap => Ok(None),
+        Engine::Pycolmap => pycolmap::locate().map(Some),
+        Engine::Auto if !rig => Ok(None),
+        Engine::Auto => match pycolmap::locate() {
+            Ok(py) => {
+                if !quiet {
+                    eprintln!(
+                        "colmap: a rig export: mapped as a rig through pycolmap {} ({})",
+                        py.version,
+                        py.python.display()
+                    );
+                }
+                Ok(Some(py))
+            }
+            Err(e) => {
+                if !quiet {
+                    eprintln!(
+                        "colmap: a rig export: {} has no rigs, so its views are registered one by one; \
+                         for rig-aware mapping install pycolmap ({e})",
+                        colmap.version
+                    );
+                }
+                Ok(None)
+            }
+        },
+    }
+}
+
+/// The export's `rig_config.json` (a rig export's, for pycolmap's rig configurator).
+fn rig_config_of(export: &Path) -> Result<PathBuf> {
+    let p = export.join(crate::rig::RIG_CONFIG);
+    if !p.is_file() {
+        let msg = "missing: a rig export made by `keyframer export --views` holds it; export again";
+        return Err(Error::input(&p, msg));
+    }
+    Ok(p)
 }
 
 /// A rig export's settings: every view folder its own PINHOLE camera with the views' known
@@ -421,6 +485,7 @@ fn run_stages(
     rec: &mut Record,
     a: &ColmapSettings,
     manifest: &Manifest,
+    py: Option<&Pycolmap>,
 ) -> Result<()> {
     let ws = runner.ws;
     write_project_ini(runner, rec, &a.options)?;
@@ -430,8 +495,13 @@ fn run_stages(
             .push(runner.stage("database_creator", &[("--database_path", p(&db))])?);
         return Ok(());
     }
-    extract_and_match(runner, rec, &a.options, None)?;
-    let best = map(runner, rec, a)?;
+    let best = match py {
+        Some(py) => py_sparse(runner, rec, a, py)?,
+        None => {
+            extract_and_match(runner, rec, &a.options, None)?;
+            map(runner, rec, a)?
+        }
+    };
     let mut model_dir = ws.join(&best);
     let mut world = transforms::World::Colmap;
     if let Some(max_error_m) = a.georegister {
@@ -499,9 +569,26 @@ fn extract_and_match(
         fe.push(("--ImageReader.existing_camera_id", "1".into()));
     }
     rec.stages.push(runner.stage("feature_extractor", &fe)?);
+    let (name, args) = matching(ws, rec, o, image_list.is_some())?;
+    let mut args: Vec<(&str, String)> = args;
+    args.push(("--SiftMatching.use_gpu", gpu.into()));
+    rec.stages.push(runner.stage(name, &args)?);
+    Ok(())
+}
+
+/// The matching stage (`colmap`'s command name) and its arguments for the chosen matcher: on a
+/// rig export (not `extending` a model), sequential matching matches the views of a keyframe
+/// with those of the next `overlap` keyframes through the pair list it writes.
+fn matching(
+    ws: &Path,
+    rec: &mut Record,
+    o: &SparseOptions,
+    extending: bool,
+) -> Result<(&'static str, Vec<(&'static str, String)>)> {
+    let db = ws.join("database.db");
     rec.matcher = Some(o.matcher);
     let (name, mut args) = match o.matcher {
-        Matcher::Sequential if rec.per_folder && image_list.is_none() => {
+        Matcher::Sequential if rec.per_folder && !extending => {
             // A rig: the views of a keyframe and of the next `overlap` keyframes.
             rec.overlap = Some(o.overlap);
             let list = ws.join(RIG_PAIRS);
@@ -529,9 +616,7 @@ fn extract_and_match(
         Matcher::Exhaustive => ("exhaustive_matcher", Vec::new()),
     };
     args.push(("--database_path", p(&db)));
-    args.push(("--SiftMatching.use_gpu", gpu.into()));
-    rec.stages.push(runner.stage(name, &args)?);
-    Ok(())
+    Ok((name, args))
 }
 
 /// The image names (`view/file`) of a rig workspace's `images` folder.
@@ -572,7 +657,14 @@ fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> 
     let margs = mapper_args(ws, &sparse, &a.options)?;
     let margs: Vec<(&str, String)> = margs.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
     rec.stages.push(runner.stage("mapper", &margs)?);
-    rec.models = read_models(ws, &sparse)?;
+    best_model(runner, rec)
+}
+
+/// Records every model under `sparse/` and returns the largest one's path, relative to the
+/// workspace (an error when the mapper made none).
+fn best_model(runner: &Runner, rec: &mut Record) -> Result<String> {
+    let ws = runner.ws;
+    rec.models = read_models(ws, &ws.join("sparse"))?;
     let Some(best) = largest(&rec.models) else {
         return Err(Error::Colmap(format!(
             "mapper made no model from {} images (see {})",
@@ -589,6 +681,78 @@ fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> 
         }
     }
     Ok(best.path.clone())
+}
+
+/// pycolmap's sparse stages through keyframer's driver (written into the workspace): features
+/// (one camera per view folder for a rig export, known intrinsics), the rig configuration of a
+/// rig export (`rig_config.json`: the views of a keyframe one frame), the matcher as the
+/// `colmap` command's path chooses it, and the incremental mapper (known intrinsics and the rig's
+/// relative poses kept fixed unless a mapper option says otherwise). Records every model and
+/// returns the largest one's path, relative to the workspace.
+fn py_sparse(
+    runner: &Runner,
+    rec: &mut Record,
+    a: &ColmapSettings,
+    py: &Pycolmap,
+) -> Result<String> {
+    let ws = runner.ws;
+    let o = &a.options;
+    fsutil::write_atomic(
+        &ws.join(pycolmap::DRIVER),
+        pycolmap::DRIVER_SOURCE.as_bytes(),
+    )?;
+    let db = p(&ws.join("database.db"));
+    let mode = if rec.per_folder {
+        "per_folder"
+    } else {
+        "single"
+    };
+    let mut fe = vec![
+        ("--database_path", db.clone()),
+        ("--image_path", p(&ws.join("images"))),
+        ("--camera_mode", mode.into()),
+        ("--camera_model", o.camera_model.clone()),
+    ];
+    if rec.masks > 0 {
+        fe.push(("--mask_path", p(&ws.join("masks"))));
+    }
+    if let Some(n) = o.max_features {
+        fe.push(("--max_num_features", n.to_string()));
+    }
+    if let Some(params) = &o.camera_params {
+        fe.push(("--camera_params", params.clone()));
+    }
+    rec.stages
+        .push(runner.py_stage(py, "feature_extractor", &fe)?);
+    if rec.rig {
+        let config = rig_config_of(&rec.export)?;
+        let args = [
+            ("--database_path", db.clone()),
+            ("--rig_config_path", p(&config)),
+        ];
+        rec.stages
+            .push(runner.py_stage(py, "rig_configurator", &args)?);
+    }
+    let (name, args) = matching(ws, rec, o, false)?;
+    rec.stages.push(runner.py_stage(py, name, &args)?);
+    let sparse = ws.join("sparse");
+    std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
+    let mut margs = vec![
+        ("--database_path", db),
+        ("--image_path", p(&ws.join("images"))),
+        ("--output_path", p(&sparse)),
+        (
+            "--fixed_intrinsics",
+            u8::from(o.camera_params.is_some()).to_string(),
+        ),
+        ("--fixed_rig", u8::from(rec.rig).to_string()),
+    ];
+    for (k, v) in mapper_keys(&o.mapper_option)? {
+        let k = k.trim_start_matches("--Mapper.");
+        margs.push(("--option", format!("{k}={v}")));
+    }
+    rec.stages.push(runner.py_stage(py, "mapper", &margs)?);
+    best_model(runner, rec)
 }
 
 /// The mapper's arguments writing into `output` (known intrinsics kept fixed unless a mapper
@@ -692,11 +856,15 @@ fn write_record(ws: &Path, rec: &Record) -> Result<()> {
     fsutil::write_json(&ws.join(RECORD), rec)
 }
 
-/// What `colmap` reads: the export's manifest, images and masks (the workspace may lie beside
-/// them, in the export folder).
+/// What `colmap` reads: the export's manifest, images and masks, and a rig export's
+/// `rig_config.json` (the workspace may lie beside them, in the export folder).
 fn read_by(export: &Path) -> crate::output::Inputs {
     let mut inputs = crate::output::Inputs::none();
     crate::manifest::add_export(&mut inputs, export);
+    inputs.add(
+        "export rig configuration",
+        export.join(crate::rig::RIG_CONFIG),
+    );
     inputs
 }
 
@@ -869,14 +1037,42 @@ impl Runner<'_> {
         name: &str,
         args: &[(&str, String)],
     ) -> Result<(StageRecord, Option<Error>)> {
+        let mut command = vec![self.colmap.bin.display().to_string(), name.to_string()];
+        command.extend(args.iter().flat_map(|(k, v)| [(*k).to_string(), v.clone()]));
+        self.try_command("colmap", name, command)
+    }
+
+    /// Runs stage `name` of keyframer's pycolmap driver (in the workspace) as
+    /// [`Runner::stage`] runs a `colmap` stage.
+    fn py_stage(&self, py: &Pycolmap, name: &str, args: &[(&str, String)]) -> Result<StageRecord> {
+        let mut command = vec![
+            py.python.display().to_string(),
+            p(&self.ws.join(pycolmap::DRIVER)),
+            name.to_string(),
+        ];
+        command.extend(args.iter().flat_map(|(k, v)| [(*k).to_string(), v.clone()]));
+        let (record, failure) = self.try_command("pycolmap", name, command)?;
+        match failure {
+            Some(e) => Err(e),
+            None => Ok(record),
+        }
+    }
+
+    /// Runs `command` (the program first) as stage `name` of `engine` with stdout and stderr in
+    /// `logs/<name>.log`; its record also when it failed, with the error naming the stage and
+    /// its log; Err only when the program could not be started.
+    fn try_command(
+        &self,
+        engine: &str,
+        name: &str,
+        command: Vec<String>,
+    ) -> Result<(StageRecord, Option<Error>)> {
         let rel = format!("logs/{name}.log");
         let log = self.ws.join(&rel);
         let file = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
         let err = file.try_clone().map_err(|e| Error::io(&log, e))?;
-        let mut command = vec![self.colmap.bin.display().to_string(), name.to_string()];
-        command.extend(args.iter().flat_map(|(k, v)| [(*k).to_string(), v.clone()]));
         let start = Instant::now();
-        let mut cmd = Command::new(&self.colmap.bin);
+        let mut cmd = Command::new(&command[0]);
         cmd.args(&command[1..])
             .stdin(Stdio::null())
             .stdout(file)
@@ -885,7 +1081,7 @@ impl Runner<'_> {
         let spinner = crate::progress::spinner(name, self.quiet);
         let status = cmd
             .status()
-            .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", self.colmap.bin.display())));
+            .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", command[0])));
         spinner.finish_and_clear();
         let status = status?;
         let seconds = start.elapsed().as_secs_f64();
@@ -898,7 +1094,7 @@ impl Runner<'_> {
         };
         if !status.success() {
             let e = Error::Colmap(format!(
-                "colmap {name} failed ({status}) after {seconds:.1} s; log: {}",
+                "{engine} {name} failed ({status}) after {seconds:.1} s; log: {}",
                 log.display()
             ));
             return Ok((record, Some(e)));
@@ -1000,6 +1196,18 @@ pub fn render(rec: &Record) -> String {
         rec.images,
         rec.masks
     );
+    if let Some(py) = &rec.pycolmap {
+        s += &format!(
+            "pycolmap:  {} ({}): the sparse stages{}\n",
+            py.version,
+            py.python.display(),
+            if rec.rig {
+                ", the views of a keyframe one rig frame"
+            } else {
+                ""
+            }
+        );
+    }
     for st in &rec.stages {
         s += &format!("stage:     {:<20} {:>8.1} s\n", st.stage, st.seconds);
     }

@@ -545,6 +545,8 @@ impl Job<'_> {
             georegister: None,
             options,
             force: true,
+            // The loop extends models with the colmap command's mapper.
+            engine: crate::colmap::pycolmap::Engine::Colmap,
         };
         let earlier = crate::colmap::read_record(&cws).ok();
         let extend_it = !first && earlier.is_some();

@@ -54,6 +54,58 @@ fn colmap_missing_names_the_package_and_writes_nothing() {
     assert!(!d.path().join("ws").exists());
 }
 
+/// `--engine pycolmap` without pycolmap: one line naming what to install, nothing written (the
+/// interpreter is named by `KEYFRAMER_PYTHON`, so a pycolmap set up beside keyframer is not found).
+#[test]
+fn pycolmap_engine_missing_names_the_package_and_writes_nothing() {
+    let d = tempfile::tempdir().unwrap();
+    let export = small_export(d.path());
+    let before = listing(&export);
+    let fake = fake_colmap(d.path());
+    let ws = d.path().join("ws");
+    let missing = d.path().join("no-python");
+    let o = kf_env(
+        &[
+            "colmap",
+            s(&export),
+            "-o",
+            s(&ws),
+            "--sparse",
+            "--engine",
+            "pycolmap",
+        ],
+        &[
+            ("KEYFRAMER_COLMAP", s(&fake)),
+            ("KEYFRAMER_PYTHON", s(&missing)),
+        ],
+    );
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains(&format!(
+            "KEYFRAMER_PYTHON={}: no such file",
+            missing.display()
+        )) && err.contains("pip install pycolmap==4.2.1")
+            && err.contains("scripts/setup.sh"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    assert!(!ws.exists(), "nothing written");
+    assert_eq!(listing(&export), before, "nothing written into the export");
+    // `auto` on an export that is not a rig keeps the colmap command and needs no pycolmap.
+    let o = kf_env(
+        &["colmap", s(&export), "-o", s(&ws), "--sparse"],
+        &[
+            ("KEYFRAMER_COLMAP", s(&fake)),
+            ("KEYFRAMER_PYTHON", s(&missing)),
+        ],
+    );
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("pycolmap"), "{err}");
+    assert!(json(&ws.join("colmap.json")).get("pycolmap").is_none());
+}
+
 #[test]
 fn workspace_refused_without_force_and_replaced_with_it() {
     use std::os::unix::fs::MetadataExt;

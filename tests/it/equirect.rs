@@ -211,15 +211,17 @@ fn bad_360_inputs_are_refused_before_writing() {
     assert!(!out.join("colmap").exists(), "no workspace");
 }
 
-/// `keyframer colmap` on a rig export (Debian's COLMAP 3.8, no rig support): the view folders are
-/// kept in the workspace and every folder is one PINHOLE camera with the views' known focal length
-/// and centre. (The mapper's outcome on this synthetic pattern is not what is checked.)
+/// `keyframer colmap --engine colmap` on a rig export (Debian's COLMAP 3.8, no rig support): the
+/// view folders are kept in the workspace and every folder is one PINHOLE camera with the views'
+/// known focal length and centre. (The mapper's outcome on this synthetic pattern is not what is
+/// checked.)
 #[test]
 fn colmap_takes_one_camera_per_view_folder() {
     let dir = tempfile::tempdir().unwrap();
     let extra = ["--view-size", "64", "--view-fov", "96"];
     let (_, out, _) = cube_export(dir.path(), (240, 120), &extra);
-    let _ = kf(&["colmap", s(&out), "--sparse", "--matcher", "exhaustive"]);
+    let args = ["colmap", s(&out), "--sparse", "--matcher", "exhaustive"];
+    let _ = kf(&[&args[..], &["--engine", "colmap"]].concat());
     let ws = out.join("colmap");
     let record = json(&ws.join("colmap.json"));
     assert_eq!(record["per_folder"], true);

@@ -4,8 +4,10 @@
 //! `export --views cube --mask-nadir`, then `colmap --sparse --undistort --georegister` with the
 //! installed COLMAP registers the views of the textured directions in one model whose `front`
 //! centres lie on the truth, in metres on the walk's telemetry, with a PINHOLE dataset and one
-//! `transforms.json` entry per registered view; spacing spaces the keyframes more evenly than a
-//! fixed rate; turning on the spot adds no keyframes.
+//! `transforms.json` entry per registered view; `colmap --engine pycolmap` maps the same export as
+//! a rig (one centre per keyframe, the rig's relative rotations) in one model on the truth;
+//! spacing spaces the keyframes more evenly than a fixed rate; turning on the spot adds no
+//! keyframes.
 
 use crate::common::{json, kf_ok, s, scene_ok};
 use crate::scene::{distance, poses};
@@ -209,12 +211,10 @@ fn spacing_beats_a_fixed_rate_on_the_walk() {
 }
 
 /// The export of the spaced selection (cube faces of 110° so that neighbouring faces overlap,
-/// 384², nadir cap 20°) and the workspace of `colmap --sparse --undistort --georegister` on it
-/// (each view matched with the views of its keyframe and the next one, 1024 features an image),
-/// run once.
-fn workspace() -> &'static (PathBuf, PathBuf) {
-    static WS: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
-    WS.get_or_init(|| {
+/// 384², nadir cap 20°), made once.
+fn rig_export() -> &'static PathBuf {
+    static EXPORT: OnceLock<PathBuf> = OnceLock::new();
+    EXPORT.get_or_init(|| {
         let (project, _) = select("rig", &["--spacing", &format!("{KEYFRAMES}kf")]);
         let root = walk().parent().unwrap();
         let export = root.join("rig");
@@ -233,22 +233,43 @@ fn workspace() -> &'static (PathBuf, PathBuf) {
             "--mask-nadir",
             "20",
         ]);
-        let ws = root.join("ws");
-        kf_ok(&[
-            "colmap",
-            s(&export),
-            "-o",
-            s(&ws),
-            "--sparse",
-            "--undistort",
-            "--georegister",
-            "--overlap",
-            "1",
-            "--max-features",
-            "1024",
-            "--force",
-        ]);
-        (export, ws)
+        export
+    })
+}
+
+/// `colmap --sparse --undistort --georegister` on [`rig_export`] into `root/NAME` with `engine`
+/// (each view matched with the views of its keyframe and the next one, 1024 features an image);
+/// the workspace and the run's wall time.
+fn colmap_on_rig(name: &str, engine: &str) -> (PathBuf, f64, String) {
+    let export = rig_export();
+    let ws = walk().parent().unwrap().join(name);
+    let start = std::time::Instant::now();
+    let summary = kf_ok(&[
+        "colmap",
+        s(export),
+        "-o",
+        s(&ws),
+        "--sparse",
+        "--undistort",
+        "--georegister",
+        "--engine",
+        engine,
+        "--overlap",
+        "1",
+        "--max-features",
+        "1024",
+        "--force",
+    ]);
+    (ws, start.elapsed().as_secs_f64(), summary)
+}
+
+/// The rig export and its workspace made by the `colmap` command (COLMAP 3.8: no rigs, each view
+/// folder its own camera), run once; and the run's wall time.
+fn workspace() -> &'static (PathBuf, PathBuf, f64) {
+    static WS: OnceLock<(PathBuf, PathBuf, f64)> = OnceLock::new();
+    WS.get_or_init(|| {
+        let (ws, seconds, _) = colmap_on_rig("ws", "colmap");
+        (rig_export().clone(), ws, seconds)
     })
 }
 
@@ -283,27 +304,24 @@ fn exported(export: &Path) -> Vec<(String, String, usize)> {
         .collect()
 }
 
-/// COLMAP on the cube export: ≥ 90 % of the textured directions' views registered in one model,
-/// and its `front` centres within 2 % of the walk's length of the truth after a similarity.
-#[test]
-fn walk_rig_registers_in_one_model_on_the_truth() {
-    if !colmap_installed() {
-        eprintln!("skipping: colmap is not installed");
-        return;
-    }
-    let (export, ws) = workspace();
-    let (path, m) = largest(&ws.join("sparse"));
-    let frames = exported(export);
-    let registered = |v: &str, f: &str| {
-        let name = format!("{v}/{f}");
-        m.images.values().find(|im| im.name == name)
-    };
+/// The image `view/file` in `m`, when registered.
+fn registered<'a>(m: &'a Model, view: &str, file: &str) -> Option<&'a model::Image> {
+    let name = format!("{view}/{file}");
+    m.images.values().find(|im| im.name == name)
+}
+
+/// The textured directions' views registered in `m` (the model at `path`) and their number;
+/// prints every direction's count.
+fn textured_registered(
+    m: &Model,
+    frames: &[(String, String, usize)],
+    path: &Path,
+) -> (usize, usize) {
     let mut textured = (0, 0);
     for v in ["front", "right", "back", "left", "up", "down"] {
         let views: Vec<_> = frames.iter().filter(|f| f.0 == v).collect();
-        let n = views
-            .iter()
-            .filter(|f| registered(v, &f.1).is_some())
+        let n = (views.iter())
+            .filter(|f| registered(m, v, &f.1).is_some())
             .count();
         eprintln!(
             "{v}: {n} of {} registered in {}",
@@ -314,6 +332,22 @@ fn walk_rig_registers_in_one_model_on_the_truth() {
             textured = (textured.0 + n, textured.1 + views.len());
         }
     }
+    textured
+}
+
+/// COLMAP on the cube export: ≥ 90 % of the textured directions' views registered in one model,
+/// and its `front` centres within 2 % of the walk's length of the truth after a similarity.
+#[test]
+fn walk_rig_registers_in_one_model_on_the_truth() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    let (export, ws, _) = workspace();
+    let (path, m) = largest(&ws.join("sparse"));
+    let frames = exported(export);
+    let registered = |v: &str, f: &str| registered(&m, v, f);
+    let textured = textured_registered(&m, &frames, &path);
     let share = textured.0 as f64 / textured.1 as f64;
     assert!(
         share >= 0.9,
@@ -355,7 +389,7 @@ fn walk_rig_hands_off_georegistered_in_metres() {
         eprintln!("skipping: colmap is not installed");
         return;
     }
-    let (export, ws) = workspace();
+    let (export, ws, _) = workspace();
     let frames = exported(export);
     let poses = poses(walk());
     let first = &poses[frames[0].2].1;
@@ -407,4 +441,172 @@ fn walk_rig_hands_off_georegistered_in_metres() {
         let z = [r[0][2], r[1][2], r[2][2]];
         assert!(align::dist(&look, &z) < 1e-6, "{name}: {look:?} vs {z:?}");
     }
+}
+
+/// A Python that imports pycolmap where keyframer looks (`KEYFRAMER_PYTHON`, else
+/// `target/pycolmap` beside the binary's folder, else `python3`).
+fn pycolmap_found() -> bool {
+    let beside = Path::new(env!("CARGO_BIN_EXE_keyframer"))
+        .parent()
+        .and_then(Path::parent)
+        .map(|t| t.join("pycolmap/bin/python"));
+    let candidates: Vec<PathBuf> = match std::env::var_os("KEYFRAMER_PYTHON") {
+        Some(p) => vec![p.into()],
+        None => beside
+            .into_iter()
+            .chain([PathBuf::from("python3")])
+            .collect(),
+    };
+    candidates.iter().any(|p| {
+        (Command::new(p).args(["-c", "import pycolmap"]).output()).is_ok_and(|o| o.status.success())
+    })
+}
+
+/// The sparse stages' time (features, rig, matching, mapper) in a workspace's `colmap.json`.
+fn sparse_seconds(rec: &serde_json::Value) -> f64 {
+    let stages = rec["stages"].as_array().unwrap();
+    (stages.iter())
+        .filter(|st| {
+            let name = st["stage"].as_str().unwrap();
+            name.contains("feature")
+                || name.contains("match")
+                || name.starts_with("rig")
+                || name == "mapper"
+        })
+        .map(|st| st["seconds"].as_f64().unwrap())
+        .sum()
+}
+
+/// pycolmap on the cube export (`--engine pycolmap`: `rig_config.json` applied, the views of a
+/// keyframe one rig frame): ≥ 90 % of the textured directions' views in one model, the views of
+/// each keyframe sharing one centre (< 1 cm on the truth's scale) and keeping the rig's relative
+/// rotations (< 0.1°), the `front` centres within 2 % of the walk's length of the truth after a
+/// similarity; georegistration and undistortion still run on its model. Compared with the
+/// `colmap` command's run on the same export.
+#[test]
+fn walk_rig_maps_as_one_rig_through_pycolmap() {
+    if !colmap_installed() {
+        eprintln!("skipping: colmap is not installed");
+        return;
+    }
+    if !pycolmap_found() {
+        eprintln!(
+            "skipping: pycolmap is not installed (scripts/setup.sh puts it in target/pycolmap)"
+        );
+        return;
+    }
+    let (ws, seconds, summary) = colmap_on_rig("ws-pycolmap", "pycolmap");
+    let export = rig_export();
+    let rec = json(&ws.join("colmap.json"));
+    assert_eq!(rec["rig"], true, "{rec}");
+    let version = rec["pycolmap"]["version"].as_str().unwrap();
+    assert!(
+        summary.contains(&format!("pycolmap:  {version} (")) && summary.contains("one rig frame"),
+        "{summary}"
+    );
+    let stages: Vec<&str> = (rec["stages"].as_array().unwrap().iter())
+        .map(|st| st["stage"].as_str().unwrap())
+        .collect();
+    assert!(stages.contains(&"rig_configurator"), "{stages:?}");
+    let (path, m) = largest(&ws.join("sparse"));
+    let frames = exported(export);
+    let textured = textured_registered(&m, &frames, &path);
+    let share = textured.0 as f64 / textured.1 as f64;
+    assert!(
+        share >= 0.9,
+        "{} of {} textured views registered",
+        textured.0,
+        textured.1
+    );
+
+    // The front centres on the truth after a similarity (its scale puts the model in metres).
+    let poses = poses(walk());
+    let length: f64 = poses.windows(2).map(|w| distance(&w[0].1, &w[1].1)).sum();
+    let (mut got, mut want) = (Vec::new(), Vec::new());
+    for (_, file, i) in frames.iter().filter(|f| f.0 == "front") {
+        if let Some(im) = registered(&m, "front", file) {
+            got.push(im.centre());
+            let p = &poses[*i].1;
+            want.push([p[0], p[1], p[2]]);
+        }
+    }
+    let sim = umeyama(&got, &want).expect("a similarity");
+    let worst = (got.iter().zip(&want))
+        .map(|(g, w)| align::dist(&sim.apply(g), w))
+        .fold(0.0, f64::max);
+    eprintln!(
+        "pycolmap: front centres after a similarity: worst {worst:.3} m of a {length:.1} m walk ({:.2} %)",
+        100.0 * worst / length
+    );
+    assert!(worst <= 0.02 * length, "worst {worst} m, walk {length} m");
+
+    // One centre and the rig's relative rotations per keyframe.
+    let config = json(&export.join("rig_config.json"));
+    let cam_from_rig = |view: &str| -> align::Mat3 {
+        let cams = config[0]["cameras"].as_array().unwrap();
+        let c = (cams.iter())
+            .find(|c| c["image_prefix"] == format!("{view}/"))
+            .unwrap();
+        match c.get("cam_from_rig_rotation") {
+            Some(q) => align::quat_to_mat(serde_json::from_value(q.clone()).unwrap()),
+            None => align::quat_to_mat([1.0, 0.0, 0.0, 0.0]),
+        }
+    };
+    let mut keys: Vec<usize> = frames.iter().map(|f| f.2).collect();
+    keys.dedup();
+    let (mut spread, mut turn, mut pairs) = (0.0f64, 0.0f64, 0);
+    for k in keys {
+        let views: Vec<(&str, &model::Image)> = (frames.iter())
+            .filter(|f| f.2 == k)
+            .filter_map(|f| registered(&m, &f.0, &f.1).map(|im| (f.0.as_str(), im)))
+            .collect();
+        for (i, (va, a)) in views.iter().enumerate() {
+            for (vb, b) in &views[i + 1..] {
+                spread = spread.max(sim.scale * align::dist(&a.centre(), &b.centre()));
+                // World-to-camera rotations: R_a R_bᵀ is cam_a_from_cam_b, the rig's Q_a Q_bᵀ.
+                let (ra, rb) = (align::quat_to_mat(a.qvec), align::quat_to_mat(b.qvec));
+                let model = align::mul(&ra, &align::transpose(&rb));
+                let rig = align::mul(&cam_from_rig(va), &align::transpose(&cam_from_rig(vb)));
+                turn = turn.max(align::rotation_angle_deg(&align::mul(
+                    &align::transpose(&rig),
+                    &model,
+                )));
+                pairs += 1;
+            }
+        }
+    }
+    eprintln!(
+        "pycolmap: {pairs} view pairs of one keyframe: centres at most {:.3} mm apart, \
+         relative rotations at most {turn:.4}° off the rig's",
+        spread * 1000.0
+    );
+    assert!(pairs > 0);
+    assert!(
+        spread < 0.01,
+        "{spread} m between the centres of one keyframe's views"
+    );
+    assert!(turn < 0.1, "{turn}° off the rig's relative rotations");
+
+    // The hand-off stages run on its model.
+    let (g, _) = model::read(&ws.join("georegistered")).unwrap();
+    assert_eq!(g.images.len(), m.images.len());
+    let ds = ws.join("dataset");
+    let (d, _) = model::read(&ds.join("sparse/0")).unwrap();
+    let t = json(&ds.join("transforms.json"));
+    assert_eq!(t["frames"].as_array().unwrap().len(), d.images.len());
+
+    // Against the colmap command on the same export.
+    let (_, cli_ws, cli_seconds) = workspace();
+    let cli = json(&cli_ws.join("colmap.json"));
+    let (cli_path, cli_model) = largest(&cli_ws.join("sparse"));
+    let cli_textured = textured_registered(&cli_model, &frames, &cli_path);
+    let models = |r: &serde_json::Value| r["models"].as_array().unwrap().len();
+    eprintln!(
+        "colmap command: {} of {} textured views in the largest of {} models, sparse stages {:.1} s, run {cli_seconds:.1} s",
+        cli_textured.0, cli_textured.1, models(&cli), sparse_seconds(&cli)
+    );
+    eprintln!(
+        "pycolmap {}: {} of {} textured views in the largest of {} models, sparse stages {:.1} s, run {seconds:.1} s",
+        version, textured.0, textured.1, models(&rec), sparse_seconds(&rec)
+    );
 }

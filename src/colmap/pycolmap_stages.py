@@ -1,0 +1,197 @@
+"""keyframer's driver of pycolmap's sparse stages (`keyframer colmap --engine pycolmap`).
+
+keyframer writes this file into the workspace and runs one stage per process:
+  python pycolmap_stages.py version
+  python pycolmap_stages.py feature_extractor --database_path DB --image_path DIR
+      --camera_mode single|per_folder --camera_model M [--camera_params P] [--mask_path DIR]
+      [--max_num_features N]
+  python pycolmap_stages.py rig_configurator --database_path DB --rig_config_path JSON
+  python pycolmap_stages.py matches_importer --database_path DB --match_list_path TXT
+      [--match_type pairs]
+  python pycolmap_stages.py sequential_matcher --database_path DB --overlap N
+  python pycolmap_stages.py exhaustive_matcher --database_path DB
+  python pycolmap_stages.py mapper --database_path DB --image_path DIR --output_path DIR
+      [--fixed_intrinsics 0|1] [--fixed_rig 0|1] [--option KEY=VALUE ...]
+Each stage prints what it does to stdout (keyframer keeps it in logs/<stage>.log) and exits
+non-zero with a message on stderr when it fails.
+"""
+
+import argparse
+import os
+import sys
+import time
+
+import pycolmap
+
+
+def log(msg):
+    print(msg, flush=True)
+
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+
+
+def image_names(root):
+    """The images under `root` as COLMAP names them (relative, '/'-separated), sorted."""
+    names = []
+    for dirpath, _, files in os.walk(root):
+        for f in files:
+            if f.lower().endswith(IMAGE_SUFFIXES) and not f.startswith("."):
+                rel = os.path.relpath(os.path.join(dirpath, f), root)
+                names.append(rel.replace(os.sep, "/"))
+    return sorted(names)
+
+
+def feature_extractor(a):
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.use_gpu = False
+    if a.max_num_features:
+        extraction.sift.max_num_features = a.max_num_features
+    mode = {"single": pycolmap.CameraMode.SINGLE, "per_folder": pycolmap.CameraMode.PER_FOLDER}
+    names = image_names(a.image_path)
+    # This COLMAP skips an image whose mask is missing (3.8 used the whole image), and a rig
+    # export masks only the views that see the nadir cap: images with and without a mask are
+    # extracted in two passes, the second without a mask folder.
+    masked = [n for n in names if a.mask_path and os.path.isfile(os.path.join(a.mask_path, n + ".png"))]
+    unmasked = [n for n in names if n not in set(masked)]
+    for group, mask_path in ((masked, a.mask_path), (unmasked, None)):
+        if not group:
+            continue
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = a.camera_model
+        if a.camera_params:
+            reader.camera_params = a.camera_params
+        if mask_path:
+            reader.mask_path = mask_path
+        log(f"{len(group)} images {'with' if mask_path else 'without'} a mask")
+        pycolmap.extract_features(
+            a.database_path,
+            a.image_path,
+            image_names=group,
+            camera_mode=mode[a.camera_mode],
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
+    db = pycolmap.Database.open(a.database_path)
+    log(f"{db.num_images()} images, {db.num_cameras()} cameras, {db.num_keypoints()} keypoints")
+    db.close()
+
+
+def rig_configurator(a):
+    configs = pycolmap.read_rig_config(a.rig_config_path)
+    db = pycolmap.Database.open(a.database_path)
+    pycolmap.apply_rig_config(configs, db)
+    log(f"{db.num_rigs()} rigs, {db.num_frames()} frames, {db.num_images()} images")
+    db.close()
+
+
+def matcher(a):
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.use_gpu = False
+    device = pycolmap.Device.cpu
+    if a.stage == "matches_importer":
+        pairing = pycolmap.ImportedPairingOptions()
+        pairing.match_list_path = a.match_list_path
+        pycolmap.match_image_pairs(a.database_path, matching, pairing, device=device)
+    elif a.stage == "sequential_matcher":
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = a.overlap
+        pycolmap.match_sequential(a.database_path, matching, pairing, device=device)
+    else:
+        pycolmap.match_exhaustive(a.database_path, matching, device=device)
+    db = pycolmap.Database.open(a.database_path)
+    log(f"{db.num_matches()} matches, {db.num_verified_image_pairs()} verified image pairs")
+    db.close()
+
+
+def set_option(options, key, value):
+    """Sets KEY (as `colmap mapper --Mapper.KEY` names it) on the pipeline options or on their
+    `mapper` / `triangulation` parts, converting VALUE to the option's type."""
+    for target in (options, options.mapper, options.triangulation):
+        if hasattr(target, key):
+            current = getattr(target, key)
+            if isinstance(current, bool):
+                v = value.strip().lower()
+                if v not in ("0", "1", "true", "false"):
+                    raise SystemExit(f"mapper option {key}={value}: not a boolean (0/1/true/false)")
+                setattr(target, key, v in ("1", "true"))
+            elif isinstance(current, int):
+                setattr(target, key, int(value))
+            elif isinstance(current, float):
+                setattr(target, key, float(value))
+            else:
+                setattr(target, key, value)
+            return
+    raise SystemExit(f"mapper option {key}: pycolmap {pycolmap.__version__} has no such option")
+
+
+def mapper(a):
+    options = pycolmap.IncrementalPipelineOptions()
+    if a.fixed_intrinsics:
+        options.ba_refine_focal_length = False
+        options.ba_refine_principal_point = False
+        options.ba_refine_extra_params = False
+    if a.fixed_rig:
+        # The rig's relative poses are known exactly (the views of one 360° frame).
+        options.ba_refine_sensor_from_rig = False
+    for o in a.option or []:
+        key, _, value = o.partition("=")
+        set_option(options, key.strip().removeprefix("Mapper."), value.strip())
+    models = pycolmap.incremental_mapping(a.database_path, a.image_path, a.output_path, options)
+    for i, r in sorted(models.items()):
+        log(f"model {i}: {r.num_reg_images()} images, {r.num_points3D()} points")
+    if not models:
+        log("no model")
+
+
+def main():
+    p = argparse.ArgumentParser(prog="pycolmap_stages.py")
+    sub = p.add_subparsers(dest="stage", required=True)
+    sub.add_parser("version")
+    fe = sub.add_parser("feature_extractor")
+    fe.add_argument("--database_path", required=True)
+    fe.add_argument("--image_path", required=True)
+    fe.add_argument("--camera_mode", choices=["single", "per_folder"], required=True)
+    fe.add_argument("--camera_model", required=True)
+    fe.add_argument("--camera_params")
+    fe.add_argument("--mask_path")
+    fe.add_argument("--max_num_features", type=int)
+    rc = sub.add_parser("rig_configurator")
+    rc.add_argument("--database_path", required=True)
+    rc.add_argument("--rig_config_path", required=True)
+    mi = sub.add_parser("matches_importer")
+    mi.add_argument("--database_path", required=True)
+    mi.add_argument("--match_list_path", required=True)
+    mi.add_argument("--match_type", choices=["pairs"], default="pairs")
+    sm = sub.add_parser("sequential_matcher")
+    sm.add_argument("--database_path", required=True)
+    sm.add_argument("--overlap", type=int, required=True)
+    em = sub.add_parser("exhaustive_matcher")
+    em.add_argument("--database_path", required=True)
+    mp = sub.add_parser("mapper")
+    mp.add_argument("--database_path", required=True)
+    mp.add_argument("--image_path", required=True)
+    mp.add_argument("--output_path", required=True)
+    mp.add_argument("--fixed_intrinsics", type=int, choices=[0, 1], default=0)
+    mp.add_argument("--fixed_rig", type=int, choices=[0, 1], default=0)
+    mp.add_argument("--option", action="append")
+    a = p.parse_args()
+    if a.stage == "version":
+        print(pycolmap.__version__)
+        return
+    log(f"pycolmap {pycolmap.__version__}: {a.stage}")
+    start = time.monotonic()
+    {
+        "feature_extractor": feature_extractor,
+        "rig_configurator": rig_configurator,
+        "matches_importer": matcher,
+        "sequential_matcher": matcher,
+        "exhaustive_matcher": matcher,
+        "mapper": mapper,
+    }[a.stage](a)
+    log(f"{a.stage}: {time.monotonic() - start:.1f} s")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
