@@ -122,6 +122,15 @@ pub const CAMERA_MODELS: [(i32, &str, usize); 11] = [
     (10, "THIN_PRISM_FISHEYE", 12),
 ];
 
+/// Camera models only recent COLMAP writes (pycolmap, `keyframer colmap --engine pycolmap` on an
+/// `export --views equirect`): read in model files, never asked of COLMAP 3.8's command line.
+pub const RECENT_CAMERA_MODELS: [(i32, &str, usize); 1] = [(17, "EQUIRECTANGULAR", 2)];
+
+/// Every camera model keyframer reads in a model file: (id, name, number of parameters).
+pub fn model_file_cameras() -> impl Iterator<Item = &'static (i32, &'static str, usize)> {
+    CAMERA_MODELS.iter().chain(RECENT_CAMERA_MODELS.iter())
+}
+
 crate::names::named_enum! {
     /// Which mapper builds the model.
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -293,21 +293,14 @@ pub fn run(a: &ColmapSettings, quiet: bool) -> Result<Record> {
         }
         georegister::precheck(&manifest)?;
     }
-    if manifest
-        .settings
-        .views
-        .as_ref()
-        .is_some_and(|v| v.set == "equirect")
-    {
-        let msg = "holds whole ERP frames (`export --views equirect`), which need a camera model \
-                   for the sphere that this COLMAP (3.8) lacks: export pinhole views \
-                   (`--views cube` or `--views ring:N`) for COLMAP";
-        return Err(Error::input(&export, msg));
-    }
+    let spherical = equirect_settings(a, &export, &manifest)?;
     let rigged = rig_settings(a, &manifest);
-    let a = rigged.as_ref().unwrap_or(a);
+    let a = spherical.as_ref().or(rigged.as_ref()).unwrap_or(a);
     let stages = a.sparse || a.dense || a.undistort || a.georegister.is_some();
-    let py = engine(a.engine, rigged.is_some() && stages, &colmap, quiet)?;
+    let py = match spherical.is_some() && stages {
+        true => Some(erp_engine(a.engine, &export, &colmap, quiet)?),
+        false => engine(a.engine, rigged.is_some() && stages, &colmap, quiet)?,
+    };
     if py.is_some() && rigged.is_some() {
         rig_config_of(&export)?;
     }
@@ -371,6 +364,66 @@ fn engine(engine: Engine, rig: bool, colmap: &Colmap, quiet: bool) -> Result<Opt
                 Ok(None)
             }
         },
+    }
+}
+
+/// An ERP export's settings (`export --views equirect`): one EQUIRECTANGULAR camera of the
+/// frames' size (it has no other parameter), which only pycolmap maps ([`erp_engine`]); the
+/// stages that need COLMAP 3.8 to read the model (georegistration, undistortion, dense) are
+/// refused. None for any other export.
+fn equirect_settings(
+    a: &ColmapSettings,
+    export: &Path,
+    manifest: &Manifest,
+) -> Result<Option<ColmapSettings>> {
+    if !(manifest.settings.views.as_ref()).is_some_and(|v| v.set == "equirect") {
+        return Ok(None);
+    }
+    if a.georegister.is_some() || a.undistort || a.dense {
+        let msg = "holds whole ERP frames (`export --views equirect`), mapped with pycolmap's \
+                   EQUIRECTANGULAR camera, whose model COLMAP 3.8 cannot read: --georegister, \
+                   --undistort and --dense need pinhole views (`--views cube` or `--views ring:N`)";
+        return Err(Error::input(export, msg));
+    }
+    let mut erp = a.clone();
+    erp.options.camera_model = "EQUIRECTANGULAR".into();
+    erp.options.camera_params = Some(format!("{},{}", manifest.width, manifest.height));
+    Ok(Some(erp))
+}
+
+/// The pycolmap that maps an ERP export: `--engine pycolmap` or `auto` find it (said on
+/// stderr); the `colmap` command (3.8) has no camera model for the sphere.
+fn erp_engine(engine: Engine, export: &Path, colmap: &Colmap, quiet: bool) -> Result<Pycolmap> {
+    let lacks = format!(
+        "holds whole ERP frames (`export --views equirect`), which need a camera model for the \
+         sphere that {} lacks",
+        colmap.version
+    );
+    match engine {
+        Engine::Colmap => {
+            let msg = format!(
+                "{lacks}: map it with `--engine pycolmap` (EQUIRECTANGULAR camera), or export \
+                 pinhole views (`--views cube` or `--views ring:N`)"
+            );
+            Err(Error::input(export, msg))
+        }
+        Engine::Pycolmap | Engine::Auto => {
+            let py = pycolmap::locate().map_err(|e| {
+                let msg = format!(
+                    "{lacks}, and pycolmap, which has one, was not found ({e}); or export \
+                     pinhole views (`--views cube` or `--views ring:N`)"
+                );
+                Error::input(export, msg)
+            })?;
+            if !quiet && engine == Engine::Auto {
+                eprintln!(
+                    "colmap: ERP frames: mapped with one EQUIRECTANGULAR camera through pycolmap {} ({})",
+                    py.version,
+                    py.python.display()
+                );
+            }
+            Ok(py)
+        }
     }
 }
 

@@ -220,7 +220,7 @@ fn read_bin<K: Ord, V>(
 pub fn cameras_bin(cameras: &BTreeMap<u32, Camera>) -> Result<Vec<u8>> {
     let mut out = (cameras.len() as u64).to_le_bytes().to_vec();
     for cam in cameras.values() {
-        let (id, _, np) = (crate::sparse::CAMERA_MODELS.iter())
+        let (id, _, np) = crate::sparse::model_file_cameras()
             .find(|m| m.1 == cam.model)
             .ok_or_else(|| Error::Colmap(format!("unknown camera model {}", cam.model)))?;
         if cam.params.len() != *np {
@@ -246,8 +246,7 @@ pub fn cameras_bin(cameras: &BTreeMap<u32, Camera>) -> Result<Vec<u8>> {
 fn bin_camera(b: &mut Bin, f: &dyn Fn() -> String) -> Result<Camera> {
     let id = b.u32(f)?;
     let model_id = b.i32(f)?;
-    let (_, name, np) = crate::sparse::CAMERA_MODELS
-        .iter()
+    let (_, name, np) = crate::sparse::model_file_cameras()
         .find(|m| m.0 == model_id)
         .ok_or_else(|| bad(b.path, f(), format!("unknown camera model id {model_id}")))?;
     Ok(Camera {
@@ -367,7 +366,7 @@ fn txt_camera(mut f: Fields, _: &mut Lines) -> Result<Camera> {
         .map(|t| t.parse::<f64>())
         .collect::<std::result::Result<Vec<_>, _>>()
         .map_err(|_| f.err("PARAMS", "not a number"))?;
-    match crate::sparse::CAMERA_MODELS.iter().find(|m| m.1 == model) {
+    match crate::sparse::model_file_cameras().find(|m| m.1 == model) {
         Some(m) if m.2 == params.len() => {}
         Some(m) => {
             return Err(f.err("PARAMS", &format!("{model} needs {} parameters", m.2)));

@@ -166,7 +166,8 @@ def main():
     mi.add_argument("--match_type", choices=["pairs"], default="pairs")
     sm = sub.add_parser("sequential_matcher")
     sm.add_argument("--database_path", required=True)
-    sm.add_argument("--overlap", type=int, required=True)
+    # The colmap command's name of it too, as keyframer passes it to both.
+    sm.add_argument("--overlap", "--SequentialMatching.overlap", dest="overlap", type=int, required=True)
     em = sub.add_parser("exhaustive_matcher")
     em.add_argument("--database_path", required=True)
     mp = sub.add_parser("mapper")

@@ -610,3 +610,79 @@ fn walk_rig_maps_as_one_rig_through_pycolmap() {
         version, textured.0, textured.1, models(&rec), sparse_seconds(&rec)
     );
 }
+
+/// The walk's keyframes exported as whole ERP frames (`export --views equirect`) and mapped by
+/// `colmap --sparse` with its default engine: pycolmap's EQUIRECTANGULAR camera (COLMAP 3.8 has
+/// none), every keyframe registered in one model whose centres lie on the truth (≤ 2 % of the
+/// walk's length after a similarity); `--engine colmap` and the stages that need COLMAP 3.8 to
+/// read the model are refused with the reason, before anything is written.
+#[test]
+fn walk_erp_frames_map_whole_through_pycolmap() {
+    if !colmap_installed() || !pycolmap_found() {
+        eprintln!("skipping: needs colmap and pycolmap (scripts/setup.sh installs both)");
+        return;
+    }
+    let (project, keys) = select("rig", &["--spacing", &format!("{KEYFRAMES}kf")]);
+    let root = walk().parent().unwrap();
+    let export = root.join("erp-export");
+    let _ = std::fs::remove_dir_all(&export);
+    kf_ok(&[
+        "export",
+        s(&project),
+        "--out",
+        s(&export),
+        "--views",
+        "equirect",
+    ]);
+    let ws = root.join("ws-erp");
+    let _ = std::fs::remove_dir_all(&ws);
+    for refused in [&["--engine", "colmap"][..], &["--georegister"][..]] {
+        let mut args = vec!["colmap", s(&export), "-o", s(&ws), "--sparse", "--force"];
+        args.extend_from_slice(refused);
+        let out = crate::common::kf(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{refused:?}: {err}");
+        assert!(err.contains("whole ERP frames"), "{refused:?}: {err}");
+        assert!(!ws.exists(), "{refused:?}: nothing is written");
+    }
+    let start = std::time::Instant::now();
+    kf_ok(&["colmap", s(&export), "-o", s(&ws), "--sparse", "--force"]);
+    let seconds = start.elapsed().as_secs_f64();
+    let rec = json(&ws.join("colmap.json"));
+    assert!(rec["pycolmap"]["version"].is_string(), "{rec}");
+    let (path, m) = largest(&ws.join("sparse"));
+    assert_eq!(
+        m.images.len(),
+        keys.len(),
+        "every keyframe in {}",
+        path.display()
+    );
+    assert!(m.cameras.values().all(|c| c.model == "EQUIRECTANGULAR"));
+    let manifest = json(&export.join("manifest.json"));
+    let index_of = |name: &str| -> usize {
+        let f = (manifest["frames"].as_array().unwrap().iter())
+            .find(|f| f["file"] == name)
+            .unwrap_or_else(|| panic!("{name} not in the manifest"));
+        f["index"].as_u64().unwrap() as usize
+    };
+    let poses = poses(walk());
+    let length: f64 = poses.windows(2).map(|w| distance(&w[0].1, &w[1].1)).sum();
+    let (mut got, mut want) = (Vec::new(), Vec::new());
+    for im in m.images.values() {
+        got.push(im.centre());
+        let p = &poses[index_of(&im.name)].1;
+        want.push([p[0], p[1], p[2]]);
+    }
+    let sim = umeyama(&got, &want).expect("a similarity");
+    let worst = (got.iter().zip(&want))
+        .map(|(g, w)| align::dist(&sim.apply(g), w))
+        .fold(0.0, f64::max);
+    eprintln!(
+        "ERP through pycolmap: {} of {} keyframes in one model in {seconds:.1} s; centres after a \
+         similarity: worst {worst:.3} m of a {length:.1} m walk ({:.2} %)",
+        m.images.len(),
+        keys.len(),
+        100.0 * worst / length
+    );
+    assert!(worst <= 0.02 * length, "worst {worst} m, walk {length} m");
+}
