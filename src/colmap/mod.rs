@@ -376,7 +376,7 @@ fn equirect_settings(
     export: &Path,
     manifest: &Manifest,
 ) -> Result<Option<ColmapSettings>> {
-    if !(manifest.settings.views.as_ref()).is_some_and(|v| v.set == "equirect") {
+    if (manifest.settings.views.as_ref()).is_none_or(|v| v.set != "equirect") {
         return Ok(None);
     }
     if a.georegister.is_some() || a.undistort || a.dense {
