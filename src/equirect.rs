@@ -177,20 +177,6 @@ pub fn resolve_projection(
     Ok(p)
 }
 
-/// The rows sharpness is scored on in an ERP frame `height` rows high: the band |latitude| <
-/// 45° (the rows whose centre lies within 45° of the equator: H/4 to H − H/4 when 4 divides H),
-/// half the frame's pixels and 71 % of the sphere. The whole frame's
-/// score is diluted by the rows near the poles, which are stretched and barely move in a turn
-/// (docs/360.md "Sharpness on the sphere": measured against the horizon views). A frame under
-/// 4 rows is scored whole.
-pub fn sharpness_rows(height: u32) -> crate::params::Rows {
-    let first = if height < 4 { 0 } else { (height + 1) / 4 };
-    crate::params::Rows {
-        first,
-        count: height - 2 * first,
-    }
-}
-
 /// 3x3 rotation, row-major.
 pub type Mat3 = [[f64; 3]; 3];
 
@@ -507,24 +493,6 @@ fn normalize(v: [f64; 3]) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The band's rows are |latitude| < 45° (at row centres), symmetric about the equator.
-    #[test]
-    fn sharpness_rows_are_the_middle_half() {
-        for h in [4u32, 5, 6, 7, 512, 1920, 1921, 1922] {
-            let r = sharpness_rows(h);
-            assert_eq!(r.first, h - (r.first + r.count), "symmetric at {h}");
-            r.check(h).unwrap();
-            let lat = |y: u32| lon_lat(0.0, f64::from(y), (2 * h, h)).1;
-            assert!(lat(r.first) <= 45.0 + 1e-9, "{h}: first row inside");
-            assert!(lat(r.first - 1) > 45.0 + 1e-9, "{h}: the row above outside");
-        }
-        assert_eq!(
-            (sharpness_rows(512).first, sharpness_rows(512).count),
-            (128, 256)
-        );
-        assert_eq!(sharpness_rows(3).count, 3, "a tiny frame is scored whole");
-    }
 
     fn close(a: [f64; 3], b: [f64; 3]) -> bool {
         a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9)

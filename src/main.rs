@@ -396,7 +396,7 @@ fn score(a: &cli::ScoreArgs, quiet: bool) -> Result<ExitCode> {
     let is_video = source::kind_of(&a.input)? == source::SourceKind::Video;
     let projection = equirect::resolve_projection(a.projection, &a.input, is_video, size)?;
     let rows = (projection == equirect::Projection::Equirect).then(|| {
-        let band = equirect::sharpness_rows(size.1);
+        let band = keyframer::params::Rows::erp_band(size.1);
         log::info!(
             "360° input: scoring rows {}..{} (|latitude| < 45°)",
             band.first,

@@ -281,7 +281,7 @@ impl SphereViews {
 
 /// The rows of a frame a sharpness score is computed on, as an image of its own (its first
 /// and last rows mirror inside it): on 360° frames the band |latitude| < 45°
-/// (`equirect::sharpness_rows`), where a turn's blur is not diluted by the stretched poles.
+/// (`Rows::erp_band`), where a turn's blur is not diluted by the stretched poles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Rows {
     /// First row.
@@ -291,6 +291,20 @@ pub struct Rows {
 }
 
 impl Rows {
+    /// The rows sharpness is scored on in an ERP frame `height` rows high: the band |latitude|
+    /// < 45° (the rows whose centre lies within 45° of the equator: H/4 to H − H/4 when 4
+    /// divides H), half the frame's pixels and 71 % of the sphere. The whole frame's score is
+    /// diluted by the rows near the poles, which are stretched and barely move in a turn
+    /// (docs/360.md "Analysis on the sphere": measured against the horizon views). A frame under
+    /// 4 rows is scored whole.
+    pub fn erp_band(height: u32) -> Rows {
+        let first = if height < 4 { 0 } else { (height + 1) / 4 };
+        Rows {
+            first,
+            count: height - 2 * first,
+        }
+    }
+
     /// Checks the rows lie inside a frame `height` rows high and are not empty.
     pub fn check(&self, height: u32) -> Result<()> {
         let end = u64::from(self.first) + u64::from(self.count);
@@ -435,4 +449,30 @@ pub struct MovementSeries {
     pub scale_to_full: f64,
     /// values[i] = movement from frame i-1 to frame i in full-resolution pixels; values[0] = 0.
     pub values: Vec<f64>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The ERP band's rows are |latitude| < 45° (at row centres), symmetric about the equator.
+    #[test]
+    fn erp_band_is_the_middle_half() {
+        for h in [4u32, 5, 6, 7, 512, 1920, 1921, 1922] {
+            let r = Rows::erp_band(h);
+            assert_eq!(r.first, h - (r.first + r.count), "symmetric at {h}");
+            r.check(h).unwrap();
+            let lat = |y: u32| crate::equirect::lon_lat(0.0, f64::from(y), (2 * h, h)).1;
+            assert!(lat(r.first) <= 45.0 + 1e-9, "{h}: first row inside");
+            assert!(lat(r.first - 1) > 45.0 + 1e-9, "{h}: the row above outside");
+        }
+        assert_eq!(
+            Rows::erp_band(512),
+            Rows {
+                first: 128,
+                count: 256
+            }
+        );
+        assert_eq!(Rows::erp_band(3).count, 3, "a tiny frame is scored whole");
+    }
 }

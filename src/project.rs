@@ -220,7 +220,7 @@ pub struct SharpnessSeries {
     /// Analysis height in pixels.
     pub height: u32,
     /// The rows scored, as an image of their own, when not the whole frame (360° frames: the
-    /// band |latitude| < 45°, `equirect::sharpness_rows`).
+    /// band |latitude| < 45°, `Rows::erp_band`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rows: Option<Rows>,
     /// Backend that computed the scores (both agree within the kernel tolerance).

@@ -44,7 +44,7 @@ use serde::{Deserialize, Serialize};
 pub struct Request {
     /// Sharpness metrics to score every frame with.
     pub sharpness: Vec<Metric>,
-    /// The rows sharpness is scored on (360° frames: `equirect::sharpness_rows`); None: all.
+    /// The rows sharpness is scored on (360° frames: `Rows::erp_band`); None: all.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sharpness_rows: Option<Rows>,
     /// Camera movement between consecutive frames.

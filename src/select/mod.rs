@@ -414,7 +414,7 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     };
     // 360° frames are scored for sharpness on their band |latitude| < 45°.
     let sharpness_rows = (projection == crate::equirect::Projection::Equirect)
-        .then(|| crate::equirect::sharpness_rows(height));
+        .then(|| crate::params::Rows::erp_band(height));
     if s.require_equirect {
         crate::manifest::ViewSettings::check_projection(projection)?;
     }
