@@ -198,14 +198,15 @@ fn bad_360_inputs_are_refused_before_writing() {
     assert_eq!(code, 1);
     assert!(err.contains("--view-size"), "{err}");
     assert!(!out.exists(), "nothing written");
-    // Whole ERP frames are not for COLMAP 3.8: refused before the workspace exists.
+    // Whole ERP frames are not for COLMAP 3.8 (`--engine colmap`): refused before the
+    // workspace exists (pycolmap maps them: walk::walk_erp_frames_map_whole_through_pycolmap).
     if keyframer::fsutil::find_on_path("colmap").is_none() {
         eprintln!("SKIPPED: colmap on an equirect export (colmap is not installed)");
         return;
     }
     let out = dir.path().join("o3");
     kf_ok(&["export", s(&p2), "--out", s(&out), "--views", "equirect"]);
-    let (code, err) = code_and_stderr(&kf(&["colmap", s(&out), "--sparse"]));
+    let (code, err) = code_and_stderr(&kf(&["colmap", s(&out), "--sparse", "--engine", "colmap"]));
     assert_ne!(code, 0);
     assert!(err.contains("--views cube"), "{err}");
     assert!(!out.join("colmap").exists(), "no workspace");

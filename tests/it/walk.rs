@@ -622,7 +622,8 @@ fn walk_erp_frames_map_whole_through_pycolmap() {
         eprintln!("skipping: needs colmap and pycolmap (scripts/setup.sh installs both)");
         return;
     }
-    let (project, keys) = select("rig", &["--spacing", &format!("{KEYFRAMES}kf")]);
+    // Its own project: `rig_export` selects into `rig.json` from other tests at the same time.
+    let (project, keys) = select("erp-keys", &["--spacing", &format!("{KEYFRAMES}kf")]);
     let root = walk().parent().unwrap();
     let export = root.join("erp-export");
     let _ = std::fs::remove_dir_all(&export);
