@@ -7,7 +7,12 @@
 # camera-centre error against the ground truth after a similarity alignment (in % of the path
 # length), and the loop's COLMAP time against one COLMAP run on its final keyframes.
 #
-#   scripts/reconstruct-experiment.sh [--smoke] [--seeds 1,2,3] [--start 45] [--ns 60,45,30,25,20,15,10] [WORK]
+#   scripts/reconstruct-experiment.sh [--smoke] [--seeds 1,2,3] [--start 45] [--ns 60,45,30,25,20,15,10]
+#                                     [--engine pycolmap|colmap] [WORK]
+#
+# --engine: the COLMAP that runs every sparse reconstruction, the uniform ones and the loop's
+# (default pycolmap, what `reconstruct`'s `auto` takes when set-up installed it; colmap: the
+# colmap command, COLMAP 3.8 on Debian).
 #
 # --smoke: one seed, N 30 only (the test suite's size). Every run uses the scene's intrinsics
 # (PINHOLE, kept fixed), 1024 SIFT features and the loop's mapper options for plain COLMAP too
@@ -21,6 +26,7 @@ cd "$(dirname "$0")/.."
 seeds="1,2,3"
 start=45
 ns="60,45,30,25,20,15,10"
+engine=pycolmap
 work=target/reconstruct-experiment
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -28,7 +34,8 @@ while [ $# -gt 0 ]; do
     --seeds) seeds="$2"; shift ;;
     --start) start="$2"; shift ;;
     --ns) ns="$2"; shift ;;
-    -h|--help) sed -n 2,17p "$0"; exit 0 ;;
+    --engine) engine="$2"; shift ;;
+    -h|--help) sed -n 2,22p "$0"; exit 0 ;;
     -*) echo "reconstruct-experiment: unknown flag $1" >&2; exit 2 ;;
     *) work="$1" ;;
   esac
@@ -36,7 +43,7 @@ while [ $# -gt 0 ]; do
 done
 name=reconstruct-experiment
 source scripts/experiment-setup.sh
-camera=(--camera-model PINHOLE --camera-params 224,224,160,90 --max-features 1024)
+camera=(--camera-model PINHOLE --camera-params 224,224,160,90 --max-features 1024 --engine "$engine")
 mapper=(--mapper-option min_model_size=3 --mapper-option init_min_tri_angle=4)
 
 # Path length of the ground truth between frames A and B (poses.tum: one line per frame).

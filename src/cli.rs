@@ -967,6 +967,11 @@ pub struct ReconstructArgs {
     /// (features and matches are reused either way).
     #[arg(long, value_parser = named::<Mapping>(), default_value_t = keyframer::sparse::defaults::MAPPING)]
     pub mapping: Mapping,
+    /// Which COLMAP runs the loop: pycolmap (a recent COLMAP from PyPI, which `scripts/setup.sh`
+    /// installs; its incremental mapper folds far less often than COLMAP 3.8's) or the colmap
+    /// command; auto takes pycolmap when it is found.
+    #[arg(long, value_parser = named::<Engine>(), default_value = "auto")]
+    pub engine: Engine,
     /// COLMAP's options (the loop adds `min_model_size=3` and `init_min_tri_angle=4` to the
     /// mapper options unless given).
     #[command(flatten)]
@@ -1020,6 +1025,7 @@ impl ReconstructArgs {
                 colmap: self.colmap.options(),
                 mapper: self.mapper,
                 mapping: self.mapping,
+                engine: self.engine,
                 export,
             },
         })

@@ -132,6 +132,28 @@ pub fn model_file_cameras() -> impl Iterator<Item = &'static (i32, &'static str,
 }
 
 crate::names::named_enum! {
+    /// Which COLMAP runs the sparse stages (`keyframer colmap --engine`, `reconstruct --engine`).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum Engine: "engine" {
+        /// pycolmap where keyframer prefers it and finds it (rig and ERP exports, the
+        /// `reconstruct` loop), else the `colmap` command.
+        Auto = "auto": "pycolmap where it maps better and is found (rig and ERP exports; the reconstruct loop), else the colmap command",
+        /// The `colmap` command line (the installed COLMAP).
+        Colmap = "colmap": "the colmap command (a rig export: one camera per view folder, views registered one by one)",
+        /// pycolmap (PyPI): a recent COLMAP; rig-aware mapping for a rig export.
+        Pycolmap = "pycolmap": "pycolmap, a recent COLMAP from PyPI (a rig export: its views mapped as one rig)",
+    }
+}
+
+impl Default for Engine {
+    /// `auto`, also for the options of workspaces made before the flag existed (they resume with
+    /// the engine their state file records).
+    fn default() -> Engine {
+        Engine::Auto
+    }
+}
+
+crate::names::named_enum! {
     /// Which mapper builds the model.
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]
     pub enum MapperKind: "mapper" {
@@ -210,6 +232,9 @@ pub struct Options {
     pub mapper: MapperKind,
     /// How later rounds map: continuing the largest model, or afresh.
     pub mapping: Mapping,
+    /// Which COLMAP runs the loop (`auto`: pycolmap when found).
+    #[serde(default)]
+    pub engine: Engine,
     /// How the images are exported.
     pub export: ExportSettings,
 }
@@ -220,6 +245,10 @@ pub struct Options {
 pub fn check(o: &Options) -> Result<()> {
     if o.max_rounds == 0 {
         return Err(Error::param("max_rounds", "must be at least 1"));
+    }
+    if o.mapper == MapperKind::Global && o.mapping == Mapping::Continue {
+        let msg = "`continue` extends a model with the incremental mapper; the global mapper maps every image at once (use `fresh`)";
+        return Err(Error::param("mapping", msg));
     }
     o.colmap.check()
 }

@@ -197,6 +197,8 @@ pub struct Reconstruct {
     pub mapper: Option<MapperKind>,
     /// `fresh` or `continue`.
     pub mapping: Option<Mapping>,
+    /// `auto`, `colmap` or `pycolmap`.
+    pub engine: Option<crate::sparse::Engine>,
     /// `sequential` or `exhaustive`.
     pub matcher: Option<Matcher>,
     /// Sequential matching: following images each image is matched with.
@@ -664,6 +666,7 @@ fn reconstruct_options(
         },
         mapper: r.mapper.unwrap_or(defaults::MAPPER),
         mapping: r.mapping.unwrap_or(defaults::MAPPING),
+        engine: r.engine.unwrap_or_default(),
         export,
     };
     crate::sparse::check(&options).map_err(located)?;
@@ -686,6 +689,7 @@ fn reconstruct_table(o: &crate::sparse::Options) -> Reconstruct {
         min_inliers: Some(o.limits.min_inliers),
         mapper: Some(o.mapper),
         mapping: Some(o.mapping),
+        engine: Some(o.engine),
         matcher: Some(o.colmap.matcher),
         overlap: Some(o.colmap.overlap),
         camera_model: Some(o.colmap.camera_model.clone()),

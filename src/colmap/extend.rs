@@ -8,10 +8,11 @@
 //! and is rewritten at the end of every round; the new model replaces `sparse/` only once the
 //! mapper has finished (it is written to `sparse.next/` first).
 
+use super::pycolmap::{Engine, Pycolmap};
 use super::{
-    check_export, extract_and_match, fill_workspace, locate, mapper_args, ours_now, p, read_models,
-    read_record, remove_ours, write_project_ini, write_record, Colmap, ColmapSettings, Record,
-    Runner,
+    check_export, extract_and_match, fill_workspace, locate, mapper_args, ours_now, p, py_extract,
+    py_mapper_args, py_match, read_models, read_record, remove_ours, write_project_ini,
+    write_record, Colmap, ColmapSettings, Record, Runner,
 };
 use crate::error::{Error, Result};
 use crate::fsutil;
@@ -23,7 +24,7 @@ pub const NEXT: &str = "sparse.next";
 /// The list of new images given to `feature_extractor` (inside `logs/`, which keyframer owns).
 const NEW_LIST: &str = "logs/new_images.txt";
 
-/// The COLMAP command of a mapper kind.
+/// The COLMAP command of a mapper kind (and the pycolmap driver's stage of that name).
 pub fn mapper_command(kind: MapperKind) -> &'static str {
     match kind {
         MapperKind::Incremental => "mapper",
@@ -36,9 +37,13 @@ pub fn offers(colmap: &Colmap, command: &str) -> bool {
     (colmap.help.lines()).any(|l| l.split_whitespace().any(|w| w == command))
 }
 
-/// Finds COLMAP and checks that it offers the mapper `kind`, saying what is missing.
-pub fn locate_with(kind: MapperKind) -> Result<Colmap> {
+/// Finds COLMAP and, unless pycolmap maps (`py`), checks that the command offers the mapper
+/// `kind`, saying what is missing.
+pub fn locate_with(kind: MapperKind, py: bool) -> Result<Colmap> {
     let colmap = locate()?;
+    if py {
+        return Ok(colmap);
+    }
     let command = mapper_command(kind);
     if !offers(&colmap, command) {
         return Err(Error::param(
@@ -54,18 +59,76 @@ pub fn locate_with(kind: MapperKind) -> Result<Colmap> {
     Ok(colmap)
 }
 
+/// The engine of a `reconstruct` loop: the `colmap` command (checked to offer the mapper
+/// `kind`) and the pycolmap that runs the sparse stages, or None for the command. `pycolmap`
+/// needs it (an error naming what to install); `auto` takes it when found (said unless
+/// `quiet`), else the command with a one-line hint. A loop being resumed passes the engine its
+/// state recorded as `resumed` (Some(None): the command) and keeps it.
+pub fn loop_engine(
+    engine: Engine,
+    kind: MapperKind,
+    resumed: Option<Option<&Pycolmap>>,
+    quiet: bool,
+) -> Result<(Colmap, Option<Pycolmap>)> {
+    let py = match (resumed, engine) {
+        (Some(None), _) | (None, Engine::Colmap) => None,
+        (Some(Some(was)), _) => {
+            let py = super::pycolmap::locate().map_err(|e| {
+                Error::Colmap(format!(
+                    "this workspace's loop runs through pycolmap {}, which is not found now: {e}",
+                    was.version
+                ))
+            })?;
+            if py.version != was.version && !quiet {
+                eprintln!(
+                    "reconstruct: the loop began with pycolmap {}; it goes on with pycolmap {} ({})",
+                    was.version,
+                    py.version,
+                    py.python.display()
+                );
+            }
+            Some(py)
+        }
+        (None, Engine::Pycolmap) => Some(super::pycolmap::locate()?),
+        (None, Engine::Auto) => match super::pycolmap::locate() {
+            Ok(py) => {
+                if !quiet {
+                    eprintln!(
+                        "reconstruct: COLMAP through pycolmap {} ({}); --engine colmap runs the colmap command",
+                        py.version,
+                        py.python.display()
+                    );
+                }
+                Some(py)
+            }
+            Err(e) => {
+                if !quiet {
+                    eprintln!(
+                        "reconstruct: the colmap command runs the loop; pycolmap's newer mapper folds less often: {e}"
+                    );
+                }
+                None
+            }
+        },
+    };
+    Ok((locate_with(kind, py.is_some())?, py))
+}
+
 /// One round: with `new_images` None the workspace is made from the export (its images all
-/// new); otherwise only `new_images` (file names in the export) are added to it. Returns the
-/// record as written, with the models of this round's mapping (none when the mapper made none).
+/// new); otherwise only `new_images` (file names in the export) are added to it. The sparse
+/// stages run through pycolmap when `py` is given (a workspace keeps the engine of its first
+/// round: a later round through the other one is refused). Returns the record as written, with
+/// the models of this round's mapping (none when the mapper made none).
 pub fn round(
     a: &ColmapSettings,
     kind: MapperKind,
     mapping: Mapping,
     new_images: Option<&[String]>,
+    py: Option<&Pycolmap>,
     quiet: bool,
 ) -> Result<Record> {
     a.options.check()?;
-    let colmap = locate_with(kind)?;
+    let colmap = locate_with(kind, py.is_some())?;
     let (export, manifest, ws) = check_export(a)?;
     // The workspace stays locked until its record is written last.
     let mut _dir = None;
@@ -74,11 +137,15 @@ pub fn round(
         None => {
             let (masks, held) = fill_workspace(&ws, &export, &manifest, a.force)?;
             _dir = Some(held);
-            Record::new(&colmap, &export, &ws, manifest.frames.len(), masks, a)
+            Record {
+                pycolmap: py.cloned(),
+                ..Record::new(&colmap, &export, &ws, manifest.frames.len(), masks, a)
+            }
         }
         Some(new) => {
             _lock = Some(crate::output::lock::folder(&ws)?);
             let rec = read_record(&ws)?;
+            same_engine(&ws, &rec, py)?;
             link_new(&ws, &export, &manifest, new)?;
             rec
         }
@@ -95,24 +162,31 @@ pub fn round(
         quiet,
     };
     let result = (|| -> Result<()> {
-        match new_images {
+        let list = match new_images {
             None => {
                 write_project_ini(&runner, &mut rec, &a.options)?;
-                extract_and_match(&runner, &mut rec, &a.options, None)?;
+                None
             }
             Some(new) => {
                 let list = ws.join(NEW_LIST);
                 let mut text = new.join("\n");
                 text.push('\n');
                 fsutil::write_atomic(&list, text.as_bytes())?;
-                extract_and_match(&runner, &mut rec, &a.options, Some(&list))?;
+                Some(list)
             }
+        };
+        match py {
+            Some(py) => {
+                py_extract(&runner, &mut rec, &a.options, py, list.as_deref())?;
+                py_match(&runner, &mut rec, &a.options, py, list.is_some())?;
+            }
+            None => extract_and_match(&runner, &mut rec, &a.options, list.as_deref())?,
         }
         let continue_from = match (new_images, mapping) {
             (Some(_), Mapping::Continue) => super::largest(&rec.models).map(|m| ws.join(&m.path)),
             _ => None,
         };
-        map_into_sparse(&runner, &mut rec, a, kind, continue_from.as_deref())
+        map_into_sparse(&runner, &mut rec, a, kind, continue_from.as_deref(), py)
     })();
     if let Err(e) = &result {
         rec.error = Some(e.to_string());
@@ -134,11 +208,18 @@ pub fn trial_dir(n: usize) -> String {
 /// is.
 /// Returns the record with the trial's models (their paths in the trial folder); the mapper's
 /// stage is added to `colmap.json`. A mapper that makes no model is a trial without models.
-pub fn remap_trial(a: &ColmapSettings, n: usize, init: (i64, i64), quiet: bool) -> Result<Record> {
-    let colmap = locate_with(MapperKind::Incremental)?;
+pub fn remap_trial(
+    a: &ColmapSettings,
+    n: usize,
+    init: (i64, i64),
+    py: Option<&Pycolmap>,
+    quiet: bool,
+) -> Result<Record> {
+    let colmap = locate_with(MapperKind::Incremental, py.is_some())?;
     let (_, _, ws) = check_export(a)?;
     let _lock = crate::output::lock::folder(&ws)?;
     let mut rec = read_record(&ws)?;
+    same_engine(&ws, &rec, py)?;
     let name = trial_dir(n);
     clear(&ws, &name)?;
     let output = ws.join(&name);
@@ -151,14 +232,20 @@ pub fn remap_trial(a: &ColmapSettings, n: usize, init: (i64, i64), quiet: bool) 
     // One model, from that pair: with more, COLMAP 3.8 starts every further model from the same
     // pair again (52 times, 31 s against 0.7 s on an 18-image database).
     options.push("multiple_models=0".into());
-    let args = mapper_args(&ws, &output, &with_init)?;
+    let args = match py {
+        Some(_) => py_mapper_args(&ws, &output, &with_init, rec.rig, MapperKind::Incremental)?,
+        None => mapper_args(&ws, &output, &with_init)?,
+    };
     let args: Vec<(&str, String)> = args.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
     let runner = Runner {
         colmap: &colmap,
         ws: &ws,
         quiet,
     };
-    let (stage, failure) = runner.try_stage("mapper", &args)?;
+    let (stage, failure) = match py {
+        Some(py) => runner.try_py_stage(py, "mapper", &args)?,
+        None => runner.try_stage("mapper", &args)?,
+    };
     let log = ws.join(&stage.log);
     rec.stages.push(stage);
     rec.files = ours_now(&ws);
@@ -192,6 +279,25 @@ pub fn end_trials(ws: &Path, trials: usize, keep: Option<usize>) -> Result<Recor
     rec.files = ours_now(ws);
     write_record(ws, &rec)?;
     Ok(rec)
+}
+
+/// Refuses to extend the workspace `ws` (record `rec`) through an engine other than the one its
+/// first round ran: a database written by pycolmap is not COLMAP 3.8's, and the other way round
+/// the rounds would mix two COLMAPs.
+fn same_engine(ws: &Path, rec: &Record, py: Option<&Pycolmap>) -> Result<()> {
+    let name = |p: Option<&Pycolmap>| match p {
+        Some(p) => format!("pycolmap {}", p.version),
+        None => "the colmap command".to_string(),
+    };
+    if rec.pycolmap.is_some() != py.is_some() {
+        let msg = format!(
+            "was made through {}; this round would run {}: continue it with the same --engine, or start afresh in another folder",
+            name(rec.pycolmap.as_ref()),
+            name(py)
+        );
+        return Err(Error::output(ws, msg));
+    }
+    Ok(())
 }
 
 /// Links the new images (and their masks) of the export into the workspace.
@@ -233,16 +339,22 @@ fn map_into_sparse(
     a: &ColmapSettings,
     kind: MapperKind,
     continue_from: Option<&Path>,
+    py: Option<&Pycolmap>,
 ) -> Result<()> {
     let ws = runner.ws;
     let next = ws.join(NEXT);
     clear(ws, NEXT)?;
-    let output = match continue_from {
-        Some(_) => next.join("0"),
-        None => next.clone(),
+    // The command's mapper writes a continued model into the output folder itself; pycolmap
+    // writes every model into a numbered folder.
+    let output = match (continue_from, py) {
+        (Some(_), None) => next.join("0"),
+        _ => next.clone(),
     };
     std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
-    let mut args = mapper_args(ws, &output, &a.options)?;
+    let mut args = match py {
+        Some(_) => py_mapper_args(ws, &output, &a.options, rec.rig, kind)?,
+        None => mapper_args(ws, &output, &a.options)?,
+    };
     if let Some(from) = continue_from {
         args.push(("--input_path".into(), p(from)));
     }
@@ -252,7 +364,10 @@ fn map_into_sparse(
     }
     let args: Vec<(&str, String)> = args.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
     let command = mapper_command(kind);
-    let (stage, failure) = runner.try_stage(command, &args)?;
+    let (stage, failure) = match py {
+        Some(py) => runner.try_py_stage(py, command, &args)?,
+        None => runner.try_stage(command, &args)?,
+    };
     let log = ws.join(&stage.log);
     rec.stages.push(stage);
     if let Some(e) = failure {

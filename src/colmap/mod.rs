@@ -750,18 +750,53 @@ fn py_sparse(
 ) -> Result<String> {
     let ws = runner.ws;
     let o = &a.options;
+    py_extract(runner, rec, o, py, None)?;
+    if rec.rig {
+        let config = rig_config_of(&rec.export)?;
+        let args = [
+            ("--database_path", p(&ws.join("database.db"))),
+            ("--rig_config_path", p(&config)),
+        ];
+        rec.stages
+            .push(runner.py_stage(py, "rig_configurator", &args)?);
+    }
+    py_match(runner, rec, o, py, false)?;
+    let sparse = ws.join("sparse");
+    std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
+    let margs = py_mapper_args(
+        ws,
+        &sparse,
+        o,
+        rec.rig,
+        crate::sparse::MapperKind::Incremental,
+    )?;
+    let margs: Vec<(&str, String)> = margs.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
+    rec.stages.push(runner.py_stage(py, "mapper", &margs)?);
+    best_model(runner, rec)
+}
+
+/// Writes keyframer's pycolmap driver into the workspace (one of keyframer's own files there)
+/// and runs its feature extraction: every image, or only those listed in `image_list` (a later
+/// round's new images, sharing the first camera).
+fn py_extract(
+    runner: &Runner,
+    rec: &mut Record,
+    o: &SparseOptions,
+    py: &Pycolmap,
+    image_list: Option<&Path>,
+) -> Result<()> {
+    let ws = runner.ws;
     fsutil::write_atomic(
         &ws.join(pycolmap::DRIVER),
         pycolmap::DRIVER_SOURCE.as_bytes(),
     )?;
-    let db = p(&ws.join("database.db"));
     let mode = if rec.per_folder {
         "per_folder"
     } else {
         "single"
     };
     let mut fe = vec![
-        ("--database_path", db.clone()),
+        ("--database_path", p(&ws.join("database.db"))),
         ("--image_path", p(&ws.join("images"))),
         ("--camera_mode", mode.into()),
         ("--camera_model", o.camera_model.clone()),
@@ -775,37 +810,57 @@ fn py_sparse(
     if let Some(params) = &o.camera_params {
         fe.push(("--camera_params", params.clone()));
     }
+    if let Some(list) = image_list {
+        fe.push(("--image_list", p(list)));
+        fe.push(("--existing_camera_id", "1".into()));
+    }
     rec.stages
         .push(runner.py_stage(py, "feature_extractor", &fe)?);
-    if rec.rig {
-        let config = rig_config_of(&rec.export)?;
-        let args = [
-            ("--database_path", db.clone()),
-            ("--rig_config_path", p(&config)),
-        ];
-        rec.stages
-            .push(runner.py_stage(py, "rig_configurator", &args)?);
-    }
-    let (name, args) = matching(ws, rec, o, false)?;
+    Ok(())
+}
+
+/// The chosen matcher through the pycolmap driver (pairs already in the database are skipped,
+/// so a later round matches only the pairs with a new image).
+fn py_match(
+    runner: &Runner,
+    rec: &mut Record,
+    o: &SparseOptions,
+    py: &Pycolmap,
+    extending: bool,
+) -> Result<()> {
+    let (name, args) = matching(runner.ws, rec, o, extending)?;
     rec.stages.push(runner.py_stage(py, name, &args)?);
-    let sparse = ws.join("sparse");
-    std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
+    Ok(())
+}
+
+/// The arguments of the pycolmap driver's mapper `kind` writing its models into `output/N`:
+/// known intrinsics and a rig's relative poses kept fixed; the incremental mapper takes the
+/// mapper options (`--option KEY=VALUE`), the global one has options of its own and takes none.
+fn py_mapper_args(
+    ws: &Path,
+    output: &Path,
+    o: &SparseOptions,
+    rig: bool,
+    kind: crate::sparse::MapperKind,
+) -> Result<Vec<(String, String)>> {
+    let s = |k: &str, v: String| (k.to_string(), v);
     let mut margs = vec![
-        ("--database_path", db),
-        ("--image_path", p(&ws.join("images"))),
-        ("--output_path", p(&sparse)),
-        (
+        s("--database_path", p(&ws.join("database.db"))),
+        s("--image_path", p(&ws.join("images"))),
+        s("--output_path", p(output)),
+        s(
             "--fixed_intrinsics",
             u8::from(o.camera_params.is_some()).to_string(),
         ),
-        ("--fixed_rig", u8::from(rec.rig).to_string()),
     ];
-    for (k, v) in mapper_keys(&o.mapper_option)? {
-        let k = k.trim_start_matches("--Mapper.");
-        margs.push(("--option", format!("{k}={v}")));
+    if kind == crate::sparse::MapperKind::Incremental {
+        margs.push(s("--fixed_rig", u8::from(rig).to_string()));
+        for (k, v) in mapper_keys(&o.mapper_option)? {
+            let k = k.trim_start_matches("--Mapper.");
+            margs.push(s("--option", format!("{k}={v}")));
+        }
     }
-    rec.stages.push(runner.py_stage(py, "mapper", &margs)?);
-    best_model(runner, rec)
+    Ok(margs)
 }
 
 /// The mapper's arguments writing into `output` (known intrinsics kept fixed unless a mapper
@@ -1098,17 +1153,27 @@ impl Runner<'_> {
     /// Runs stage `name` of keyframer's pycolmap driver (in the workspace) as
     /// [`Runner::stage`] runs a `colmap` stage.
     fn py_stage(&self, py: &Pycolmap, name: &str, args: &[(&str, String)]) -> Result<StageRecord> {
+        let (record, failure) = self.try_py_stage(py, name, args)?;
+        match failure {
+            Some(e) => Err(e),
+            None => Ok(record),
+        }
+    }
+
+    /// Runs a pycolmap driver stage as [`Runner::try_stage`] runs a `colmap` stage.
+    fn try_py_stage(
+        &self,
+        py: &Pycolmap,
+        name: &str,
+        args: &[(&str, String)],
+    ) -> Result<(StageRecord, Option<Error>)> {
         let mut command = vec![
             py.python.display().to_string(),
             p(&self.ws.join(pycolmap::DRIVER)),
             name.to_string(),
         ];
         command.extend(args.iter().flat_map(|(k, v)| [(*k).to_string(), v.clone()]));
-        let (record, failure) = self.try_command("pycolmap", name, command)?;
-        match failure {
-            Some(e) => Err(e),
-            None => Ok(record),
-        }
+        self.try_command("pycolmap", name, command)
     }
 
     /// Runs `command` (the program first) as stage `name` of `engine` with stdout and stderr in

@@ -21,18 +21,7 @@ pub const TESTED: &str = "4.2.1";
 /// The oldest major version whose API the driver uses (rigs, `FeatureExtractionOptions`).
 const MIN_MAJOR: u32 = 4;
 
-crate::names::named_enum! {
-    /// Which COLMAP runs the sparse stages.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-    pub enum Engine: "engine" {
-        /// pycolmap for a rig export when it is found, else the `colmap` command.
-        Auto = "auto": "pycolmap for a rig export when found (rig-aware mapping), else the colmap command",
-        /// The `colmap` command line (the installed COLMAP).
-        Colmap = "colmap": "the colmap command (a rig export: one camera per view folder, views registered one by one)",
-        /// pycolmap (PyPI), with rig configuration and rig-aware mapping for a rig export.
-        Pycolmap = "pycolmap": "pycolmap (a rig export: its views mapped as one rig)",
-    }
-}
+pub use crate::sparse::Engine;
 
 /// The pycolmap used: its interpreter and version.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -144,6 +133,7 @@ mod tests {
             "sequential_matcher",
             "exhaustive_matcher",
             "mapper",
+            "global_mapper",
         ] {
             assert!(
                 DRIVER_SOURCE.contains(&format!("sub.add_parser(\"{stage}\")")),

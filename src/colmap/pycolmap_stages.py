@@ -4,16 +4,20 @@ keyframer writes this file into the workspace and runs one stage per process:
   python pycolmap_stages.py version
   python pycolmap_stages.py feature_extractor --database_path DB --image_path DIR
       --camera_mode single|per_folder --camera_model M [--camera_params P] [--mask_path DIR]
-      [--max_num_features N]
+      [--max_num_features N] [--image_list TXT --existing_camera_id ID]
   python pycolmap_stages.py rig_configurator --database_path DB --rig_config_path JSON
   python pycolmap_stages.py matches_importer --database_path DB --match_list_path TXT
       [--match_type pairs]
   python pycolmap_stages.py sequential_matcher --database_path DB --overlap N
   python pycolmap_stages.py exhaustive_matcher --database_path DB
   python pycolmap_stages.py mapper --database_path DB --image_path DIR --output_path DIR
-      [--fixed_intrinsics 0|1] [--fixed_rig 0|1] [--option KEY=VALUE ...]
+      [--fixed_intrinsics 0|1] [--fixed_rig 0|1] [--option KEY=VALUE ...] [--input_path DIR]
+  python pycolmap_stages.py global_mapper --database_path DB --image_path DIR --output_path DIR
+      [--fixed_intrinsics 0|1]
 Each stage prints what it does to stdout (keyframer keeps it in logs/<stage>.log) and exits
-non-zero with a message on stderr when it fails.
+non-zero with a message on stderr when it fails. The mappers write model i into OUTPUT/i (none
+when they keep no model: that is a result, not a failure). COLMAP's random generator is seeded
+(0) in every stage, so that a stage run again on the same input starts from the same draws.
 """
 
 import argparse
@@ -49,6 +53,14 @@ def feature_extractor(a):
         extraction.sift.max_num_features = a.max_num_features
     mode = {"single": pycolmap.CameraMode.SINGLE, "per_folder": pycolmap.CameraMode.PER_FOLDER}
     names = image_names(a.image_path)
+    if a.image_list:
+        # Only the listed images (a later round's new ones), sharing an existing camera.
+        with open(a.image_list) as f:
+            listed = {line.strip() for line in f if line.strip()}
+        missing = sorted(listed - set(names))
+        if missing:
+            raise SystemExit(f"{a.image_list}: {missing[0]} is not an image under {a.image_path}")
+        names = [n for n in names if n in listed]
     # This COLMAP skips an image whose mask is missing (3.8 used the whole image), and a rig
     # export masks only the views that see the nadir cap: images with and without a mask are
     # extracted in two passes, the second without a mask folder.
@@ -59,6 +71,8 @@ def feature_extractor(a):
             continue
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = a.camera_model
+        if a.existing_camera_id is not None:
+            reader.existing_camera_id = a.existing_camera_id
         if a.camera_params:
             reader.camera_params = a.camera_params
         if mask_path:
@@ -138,7 +152,24 @@ def mapper(a):
     for o in a.option or []:
         key, _, value = o.partition("=")
         set_option(options, key.strip().removeprefix("Mapper."), value.strip())
-    models = pycolmap.incremental_mapping(a.database_path, a.image_path, a.output_path, options)
+    models = pycolmap.incremental_mapping(
+        a.database_path, a.image_path, a.output_path, options, input_path=a.input_path or ""
+    )
+    report(models)
+
+
+def global_mapper(a):
+    options = pycolmap.GlobalPipelineOptions()
+    if a.fixed_intrinsics:
+        ba = options.mapper.bundle_adjustment
+        ba.refine_focal_length = False
+        ba.refine_principal_point = False
+        ba.refine_extra_params = False
+    models = pycolmap.global_mapping(a.database_path, a.image_path, a.output_path, options)
+    report(models)
+
+
+def report(models):
     for i, r in sorted(models.items()):
         log(f"model {i}: {r.num_reg_images()} images, {r.num_points3D()} points")
     if not models:
@@ -157,6 +188,8 @@ def main():
     fe.add_argument("--camera_params")
     fe.add_argument("--mask_path")
     fe.add_argument("--max_num_features", type=int)
+    fe.add_argument("--image_list")
+    fe.add_argument("--existing_camera_id", type=int)
     rc = sub.add_parser("rig_configurator")
     rc.add_argument("--database_path", required=True)
     rc.add_argument("--rig_config_path", required=True)
@@ -177,11 +210,18 @@ def main():
     mp.add_argument("--fixed_intrinsics", type=int, choices=[0, 1], default=0)
     mp.add_argument("--fixed_rig", type=int, choices=[0, 1], default=0)
     mp.add_argument("--option", action="append")
+    mp.add_argument("--input_path")
+    gm = sub.add_parser("global_mapper")
+    gm.add_argument("--database_path", required=True)
+    gm.add_argument("--image_path", required=True)
+    gm.add_argument("--output_path", required=True)
+    gm.add_argument("--fixed_intrinsics", type=int, choices=[0, 1], default=0)
     a = p.parse_args()
     if a.stage == "version":
         print(pycolmap.__version__)
         return
     log(f"pycolmap {pycolmap.__version__}: {a.stage}")
+    pycolmap.set_random_seed(0)
     start = time.monotonic()
     {
         "feature_extractor": feature_extractor,
@@ -190,6 +230,7 @@ def main():
         "sequential_matcher": matcher,
         "exhaustive_matcher": matcher,
         "mapper": mapper,
+        "global_mapper": global_mapper,
     }[a.stage](a)
     log(f"{a.stage}: {time.monotonic() - start:.1f} s")
 

@@ -77,8 +77,12 @@ pub struct State {
     pub start: Vec<usize>,
     /// The options.
     pub options: Options,
-    /// COLMAP's version line.
+    /// COLMAP's version line (`pycolmap X` when pycolmap runs the loop).
     pub colmap_version: String,
+    /// The pycolmap that runs the sparse stages (None: the `colmap` command, as in workspaces
+    /// made before the engine was chosen).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pycolmap: Option<crate::colmap::pycolmap::Pycolmap>,
     /// What a gap's middle is measured by.
     pub measure: Measure,
     /// The rounds, in order; the last one is still running when its `done` is false.
@@ -269,7 +273,6 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
     if project.keyframes.is_empty() {
         return Err(Error::input(&s.project, "the project has no keyframes"));
     }
-    let colmap = extend::locate_with(s.options.mapper)?;
     let ws = fsutil::absolute(&s.out);
     let project_abs = fsutil::absolute(&s.project);
     let inputs = Inputs::none()
@@ -289,6 +292,8 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
             "holds a reconstruction of another project or with other options; pass --force to replace what keyframer wrote there, or choose another --out",
         ));
     }
+    let recorded = resume.as_ref().map(|st| st.pycolmap.as_ref());
+    let (colmap, py) = extend::loop_engine(s.options.engine, s.options.mapper, recorded, quiet)?;
     let dir = crate::output::prepare_dir(&ws, s.force || resume.is_some(), &[STATE], &inputs)?;
     let frames_data = FrameData::of(&project);
     if !quiet && frames_data.measure == Measure::Time {
@@ -322,7 +327,11 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
             project: project_abs.clone(),
             start: project.keyframes.clone(),
             options: s.options.clone(),
-            colmap_version: colmap.version.clone(),
+            colmap_version: match &py {
+                Some(py) => format!("pycolmap {}", py.version),
+                None => colmap.version.clone(),
+            },
+            pycolmap: py.clone(),
             measure: frames_data.measure,
             rounds: Vec::new(),
             outcome: None,
@@ -333,6 +342,7 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
         project: &project,
         ws: &ws,
         frames: &frames_data,
+        py: py.as_ref(),
         quiet,
     };
     let result = job.rounds(&mut state);
@@ -453,6 +463,8 @@ struct Job<'a> {
     project: &'a Project,
     ws: &'a Path,
     frames: &'a FrameData,
+    /// The pycolmap that runs the sparse stages (None: the `colmap` command).
+    py: Option<&'a crate::colmap::pycolmap::Pycolmap>,
     quiet: bool,
 }
 
@@ -545,7 +557,7 @@ impl Job<'_> {
             georegister: None,
             options,
             force: true,
-            // The loop extends models with the colmap command's mapper.
+            // Unused: the rounds run through `self.py` (the engine resolved once for the loop).
             engine: crate::colmap::pycolmap::Engine::Colmap,
         };
         let earlier = crate::colmap::read_record(&cws).ok();
@@ -563,6 +575,7 @@ impl Job<'_> {
             o.mapper,
             o.mapping,
             extend_it.then_some(names.as_slice()),
+            self.py,
             self.quiet,
         )?;
         let priors = self.priors(&keys);
@@ -648,7 +661,7 @@ impl Job<'_> {
         for pair in candidates.into_iter().take(defaults::REMAP_TRIES) {
             out.tries += 1;
             let (na, nb) = &pair.names;
-            let trial = extend::remap_trial(cs, out.tries, pair.ids, self.quiet)?;
+            let trial = extend::remap_trial(cs, out.tries, pair.ids, self.py, self.quiet)?;
             let obs = observe(&cws, &trial, keys, by_frame, priors)?;
             let got = score(&breaks::find(keys, &obs, self.s.options.limits));
             if got < best_score {
@@ -891,6 +904,7 @@ fn options_as_flags(o: &Options) -> Vec<String> {
         format!("--min-inliers {}", o.limits.min_inliers),
         format!("--mapper {}", o.mapper),
         format!("--mapping {}", o.mapping),
+        format!("--engine {}", o.engine),
         format!("--matcher {}", o.colmap.matcher),
         format!("--overlap {}", o.colmap.overlap),
         format!("--camera-model {}", o.colmap.camera_model),

@@ -382,3 +382,22 @@ pub fn project_positions(project: &Path) -> Vec<Option<(f64, f64, f64)>> {
     })
     .collect()
 }
+
+/// A Python that imports pycolmap where keyframer looks (`KEYFRAMER_PYTHON`, else
+/// `target/pycolmap` beside the binary's folder, else `python3`).
+pub fn pycolmap_found() -> bool {
+    let beside = Path::new(env!("CARGO_BIN_EXE_keyframer"))
+        .parent()
+        .and_then(Path::parent)
+        .map(|t| t.join("pycolmap/bin/python"));
+    let candidates: Vec<PathBuf> = match std::env::var_os("KEYFRAMER_PYTHON") {
+        Some(p) => vec![p.into()],
+        None => beside
+            .into_iter()
+            .chain([PathBuf::from("python3")])
+            .collect(),
+    };
+    candidates.iter().any(|p| {
+        (Command::new(p).args(["-c", "import pycolmap"]).output()).is_ok_and(|o| o.status.success())
+    })
+}

@@ -253,11 +253,26 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
     // The loop's COLMAP time against one COLMAP run on the final keyframe set (same options).
     let loop_s = sum["colmap_total_s"].as_f64().unwrap();
     let once = d.path().join("once");
+    // Through the engine the loop ran (its state names the pycolmap when pycolmap ran it).
+    let engine = match state.get("pycolmap") {
+        Some(py) => {
+            assert!(
+                err.contains("COLMAP through pycolmap")
+                    && sum["colmap_version"]
+                        == format!("pycolmap {}", py["version"].as_str().unwrap()),
+                "{err}"
+            );
+            "pycolmap"
+        }
+        None => "colmap",
+    };
     let mut args = vec![
         "colmap",
         s(ws),
         "-o",
         s(&once),
+        "--engine",
+        engine,
         "--sparse",
         "--max-features",
         "1024",
@@ -276,7 +291,7 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
         .map(|st| st["seconds"].as_f64().unwrap())
         .sum();
     eprintln!(
-        "reconstruct: loop COLMAP {loop_s:.1} s against one run on the final {} keyframes {once_s:.1} s (ratio {:.2})",
+        "reconstruct: loop COLMAP {loop_s:.1} s against one run on the final {} keyframes {once_s:.1} s (ratio {:.2}, {engine})",
         fin.len(),
         loop_s / once_s
     );
@@ -474,9 +489,24 @@ fn a_mis_assembled_sparse_start_is_repaired_to_the_ground_truth() {
         "--blur",
     ]);
     kf_ok(&["select", s(&video), "-o", s(&p), "--every", "30", "--force"]);
-    let ws = dir.join("ws");
+    // The colmap command (COLMAP 3.8 in CI) folds this start: its mis-assembly checks and
+    // re-mapping are what repair it. The default engine (pycolmap when set-up installed it)
+    // must end right as well.
+    let mut engines = vec!["colmap"];
+    if pycolmap_found() {
+        engines.push("auto");
+    }
+    for engine in engines {
+        seed3_ends_right(&dir, &p, engine);
+    }
+}
+
+/// `reconstruct --engine ENGINE` of the seed-3 start `p` (survey in `dir`) ends connected within
+/// 1 % of the path.
+fn seed3_ends_right(dir: &Path, p: &Path, engine: &str) {
+    let ws = dir.join(format!("ws-{engine}"));
     let _ = std::fs::remove_dir_all(&ws);
-    let sum = summary(&reconstruct(&p, &ws, &[]));
+    let sum = summary(&reconstruct(p, &ws, &["--engine", engine]));
     let state = json(&ws.join("reconstruct.json"));
     let flagged: Vec<(usize, usize)> = state["rounds"]
         .as_array()
@@ -505,10 +535,11 @@ fn a_mis_assembled_sparse_start_is_repaired_to_the_ground_truth() {
         "--json",
     ]))
     .unwrap();
-    let length = path_length(&dir, fin[0], *fin.last().unwrap());
+    let length = path_length(dir, fin[0], *fin.last().unwrap());
     let max = eval["gt"]["position_max"].as_f64().unwrap();
     eprintln!(
-        "reconstruct seed 3: {} -> {} keyframes in {} rounds; mis-assembled links per round {flagged:?}; max position error {max:.3} m of a {length:.1} m path ({:.2} %)",
+        "reconstruct seed 3 ({engine}, {}): {} -> {} keyframes in {} rounds; mis-assembled links per round {flagged:?}; max position error {max:.3} m of a {length:.1} m path ({:.2} %)",
+        sum["colmap_version"],
         sum["start_keyframes"],
         fin.len(),
         sum["rounds"],
@@ -721,7 +752,7 @@ fn changed_input_and_foreign_workspace_are_refused() {
     let (code, err) = code_and_stderr(&o);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("reconstruct.json"), "{err}");
-    // --mapper global on a COLMAP without it names what is missing.
+    // --mapper global through a colmap command without it names what is missing.
     let ws = d.path().join("ws");
     let help = Command::new("colmap").arg("help").output().unwrap();
     if !String::from_utf8_lossy(&help.stdout).contains("global_mapper") {
@@ -730,6 +761,8 @@ fn changed_input_and_foreign_workspace_are_refused() {
             s(&project),
             "--out",
             s(&ws),
+            "--engine",
+            "colmap",
             "--mapper",
             "global",
         ]);
@@ -741,6 +774,24 @@ fn changed_input_and_foreign_workspace_are_refused() {
         );
         assert!(!ws.exists());
     }
+    // The global mapper maps every image at once: it cannot continue a model.
+    let o = kf(&[
+        "reconstruct",
+        s(&project),
+        "--out",
+        s(&ws),
+        "--mapper",
+        "global",
+        "--mapping",
+        "continue",
+    ]);
+    let (code, err) = code_and_stderr(&o);
+    assert_ne!(code, 0, "{err}");
+    assert!(
+        err.contains("mapping") && err.contains("global mapper"),
+        "{err}"
+    );
+    assert!(!ws.exists());
     // A changed input is refused before anything is written.
     let bytes = std::fs::read(&clip).unwrap();
     std::fs::write(&clip, [bytes.as_slice(), b"x"].concat()).unwrap();
@@ -760,7 +811,7 @@ fn preview_project_falls_back_to_time_and_a_failing_stage_is_named() {
     let ws = d.path().join("ws");
     let fake = fake_colmap(d.path());
     let o = Command::new(env!("CARGO_BIN_EXE_keyframer"))
-        .args(["reconstruct", s(&p), "--out", s(&ws)])
+        .args(["reconstruct", s(&p), "--out", s(&ws), "--engine", "colmap"])
         .env("KEYFRAMER_COLMAP", &fake)
         .env("FAIL_STAGE", "sequential_matcher")
         .output()
@@ -786,6 +837,64 @@ fn preview_project_falls_back_to_time_and_a_failing_stage_is_named() {
         .as_str()
         .unwrap()
         .contains("sequential_matcher"));
+
+    // Through pycolmap (a stand-in Python whose matcher stage fails): the stage and its log.
+    let python = d.path().join("fake-python");
+    std::fs::write(
+        &python,
+        "#!/bin/sh\nif [ \"$1\" = -c ]; then echo 4.2.1; exit 0; fi\necho \"fake $2\"\nif [ \"$2\" = \"$FAIL_STAGE\" ]; then echo \"$2 broke\" >&2; exit 3; fi\n",
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let ws = d.path().join("ws-py");
+    let o = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args([
+            "reconstruct",
+            s(&p),
+            "--out",
+            s(&ws),
+            "--engine",
+            "pycolmap",
+        ])
+        .env("KEYFRAMER_COLMAP", &fake)
+        .env("KEYFRAMER_PYTHON", &python)
+        .env("FAIL_STAGE", "sequential_matcher")
+        .output()
+        .unwrap();
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1, "{err}");
+    let log = ws.join("colmap/logs/sequential_matcher.log");
+    assert!(
+        err.contains("pycolmap sequential_matcher failed") && err.contains(s(&log)),
+        "{err}"
+    );
+    assert!(std::fs::read_to_string(&log)
+        .unwrap()
+        .contains("sequential_matcher broke"));
+    let st = json(&ws.join("reconstruct.json"));
+    assert_eq!(st["pycolmap"]["version"], "4.2.1");
+    assert_eq!(st["rounds"][0]["done"], false);
+    // Its resume keeps pycolmap, and says so when it cannot find it.
+    let o = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+        .args([
+            "reconstruct",
+            s(&p),
+            "--out",
+            s(&ws),
+            "--engine",
+            "pycolmap",
+        ])
+        .env("KEYFRAMER_COLMAP", &fake)
+        .env("KEYFRAMER_PYTHON", d.path().join("no-python"))
+        .output()
+        .unwrap();
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("runs through pycolmap 4.2.1, which is not found now"),
+        "{err}"
+    );
 }
 
 /// `workflow save` of a reconstructed project writes its loop as a `[[reconstruct]]` table, and

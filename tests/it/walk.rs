@@ -9,7 +9,7 @@
 //! spacing spaces the keyframes more evenly than a fixed rate; turning on the spot adds no
 //! keyframes.
 
-use crate::common::{json, kf_ok, s, scene_ok};
+use crate::common::{json, kf_ok, pycolmap_found, s, scene_ok};
 use crate::scene::{distance, poses};
 use keyframer::colmap::align::{self, umeyama};
 use keyframer::colmap::model::{self, Model};
@@ -441,25 +441,6 @@ fn walk_rig_hands_off_georegistered_in_metres() {
         let z = [r[0][2], r[1][2], r[2][2]];
         assert!(align::dist(&look, &z) < 1e-6, "{name}: {look:?} vs {z:?}");
     }
-}
-
-/// A Python that imports pycolmap where keyframer looks (`KEYFRAMER_PYTHON`, else
-/// `target/pycolmap` beside the binary's folder, else `python3`).
-fn pycolmap_found() -> bool {
-    let beside = Path::new(env!("CARGO_BIN_EXE_keyframer"))
-        .parent()
-        .and_then(Path::parent)
-        .map(|t| t.join("pycolmap/bin/python"));
-    let candidates: Vec<PathBuf> = match std::env::var_os("KEYFRAMER_PYTHON") {
-        Some(p) => vec![p.into()],
-        None => beside
-            .into_iter()
-            .chain([PathBuf::from("python3")])
-            .collect(),
-    };
-    candidates.iter().any(|p| {
-        (Command::new(p).args(["-c", "import pycolmap"]).output()).is_ok_and(|o| o.status.success())
-    })
 }
 
 /// The sparse stages' time (features, rig, matching, mapper) in a workspace's `colmap.json`.
