@@ -147,6 +147,11 @@ pub struct StageRecord {
     pub command: Vec<String>,
     /// Wall time in seconds.
     pub seconds: f64,
+    /// CPU time in seconds (user + system, the stage's process and what it waited for): the
+    /// stage's work, which other processes on the machine do not lengthen (0 in records of
+    /// earlier builds).
+    #[serde(default)]
+    pub cpu_s: f64,
     /// Log file, relative to the workspace.
     pub log: String,
     /// Exit code (None when killed by a signal).
@@ -1120,6 +1125,31 @@ fn die_with_parent(cmd: &mut Command) {
     }
 }
 
+/// Waits for `child`; returns its exit status and the CPU seconds (user + system) it and the
+/// descendants it waited for used.
+fn wait_with_cpu(child: std::process::Child) -> std::io::Result<(std::process::ExitStatus, f64)> {
+    use std::os::unix::process::ExitStatusExt;
+    let pid = child.id() as libc::pid_t;
+    let mut status: libc::c_int = 0;
+    // SAFETY: rusage is plain old data, for which all-zero bytes are a valid value.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    loop {
+        // SAFETY: `pid` is our own child, not yet waited for (std waits only when asked);
+        // `status` and `usage` are valid for writes for the call.
+        let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+        if r == pid {
+            break;
+        }
+        let e = std::io::Error::last_os_error();
+        if e.kind() != std::io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+    let secs = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    let cpu = secs(usage.ru_utime) + secs(usage.ru_stime);
+    Ok((std::process::ExitStatus::from_raw(status), cpu))
+}
+
 /// Runs COLMAP stages in a workspace.
 struct Runner<'a> {
     colmap: &'a Colmap,
@@ -1197,16 +1227,18 @@ impl Runner<'_> {
             .stderr(err);
         die_with_parent(&mut cmd);
         let spinner = crate::progress::spinner(name, self.quiet);
-        let status = cmd
-            .status()
+        let done = cmd
+            .spawn()
+            .and_then(wait_with_cpu)
             .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", command[0])));
         spinner.finish_and_clear();
-        let status = status?;
+        let (status, cpu_s) = done?;
         let seconds = start.elapsed().as_secs_f64();
         let record = StageRecord {
             stage: name.into(),
             command,
             seconds,
+            cpu_s,
             log: rel,
             exit_code: status.code(),
         };

@@ -112,6 +112,9 @@ pub struct Round {
     pub true_breaks: Vec<TrueBreak>,
     /// Seconds per COLMAP stage in this round.
     pub colmap_s: BTreeMap<String, f64>,
+    /// COLMAP's CPU seconds in this round (all stages; 0 in states of earlier builds).
+    #[serde(default)]
+    pub colmap_cpu_s: f64,
     /// The mapping again from other initial pairs, when the first was mis-assembled.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub remap: Option<Remap>,
@@ -260,6 +263,9 @@ pub struct Summary {
     pub colmap_s: BTreeMap<String, f64>,
     /// COLMAP seconds over all rounds.
     pub colmap_total_s: f64,
+    /// COLMAP's CPU seconds over all rounds (user + system): its work, which other load on the
+    /// machine does not lengthen.
+    pub colmap_cpu_s: f64,
     /// COLMAP's version line.
     pub colmap_version: String,
 }
@@ -508,6 +514,7 @@ impl Job<'_> {
                     added: Vec::new(),
                     true_breaks: Vec::new(),
                     colmap_s: BTreeMap::new(),
+                    colmap_cpu_s: 0.0,
                     remap: None,
                     done: false,
                 });
@@ -600,6 +607,7 @@ impl Job<'_> {
         for st in rec.stages.iter().skip(before) {
             *colmap_s.entry(st.stage.clone()).or_insert(0.0) += st.seconds;
         }
+        let colmap_cpu_s = rec.stages.iter().skip(before).map(|st| st.cpu_s).sum();
         let ranges = breaks::ranges(&keys, &obs);
         let mut models: Vec<ModelRanges> = obs
             .models
@@ -629,6 +637,7 @@ impl Job<'_> {
             added: Vec::new(),
             true_breaks: Vec::new(),
             colmap_s,
+            colmap_cpu_s,
             remap,
             done: false,
         })
@@ -1092,6 +1101,7 @@ fn summary(st: &State, ws: &Path, changed: bool) -> Summary {
         measure: st.measure,
         colmap_total_s: colmap_s.values().sum(),
         colmap_s,
+        colmap_cpu_s: st.rounds.iter().map(|r| r.colmap_cpu_s).sum(),
         colmap_version: st.colmap_version.clone(),
     }
 }
@@ -1142,9 +1152,10 @@ pub fn render(s: &Summary) -> String {
         .map(|(k, v)| format!("{k} {v:.1} s"))
         .collect();
     out += &format!(
-        "colmap:    {:.1} s in all ({}); {}\n",
+        "colmap:    {:.1} s in all ({}), {:.1} CPU-s; {}\n",
         s.colmap_total_s,
         stages.join(", "),
+        s.colmap_cpu_s,
         s.colmap_version
     );
     out
