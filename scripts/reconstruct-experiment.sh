@@ -100,17 +100,19 @@ for seed in ${seeds//,/ }; do
   length=$(path_length "$dir/scene/poses.tum" "$first" "$last")
   "$kf" colmap "$out/ws" -o "$out/once" --sparse "${camera[@]}" "${mapper[@]}" --quiet --json > "$out/once.json" 2>/dev/null || true
   once=$(jq '[.stages[].seconds] | add' "$out/once.json" 2>/dev/null || echo 0)
+  once_cpu=$(jq '[.stages[].cpu_s] | add' "$out/once.json" 2>/dev/null || echo 0)
   jq -c --arg seed "$seed" --arg start "$start" --arg sparsest "${sparsest:-none}" \
-    --argjson sparsest_frames "${sparsest_frames:-0}" --argjson length "$length" --argjson once "$once" \
+    --argjson sparsest_frames "${sparsest_frames:-0}" --argjson length "$length" --argjson once "$once" --argjson once_cpu "$once_cpu" \
     --slurpfile e "$out/eval.json" '{seed: $seed, run: ("reconstruct from every " + $start),
       start: .start_keyframes, frames: (.final_keyframes | length), registered, models: (.models | length),
       rounds, outcome, colmap_s: .colmap_total_s, once_s: $once,
+      colmap_cpu_s: .colmap_cpu_s, once_cpu_s: $once_cpu,
       max_error_pct: (if $e[0].gt then 100 * $e[0].gt.position_max / $length else null end),
       sparsest_uniform: $sparsest, sparsest_frames: $sparsest_frames}' "$out/summary.json" >> "$results"
 done
 
 {
-  echo "| seed | run | keyframes | registered (largest model) | models | rounds | COLMAP s | one run on final set s | max GT error % of path | sparsest uniform N (frames) |"
-  echo "|---|---|---|---|---|---|---|---|---|---|"
-  jq -r '"| \(.seed) | \(.run) | \(if .start then "\(.start) → \(.frames)" else .frames end) | \(.registered) | \(.models) | \(.rounds // "-") | \(.colmap_s * 10 | round / 10) | \(if .once_s then (.once_s * 10 | round / 10) else "-" end) | \(if .max_error_pct then (.max_error_pct * 100 | round / 100) else "-" end) | \(if .sparsest_uniform then "\(.sparsest_uniform) (\(.sparsest_frames))" else "-" end) |"' "$results"
+  echo "| seed | run | keyframes | registered (largest model) | models | rounds | COLMAP s | one run on final set s | loop ÷ one run, CPU | max GT error % of path | sparsest uniform N (frames) |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|"
+  jq -r '"| \(.seed) | \(.run) | \(if .start then "\(.start) → \(.frames)" else .frames end) | \(.registered) | \(.models) | \(.rounds // "-") | \(.colmap_s * 10 | round / 10) | \(if .once_s then (.once_s * 10 | round / 10) else "-" end) | \(if .once_cpu_s and .once_cpu_s > 0 then (.colmap_cpu_s / .once_cpu_s * 100 | round / 100) else "-" end) | \(if .max_error_pct then (.max_error_pct * 100 | round / 100) else "-" end) | \(if .sparsest_uniform then "\(.sparsest_uniform) (\(.sparsest_frames))" else "-" end) |"' "$results"
 } | tee "$work/table.md"

@@ -337,6 +337,27 @@ fn start_that_reconstructs_is_left_unchanged() {
     let before = json(&p);
     let after = json(&ws.join("project.json"));
     assert_eq!(after["history"], before["history"]);
+    // The global mapper (pycolmap's, when found; COLMAP 3.8 has none) maps the same start in
+    // one piece: the loop runs its `global_mapper` stage through pycolmap.
+    if pycolmap_found() {
+        let ws = d.path().join("ws-global");
+        let sum = summary(&reconstruct(&p, &ws, &["--mapper", "global"]));
+        let stages: Vec<String> = json(&ws.join("colmap/colmap.json"))["stages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|st| st["stage"].as_str().unwrap().to_string())
+            .collect();
+        assert!(stages.contains(&"global_mapper".to_string()), "{stages:?}");
+        assert!(!stages.contains(&"mapper".to_string()), "{stages:?}");
+        assert!(sum["colmap_version"]
+            .as_str()
+            .unwrap()
+            .starts_with("pycolmap"));
+        assert_eq!(sum["outcome"], "connected", "{sum}");
+        assert_eq!(sum["registered"], start.len());
+        assert_eq!(frames(&sum["final_keyframes"]), start);
+    }
 }
 
 /// The kinds of the breaks of a round in the state file, with their keyframes.
