@@ -166,7 +166,7 @@ pub fn render(info: &Info) -> String {
     }
     s += &match &info.pycolmap {
         Ok(p) => format!(
-            "pycolmap: {} ({}): keyframer colmap --engine pycolmap maps rig exports as rigs\n",
+            "pycolmap: {} ({}): maps rig and ERP exports (keyframer colmap) and runs keyframer reconstruct's loop\n",
             p.version,
             p.python.display()
         ),
