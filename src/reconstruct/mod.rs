@@ -62,12 +62,6 @@ pub mod defaults {
     /// experiment's mis-assembled databases, one of the 3 calibrated pairs with the most inliers
     /// gave a correct model each time: docs/reconstruct.md).
     pub const REMAP_TRIES: usize = 3;
-    /// The mapper option pycolmap's rounds add (unless given) when every keyframe has a
-    /// telemetry position: the positions the export writes as EXIF GPS, which COLMAP 4 reads as
-    /// pose priors, then hold the model in bundle adjustment. On the surveys it cut the frames a
-    /// folded start needed (24 → 15 and 24 → 17 of four starts, the others equal:
-    /// docs/reconstruct.md); COLMAP 3.8's mapper has no such option.
-    pub const PRIOR_OPTION: (&str, &str) = ("use_prior_position", "1");
 }
 
 /// The state file: the loop's rounds so far.
@@ -554,9 +548,7 @@ impl Job<'_> {
         let keys: Vec<usize> = by_frame.keys().copied().collect();
         let cws = self.ws.join(COLMAP_DIR);
         let mut options = o.colmap.clone();
-        let positioned = manifest.frames.iter().all(|f| f.position.is_some());
-        let priors = (self.py.is_some() && positioned).then_some(defaults::PRIOR_OPTION);
-        for (key, value) in defaults::MAPPER_OPTIONS.into_iter().chain(priors) {
+        for (key, value) in defaults::MAPPER_OPTIONS {
             let given =
                 |m: &String| m.trim().trim_start_matches("Mapper.").split('=').next() == Some(key);
             if !o.colmap.mapper_option.iter().any(given) {
