@@ -203,19 +203,28 @@ pub fn trial_dir(n: usize) -> String {
     format!("{NEXT}/init{n}")
 }
 
-/// Maps the workspace's database afresh with the incremental mapper into [`trial_dir`]`(n)`,
-/// one model starting from the image pair `init` (COLMAP image ids), and leaves `sparse/` as it
-/// is.
+/// Maps the workspace's database afresh into [`trial_dir`]`(n)` and leaves `sparse/` as it is:
+/// with `init` (COLMAP image ids) the incremental mapper makes one model starting from that
+/// pair; without, the global mapper maps (pycolmap's, `py` needed).
 /// Returns the record with the trial's models (their paths in the trial folder); the mapper's
 /// stage is added to `colmap.json`. A mapper that makes no model is a trial without models.
 pub fn remap_trial(
     a: &ColmapSettings,
     n: usize,
-    init: (i64, i64),
+    init: Option<(i64, i64)>,
     py: Option<&Pycolmap>,
     quiet: bool,
 ) -> Result<Record> {
-    let colmap = locate_with(MapperKind::Incremental, py.is_some())?;
+    let kind = match init {
+        Some(_) => MapperKind::Incremental,
+        None => MapperKind::Global,
+    };
+    if kind == MapperKind::Global && py.is_none() {
+        return Err(Error::Colmap(
+            "a global mapping trial runs through pycolmap".into(),
+        ));
+    }
+    let colmap = locate_with(kind, py.is_some())?;
     let (_, _, ws) = check_export(a)?;
     let _lock = crate::output::lock::folder(&ws)?;
     let mut rec = read_record(&ws)?;
@@ -227,13 +236,15 @@ pub fn remap_trial(
     let mut with_init = a.options.clone();
     let options = &mut with_init.mapper_option;
     options.retain(|m| !m.contains("init_image_id") && !m.contains("multiple_models"));
-    options.push(format!("init_image_id1={}", init.0));
-    options.push(format!("init_image_id2={}", init.1));
-    // One model, from that pair: with more, COLMAP 3.8 starts every further model from the same
-    // pair again (52 times, 31 s against 0.7 s on an 18-image database).
-    options.push("multiple_models=0".into());
+    if let Some(init) = init {
+        options.push(format!("init_image_id1={}", init.0));
+        options.push(format!("init_image_id2={}", init.1));
+        // One model, from that pair: with more, COLMAP 3.8 starts every further model from the
+        // same pair again (52 times, 31 s against 0.7 s on an 18-image database).
+        options.push("multiple_models=0".into());
+    }
     let args = match py {
-        Some(_) => py_mapper_args(&ws, &output, &with_init, rec.rig, MapperKind::Incremental)?,
+        Some(_) => py_mapper_args(&ws, &output, &with_init, rec.rig, kind)?,
         None => mapper_args(&ws, &output, &with_init)?,
     };
     let args: Vec<(&str, String)> = args.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
@@ -243,8 +254,8 @@ pub fn remap_trial(
         quiet,
     };
     let (stage, failure) = match py {
-        Some(py) => runner.try_py_stage(py, "mapper", &args)?,
-        None => runner.try_stage("mapper", &args)?,
+        Some(py) => runner.try_py_stage(py, mapper_command(kind), &args)?,
+        None => runner.try_stage(mapper_command(kind), &args)?,
     };
     let log = ws.join(&stage.log);
     rec.stages.push(stage);

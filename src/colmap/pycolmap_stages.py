@@ -16,8 +16,9 @@ keyframer writes this file into the workspace and runs one stage per process:
       [--fixed_intrinsics 0|1]
 Each stage prints what it does to stdout (keyframer keeps it in logs/<stage>.log) and exits
 non-zero with a message on stderr when it fails. The mappers write model i into OUTPUT/i (none
-when they keep no model: that is a result, not a failure). COLMAP's random generator is seeded
-(0) in every stage, so that a stage run again on the same input starts from the same draws.
+when they keep no model: that is a result, not a failure). COLMAP's random draws are seeded
+(SEED: the global generator, two-view verification's RANSAC, the mappers), so that a stage run
+again on the same input starts from the same draws.
 """
 
 import argparse
@@ -26,6 +27,11 @@ import sys
 import time
 
 import pycolmap
+
+
+# The seed of COLMAP's random draws (RANSAC, the mappers), so that a stage run again on the same
+# input starts from the same draws.
+SEED = 0
 
 
 def log(msg):
@@ -104,16 +110,21 @@ def matcher(a):
     matching = pycolmap.FeatureMatchingOptions()
     matching.use_gpu = False
     device = pycolmap.Device.cpu
+    # Two-view verification's RANSAC draws from its own seeded generator (else each worker
+    # thread seeds itself at random and a pair's inliers vary from run to run).
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = SEED
     if a.stage == "matches_importer":
         pairing = pycolmap.ImportedPairingOptions()
         pairing.match_list_path = a.match_list_path
-        pycolmap.match_image_pairs(a.database_path, matching, pairing, device=device)
+        pycolmap.match_image_pairs(a.database_path, matching, pairing, verification, device=device)
     elif a.stage == "sequential_matcher":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = a.overlap
-        pycolmap.match_sequential(a.database_path, matching, pairing, device=device)
+        pycolmap.match_sequential(a.database_path, matching, pairing, verification, device=device)
     else:
-        pycolmap.match_exhaustive(a.database_path, matching, device=device)
+        pairing = pycolmap.ExhaustivePairingOptions()
+        pycolmap.match_exhaustive(a.database_path, matching, pairing, verification, device=device)
     db = pycolmap.Database.open(a.database_path)
     log(f"{db.num_matches()} matches, {db.num_verified_image_pairs()} verified image pairs")
     db.close()
@@ -142,6 +153,7 @@ def set_option(options, key, value):
 
 def mapper(a):
     options = pycolmap.IncrementalPipelineOptions()
+    options.random_seed = SEED
     if a.fixed_intrinsics:
         options.ba_refine_focal_length = False
         options.ba_refine_principal_point = False
@@ -160,6 +172,7 @@ def mapper(a):
 
 def global_mapper(a):
     options = pycolmap.GlobalPipelineOptions()
+    options.random_seed = SEED
     if a.fixed_intrinsics:
         ba = options.mapper.bundle_adjustment
         ba.refine_focal_length = False
@@ -221,7 +234,7 @@ def main():
         print(pycolmap.__version__)
         return
     log(f"pycolmap {pycolmap.__version__}: {a.stage}")
-    pycolmap.set_random_seed(0)
+    pycolmap.set_random_seed(SEED)
     start = time.monotonic()
     {
         "feature_extractor": feature_extractor,

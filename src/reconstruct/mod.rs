@@ -131,14 +131,17 @@ pub struct Remap {
     /// Mappings tried from other initial pairs.
     pub tries: usize,
     /// The frames of the initial pair of the mapping kept (None: no trial was better, the first
-    /// mapping is kept).
+    /// mapping is kept, or the global mapper's was).
     pub kept: Option<(usize, usize)>,
+    /// The mapping kept is the global mapper's (tried through pycolmap after the initial pairs).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub global: bool,
 }
 
-/// The mapping trials of a round: the one kept (its number and the frames of its initial pair),
-/// and how many were made.
+/// The mapping trials of a round: the one kept (its number and the frames of its initial pair,
+/// None for the global mapper's), and how many were made.
 struct Trials {
-    kept: Option<(usize, (usize, usize))>,
+    kept: Option<(usize, Option<(usize, usize)>)>,
     tries: usize,
 }
 
@@ -592,11 +595,12 @@ impl Job<'_> {
         let mut remap = None;
         if fresh && o.mapper == MapperKind::Incremental && mis_assembled(&found) > 0 {
             let Trials { kept, tries } = self.remap(&cs, &keys, &by_frame, &priors, &found)?;
-            rec = extend::end_trials(&cws, defaults::REMAP_TRIES, kept.map(|k| k.0))?;
+            rec = extend::end_trials(&cws, tries, kept.map(|k| k.0))?;
             remap = Some(Remap {
                 mis_assembled: mis_assembled(&found),
                 tries,
-                kept: kept.map(|k| k.1),
+                kept: kept.and_then(|k| k.1),
+                global: kept.is_some_and(|k| k.1.is_none()),
             });
             if kept.is_some() {
                 obs = observe(&cws, &rec, &keys, &by_frame, &priors)?;
@@ -644,10 +648,11 @@ impl Job<'_> {
     }
 
     /// Maps the round's database again from other initial pairs (the calibrated two-view
-    /// geometries with the most inliers, [`defaults::REMAP_TRIES`] at most) because its mapping
-    /// has mis-assembled links (`found`); stops at the first trial without any break. Returns
-    /// the trial that judged best, if one beats the first mapping (fewer breaks, then fewer
-    /// mis-assembled links), with the frames of its initial pair; and the trials made.
+    /// geometries with the most inliers, [`defaults::REMAP_TRIES`] at most) and, through
+    /// pycolmap, with the global mapper, because its mapping has mis-assembled links (`found`);
+    /// stops at the first trial without any break. Returns the trial that judged best, if one
+    /// beats the first mapping (fewer breaks, then fewer mis-assembled links), with the frames of
+    /// its initial pair (None: the global mapper's); and the trials made.
     fn remap(
         &self,
         cs: &ColmapSettings,
@@ -667,18 +672,23 @@ impl Job<'_> {
             kept: None,
             tries: 0,
         };
-        for pair in candidates.into_iter().take(defaults::REMAP_TRIES) {
+        let pairs = candidates.into_iter().take(defaults::REMAP_TRIES).map(Some);
+        let global = self.py.map(|_| None);
+        for pair in pairs.chain(global) {
             out.tries += 1;
-            let (na, nb) = &pair.names;
-            let trial = extend::remap_trial(cs, out.tries, pair.ids, self.py, self.quiet)?;
+            let ids = pair.as_ref().map(|p| p.ids);
+            let trial = extend::remap_trial(cs, out.tries, ids, self.py, self.quiet)?;
             let obs = observe(&cws, &trial, keys, by_frame, priors)?;
             let got = score(&breaks::find(keys, &obs, self.s.options.limits));
             if got < best_score {
                 best_score = got;
-                let frames = (
-                    frame_of.get(na.as_str()).copied().unwrap_or(0),
-                    frame_of.get(nb.as_str()).copied().unwrap_or(0),
-                );
+                let frames = pair.map(|p| {
+                    let (na, nb) = &p.names;
+                    (
+                        frame_of.get(na.as_str()).copied().unwrap_or(0),
+                        frame_of.get(nb.as_str()).copied().unwrap_or(0),
+                    )
+                });
                 out.kept = Some((out.tries, frames));
             }
             if got.0 == 0 {
@@ -768,10 +778,17 @@ impl Job<'_> {
             ),
             Some(Remap {
                 mis_assembled,
-                tries,
-                kept: None,
+                global: true,
+                ..
             }) => format!(
-                "; {mis_assembled} mis-assembled link(s): {tries} mapping(s) from other initial pairs did no better"
+                "; {mis_assembled} mis-assembled link(s): mapped again by the global mapper"
+            ),
+            Some(Remap {
+                mis_assembled,
+                tries,
+                ..
+            }) => format!(
+                "; {mis_assembled} mis-assembled link(s): {tries} other mapping(s) did no better"
             ),
             None => String::new(),
         };

@@ -469,6 +469,39 @@ fn a_model_the_telemetry_contradicts_is_never_connected() {
     );
     let f = added[0]["frame"].as_u64().unwrap();
     assert!(f > 70 && f < 80, "{f}");
+    // Round 1 was mapped again (no other mapping can agree with the stepped telemetry): from
+    // other initial pairs and, through pycolmap, by the global mapper, each a mapper stage of
+    // its own; none is kept.
+    let remap = &r1["remap"];
+    let tries = remap["tries"].as_u64().unwrap();
+    assert!(tries >= 1, "{r1}");
+    assert!(
+        remap["kept"].is_null() && remap.get("global").is_none(),
+        "{r1}"
+    );
+    let stages: Vec<String> = json(&ws.join("colmap/colmap.json"))["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|st| st["stage"].as_str().unwrap().to_string())
+        .collect();
+    let count = |name: &str| stages.iter().filter(|s| *s == name).count() as u64;
+    let rounds = state["rounds"].as_array().unwrap();
+    let remapped: Vec<u64> = (rounds.iter())
+        .filter_map(|r| r["remap"]["tries"].as_u64())
+        .collect();
+    // Every round maps once, and each re-mapped round once per trial.
+    let trials: u64 = remapped.iter().sum();
+    let n = rounds.len() as u64;
+    match state.get("pycolmap") {
+        Some(_) => {
+            // The last trial of each re-mapped round is the global mapper's.
+            let global = remapped.len() as u64;
+            assert_eq!(count("global_mapper"), global, "{stages:?}");
+            assert_eq!(count("mapper"), n + trials - global, "{stages:?}");
+        }
+        None => assert_eq!(count("mapper"), n + trials, "{stages:?}"),
+    }
     // Never connected while the model and the telemetry disagree.
     assert_ne!(sum["outcome"], "connected", "{sum}");
     let last = state["rounds"].as_array().unwrap().last().unwrap();
