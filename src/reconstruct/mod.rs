@@ -593,7 +593,11 @@ impl Job<'_> {
         let mut found = breaks::find(&keys, &obs, o.limits);
         let fresh = first || o.mapping == Mapping::Fresh;
         let mut remap = None;
-        if fresh && o.mapper == MapperKind::Incremental && mis_assembled(&found) > 0 {
+        // Only a round whose every break is a mis-assembly (its keyframes held, its shape wrong)
+        // is mapped again: another mapping can then connect it without a frame, while a round
+        // with gaps gets frames anyway and the next round's fresh mapping is judged again.
+        let only_shape = !found.is_empty() && mis_assembled(&found) == found.len();
+        if fresh && o.mapper == MapperKind::Incremental && only_shape {
             let Trials { kept, tries } = self.remap(&cs, &keys, &by_frame, &priors, &found)?;
             rec = extend::end_trials(&cws, tries, kept.map(|k| k.0))?;
             remap = Some(Remap {
