@@ -365,12 +365,7 @@ fn walk_rig_registers_in_one_model_on_the_truth() {
             want.push([p[0], p[1], p[2]]);
         }
     }
-    let sim = umeyama(&got, &want).expect("a similarity");
-    let worst = got
-        .iter()
-        .zip(&want)
-        .map(|(g, w)| align::dist(&sim.apply(g), w))
-        .fold(0.0, f64::max);
+    let (_, worst) = worst_after_similarity(&got, &want);
     eprintln!(
         "front centres after a similarity: worst {worst:.3} m of a {length:.1} m walk ({:.2} %)",
         100.0 * worst / length
@@ -511,10 +506,7 @@ fn walk_rig_maps_as_one_rig_through_pycolmap() {
             want.push([p[0], p[1], p[2]]);
         }
     }
-    let sim = umeyama(&got, &want).expect("a similarity");
-    let worst = (got.iter().zip(&want))
-        .map(|(g, w)| align::dist(&sim.apply(g), w))
-        .fold(0.0, f64::max);
+    let (sim, worst) = worst_after_similarity(&got, &want);
     eprintln!(
         "pycolmap: front centres after a similarity: worst {worst:.3} m of a {length:.1} m walk ({:.2} %)",
         100.0 * worst / length
@@ -655,10 +647,7 @@ fn walk_erp_frames_map_whole_through_pycolmap() {
         let p = &poses[index_of(&im.name)].1;
         want.push([p[0], p[1], p[2]]);
     }
-    let sim = umeyama(&got, &want).expect("a similarity");
-    let worst = (got.iter().zip(&want))
-        .map(|(g, w)| align::dist(&sim.apply(g), w))
-        .fold(0.0, f64::max);
+    let (_, worst) = worst_after_similarity(&got, &want);
     eprintln!(
         "ERP through pycolmap: {} of {} keyframes in one model in {seconds:.1} s; centres after a \
          similarity: worst {worst:.3} m of a {length:.1} m walk ({:.2} %)",
@@ -667,4 +656,14 @@ fn walk_erp_frames_map_whole_through_pycolmap() {
         100.0 * worst / length
     );
     assert!(worst <= 0.02 * length, "worst {worst} m, walk {length} m");
+}
+
+/// The least-squares similarity from a model's camera centres (`got`) onto the true ones
+/// (`want`, the same order), and the largest distance left between them after it.
+fn worst_after_similarity(got: &[[f64; 3]], want: &[[f64; 3]]) -> (align::Sim3, f64) {
+    let sim = umeyama(got, want).expect("a similarity");
+    let worst = (got.iter().zip(want))
+        .map(|(g, w)| align::dist(&sim.apply(g), w))
+        .fold(0.0, f64::max);
+    (sim, worst)
 }
