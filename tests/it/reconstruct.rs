@@ -342,12 +342,7 @@ fn start_that_reconstructs_is_left_unchanged() {
     if pycolmap_found() {
         let ws = d.path().join("ws-global");
         let sum = summary(&reconstruct(&p, &ws, &["--mapper", "global"]));
-        let stages: Vec<String> = json(&ws.join("colmap/colmap.json"))["stages"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|st| st["stage"].as_str().unwrap().to_string())
-            .collect();
+        let stages = stages(&ws);
         assert!(stages.contains(&"global_mapper".to_string()), "{stages:?}");
         assert!(!stages.contains(&"mapper".to_string()), "{stages:?}");
         assert!(sum["colmap_version"]
@@ -358,6 +353,16 @@ fn start_that_reconstructs_is_left_unchanged() {
         assert_eq!(sum["registered"], start.len());
         assert_eq!(frames(&sum["final_keyframes"]), start);
     }
+}
+
+/// The COLMAP stages the loop in workspace `ws` ran, in order (its `colmap/colmap.json`).
+fn stages(ws: &Path) -> Vec<String> {
+    (json(&ws.join("colmap/colmap.json"))["stages"]
+        .as_array()
+        .unwrap()
+        .iter())
+    .map(|st| st["stage"].as_str().unwrap().to_string())
+    .collect()
 }
 
 /// The kinds of the breaks of a round in the state file, with their keyframes.
@@ -479,12 +484,7 @@ fn a_model_the_telemetry_contradicts_is_never_connected() {
         remap["kept"].is_null() && remap.get("global").is_none(),
         "{r1}"
     );
-    let stages: Vec<String> = json(&ws.join("colmap/colmap.json"))["stages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|st| st["stage"].as_str().unwrap().to_string())
-        .collect();
+    let stages = stages(&ws);
     let count = |name: &str| stages.iter().filter(|s| *s == name).count() as u64;
     let rounds = state["rounds"].as_array().unwrap();
     let remapped: Vec<u64> = (rounds.iter())
@@ -813,52 +813,26 @@ fn changed_input_and_foreign_workspace_are_refused() {
     assert!(err.contains("reconstruct.json"), "{err}");
     // --mapper global through a colmap command without it names what is missing.
     let ws = d.path().join("ws");
-    let help = Command::new("colmap").arg("help").output().unwrap();
-    if !String::from_utf8_lossy(&help.stdout).contains("global_mapper") {
-        let o = kf(&[
-            "reconstruct",
-            s(&project),
-            "--out",
-            s(&ws),
-            "--engine",
-            "colmap",
-            "--mapper",
-            "global",
-        ]);
+    // `reconstruct PROJECT --out WS EXTRA` exits 1 naming every one of `says`, writing nothing.
+    let refused = |extra: &[&str], says: &[&str]| {
+        let o = kf(&[&["reconstruct", s(&project), "--out", s(&ws)], extra].concat());
         let (code, err) = code_and_stderr(&o);
         assert_eq!(code, 1, "{err}");
-        assert!(
-            err.contains("global_mapper") && err.contains("--mapper"),
-            "{err}"
-        );
+        assert!(says.iter().all(|w| err.contains(w)), "{says:?}: {err}");
         assert!(!ws.exists());
+    };
+    let help = Command::new("colmap").arg("help").output().unwrap();
+    if !String::from_utf8_lossy(&help.stdout).contains("global_mapper") {
+        let args = ["--engine", "colmap", "--mapper", "global"];
+        refused(&args, &["global_mapper", "--mapper"]);
     }
     // The global mapper maps every image at once: it cannot continue a model.
-    let o = kf(&[
-        "reconstruct",
-        s(&project),
-        "--out",
-        s(&ws),
-        "--mapper",
-        "global",
-        "--mapping",
-        "continue",
-    ]);
-    let (code, err) = code_and_stderr(&o);
-    assert_ne!(code, 0, "{err}");
-    assert!(
-        err.contains("mapping") && err.contains("global mapper"),
-        "{err}"
-    );
-    assert!(!ws.exists());
+    let args = ["--mapper", "global", "--mapping", "continue"];
+    refused(&args, &["mapping", "global mapper"]);
     // A changed input is refused before anything is written.
     let bytes = std::fs::read(&clip).unwrap();
     std::fs::write(&clip, [bytes.as_slice(), b"x"].concat()).unwrap();
-    let o = kf(&["reconstruct", s(&project), "--out", s(&ws)]);
-    let (code, err) = code_and_stderr(&o);
-    assert_eq!(code, 1, "{err}");
-    assert!(err.contains("the input changed"), "{err}");
-    assert!(!ws.exists());
+    refused(&[], &["the input changed"]);
 }
 
 #[test]
@@ -878,14 +852,7 @@ fn preview_project_falls_back_to_time_and_a_failing_stage_is_named() {
     let (code, err) = code_and_stderr(&o);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("repairs are placed by time"), "{err}");
-    let log = ws.join("colmap/logs/sequential_matcher.log");
-    assert!(
-        err.contains("colmap sequential_matcher failed") && err.contains(s(&log)),
-        "{err}"
-    );
-    assert!(std::fs::read_to_string(&log)
-        .unwrap()
-        .contains("matcher broke"));
+    matcher_failure_named(&err, &ws, "colmap");
     // The round stays unfinished: the next run resumes it.
     let st = json(&ws.join("reconstruct.json"));
     assert_eq!(st["rounds"].as_array().unwrap().len(), 1);
@@ -907,53 +874,41 @@ fn preview_project_falls_back_to_time_and_a_failing_stage_is_named() {
     use std::os::unix::fs::PermissionsExt;
     std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
     let ws = d.path().join("ws-py");
-    let o = Command::new(env!("CARGO_BIN_EXE_keyframer"))
-        .args([
-            "reconstruct",
-            s(&p),
-            "--out",
-            s(&ws),
-            "--engine",
-            "pycolmap",
-        ])
-        .env("KEYFRAMER_COLMAP", &fake)
-        .env("KEYFRAMER_PYTHON", &python)
-        .env("FAIL_STAGE", "sequential_matcher")
-        .output()
-        .unwrap();
-    let (code, err) = code_and_stderr(&o);
+    // `reconstruct --engine pycolmap` with the fake colmap and `python` as pycolmap's Python.
+    let through = |python: &Path| {
+        let o = Command::new(env!("CARGO_BIN_EXE_keyframer"))
+            .args(["reconstruct", s(&p), "--out", s(&ws)])
+            .args(["--engine", "pycolmap"])
+            .env("KEYFRAMER_COLMAP", &fake)
+            .env("KEYFRAMER_PYTHON", python)
+            .env("FAIL_STAGE", "sequential_matcher")
+            .output()
+            .unwrap();
+        code_and_stderr(&o)
+    };
+    let (code, err) = through(&python);
     assert_eq!(code, 1, "{err}");
-    let log = ws.join("colmap/logs/sequential_matcher.log");
-    assert!(
-        err.contains("pycolmap sequential_matcher failed") && err.contains(s(&log)),
-        "{err}"
-    );
-    assert!(std::fs::read_to_string(&log)
-        .unwrap()
-        .contains("sequential_matcher broke"));
+    matcher_failure_named(&err, &ws, "pycolmap");
     let st = json(&ws.join("reconstruct.json"));
     assert_eq!(st["pycolmap"]["version"], "4.2.1");
     assert_eq!(st["rounds"][0]["done"], false);
     // Its resume keeps pycolmap, and says so when it cannot find it.
-    let o = Command::new(env!("CARGO_BIN_EXE_keyframer"))
-        .args([
-            "reconstruct",
-            s(&p),
-            "--out",
-            s(&ws),
-            "--engine",
-            "pycolmap",
-        ])
-        .env("KEYFRAMER_COLMAP", &fake)
-        .env("KEYFRAMER_PYTHON", d.path().join("no-python"))
-        .output()
-        .unwrap();
-    let (code, err) = code_and_stderr(&o);
+    let (code, err) = through(&d.path().join("no-python"));
     assert_eq!(code, 1, "{err}");
     assert!(
         err.contains("runs through pycolmap 4.2.1, which is not found now"),
         "{err}"
     );
+}
+
+/// The failing sequential matcher of `engine` named on stderr (`err`) with its log in the
+/// workspace `ws`, which holds what the stage printed.
+fn matcher_failure_named(err: &str, ws: &Path, engine: &str) {
+    let log = ws.join("colmap/logs/sequential_matcher.log");
+    let named = format!("{engine} sequential_matcher failed");
+    assert!(err.contains(&named) && err.contains(s(&log)), "{err}");
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(text.contains("sequential_matcher broke"), "{text}");
 }
 
 /// `workflow save` of a reconstructed project writes its loop as a `[[reconstruct]]` table, and
