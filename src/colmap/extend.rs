@@ -12,11 +12,11 @@ use super::pycolmap::{Engine, Pycolmap};
 use super::{
     check_export, extract_and_match, fill_workspace, locate, mapper_args, ours_now, p, py_extract,
     py_mapper_args, py_match, read_models, read_record, remove_ours, write_project_ini,
-    write_record, Colmap, ColmapSettings, Record, Runner,
+    write_record, Colmap, ColmapSettings, Record, Runner, StageRecord,
 };
 use crate::error::{Error, Result};
 use crate::fsutil;
-use crate::sparse::{MapperKind, Mapping};
+use crate::sparse::{MapperKind, Mapping, SparseOptions};
 use std::path::Path;
 
 /// Folder the mapper of a later round writes into before it replaces `sparse/`.
@@ -243,29 +243,17 @@ pub fn remap_trial(
         // same pair again (52 times, 31 s against 0.7 s on an 18-image database).
         options.push("multiple_models=0".into());
     }
-    let args = match py {
-        Some(_) => py_mapper_args(&ws, &output, &with_init, rec.rig, kind)?,
-        None => mapper_args(&ws, &output, &with_init)?,
-    };
-    let args: Vec<(&str, String)> = args.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
     let runner = Runner {
         colmap: &colmap,
         ws: &ws,
         quiet,
     };
-    let (stage, failure) = match py {
-        Some(py) => runner.try_py_stage(py, mapper_command(kind), &args)?,
-        None => runner.try_stage(mapper_command(kind), &args)?,
-    };
-    let log = ws.join(&stage.log);
+    let (stage, failure) = try_mapper(&runner, rec.rig, kind, &output, &with_init, None, py)?;
     rec.stages.push(stage);
     rec.files = ours_now(&ws);
     write_record(&ws, &rec)?;
     if let Some(e) = failure {
-        let text = std::fs::read_to_string(&log).unwrap_or_default();
-        if !text.contains("failed to create sparse model") {
-            return Err(e);
-        }
+        return Err(e);
     }
     rec.models = read_models(&ws, &output)?;
     Ok(rec)
@@ -362,9 +350,42 @@ fn map_into_sparse(
         _ => next.clone(),
     };
     std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
+    let (stage, failure) = try_mapper(
+        runner,
+        rec.rig,
+        kind,
+        &output,
+        &a.options,
+        continue_from,
+        py,
+    )?;
+    rec.stages.push(stage);
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    clear(ws, "sparse")?;
+    let sparse = ws.join("sparse");
+    std::fs::rename(&next, &sparse).map_err(|e| Error::io(&sparse, e))?;
+    rec.models = read_models(ws, &sparse)?;
+    Ok(())
+}
+
+/// Runs the mapper `kind` (through pycolmap when `py` is given) with `options`, writing into
+/// `output` and continuing the model in `continue_from` when given. Returns its stage record and
+/// its failure, if any: a mapper that keeps no model (COLMAP 3.8 then exits 1) has not failed.
+fn try_mapper(
+    runner: &Runner,
+    rig: bool,
+    kind: MapperKind,
+    output: &Path,
+    options: &SparseOptions,
+    continue_from: Option<&Path>,
+    py: Option<&Pycolmap>,
+) -> Result<(StageRecord, Option<Error>)> {
+    let ws = runner.ws;
     let mut args = match py {
-        Some(_) => py_mapper_args(ws, &output, &a.options, rec.rig, kind)?,
-        None => mapper_args(ws, &output, &a.options)?,
+        Some(_) => py_mapper_args(ws, output, options, rig, kind)?,
+        None => mapper_args(ws, output, options)?,
     };
     if let Some(from) = continue_from {
         args.push(("--input_path".into(), p(from)));
@@ -379,20 +400,12 @@ fn map_into_sparse(
         Some(py) => runner.try_py_stage(py, command, &args)?,
         None => runner.try_stage(command, &args)?,
     };
-    let log = ws.join(&stage.log);
-    rec.stages.push(stage);
-    if let Some(e) = failure {
-        let text = std::fs::read_to_string(&log).unwrap_or_default();
-        // COLMAP 3.8's mapper exits 1 when it keeps no model: that is a result here.
-        if !text.contains("failed to create sparse model") {
-            return Err(e);
-        }
-    }
-    clear(ws, "sparse")?;
-    let sparse = ws.join("sparse");
-    std::fs::rename(&next, &sparse).map_err(|e| Error::io(&sparse, e))?;
-    rec.models = read_models(ws, &sparse)?;
-    Ok(())
+    let no_model = || {
+        (std::fs::read_to_string(ws.join(&stage.log)).unwrap_or_default())
+            .contains("failed to create sparse model")
+    };
+    let failure = failure.filter(|_| !no_model());
+    Ok((stage, failure))
 }
 
 /// Removes the folder `name` of the workspace, which holds only what keyframer and COLMAP wrote
