@@ -261,21 +261,61 @@ impl SharpnessGpu {
     /// staging buffer is in flight, and then until half of them have landed.
     pub fn submit<F: HostImage + ?Sized>(&mut self, frames: &[&F]) -> Result<()> {
         for chunk in frames.chunks(self.slots.len()) {
-            if self.readback.is_full() {
-                self.land(Until::Half)?;
-            }
+            self.make_room()?;
             for (i, f) in chunk.iter().enumerate() {
                 self.upload(i, *f)?;
             }
-            let mut enc = self.ctx.encoder("sharpness batch");
-            for i in 0..chunk.len() {
-                self.encode(&mut enc, i);
+            self.submit_batch(chunk.len())?;
+        }
+        Ok(())
+    }
+
+    /// Waits for half of the staging buffers when every one is in flight.
+    fn make_room(&mut self) -> Result<()> {
+        match self.readback.is_full() {
+            true => self.land(Until::Half),
+            false => Ok(()),
+        }
+    }
+
+    /// Scores the frames in the first `n` slots: one submission, its totals copied back.
+    fn submit_batch(&mut self, n: usize) -> Result<()> {
+        let mut enc = self.ctx.encoder("sharpness batch");
+        for i in 0..n {
+            self.encode(&mut enc, i);
+        }
+        let used = TOTALS_SLOT * n as u64;
+        self.readback
+            .copy(&self.ctx, &mut enc, &self.totals, used)?;
+        self.readback.submit(&self.ctx, enc);
+        self.in_flight.push_back(n);
+        Ok(())
+    }
+
+    /// Uploads `frames` into the batch slots, one submission per batch, and scores nothing:
+    /// the upload alone, as [`SharpnessGpu::submit`] makes it (`keyframer-gpu-bench` times it).
+    pub fn upload_only<F: HostImage + ?Sized>(&mut self, frames: &[&F]) -> Result<()> {
+        for chunk in frames.chunks(self.slots.len()) {
+            for (i, f) in chunk.iter().enumerate() {
+                self.upload(i, *f)?;
             }
-            let used = TOTALS_SLOT * chunk.len() as u64;
-            self.readback
-                .copy(&self.ctx, &mut enc, &self.totals, used)?;
-            self.readback.submit(&self.ctx, enc);
-            self.in_flight.push_back(chunk.len());
+            let enc = self.ctx.encoder("sharpness upload");
+            self.ctx.queue.submit([enc.finish()]);
+        }
+        Ok(())
+    }
+
+    /// Scores the frames already in the batch slots again, `count` scores in full batches (the
+    /// last one partial), uploading nothing: the kernels and the read-back alone
+    /// (`keyframer-gpu-bench` times it). Their scores come back through [`SharpnessGpu::take`].
+    pub fn submit_resident(&mut self, count: usize) -> Result<()> {
+        let batch = self.slots.len();
+        let mut left = count;
+        while left > 0 {
+            self.make_room()?;
+            let n = left.min(batch);
+            self.submit_batch(n)?;
+            left -= n;
         }
         Ok(())
     }

@@ -18,6 +18,8 @@ use std::time::Instant;
 const SPEED: u32 = 2;
 /// Seed of every scene.
 const SEED: u64 = 35;
+/// Frames per submission of the buffer upload (the sharpness runner's batch).
+const UPLOAD_SLOTS: usize = 16;
 /// Distinct gray frames the Farneback loop cycles through.
 const FLOW_FRAMES: usize = 16;
 
@@ -43,6 +45,26 @@ pub struct Measure {
     pub per_frame: PerFrame,
 }
 
+/// The results of a run's first frames, kept in the report so that they can be checked against
+/// the OpenCV twins where OpenCV is (`tests/it/gpu_bench.rs` reads the recorded reports in
+/// `reference/gpu-bench/`): the numbers of a GPU without OpenCV beside it then time kernels
+/// whose results were checked.
+#[derive(Debug, Clone, Serialize)]
+pub struct Recorded {
+    /// The run (`gray+resize+tenengrad`, `analysis`, ...).
+    pub name: String,
+    /// Frame size, `WxH`.
+    pub size: String,
+    /// Frames of the scene recorded: 0 to `frames - 1`.
+    pub frames: usize,
+    /// Sharpness of each recorded frame (the run's metric; Tenengrad for `analysis`).
+    pub sharpness: Vec<f64>,
+    /// Movement into each recorded frame (`analysis`).
+    pub movement: Option<Vec<f64>>,
+    /// The stationary step's keyframes among the recorded frames (`analysis`).
+    pub stationary: Option<Vec<usize>>,
+}
+
 /// The device, its clock and the run's sizes.
 pub struct Bench {
     /// The context every measurement shares.
@@ -51,6 +73,8 @@ pub struct Bench {
     pub clock: Option<Clock>,
     /// Frames (pairs) per measurement and stream.
     pub frames: usize,
+    /// Frames whose results each run records (at most `frames`).
+    pub record: usize,
 }
 
 impl Bench {
@@ -92,13 +116,14 @@ impl Bench {
         })
     }
 
-    /// Gray + INTER_AREA to `small` + `metric` on `size` BGR frames (upload included).
+    /// Gray + INTER_AREA to `small` + `metric` on `size` BGR frames (upload included), and the
+    /// record of the first frames' scores.
     pub fn sharpness(
         &self,
         metric: Metric,
         size: (u32, u32),
         small: (u32, u32),
-    ) -> Result<Measure> {
+    ) -> Result<(Measure, Recorded)> {
         let scene = Scroll::new(size.0, size.1, SPEED, SEED);
         let mut r = SharpnessGpu::new(self.ctx.clone(), metric, size.0, size.1)?;
         r.attach_resize(small)?;
@@ -120,6 +145,91 @@ impl Bench {
             scores.len() == n && scores.iter().all(|s| s.is_finite() && *s > 0.0),
             &name,
         )?;
+        let kept = self.record.min(n);
+        let recorded = Recorded {
+            name,
+            size: m.size.clone(),
+            frames: kept,
+            sharpness: scores[..kept].to_vec(),
+            movement: None,
+            stationary: None,
+        };
+        Ok((m, recorded))
+    }
+
+    /// The same bytes as [`Bench::upload`] written into storage buffers instead of textures
+    /// (`queue.write_buffer`, one buffer per batch slot, one submission per batch): what a frame
+    /// kept in a buffer would cost to upload.
+    pub fn upload_buffer(&self, size: (u32, u32)) -> Result<Measure> {
+        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let bytes = u64::from(size.0) * u64::from(size.1) * 3;
+        let slots: Vec<wgpu::Buffer> = (0..UPLOAD_SLOTS)
+            .map(|_| {
+                self.ctx
+                    .storage_buffer("bench frame", bytes.next_multiple_of(4))
+            })
+            .collect();
+        let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
+        let put = |frames: &[&[u8]]| {
+            for chunk in frames.chunks(UPLOAD_SLOTS) {
+                for (f, b) in chunk.iter().zip(&slots) {
+                    // write_buffer wants a multiple of 4 bytes: every frame size here has one.
+                    self.ctx.write(b, 0, &f[..f.len() & !3]);
+                }
+                let enc = self.ctx.encoder("bench upload");
+                self.ctx.queue.submit([enc.finish()]);
+            }
+        };
+        put(&frames[..1]);
+        self.ctx.wait()?;
+        self.timed(
+            ("upload buffer", size, 1, frames.len()),
+            || {
+                put(&frames);
+                Ok(())
+            },
+            |()| self.ctx.wait(),
+        )
+    }
+
+    /// The upload alone of [`Bench::sharpness`]: `size` BGR frames into the runner's textures,
+    /// one submission per batch, nothing computed.
+    pub fn upload(&self, size: (u32, u32)) -> Result<Measure> {
+        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let mut r = SharpnessGpu::new(self.ctx.clone(), Metric::Tenengrad, size.0, size.1)?;
+        r.upload_only(&[scene.frame(0)])?;
+        let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
+        let n = frames.len();
+        self.timed(
+            ("upload", size, 1, n),
+            || r.upload_only(&frames),
+            |()| self.ctx.wait(),
+        )
+    }
+
+    /// The kernels and the read-back alone of [`Bench::sharpness`]: the frames already on the
+    /// device (one batch, uploaded before the clock starts) scored again, `frames` scores.
+    pub fn resident(&self, metric: Metric, size: (u32, u32), small: (u32, u32)) -> Result<Measure> {
+        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let mut r = SharpnessGpu::new(self.ctx.clone(), metric, size.0, size.1)?;
+        r.attach_resize(small)?;
+        let batch: Vec<&[u8]> = (0..r.batch_size()).map(|i| scene.frame(i)).collect();
+        let first = r.scores(&batch)?;
+        let name = format!("no-upload {}", metric_name(metric));
+        let n = self.frames;
+        let runner = std::cell::RefCell::new(r);
+        let mut scores = Vec::new();
+        let m = self.timed(
+            (&name, size, 1, n),
+            || runner.borrow_mut().submit_resident(n),
+            |()| {
+                scores = runner.borrow_mut().take(true)?;
+                Ok(())
+            },
+        )?;
+        // The same frames give the same scores, uploaded or not.
+        let again = scores.chunks(first.len()).all(|c| c == &first[..c.len()]);
+        expect(scores.len() == n && again, &name)?;
         Ok(m)
     }
 
@@ -152,7 +262,12 @@ impl Bench {
 
     /// The whole per-frame analysis of `select --stationary --blur --spacing` on the gpu backend
     /// (`keyframer::analysis::DeviceAnalysis`), `streams` threads at once, each with its engine.
-    pub fn analysis(&self, size: (u32, u32), req: &Request, streams: usize) -> Result<Measure> {
+    pub fn analysis(
+        &self,
+        (name, size): (&str, (u32, u32)),
+        req: &Request,
+        streams: usize,
+    ) -> Result<(Measure, Recorded)> {
         let scene = Scroll::new(size.0, size.1, SPEED, SEED);
         let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
         // Warm-up: the pipelines are compiled once per context.
@@ -166,7 +281,7 @@ impl Bench {
         let frames = &frames;
         let mut results = Vec::new();
         let m = self.timed(
-            ("analysis", size, streams, n * streams),
+            (name, size, streams, n * streams),
             || {
                 let done = std::thread::scope(|s| {
                     let handles: Vec<_> = (engines.into_iter())
@@ -193,12 +308,44 @@ impl Bench {
         let ok = results.iter().all(|r| {
             r.frames == n
                 && r.sharpness.iter().all(|s| s.len() == n)
-                && r.movement.as_ref().is_some_and(|v| v.len() == n)
-                && r.stationary.as_ref().is_some_and(|k| !k.is_empty())
+                && r.movement.as_ref().map(|v| v.len()) == req.movement.as_ref().map(|_| n)
+                && r.stationary.as_ref().map(|k| k.is_empty())
+                    == req.stationary.as_ref().map(|_| false)
         });
-        expect(ok && results.windows(2).all(|w| w[0] == w[1]), "analysis")?;
-        Ok(m)
+        expect(ok && results.windows(2).all(|w| w[0] == w[1]), name)?;
+        let kept = self.record.min(n);
+        let first = &results[0];
+        let recorded = Recorded {
+            name: name.into(),
+            size: m.size.clone(),
+            frames: kept,
+            sharpness: first.sharpness[0][..kept].to_vec(),
+            movement: first.movement.as_ref().map(|v| v[..kept].to_vec()),
+            stationary: (first.stationary.as_ref())
+                .map(|k| k.iter().copied().filter(|&i| i < kept).collect()),
+        };
+        Ok((m, recorded))
     }
+}
+
+/// The parts of [`select_request`] timed alone (a stage's cost is the difference between two
+/// rows): the blur step's sharpness, then the spacing's movement too, then all of it.
+pub fn select_parts(width: u32, analysis_width: u32) -> [(&'static str, Request); 3] {
+    let full = select_request(width, analysis_width);
+    let blur = Request {
+        sharpness: full.sharpness.clone(),
+        ..Request::default()
+    };
+    let spacing = Request {
+        sharpness: full.sharpness.clone(),
+        movement: full.movement,
+        ..Request::default()
+    };
+    [
+        ("analysis blur", blur),
+        ("analysis blur+spacing", spacing),
+        ("analysis", full),
+    ]
 }
 
 /// The request `select --stationary --blur --spacing` makes (Tenengrad, movement with

@@ -7,7 +7,7 @@
 mod bench;
 mod clock;
 
-use bench::{select_request, Bench, Measure};
+use bench::{select_parts, Bench, Measure, Recorded};
 use clap::Parser;
 use keyframer::analysis::analysis_size;
 use keyframer::gpu::{GpuContext, PerFrame};
@@ -38,6 +38,10 @@ struct Args {
     /// Adapter (case-insensitive substring of its name; else KEYFRAMER_ADAPTER, else the best).
     #[arg(long)]
     adapter: Option<String>,
+    /// Frames (from the first) whose results each run records in the JSON, to be checked
+    /// against the OpenCV twins where OpenCV is (`reference/gpu-bench/`).
+    #[arg(long, default_value_t = 24)]
+    record: usize,
     /// Also write the results as JSON to this file.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -65,6 +69,8 @@ struct Report {
     analysis_width: u32,
     kernels: Vec<Measure>,
     analysis: Vec<Measure>,
+    /// The first frames' results of each sharpness and analysis run.
+    results: Vec<Recorded>,
 }
 
 fn size_of(name: &str) -> Result<(u32, u32), String> {
@@ -106,13 +112,22 @@ fn run(args: &Args) -> Result<Report, String> {
         ctx,
         clock,
         frames: args.frames,
+        record: args.record,
     };
     let e = |e: keyframer::Error| e.to_string();
-    let mut kernels = Vec::new();
+    let (mut kernels, mut results) = (Vec::new(), Vec::new());
     for &size in &sizes {
         let small = analysis_size(size.0, size.1, args.analysis_width);
+        kernels.push(b.upload(size).map_err(e)?);
+        show(kernels.last());
+        kernels.push(b.upload_buffer(size).map_err(e)?);
+        show(kernels.last());
         for metric in [Metric::Tenengrad, Metric::Laplacian { ksize: 3 }] {
-            kernels.push(b.sharpness(metric, size, small).map_err(e)?);
+            let (m, r) = b.sharpness(metric, size, small).map_err(e)?;
+            kernels.push(m);
+            results.push(r);
+            show(kernels.last());
+            kernels.push(b.resident(metric, size, small).map_err(e)?);
             show(kernels.last());
         }
     }
@@ -122,10 +137,20 @@ fn run(args: &Args) -> Result<Report, String> {
     }
     let mut analysis = Vec::new();
     for &size in &sizes {
-        let req = select_request(size.0, args.analysis_width);
-        for &streams in &args.streams {
-            analysis.push(b.analysis(size, &req, streams).map_err(e)?);
+        let [blur, spacing, (name, full)] = select_parts(size.0, args.analysis_width);
+        // The stages one by one on one stream (each row's cost minus the one before is the
+        // stage's), then the whole analysis on each number of streams.
+        for (part, req) in [blur, spacing] {
+            analysis.push(b.analysis((part, size), &req, 1).map_err(e)?.0);
             show(analysis.last());
+        }
+        for &streams in &args.streams {
+            let (m, r) = b.analysis((name, size), &full, streams).map_err(e)?;
+            analysis.push(m);
+            show(analysis.last());
+            if streams == args.streams[0] {
+                results.push(r);
+            }
         }
     }
     Ok(Report {
@@ -143,6 +168,7 @@ fn run(args: &Args) -> Result<Report, String> {
         analysis_width: args.analysis_width,
         kernels,
         analysis,
+        results,
     })
 }
 

@@ -52,8 +52,12 @@ fn the_benchmark_times_every_run_within_the_budget() {
     assert_eq!(
         names,
         [
+            "upload",
+            "upload buffer",
             "gray+resize+tenengrad",
+            "no-upload tenengrad",
             "gray+resize+laplacian",
+            "no-upload laplacian",
             "farneback",
             "farneback"
         ]
@@ -62,12 +66,27 @@ fn the_benchmark_times_every_run_within_the_budget() {
         .iter()
         .map(|k| k["size"].as_str().unwrap())
         .collect();
-    assert_eq!(sizes, ["640x360", "640x360", "160x90", "320x180"]);
+    assert_eq!(
+        sizes,
+        ["640x360", "640x360", "640x360", "640x360", "640x360", "640x360", "160x90", "320x180"]
+    );
     let streams: Vec<u64> = analysis
         .iter()
         .map(|a| a["streams"].as_u64().unwrap())
         .collect();
-    assert_eq!(streams, [1, 4]);
+    assert_eq!(streams, [1, 1, 1, 4]);
+    let parts: Vec<&str> = (analysis.iter())
+        .map(|a| a["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        parts,
+        [
+            "analysis blur",
+            "analysis blur+spacing",
+            "analysis",
+            "analysis"
+        ]
+    );
     for run in kernels.iter().chain(&analysis) {
         let per_s = run["per_s"].as_f64().unwrap();
         assert!(per_s.is_finite() && per_s > 0.0, "{run}");
@@ -81,15 +100,42 @@ fn the_benchmark_times_every_run_within_the_budget() {
                 "{run}"
             );
         }
-        assert!(
-            run["per_frame"]["dispatches"].as_f64().unwrap() > 0.0,
-            "{run}"
+        // The upload row dispatches nothing; the no-upload rows upload nothing; the rest both.
+        let name = run["name"].as_str().unwrap();
+        let per = &run["per_frame"];
+        let (dispatches, bytes) = (
+            per["dispatches"].as_f64().unwrap(),
+            per["uploaded"].as_f64().unwrap(),
         );
-        assert!(
-            run["per_frame"]["uploaded"].as_f64().unwrap() > 0.0,
-            "{run}"
-        );
+        assert_eq!(dispatches > 0.0, !name.starts_with("upload"), "{run}");
+        assert_eq!(bytes > 0.0, !name.starts_with("no-upload"), "{run}");
+        if name.starts_with("upload") {
+            assert_eq!(bytes, 640.0 * 360.0 * 3.0, "one BGR frame each: {run}");
+        }
     }
+    // The first frames' results of the sharpness runs and the single-stream analysis.
+    let results = runs("results");
+    let recorded: Vec<(&str, u64)> = (results.iter())
+        .map(|r| (r["name"].as_str().unwrap(), r["frames"].as_u64().unwrap()))
+        .collect();
+    let want = [
+        ("gray+resize+tenengrad", 24),
+        ("gray+resize+laplacian", 24),
+        ("analysis", 24),
+    ];
+    assert_eq!(recorded, want);
+    for r in &results {
+        let scores = r["sharpness"].as_array().unwrap();
+        assert_eq!(scores.len(), 24, "{r}");
+        assert!(scores.iter().all(|s| s.as_f64().unwrap() > 0.0), "{r}");
+    }
+    let analysed = &results[2];
+    assert_eq!(analysed["movement"].as_array().unwrap().len(), 24);
+    let keys = analysed["stationary"].as_array().unwrap();
+    assert!(
+        keys.first().and_then(|k| k.as_u64()) == Some(0),
+        "{analysed}"
+    );
     for run in &analysis {
         let per = &run["per_frame"];
         let (back, waits) = (
