@@ -111,3 +111,123 @@ fn the_timed_device_analysis_equals_the_opencv_twins() {
         );
     }
 }
+
+/// The request of the bench's whole analysis (tools/gpu-bench/src/bench.rs: `select_request`).
+fn bench_request(width: u32, analysis_width: u32) -> Request {
+    let mut movement = keyframer::steps::defaults::movement();
+    movement.analysis_width = analysis_width;
+    Request {
+        sharpness: vec![Metric::Tenengrad],
+        movement: Some(movement),
+        stationary: Some(keyframer::params::StationaryRequest {
+            threshold: f64::from(width) * 0.01,
+            reset_delta: keyframer::steps::defaults::RESET_DELTA,
+            first: 0,
+            last: usize::MAX,
+        }),
+        ..Request::default()
+    }
+}
+
+/// The results a real GPU recorded (`reference/gpu-bench/*.json`: keyframer-gpu-bench's JSON
+/// from a machine without OpenCV, its first frames' scores, movement and stationary keyframes)
+/// equal what the opencv backend computes here on the same frames (written as PNG and read as an
+/// image folder): the figures in docs/benchmarks.md time kernels that were correct on that GPU.
+#[test]
+fn results_recorded_on_a_gpu_equal_the_opencv_backend() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("reference/gpu-bench");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "json"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no recorded run in {}", dir.display());
+    let tmp = tempfile::tempdir().unwrap();
+    for file in &files {
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(file).unwrap()).unwrap();
+        let analysis_width = v["analysis_width"].as_u64().unwrap() as u32;
+        let results = v["results"].as_array().unwrap();
+        assert!(!results.is_empty(), "{}: no results", file.display());
+        for r in results {
+            let name = r["name"].as_str().unwrap();
+            let what = format!("{} {name} {}", file.display(), r["size"]);
+            let (w, h) = r["size"].as_str().unwrap().split_once('x').unwrap();
+            let (w, h): (u32, u32) = (w.parse().unwrap(), h.parse().unwrap());
+            let n = r["frames"].as_u64().unwrap() as usize;
+            let f64s = |key: &str| -> Vec<f64> {
+                (r[key].as_array().unwrap().iter())
+                    .map(|x| x.as_f64().unwrap())
+                    .collect()
+            };
+            let scene = Scroll::new(w, h, SPEED, SEED);
+            let sharpness = f64s("sharpness");
+            assert_eq!(sharpness.len(), n, "{what}");
+            let metric = match name {
+                "gray+resize+laplacian" => Metric::Laplacian { ksize: 3 },
+                "gray+resize+tenengrad" | "analysis" => Metric::Tenengrad,
+                other => panic!("{what}: unknown run {other}"),
+            };
+            if name != "analysis" {
+                for (i, g) in sharpness.iter().enumerate() {
+                    let c = score_opencv(&bgr(scene.frame(i), h as i32), metric).unwrap();
+                    let e = rel_err(*g, c);
+                    assert!(e <= SHARPNESS_REL, "{what} frame {i}: {g} vs {c} ({e})");
+                }
+                continue;
+            }
+            // The whole analysis: the same frames through the opencv backend, a stride more
+            // than recorded (the last recorded frames' movement comes from a pair ending after
+            // them; the run on the GPU went on).
+            let req = bench_request(w, analysis_width);
+            let stride = req.movement.as_ref().unwrap().stride as usize;
+            let folder = tmp.path().join(format!("{w}x{h}-{analysis_width}"));
+            std::fs::create_dir_all(&folder).unwrap();
+            for i in 0..n + stride {
+                let path = folder.join(format!("{i:04}.png"));
+                let m = bgr(scene.frame(i), h as i32);
+                let ok = opencv::imgcodecs::imwrite_def(path.to_str().unwrap(), &m).unwrap();
+                assert!(ok, "{}", path.display());
+            }
+            let opts = keyframer::source::OpenOptions::default();
+            let cpu = keyframer::analysis::analyse(
+                &folder,
+                &opts,
+                &req,
+                keyframer::params::Backend::Opencv,
+                None,
+                true,
+                None,
+            )
+            .unwrap();
+            let (_, scores) = &cpu.sharpness[0];
+            for (i, (g, c)) in sharpness.iter().zip(scores).enumerate() {
+                let e = rel_err(*g, *c);
+                assert!(e <= SHARPNESS_REL, "{what} frame {i}: {g} vs {c} ({e})");
+            }
+            let movement = f64s("movement");
+            let values = &cpu.movement.as_ref().unwrap().values;
+            assert_eq!((movement.len(), values.len()), (n, n + stride), "{what}");
+            assert!(values[n - 1] > 0.5, "{what}: the scene moves: {values:?}");
+            for (i, (g, c)) in movement.iter().zip(values).enumerate() {
+                let e = rel_err(*g, *c);
+                assert!(
+                    e <= MOVEMENT_REL,
+                    "{what} frame {i}: movement {g} vs {c} ({e})"
+                );
+            }
+            let keys: Vec<usize> = (r["stationary"].as_array().unwrap().iter())
+                .map(|k| k.as_u64().unwrap() as usize)
+                .collect();
+            let cpu_keys: Vec<usize> = (cpu.stationary.unwrap().into_iter())
+                .filter(|&k| k < n)
+                .collect();
+            assert!(
+                keys.len() > 1,
+                "{what}: the stationary step keeps frames: {keys:?}"
+            );
+            assert_eq!(keys, cpu_keys, "{what}: stationary keyframes");
+        }
+    }
+}
