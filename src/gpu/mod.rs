@@ -75,6 +75,18 @@ impl std::ops::Sub for Counts {
     }
 }
 
+impl std::ops::Add for Counts {
+    type Output = Counts;
+    fn add(self, o: Counts) -> Counts {
+        Counts {
+            dispatches: self.dispatches + o.dispatches,
+            uploaded: self.uploaded + o.uploaded,
+            read_back: self.read_back + o.read_back,
+            waits: self.waits + o.waits,
+        }
+    }
+}
+
 /// A context's counters divided by the frames they served.
 #[derive(Debug, Clone, Copy, serde::Serialize)]
 pub struct PerFrame {

@@ -4,7 +4,7 @@
 
 use crate::clock::Clock;
 use keyframer::analysis::{DeviceAnalysis, Request};
-use keyframer::gpu::{GpuContext, PerFrame};
+use keyframer::gpu::{Counts, GpuContext, PerFrame};
 use keyframer::kernels::farneback::FarnebackGpu;
 use keyframer::kernels::sharpness::SharpnessGpu;
 use keyframer::params::{FarnebackParams, Metric, StationaryRequest};
@@ -75,34 +75,51 @@ pub struct Bench {
     pub frames: usize,
     /// Frames whose results each run records (at most `frames`).
     pub record: usize,
+    /// The adapter asked for (for the runs that open a device per stream).
+    pub adapter: Option<String>,
 }
 
 impl Bench {
     /// Times `submit` (then the end mark), then `wait`; `count` frames.
     fn timed<T>(
         &self,
+        label: (&str, (u32, u32), usize, usize),
+        submit: impl FnOnce() -> Result<T>,
+        wait: impl FnOnce(T) -> Result<()>,
+    ) -> Result<Measure> {
+        self.timed_on(&[self.ctx.clone()], label, submit, wait)
+    }
+
+    /// As [`Bench::timed`] for work on the devices `ctxs`: the counters are summed over them;
+    /// device time only when `ctxs` is the bench's own device (its clock sees that queue only).
+    fn timed_on<T>(
+        &self,
+        ctxs: &[Arc<GpuContext>],
         (name, size, streams, count): (&str, (u32, u32), usize, usize),
         submit: impl FnOnce() -> Result<T>,
         wait: impl FnOnce(T) -> Result<()>,
     ) -> Result<Measure> {
-        self.ctx.wait()?;
-        let before = self.ctx.counts();
-        if let Some(c) = &self.clock {
+        let clock = match ctxs {
+            [only] if Arc::ptr_eq(only, &self.ctx) => self.clock.as_ref(),
+            _ => None,
+        };
+        let counts = || ctxs.iter().fold(Counts::default(), |a, c| a + c.counts());
+        for c in ctxs {
+            c.wait()?;
+        }
+        let before = counts();
+        if let Some(c) = clock {
             c.mark(&self.ctx, 0);
         }
         let start = Instant::now();
         let pending = submit()?;
-        if let Some(c) = &self.clock {
+        if let Some(c) = clock {
             c.mark(&self.ctx, 1);
         }
         wait(pending)?;
         let wall_s = start.elapsed().as_secs_f64();
-        let used = self.ctx.counts() - before;
-        let device_s = self
-            .clock
-            .as_ref()
-            .map(|c| c.seconds(&self.ctx))
-            .transpose()?;
+        let used = counts() - before;
+        let device_s = clock.map(|c| c.seconds(&self.ctx)).transpose()?;
         let per_s = count as f64 / device_s.unwrap_or(wall_s).max(1e-12);
         Ok(Measure {
             name: name.into(),
@@ -265,26 +282,38 @@ impl Bench {
     }
 
     /// The whole per-frame analysis of `select --stationary --blur --spacing` on the gpu backend
-    /// (`keyframer::analysis::DeviceAnalysis`), `streams` threads at once, each with its engine.
+    /// (`keyframer::analysis::DeviceAnalysis`), `streams` threads at once, each with its engine,
+    /// all on the bench's device and queue, or with `own_devices` each on a device (and queue)
+    /// of its own opened on the same adapter (wall time then: the clock sees one queue).
     pub fn analysis(
         &self,
         (name, size): (&str, (u32, u32)),
         req: &Request,
         streams: usize,
+        own_devices: bool,
     ) -> Result<(Measure, Recorded)> {
         let scene = Scroll::new(size.0, size.1, SPEED, SEED);
         let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
+        let ctxs: Vec<Arc<GpuContext>> = match own_devices {
+            false => vec![self.ctx.clone()],
+            true => (0..streams)
+                .map(|_| GpuContext::new(self.adapter.as_deref()).map(Arc::new))
+                .collect::<Result<_>>()?,
+        };
         // Warm-up: the pipelines are compiled once per context.
-        let mut warm = DeviceAnalysis::new(&self.ctx, req, size)?;
-        warm.push(&frames[..frames.len().min(warm.batch())])?;
-        warm.finish()?;
+        for ctx in &ctxs {
+            let mut warm = DeviceAnalysis::new(ctx, req, size)?;
+            warm.push(&frames[..frames.len().min(warm.batch())])?;
+            warm.finish()?;
+        }
         let engines = (0..streams)
-            .map(|_| DeviceAnalysis::new(&self.ctx, req, size))
+            .map(|i| DeviceAnalysis::new(&ctxs[i % ctxs.len()], req, size))
             .collect::<Result<Vec<_>>>()?;
         let n = frames.len();
         let frames = &frames;
         let mut results = Vec::new();
-        let m = self.timed(
+        let m = self.timed_on(
+            &ctxs,
             (name, size, streams, n * streams),
             || {
                 let done = std::thread::scope(|s| {

@@ -113,6 +113,7 @@ fn run(args: &Args) -> Result<Report, String> {
         clock,
         frames: args.frames,
         record: args.record,
+        adapter: args.adapter.clone(),
     };
     let e = |e: keyframer::Error| e.to_string();
     let (mut kernels, mut results) = (Vec::new(), Vec::new());
@@ -141,15 +142,20 @@ fn run(args: &Args) -> Result<Report, String> {
         // The stages one by one on one stream (each row's cost minus the one before is the
         // stage's), then the whole analysis on each number of streams.
         for (part, req) in [blur, spacing] {
-            analysis.push(b.analysis((part, size), &req, 1).map_err(e)?.0);
+            analysis.push(b.analysis((part, size), &req, 1, false).map_err(e)?.0);
             show(analysis.last());
         }
         for &streams in &args.streams {
-            let (m, r) = b.analysis((name, size), &full, streams).map_err(e)?;
+            let (m, r) = b.analysis((name, size), &full, streams, false).map_err(e)?;
             analysis.push(m);
             show(analysis.last());
             if streams == args.streams[0] {
                 results.push(r);
+            }
+            if streams > 1 {
+                let own = ("analysis, own devices", size);
+                analysis.push(b.analysis(own, &full, streams, true).map_err(e)?.0);
+                show(analysis.last());
             }
         }
     }
