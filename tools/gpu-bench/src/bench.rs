@@ -87,7 +87,7 @@ impl Bench {
         submit: impl FnOnce() -> Result<T>,
         wait: impl FnOnce(T) -> Result<()>,
     ) -> Result<Measure> {
-        self.timed_on(&[self.ctx.clone()], label, submit, wait)
+        self.timed_on(std::slice::from_ref(&self.ctx), label, submit, wait)
     }
 
     /// As [`Bench::timed`] for work on the devices `ctxs`: the counters are summed over them;
