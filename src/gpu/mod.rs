@@ -366,6 +366,12 @@ impl GpuContext {
         self.queue.write_buffer(buffer, offset, bytes);
     }
 
+    /// Counts `bytes` as uploaded by a path that bypasses [`GpuContext::write`] (a staging belt
+    /// in `keyframer-gpu-bench`).
+    pub fn count_upload(&self, bytes: u64) {
+        self.counters.uploaded.fetch_add(bytes, Relaxed);
+    }
+
     /// Records `pipe` with bind group `bg` over `groups` (x, y) workgroups (counted).
     pub fn dispatch(
         &self,

@@ -210,6 +210,86 @@ impl Bench {
         )
     }
 
+    /// The same frames as [`Bench::upload`] into the same kind of textures, but through a
+    /// `wgpu::util::StagingBelt` whose chunks are mapped once and reused (rows written at a
+    /// 256-byte pitch straight into the mapped chunk, then `copy_buffer_to_texture`), where
+    /// `write_texture` takes fresh staging memory for every frame: whether that per-frame
+    /// allocation is the fixed cost the H200's upload rows suggest (docs/benchmarks.md).
+    pub fn upload_belt(&self, size: (u32, u32)) -> Result<Measure> {
+        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let texels = size.0.saturating_mul(3).div_ceil(16);
+        if texels > self.ctx.limits.max_texture_dimension_2d || size.0 % 16 != 0 {
+            let msg = "a width of a multiple of 16 within the adapter's texture size";
+            return Err(Error::param("upload belt", msg));
+        }
+        let row = size.0 as usize * 3;
+        let pitch = (texels * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let bytes = u64::from(pitch) * u64::from(size.1);
+        let slots: Vec<wgpu::Texture> = (0..UPLOAD_SLOTS)
+            .map(|_| {
+                self.ctx.texture(
+                    "bench frame",
+                    (texels, size.1),
+                    wgpu::TextureFormat::Rgba32Uint,
+                    wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                )
+            })
+            .collect();
+        let chunk = bytes * UPLOAD_SLOTS as u64;
+        let belt =
+            std::cell::RefCell::new(wgpu::util::StagingBelt::new(self.ctx.device.clone(), chunk));
+        let (Some(size_nz), Some(align)) = (
+            wgpu::BufferSize::new(bytes),
+            wgpu::BufferSize::new(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)),
+        ) else {
+            return Err(Error::param("upload belt", "an empty frame"));
+        };
+        let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
+        let put = |frames: &[&[u8]]| -> Result<()> {
+            let mut belt = belt.borrow_mut();
+            for batch in frames.chunks(UPLOAD_SLOTS) {
+                let mut enc = self.ctx.encoder("bench upload belt");
+                for (f, t) in batch.iter().zip(&slots) {
+                    let slice = belt.allocate(size_nz, align);
+                    {
+                        let mut view = (slice.get_mapped_range_mut())
+                            .map_err(|e| Error::gpu(format!("staging belt: {e:?}")))?;
+                        for (y, r) in f.chunks_exact(row).enumerate() {
+                            let at = y * pitch as usize;
+                            view.slice(at..at + row).copy_from_slice(r);
+                        }
+                    }
+                    enc.copy_buffer_to_texture(
+                        wgpu::TexelCopyBufferInfo {
+                            buffer: slice.buffer(),
+                            layout: wgpu::TexelCopyBufferLayout {
+                                offset: slice.offset(),
+                                bytes_per_row: Some(pitch),
+                                rows_per_image: None,
+                            },
+                        },
+                        t.as_image_copy(),
+                        t.size(),
+                    );
+                    self.ctx.count_upload(f.len() as u64);
+                }
+                belt.finish();
+                self.ctx.queue.submit([enc.finish()]);
+                belt.recall();
+                self.ctx.poll()?;
+            }
+            Ok(())
+        };
+        // Warm-up: two batches, so that the belt's chunks exist before the clock starts.
+        put(&frames[..frames.len().min(2 * UPLOAD_SLOTS)])?;
+        self.ctx.wait()?;
+        self.timed(
+            ("upload belt", size, 1, frames.len()),
+            || put(&frames),
+            |()| self.ctx.wait(),
+        )
+    }
+
     /// The upload alone of [`Bench::sharpness`]: `size` BGR frames into the runner's textures,
     /// one submission per batch, nothing computed.
     pub fn upload(&self, size: (u32, u32)) -> Result<Measure> {

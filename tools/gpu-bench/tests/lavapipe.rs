@@ -54,6 +54,7 @@ fn the_benchmark_times_every_run_within_the_budget() {
         [
             "upload",
             "upload buffer",
+            "upload belt",
             "gray+resize+tenengrad",
             "no-upload tenengrad",
             "gray+resize+laplacian",
