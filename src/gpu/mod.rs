@@ -366,8 +366,8 @@ impl GpuContext {
         self.queue.write_buffer(buffer, offset, bytes);
     }
 
-    /// Counts `bytes` as uploaded by a path that bypasses [`GpuContext::write`] (a staging belt
-    /// in `keyframer-gpu-bench`).
+    /// Counts `bytes` as uploaded by a path that bypasses [`GpuContext::write`] (the frames'
+    /// staging belt, `kernels::strip::upload`).
     pub fn count_upload(&self, bytes: u64) {
         self.counters.uploaded.fetch_add(bytes, Relaxed);
     }

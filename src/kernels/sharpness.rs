@@ -1,5 +1,6 @@
 //! Sharpness scores per frame (Tenengrad or Laplacian variance) with two backends: the gpu runner
-//! uploads a batch of frames as BGR textures and scores each in one strip pass that converts to
+//! uploads a batch of frames as BGR textures (through a reused staging belt, in the batch's own
+//! submission) and scores each in one strip pass that converts to
 //! gray in registers ([`strip`]); it reads back only the exact 64-bit totals, through a pool of
 //! asynchronously mapped staging buffers (a batch's scores are taken once they land, with no
 //! wait per batch in steady state). The opencv backend
@@ -89,7 +90,8 @@ pub struct SharpnessGpu {
     landed: VecDeque<f64>,
     slots: Vec<Slot>,
     metric_pipe: Arc<wgpu::ComputePipeline>,
-    pad: Vec<u8>,
+    /// Staging memory of the frames' uploads, reused batch after batch.
+    belt: wgpu::util::StagingBelt,
     resize: Option<AttachedResize>,
 }
 
@@ -166,6 +168,7 @@ impl SharpnessGpu {
                 Ok(Slot { frame, metric_bg })
             })
             .collect::<Result<_>>()?;
+        let belt = strip::belt(&ctx, (width, height), batch);
         Ok(SharpnessGpu {
             ctx,
             metric,
@@ -180,7 +183,7 @@ impl SharpnessGpu {
             landed: VecDeque::new(),
             slots,
             metric_pipe,
-            pad: Vec::new(),
+            belt,
             resize: None,
         })
     }
@@ -225,10 +228,24 @@ impl SharpnessGpu {
         self.slots.len()
     }
 
-    fn upload<F: HostImage + ?Sized>(&mut self, slot: usize, frame: &F) -> Result<()> {
+    /// Records the upload of `frames` into the first slots on a new encoder.
+    fn upload<F: HostImage + ?Sized>(&mut self, frames: &[&F]) -> Result<wgpu::CommandEncoder> {
         let what = "sharpness (8-bit BGR)";
-        let tex = &self.slots[slot].frame;
-        strip::upload(&self.ctx, tex, frame, self.width, what, &mut self.pad)
+        let mut enc = self.ctx.encoder("sharpness batch");
+        for (slot, f) in self.slots.iter().zip(frames) {
+            let staging = (&mut self.belt, &mut enc);
+            strip::upload(&self.ctx, staging, &slot.frame, *f, self.width, what)?;
+        }
+        Ok(enc)
+    }
+
+    /// Submits `enc` with the staging memory it copies from, then hands that memory back to
+    /// the belt for when the device is done with it.
+    fn submit_staged(&mut self, enc: wgpu::CommandEncoder) -> Result<()> {
+        self.belt.finish();
+        self.ctx.queue.submit([enc.finish()]);
+        self.belt.recall();
+        self.ctx.poll()
     }
 
     fn encode(&self, enc: &mut wgpu::CommandEncoder, slot: usize) {
@@ -262,10 +279,8 @@ impl SharpnessGpu {
     pub fn submit<F: HostImage + ?Sized>(&mut self, frames: &[&F]) -> Result<()> {
         for chunk in frames.chunks(self.slots.len()) {
             self.make_room()?;
-            for (i, f) in chunk.iter().enumerate() {
-                self.upload(i, *f)?;
-            }
-            self.submit_batch(chunk.len())?;
+            let enc = self.upload(chunk)?;
+            self.submit_batch(enc, chunk.len())?;
         }
         Ok(())
     }
@@ -278,29 +293,28 @@ impl SharpnessGpu {
         }
     }
 
-    /// Scores the frames in the first `n` slots: one submission, its totals copied back.
-    fn submit_batch(&mut self, n: usize) -> Result<()> {
-        let mut enc = self.ctx.encoder("sharpness batch");
+    /// Scores the frames in the first `n` slots after what `enc` holds (their uploads): one
+    /// submission, its totals copied back.
+    fn submit_batch(&mut self, mut enc: wgpu::CommandEncoder, n: usize) -> Result<()> {
         for i in 0..n {
             self.encode(&mut enc, i);
         }
         let used = TOTALS_SLOT * n as u64;
         self.readback
             .copy(&self.ctx, &mut enc, &self.totals, used)?;
+        self.belt.finish();
         self.readback.submit(&self.ctx, enc);
+        self.belt.recall();
         self.in_flight.push_back(n);
-        Ok(())
+        self.ctx.poll()
     }
 
     /// Uploads `frames` into the batch slots, one submission per batch, and scores nothing:
     /// the upload alone, as [`SharpnessGpu::submit`] makes it (`keyframer-gpu-bench` times it).
     pub fn upload_only<F: HostImage + ?Sized>(&mut self, frames: &[&F]) -> Result<()> {
         for chunk in frames.chunks(self.slots.len()) {
-            for (i, f) in chunk.iter().enumerate() {
-                self.upload(i, *f)?;
-            }
-            let enc = self.ctx.encoder("sharpness upload");
-            self.ctx.queue.submit([enc.finish()]);
+            let enc = self.upload(chunk)?;
+            self.submit_staged(enc)?;
         }
         Ok(())
     }
@@ -314,7 +328,8 @@ impl SharpnessGpu {
         while left > 0 {
             self.make_room()?;
             let n = left.min(batch);
-            self.submit_batch(n)?;
+            let enc = self.ctx.encoder("sharpness batch");
+            self.submit_batch(enc, n)?;
             left -= n;
         }
         Ok(())
@@ -348,10 +363,9 @@ impl SharpnessGpu {
     /// The gray image the gpu computes for `frame` (for checking against cv::cvtColor).
     pub fn gray_of<F: HostImage + ?Sized>(&mut self, frame: &F) -> Result<Vec<u8>> {
         self.set_write_gray(true);
-        self.upload(0, frame)?;
-        let mut enc = self.ctx.encoder("gray");
+        let mut enc = self.upload(&[frame])?;
         self.encode(&mut enc, 0);
-        self.ctx.queue.submit([enc.finish()]);
+        self.submit_staged(enc)?;
         let (w, h) = (self.width as usize, self.height as usize);
         let row = gray_stride(self.width) as usize * 4;
         let bytes = self.ctx.read_back(&self.gray, (row * h) as u64)?;

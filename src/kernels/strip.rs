@@ -76,30 +76,72 @@ pub fn frame_texture(ctx: &GpuContext, width: u32, height: u32) -> Result<wgpu::
     ))
 }
 
-/// Uploads the pixels of `frame` (8-bit BGR, `width` x the texture's height; `what` names the runner in
-/// errors) into `texture`; rows whose bytes do not fill whole texels are padded in `scratch`.
+/// Bytes per row of a `width`-pixel frame in staging memory: its texels, rounded up to the
+/// 256 bytes `copy_buffer_to_texture` wants between rows.
+pub fn staging_pitch(width: u32) -> u32 {
+    (texels_per_row(width) * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
+}
+
+/// The staging memory of a runner that uploads `frames` frames of `width` x `height` per
+/// submission: a `wgpu::util::StagingBelt` of one batch per chunk, mapped once and reused once
+/// the device is done with a batch. (`queue.write_texture` took fresh staging memory for every
+/// frame: twice the upload time on lavapipe at 1080p; docs/benchmarks.md, "upload belt".)
+pub fn belt(
+    ctx: &GpuContext,
+    (width, height): (u32, u32),
+    frames: usize,
+) -> wgpu::util::StagingBelt {
+    let frame = u64::from(staging_pitch(width)) * u64::from(height);
+    wgpu::util::StagingBelt::new(ctx.device.clone(), frame * frames.max(1) as u64)
+}
+
+/// Stages the pixels of `frame` (8-bit BGR, `width` x the texture's height; `what` names the
+/// runner in errors) in `belt`, one row at a time at [`staging_pitch`] (the padding of the last
+/// texel zeroed), and records their copy into `texture` on `enc` (counted as uploaded). The
+/// belt must be finished before `enc` is submitted and recalled after.
 pub fn upload(
     ctx: &GpuContext,
+    (belt, enc): (&mut wgpu::util::StagingBelt, &mut wgpu::CommandEncoder),
     texture: &wgpu::Texture,
     frame: &(impl HostImage + ?Sized),
     width: u32,
     what: &str,
-    scratch: &mut Vec<u8>,
 ) -> Result<()> {
     let size = texture.size();
     let bytes = frame.pixel_bytes(3, (width, size.height), what)?;
     let row = width as usize * 3;
     let padded = size.width as usize * 16;
-    let data: &[u8] = if row == padded {
-        &bytes
-    } else {
-        scratch.clear();
-        for r in bytes.chunks_exact(row) {
-            scratch.extend_from_slice(r);
-            scratch.resize(scratch.len() + padded - row, 0);
-        }
-        scratch
+    let pitch = staging_pitch(width);
+    let total = u64::from(pitch) * u64::from(size.height);
+    let align = u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+    let (Some(total), Some(align)) = (wgpu::BufferSize::new(total), wgpu::BufferSize::new(align))
+    else {
+        return Err(Error::gpu(format!("{what}: an empty frame")));
     };
-    ctx.write_texture(texture, data, padded as u32);
+    let slice = belt.allocate(total, align);
+    {
+        let mut view = (slice.get_mapped_range_mut())
+            .map_err(|e| Error::gpu(format!("{what}: staging memory: {e:?}")))?;
+        let zeros = [0u8; 16];
+        for (y, r) in bytes.chunks_exact(row).enumerate() {
+            let at = y * pitch as usize;
+            view.slice(at..at + row).copy_from_slice(r);
+            view.slice(at + row..at + padded)
+                .copy_from_slice(&zeros[..padded - row]);
+        }
+    }
+    enc.copy_buffer_to_texture(
+        wgpu::TexelCopyBufferInfo {
+            buffer: slice.buffer(),
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: slice.offset(),
+                bytes_per_row: Some(pitch),
+                rows_per_image: None,
+            },
+        },
+        texture.as_image_copy(),
+        size,
+    );
+    ctx.count_upload((padded * size.height as usize) as u64);
     Ok(())
 }

@@ -18,7 +18,7 @@ use std::time::Instant;
 const SPEED: u32 = 2;
 /// Seed of every scene.
 const SEED: u64 = 35;
-/// Frames per submission of the buffer upload (the sharpness runner's batch).
+/// Frames per submission of the bench's own upload rows (the sharpness runner's batch at 1080p).
 const UPLOAD_SLOTS: usize = 16;
 /// Distinct gray frames the Farneback loop cycles through.
 const FLOW_FRAMES: usize = 16;
@@ -210,21 +210,16 @@ impl Bench {
         )
     }
 
-    /// The same frames as [`Bench::upload`] into the same kind of textures, but through a
-    /// `wgpu::util::StagingBelt` whose chunks are mapped once and reused (rows written at a
-    /// 256-byte pitch straight into the mapped chunk, then `copy_buffer_to_texture`), where
-    /// `write_texture` takes fresh staging memory for every frame: whether that per-frame
-    /// allocation is the fixed cost the H200's upload rows suggest (docs/benchmarks.md).
-    pub fn upload_belt(&self, size: (u32, u32)) -> Result<Measure> {
+    /// The same frames as [`Bench::upload`] into the same kind of textures, but with
+    /// `queue.write_texture` (fresh staging memory for every frame, one submission per batch of
+    /// 16): how the sharpness runner uploaded until it took a staging belt (2026-11-28).
+    pub fn upload_write_texture(&self, size: (u32, u32)) -> Result<Measure> {
         let scene = Scroll::new(size.0, size.1, SPEED, SEED);
         let texels = size.0.saturating_mul(3).div_ceil(16);
-        if texels > self.ctx.limits.max_texture_dimension_2d || size.0 % 16 != 0 {
+        if texels > self.ctx.limits.max_texture_dimension_2d || !size.0.is_multiple_of(16) {
             let msg = "a width of a multiple of 16 within the adapter's texture size";
-            return Err(Error::param("upload belt", msg));
+            return Err(Error::param("upload write_texture", msg));
         }
-        let row = size.0 as usize * 3;
-        let pitch = (texels * 16).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-        let bytes = u64::from(pitch) * u64::from(size.1);
         let slots: Vec<wgpu::Texture> = (0..UPLOAD_SLOTS)
             .map(|_| {
                 self.ctx.texture(
@@ -235,57 +230,25 @@ impl Bench {
                 )
             })
             .collect();
-        let chunk = bytes * UPLOAD_SLOTS as u64;
-        let belt =
-            std::cell::RefCell::new(wgpu::util::StagingBelt::new(self.ctx.device.clone(), chunk));
-        let (Some(size_nz), Some(align)) = (
-            wgpu::BufferSize::new(bytes),
-            wgpu::BufferSize::new(u64::from(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)),
-        ) else {
-            return Err(Error::param("upload belt", "an empty frame"));
-        };
         let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
-        let put = |frames: &[&[u8]]| -> Result<()> {
-            let mut belt = belt.borrow_mut();
+        let put = |frames: &[&[u8]]| {
             for batch in frames.chunks(UPLOAD_SLOTS) {
-                let mut enc = self.ctx.encoder("bench upload belt");
                 for (f, t) in batch.iter().zip(&slots) {
-                    let slice = belt.allocate(size_nz, align);
-                    {
-                        let mut view = (slice.get_mapped_range_mut())
-                            .map_err(|e| Error::gpu(format!("staging belt: {e:?}")))?;
-                        for (y, r) in f.chunks_exact(row).enumerate() {
-                            let at = y * pitch as usize;
-                            view.slice(at..at + row).copy_from_slice(r);
-                        }
-                    }
-                    enc.copy_buffer_to_texture(
-                        wgpu::TexelCopyBufferInfo {
-                            buffer: slice.buffer(),
-                            layout: wgpu::TexelCopyBufferLayout {
-                                offset: slice.offset(),
-                                bytes_per_row: Some(pitch),
-                                rows_per_image: None,
-                            },
-                        },
-                        t.as_image_copy(),
-                        t.size(),
-                    );
-                    self.ctx.count_upload(f.len() as u64);
+                    self.ctx.write_texture(t, f, texels * 16);
                 }
-                belt.finish();
+                let enc = self.ctx.encoder("bench upload write_texture");
                 self.ctx.queue.submit([enc.finish()]);
-                belt.recall();
-                self.ctx.poll()?;
             }
-            Ok(())
         };
-        // Warm-up: two batches, so that the belt's chunks exist before the clock starts.
-        put(&frames[..frames.len().min(2 * UPLOAD_SLOTS)])?;
+        // Warm-up: two batches, so that the staging memory is mapped before the clock starts.
+        put(&frames[..frames.len().min(2 * UPLOAD_SLOTS)]);
         self.ctx.wait()?;
         self.timed(
-            ("upload belt", size, 1, frames.len()),
-            || put(&frames),
+            ("upload write_texture", size, 1, frames.len()),
+            || {
+                put(&frames);
+                Ok(())
+            },
             |()| self.ctx.wait(),
         )
     }

@@ -123,7 +123,7 @@ fn run(args: &Args) -> Result<Report, String> {
         show(kernels.last());
         kernels.push(b.upload_buffer(size).map_err(e)?);
         show(kernels.last());
-        kernels.push(b.upload_belt(size).map_err(e)?);
+        kernels.push(b.upload_write_texture(size).map_err(e)?);
         show(kernels.last());
         for metric in [Metric::Tenengrad, Metric::Laplacian { ksize: 3 }] {
             let (m, r) = b.sharpness(metric, size, small).map_err(e)?;

@@ -54,7 +54,7 @@ fn the_benchmark_times_every_run_within_the_budget() {
         [
             "upload",
             "upload buffer",
-            "upload belt",
+            "upload write_texture",
             "gray+resize+tenengrad",
             "no-upload tenengrad",
             "gray+resize+laplacian",
@@ -69,7 +69,10 @@ fn the_benchmark_times_every_run_within_the_budget() {
         .collect();
     assert_eq!(
         sizes,
-        ["640x360", "640x360", "640x360", "640x360", "640x360", "640x360", "160x90", "320x180"]
+        [
+            "640x360", "640x360", "640x360", "640x360", "640x360", "640x360", "640x360", "160x90",
+            "320x180"
+        ]
     );
     let streams: Vec<u64> = analysis
         .iter()
