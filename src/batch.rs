@@ -191,7 +191,7 @@ pub fn run(workflow: &Workflow, s: &RunSettings) -> Result<Vec<InputReport>> {
     crate::output::check_not_input(&s.out, &read_by(workflow, s))?;
     // A workflow that reconstructs needs COLMAP (and its mapper): said before any input is read.
     for (_, o) in &workflow.reconstructs {
-        crate::colmap::extend::loop_engine(o.engine, o.mapper, None, true)?;
+        crate::colmap::extend::loop_engine(o.engine, o.mapper, None)?;
     }
     let names = folder_names(&s.inputs)?;
     std::fs::create_dir_all(&s.out).map_err(|e| Error::io(&s.out, e))?;

@@ -60,18 +60,18 @@ pub fn locate_with(kind: MapperKind, py: bool) -> Result<Colmap> {
 }
 
 /// The engine of a `reconstruct` loop: the `colmap` command (checked to offer the mapper
-/// `kind`) and the pycolmap that runs the sparse stages, or None for the command. `pycolmap`
-/// needs it (an error naming what to install); `auto` takes it when found (said unless
-/// `quiet`), else the command with a one-line hint. A loop being resumed passes the engine its
-/// state recorded as `resumed` (Some(None): the command) and keeps it.
+/// `kind`), the pycolmap that runs the sparse stages (None: the command), and the line to say
+/// about the choice (the caller says it once the output folder is accepted). `pycolmap` needs
+/// it (an error naming what to install); `auto` takes it when found, else the command with a
+/// one-line hint. A loop being resumed passes the engine its state recorded as `resumed`
+/// (Some(None): the command) and keeps it.
 pub fn loop_engine(
     engine: Engine,
     kind: MapperKind,
     resumed: Option<Option<&Pycolmap>>,
-    quiet: bool,
-) -> Result<(Colmap, Option<Pycolmap>)> {
-    let py = match (resumed, engine) {
-        (Some(None), _) | (None, Engine::Colmap) => None,
+) -> Result<(Colmap, Option<Pycolmap>, Option<String>)> {
+    let (py, line) = match (resumed, engine) {
+        (Some(None), _) | (None, Engine::Colmap) => (None, None),
         (Some(Some(was)), _) => {
             let py = super::pycolmap::locate().map_err(|e| {
                 Error::Colmap(format!(
@@ -79,39 +79,35 @@ pub fn loop_engine(
                     was.version
                 ))
             })?;
-            if py.version != was.version && !quiet {
-                eprintln!(
+            let line = (py.version != was.version).then(|| {
+                format!(
                     "reconstruct: the loop began with pycolmap {}; it goes on with pycolmap {} ({})",
                     was.version,
                     py.version,
                     py.python.display()
-                );
-            }
-            Some(py)
+                )
+            });
+            (Some(py), line)
         }
-        (None, Engine::Pycolmap) => Some(super::pycolmap::locate()?),
+        (None, Engine::Pycolmap) => (Some(super::pycolmap::locate()?), None),
         (None, Engine::Auto) => match super::pycolmap::locate() {
             Ok(py) => {
-                if !quiet {
-                    eprintln!(
-                        "reconstruct: COLMAP through pycolmap {} ({}); --engine colmap runs the colmap command",
-                        py.version,
-                        py.python.display()
-                    );
-                }
-                Some(py)
+                let line = format!(
+                    "reconstruct: COLMAP through pycolmap {} ({}); --engine colmap runs the colmap command",
+                    py.version,
+                    py.python.display()
+                );
+                (Some(py), Some(line))
             }
             Err(e) => {
-                if !quiet {
-                    eprintln!(
-                        "reconstruct: the colmap command runs the loop; pycolmap's newer mapper folds less often: {e}"
-                    );
-                }
-                None
+                let line = format!(
+                    "reconstruct: the colmap command runs the loop; pycolmap's newer mapper folds less often: {e}"
+                );
+                (None, Some(line))
             }
         },
     };
-    Ok((locate_with(kind, py.is_some())?, py))
+    Ok((locate_with(kind, py.is_some())?, py, line))
 }
 
 /// One round: with `new_images` None the workspace is made from the export (its images all

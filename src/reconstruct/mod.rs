@@ -302,8 +302,11 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
         ));
     }
     let recorded = resume.as_ref().map(|st| st.pycolmap.as_ref());
-    let (colmap, py) = extend::loop_engine(s.options.engine, s.options.mapper, recorded, quiet)?;
+    let (colmap, py, line) = extend::loop_engine(s.options.engine, s.options.mapper, recorded)?;
     let dir = crate::output::prepare_dir(&ws, s.force || resume.is_some(), &[STATE], &inputs)?;
+    if let Some(line) = line.filter(|_| !quiet) {
+        eprintln!("{line}");
+    }
     let frames_data = FrameData::of(&project);
     if !quiet && frames_data.measure == Measure::Time {
         eprintln!(

@@ -811,6 +811,24 @@ fn changed_input_and_foreign_workspace_are_refused() {
     let (code, err) = code_and_stderr(&o);
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("reconstruct.json"), "{err}");
+    // A folder holding someone's file is refused, the file untouched, and the engine is said
+    // only once the output is accepted (nothing about it before the refusal).
+    let theirs = d.path().join("theirs");
+    std::fs::create_dir(&theirs).unwrap();
+    std::fs::write(theirs.join("notes.txt"), b"mine").unwrap();
+    for force in [false, true] {
+        let args = ["reconstruct", s(&project), "--out", s(&theirs)];
+        let o = kf(&[&args[..], if force { &["--force"] } else { &[] }].concat());
+        let (code, err) = code_and_stderr(&o);
+        assert_eq!(code, 1, "{err}");
+        assert!(err.contains("is not empty"), "{err}");
+        assert!(
+            !err.contains("pycolmap") && !err.contains("command runs"),
+            "{err}"
+        );
+        assert_eq!(std::fs::read(theirs.join("notes.txt")).unwrap(), b"mine");
+        assert_eq!(std::fs::read_dir(&theirs).unwrap().count(), 1);
+    }
     // --mapper global through a colmap command without it names what is missing.
     let ws = d.path().join("ws");
     // `reconstruct PROJECT --out WS EXTRA` exits 1 naming every one of `says`, writing nothing.
