@@ -178,7 +178,6 @@ impl Bench {
     /// (`queue.write_buffer`, one buffer per batch slot, one submission per batch): what a frame
     /// kept in a buffer would cost to upload.
     pub fn upload_buffer(&self, size: (u32, u32)) -> Result<Measure> {
-        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
         let bytes = u64::from(size.0) * u64::from(size.1) * 3;
         let slots: Vec<wgpu::Buffer> = (0..UPLOAD_SLOTS)
             .map(|_| {
@@ -186,35 +185,15 @@ impl Bench {
                     .storage_buffer("bench frame", bytes.next_multiple_of(4))
             })
             .collect();
-        let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
-        let put = |frames: &[&[u8]]| {
-            for chunk in frames.chunks(UPLOAD_SLOTS) {
-                for (f, b) in chunk.iter().zip(&slots) {
-                    // write_buffer wants a multiple of 4 bytes: every frame size here has one.
-                    self.ctx.write(b, 0, &f[..f.len() & !3]);
-                }
-                let enc = self.ctx.encoder("bench upload");
-                self.ctx.queue.submit([enc.finish()]);
-            }
-        };
-        // Warm-up: two batches, so that the staging memory is mapped before the clock starts.
-        put(&frames[..frames.len().min(2 * UPLOAD_SLOTS)]);
-        self.ctx.wait()?;
-        self.timed(
-            ("upload buffer", size, 1, frames.len()),
-            || {
-                put(&frames);
-                Ok(())
-            },
-            |()| self.ctx.wait(),
-        )
+        // write_buffer wants a multiple of 4 bytes: every frame size here has one.
+        let write = |f: &[u8], b: &wgpu::Buffer| self.ctx.write(b, 0, &f[..f.len() & !3]);
+        self.queue_upload("upload buffer", size, &slots, write)
     }
 
     /// The same frames as [`Bench::upload`] into the same kind of textures, but with
     /// `queue.write_texture` (fresh staging memory for every frame, one submission per batch of
     /// 16): how the sharpness runner uploaded until it took a staging belt (2026-11-28).
     pub fn upload_write_texture(&self, size: (u32, u32)) -> Result<Measure> {
-        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
         let texels = size.0.saturating_mul(3).div_ceil(16);
         if texels > self.ctx.limits.max_texture_dimension_2d || !size.0.is_multiple_of(16) {
             let msg = "a width of a multiple of 16 within the adapter's texture size";
@@ -230,21 +209,35 @@ impl Bench {
                 )
             })
             .collect();
+        let write = |f: &[u8], t: &wgpu::Texture| self.ctx.write_texture(t, f, texels * 16);
+        self.queue_upload("upload write_texture", size, &slots, write)
+    }
+
+    /// Times `size` frames written into `slots` by `write` (a queue write each), one (empty)
+    /// submission per batch of `slots`, after a warm-up of two batches (so that the staging
+    /// memory is mapped before the clock starts).
+    fn queue_upload<T>(
+        &self,
+        name: &str,
+        size: (u32, u32),
+        slots: &[T],
+        write: impl Fn(&[u8], &T),
+    ) -> Result<Measure> {
+        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
         let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
         let put = |frames: &[&[u8]]| {
-            for batch in frames.chunks(UPLOAD_SLOTS) {
-                for (f, t) in batch.iter().zip(&slots) {
-                    self.ctx.write_texture(t, f, texels * 16);
+            for batch in frames.chunks(slots.len()) {
+                for (f, slot) in batch.iter().zip(slots) {
+                    write(f, slot);
                 }
-                let enc = self.ctx.encoder("bench upload write_texture");
+                let enc = self.ctx.encoder(name);
                 self.ctx.queue.submit([enc.finish()]);
             }
         };
-        // Warm-up: two batches, so that the staging memory is mapped before the clock starts.
-        put(&frames[..frames.len().min(2 * UPLOAD_SLOTS)]);
+        put(&frames[..frames.len().min(2 * slots.len())]);
         self.ctx.wait()?;
         self.timed(
-            ("upload write_texture", size, 1, frames.len()),
+            (name, size, 1, frames.len()),
             || {
                 put(&frames);
                 Ok(())
