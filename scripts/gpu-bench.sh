@@ -37,7 +37,7 @@ mkdir -p "$lists/partial"
     fail "could not download $debs (apt-get download)"
 exclude=$(git rev-parse --git-path info/exclude)
 grep -qxF "/$pack/" "$exclude" 2>/dev/null || echo "/$pack/" >>"$exclude"
-echo "gpu-bench.sh: packed $(du -sh "$pack" | cut -f1) in $pack: $(ls "$pack" "$pack/debs" | tr '\n' ' ')" >&2
+echo "gpu-bench.sh: packed $(du -sh "$pack" | cut -f1) in $pack: $(ls "$pack" | tr '\n' ' ')(debs: $(ls "$pack/debs" | tr '\n' ' '))" >&2
 # The script the device machine runs (the pack's folder): the GPU and driver, the earlier build
 # where one was packed (`before`: 1 stream), then the default run
 # with 1000 frames per run (arguments to this script replace the default run's), then select's
