@@ -24,7 +24,17 @@ pub struct Scroll {
     world: Vec<u8>,
 }
 
+/// Rows per frame the scene of `keyframer-gpu-bench` (and its checks) moves.
+pub const BENCH_SPEED: u32 = 2;
+/// Seed of that scene.
+pub const BENCH_SEED: u64 = 35;
+
 impl Scroll {
+    /// The scene `keyframer-gpu-bench` times, `width` x `height` ([`BENCH_SPEED`], [`BENCH_SEED`]).
+    pub fn bench(width: u32, height: u32) -> Scroll {
+        Scroll::new(width, height, BENCH_SPEED, BENCH_SEED)
+    }
+
     /// The scene from `seed` (the same seed, the same pixels).
     pub fn new(width: u32, height: u32, speed: u32, seed: u64) -> Scroll {
         let (w, rows) = (width.max(1) as usize, (height + SCROLL_ROWS) as usize);

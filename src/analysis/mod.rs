@@ -68,6 +68,28 @@ pub struct Request {
     pub store: Option<std::path::PathBuf>,
 }
 
+impl Request {
+    /// The request `select --stationary --blur --spacing` makes with its defaults for frames
+    /// `width` wide, its movement at `analysis_width`: Tenengrad, the movement, the stationary
+    /// run with its default threshold (1 % of the width). What `keyframer-gpu-bench` times and
+    /// `tests/it/gpu_bench.rs` checks against the opencv backend.
+    pub fn stationary_blur_spacing(width: u32, analysis_width: u32) -> Request {
+        let mut movement = crate::steps::defaults::movement();
+        movement.analysis_width = analysis_width;
+        Request {
+            sharpness: vec![Metric::Tenengrad],
+            movement: Some(movement),
+            stationary: Some(StationaryRequest {
+                threshold: f64::from(width) * 0.01,
+                reset_delta: crate::steps::defaults::RESET_DELTA,
+                first: 0,
+                last: usize::MAX,
+            }),
+            ..Request::default()
+        }
+    }
+}
+
 /// The analysis size for a `width` x `height` input: `analysis_width` wide (never wider than the
 /// input), height scaled and rounded.
 pub fn analysis_size(width: u32, height: u32, analysis_width: u32) -> (u32, u32) {

@@ -239,11 +239,15 @@ impl SharpnessGpu {
         Ok(enc)
     }
 
-    /// Submits `enc` with the staging memory it copies from, then hands that memory back to
-    /// the belt for when the device is done with it.
-    fn submit_staged(&mut self, enc: wgpu::CommandEncoder) -> Result<()> {
+    /// Submits `enc` (through the read-back pool when it copies totals back) with the staging
+    /// memory it copies from, then hands that memory back to the belt for when the device is
+    /// done with it.
+    fn submit_staged(&mut self, enc: wgpu::CommandEncoder, totals: bool) -> Result<()> {
         self.belt.finish();
-        self.ctx.queue.submit([enc.finish()]);
+        match totals {
+            true => self.readback.submit(&self.ctx, enc),
+            false => drop(self.ctx.queue.submit([enc.finish()])),
+        }
         self.belt.recall();
         self.ctx.poll()
     }
@@ -302,11 +306,8 @@ impl SharpnessGpu {
         let used = TOTALS_SLOT * n as u64;
         self.readback
             .copy(&self.ctx, &mut enc, &self.totals, used)?;
-        self.belt.finish();
-        self.readback.submit(&self.ctx, enc);
-        self.belt.recall();
         self.in_flight.push_back(n);
-        self.ctx.poll()
+        self.submit_staged(enc, true)
     }
 
     /// Uploads `frames` into the batch slots, one submission per batch, and scores nothing:
@@ -314,7 +315,7 @@ impl SharpnessGpu {
     pub fn upload_only<F: HostImage + ?Sized>(&mut self, frames: &[&F]) -> Result<()> {
         for chunk in frames.chunks(self.slots.len()) {
             let enc = self.upload(chunk)?;
-            self.submit_staged(enc)?;
+            self.submit_staged(enc, false)?;
         }
         Ok(())
     }
@@ -365,7 +366,7 @@ impl SharpnessGpu {
         self.set_write_gray(true);
         let mut enc = self.upload(&[frame])?;
         self.encode(&mut enc, 0);
-        self.submit_staged(enc)?;
+        self.submit_staged(enc, false)?;
         let (w, h) = (self.width as usize, self.height as usize);
         let row = gray_stride(self.width) as usize * 4;
         let bytes = self.ctx.read_back(&self.gray, (row * h) as u64)?;

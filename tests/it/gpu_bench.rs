@@ -9,14 +9,10 @@ use keyframer::kernels::sharpness::{score_opencv, SharpnessGpu};
 use keyframer::kernels::tolerance::{rel_err, MOVEMENT_REL, SHARPNESS_REL};
 use keyframer::kernels::{farneback, gray, movement, resize_area};
 use keyframer::params::{FarnebackParams, Metric};
-use keyframer::synthetic::Scroll;
+use keyframer::synthetic::{Scroll, BENCH_SPEED};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use std::sync::Arc;
-
-/// The tool's scene parameters (tools/gpu-bench/src/bench.rs: SPEED, SEED).
-const SPEED: u32 = 2;
-const SEED: u64 = 35;
 
 /// A BGR Mat holding `bytes` (rows of `w * 3`).
 fn bgr(bytes: &[u8], h: i32) -> Mat {
@@ -27,7 +23,7 @@ fn bgr(bytes: &[u8], h: i32) -> Mat {
 #[test]
 fn bench_frames_through_the_kernels_equal_the_opencv_twins() {
     let ((w, h), small) = ((640u32, 360u32), (320u32, 180u32));
-    let scene = Scroll::new(w, h, SPEED, SEED);
+    let scene = Scroll::bench(w, h);
     let ctx = Arc::new(GpuContext::new(None).unwrap());
     let indices = [0usize, 1, 7];
     let frames: Vec<&[u8]> = indices.iter().map(|&i| scene.frame(i)).collect();
@@ -72,7 +68,7 @@ fn bench_frames_through_the_kernels_equal_the_opencv_twins() {
 #[test]
 fn the_timed_device_analysis_equals_the_opencv_twins() {
     let ((w, h), n) = ((640u32, 360u32), 9usize);
-    let scene = Scroll::new(w, h, SPEED, SEED);
+    let scene = Scroll::bench(w, h);
     let ctx = Arc::new(GpuContext::new(None).unwrap());
     let mut m = keyframer::steps::defaults::movement();
     m.analysis_width = 320;
@@ -97,7 +93,7 @@ fn the_timed_device_analysis_equals_the_opencv_twins() {
     for b in (stride..n).step_by(stride) {
         let flow = farneback::opencv(&small(b - stride), &small(b), &m.farneback, None).unwrap();
         let c = movement::cpu_flow(&flow, m.statistic, None).unwrap() * scale / stride as f64;
-        assert!(c > 0.5, "the scene moves {SPEED} rows a frame: {c}");
+        assert!(c > 0.5, "the scene moves {BENCH_SPEED} rows a frame: {c}");
         for (i, v) in values.iter().enumerate().take(b + 1).skip(b + 1 - stride) {
             let e = rel_err(*v, c);
             assert!(e <= MOVEMENT_REL, "frame {i}: device {v} opencv {c} ({e})");
@@ -109,23 +105,6 @@ fn the_timed_device_analysis_equals_the_opencv_twins() {
             rel_err(*g, c) <= SHARPNESS_REL,
             "frame {i}: device {g} opencv {c}"
         );
-    }
-}
-
-/// The request of the bench's whole analysis (tools/gpu-bench/src/bench.rs: `select_request`).
-fn bench_request(width: u32, analysis_width: u32) -> Request {
-    let mut movement = keyframer::steps::defaults::movement();
-    movement.analysis_width = analysis_width;
-    Request {
-        sharpness: vec![Metric::Tenengrad],
-        movement: Some(movement),
-        stationary: Some(keyframer::params::StationaryRequest {
-            threshold: f64::from(width) * 0.01,
-            reset_delta: keyframer::steps::defaults::RESET_DELTA,
-            first: 0,
-            last: usize::MAX,
-        }),
-        ..Request::default()
     }
 }
 
@@ -161,7 +140,7 @@ fn results_recorded_on_a_gpu_equal_the_opencv_backend() {
                     .map(|x| x.as_f64().unwrap())
                     .collect()
             };
-            let scene = Scroll::new(w, h, SPEED, SEED);
+            let scene = Scroll::bench(w, h);
             let sharpness = f64s("sharpness");
             assert_eq!(sharpness.len(), n, "{what}");
             let metric = match name {
@@ -180,7 +159,7 @@ fn results_recorded_on_a_gpu_equal_the_opencv_backend() {
             // The whole analysis: the same frames through the opencv backend, a stride more
             // than recorded (the last recorded frames' movement comes from a pair ending after
             // them; the run on the GPU went on).
-            let req = bench_request(w, analysis_width);
+            let req = Request::stationary_blur_spacing(w, analysis_width);
             let stride = req.movement.as_ref().unwrap().stride as usize;
             let folder = tmp.path().join(format!("{w}x{h}-{analysis_width}"));
             std::fs::create_dir_all(&folder).unwrap();

@@ -7,17 +7,13 @@ use keyframer::analysis::{DeviceAnalysis, Request};
 use keyframer::gpu::{Counts, GpuContext, PerFrame};
 use keyframer::kernels::farneback::FarnebackGpu;
 use keyframer::kernels::sharpness::SharpnessGpu;
-use keyframer::params::{FarnebackParams, Metric, StationaryRequest};
+use keyframer::params::{FarnebackParams, Metric};
 use keyframer::synthetic::Scroll;
 use keyframer::{Error, Result};
 use serde::Serialize;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// Rows the scene moves per frame (full resolution).
-const SPEED: u32 = 2;
-/// Seed of every scene.
-const SEED: u64 = 35;
 /// Frames per submission of the bench's own upload rows (the sharpness runner's batch at 1080p).
 const UPLOAD_SLOTS: usize = 16;
 /// Distinct gray frames the Farneback loop cycles through.
@@ -141,7 +137,7 @@ impl Bench {
         size: (u32, u32),
         small: (u32, u32),
     ) -> Result<(Measure, Recorded)> {
-        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let scene = Scroll::bench(size.0, size.1);
         let mut r = SharpnessGpu::new(self.ctx.clone(), metric, size.0, size.1)?;
         r.attach_resize(small)?;
         r.scores(&[scene.frame(0)])?;
@@ -223,7 +219,7 @@ impl Bench {
         slots: &[T],
         write: impl Fn(&[u8], &T),
     ) -> Result<Measure> {
-        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let scene = Scroll::bench(size.0, size.1);
         let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
         let put = |frames: &[&[u8]]| {
             for batch in frames.chunks(slots.len()) {
@@ -249,7 +245,7 @@ impl Bench {
     /// The upload alone of [`Bench::sharpness`]: `size` BGR frames into the runner's textures,
     /// one submission per batch, nothing computed.
     pub fn upload(&self, size: (u32, u32)) -> Result<Measure> {
-        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let scene = Scroll::bench(size.0, size.1);
         let mut r = SharpnessGpu::new(self.ctx.clone(), Metric::Tenengrad, size.0, size.1)?;
         let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
         // Warm-up: two batches, so that the staging memory is mapped before the clock starts
@@ -267,7 +263,7 @@ impl Bench {
     /// The kernels and the read-back alone of [`Bench::sharpness`]: the frames already on the
     /// device (one batch, uploaded before the clock starts) scored again, `frames` scores.
     pub fn resident(&self, metric: Metric, size: (u32, u32), small: (u32, u32)) -> Result<Measure> {
-        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let scene = Scroll::bench(size.0, size.1);
         let mut r = SharpnessGpu::new(self.ctx.clone(), metric, size.0, size.1)?;
         r.attach_resize(small)?;
         let batch: Vec<&[u8]> = (0..r.batch_size()).map(|i| scene.frame(i)).collect();
@@ -294,7 +290,7 @@ impl Bench {
     /// pyramid) and computes the flow from the previous one.
     pub fn farneback(&self, width: u32) -> Result<Measure> {
         let size = (width, (width * 9 / 16).max(1));
-        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let scene = Scroll::bench(size.0, size.1);
         let grays: Vec<Vec<u8>> = (0..FLOW_FRAMES).map(|i| gray(scene.frame(i))).collect();
         let mut f =
             FarnebackGpu::new(self.ctx.clone(), FarnebackParams::default(), size.0, size.1)?;
@@ -328,7 +324,7 @@ impl Bench {
         streams: usize,
         own_devices: bool,
     ) -> Result<(Measure, Recorded)> {
-        let scene = Scroll::new(size.0, size.1, SPEED, SEED);
+        let scene = Scroll::bench(size.0, size.1);
         let frames: Vec<&[u8]> = (0..self.frames).map(|i| scene.frame(i)).collect();
         let ctxs: Vec<Arc<GpuContext>> = match own_devices {
             false => vec![self.ctx.clone()],
@@ -397,10 +393,10 @@ impl Bench {
     }
 }
 
-/// The parts of [`select_request`] timed alone (a stage's cost is the difference between two
+/// The parts of [`Request::stationary_blur_spacing`] timed alone (a stage's cost is the difference between two
 /// rows): the blur step's sharpness, then the spacing's movement too, then all of it.
 pub fn select_parts(width: u32, analysis_width: u32) -> [(&'static str, Request); 3] {
-    let full = select_request(width, analysis_width);
+    let full = Request::stationary_blur_spacing(width, analysis_width);
     let blur = Request {
         sharpness: full.sharpness.clone(),
         ..Request::default()
@@ -415,29 +411,6 @@ pub fn select_parts(width: u32, analysis_width: u32) -> [(&'static str, Request)
         ("analysis blur+spacing", spacing),
         ("analysis", full),
     ]
-}
-
-/// The request `select --stationary --blur --spacing` makes (Tenengrad, movement with
-/// `select`'s defaults at `analysis_width`, the stationary run with its default threshold) for
-/// frames `width` wide.
-pub fn select_request(width: u32, analysis_width: u32) -> Request {
-    let mut movement = keyframer::steps::defaults::movement();
-    movement.analysis_width = analysis_width;
-    Request {
-        sharpness: vec![Metric::Tenengrad],
-        sharpness_rows: None,
-        movement: Some(movement),
-        stationary: Some(StationaryRequest {
-            threshold: f64::from(width) * 0.01,
-            reset_delta: keyframer::steps::defaults::RESET_DELTA,
-            first: 0,
-            last: usize::MAX,
-        }),
-        descriptor: None,
-        network: None,
-        runtime: None,
-        store: None,
-    }
 }
 
 /// The metric's name in the report.
