@@ -177,17 +177,10 @@ pub fn render_descriptor(adapter: &str, frames: usize, rows: &[Row]) -> String {
 /// Sizes the Farneback benchmark runs at.
 pub const FLOW_SIZES: [(u32, u32); 3] = [(320, 180), (640, 360), (1280, 720)];
 
-/// Times Farneback with OpenCV's tutorial parameters and with (levels 5, winsize 13,
-/// iterations 10, poly_n 5, poly_sigma 1.1) at every size over `pairs` frame pairs; the gpu once
-/// per strip height in `shapes` (empty: the adapter's choice).
-pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<Row>> {
-    use crate::kernels::farneback::{self, FarnebackGpu};
-    use crate::params::FarnebackParams;
-    let pairs = pairs.max(1);
-    let own = [farneback::strip_rows_for(ctx)];
-    let shapes = if shapes.is_empty() { &own[..] } else { shapes };
-    let tutorial = FarnebackParams::default();
-    let heavy = FarnebackParams {
+/// The Farneback benchmarks' parameter sets: OpenCV's tutorial ones and a heavier set.
+fn flow_params() -> [(&'static str, crate::params::FarnebackParams); 2] {
+    let tutorial = crate::params::FarnebackParams::default();
+    let heavy = crate::params::FarnebackParams {
         levels: 5,
         winsize: 13,
         iterations: 10,
@@ -195,6 +188,17 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<R
         poly_sigma: 1.1,
         ..tutorial
     };
+    [("tutorial", tutorial), ("l5 w13 i10 n5 s1.1", heavy)]
+}
+
+/// Times Farneback with OpenCV's tutorial parameters and with (levels 5, winsize 13,
+/// iterations 10, poly_n 5, poly_sigma 1.1) at every size over `pairs` frame pairs; the gpu once
+/// per strip height in `shapes` (empty: the adapter's choice).
+pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<Row>> {
+    use crate::kernels::farneback::{self, FarnebackGpu};
+    let pairs = pairs.max(1);
+    let own = [farneback::strip_rows_for(ctx)];
+    let shapes = if shapes.is_empty() { &own[..] } else { shapes };
     let mut rows = Vec::new();
     for (w, h) in FLOW_SIZES {
         let frames: Vec<opencv::core::Mat> = (0..2)
@@ -203,7 +207,7 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<R
                     .and_then(|m| crate::kernels::gray::opencv(&m))
             })
             .collect::<Result<_>>()?;
-        for (label, p) in [("tutorial", tutorial), ("l5 w13 i10 n5 s1.1", heavy)] {
+        for (label, p) in flow_params() {
             let t = Instant::now();
             for i in 0..pairs {
                 farneback::opencv(&frames[i % 2], &frames[(i + 1) % 2], &p, None)?;
@@ -237,6 +241,127 @@ pub fn render_flow(adapter: &str, pairs: usize, rows: &[Row]) -> String {
     );
     let heads = ["params", "opencv ms", "gpu ms"];
     render(title, heads, [20, 6, 12], 1, rows)
+}
+
+/// One row of the host Farneback table: OpenCV's call against keyframer's host Farneback
+/// (`farneback::host`, bit-identical) at one size and parameter set, ms.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct HostFlowRow {
+    /// Frame width in pixels.
+    pub width: u32,
+    /// Frame height in pixels.
+    pub height: u32,
+    /// Farneback parameter set label.
+    pub case: String,
+    /// cv::calcOpticalFlowFarneback, per pair.
+    pub opencv_ms: f64,
+    /// Host: both frames expanded and the flow, per pair (as the OpenCV call does).
+    pub host_pair_ms: f64,
+    /// Host: one frame's pyramid of expansions.
+    pub expand_ms: f64,
+    /// Host: the flow between two expanded frames.
+    pub flow_ms: f64,
+}
+
+impl HostFlowRow {
+    /// Pairs per frame of `select --stationary` (every frame against its reference, every
+    /// second frame against the previous stride point).
+    pub const STATIONARY_PAIRS: f64 = 1.5;
+
+    /// A stationary frame's Farneback with OpenCV (1.5 calls) over the host's (one expansion,
+    /// 1.5 flows), i.e. the CPU the expansion reuse saves.
+    pub fn stationary_ratio(&self) -> f64 {
+        (self.opencv_ms * Self::STATIONARY_PAIRS)
+            / (self.expand_ms + self.flow_ms * Self::STATIONARY_PAIRS)
+    }
+}
+
+/// Times OpenCV's Farneback against the host one ([`crate::kernels::farneback::host`]) at every
+/// size of [`FLOW_SIZES`] over `pairs` pairs of two synthetic frames, with OpenCV's tutorial
+/// parameters and the heavier set of [`flow`], one thread, after a warm-up pair each.
+pub fn flow_host(pairs: usize) -> Result<Vec<HostFlowRow>> {
+    use crate::kernels::farneback::{self, host};
+    let pairs = pairs.max(1);
+    let mut rows = Vec::new();
+    for (w, h) in FLOW_SIZES {
+        let frames: Vec<opencv::core::Mat> = (0..2)
+            .map(|s| {
+                crate::synthetic::pattern(w as i32, h as i32, s)
+                    .and_then(|m| crate::kernels::gray::opencv(&m))
+            })
+            .collect::<Result<_>>()?;
+        for (label, p) in flow_params() {
+            let per = |t: Instant| t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
+            farneback::opencv(&frames[0], &frames[1], &p, None)?;
+            let t = Instant::now();
+            for i in 0..pairs {
+                farneback::opencv(&frames[i % 2], &frames[(i + 1) % 2], &p, None)?;
+            }
+            let opencv_ms = per(t);
+            let expanded = [host::expand(&frames[0], &p)?, host::expand(&frames[1], &p)?];
+            host::flow(&expanded[0], &expanded[1])?;
+            let t = Instant::now();
+            for i in 0..pairs {
+                let a = host::expand(&frames[i % 2], &p)?;
+                let b = host::expand(&frames[(i + 1) % 2], &p)?;
+                host::flow(&a, &b)?;
+            }
+            let host_pair_ms = per(t);
+            let t = Instant::now();
+            for i in 0..pairs {
+                host::expand(&frames[i % 2], &p)?;
+            }
+            let expand_ms = per(t);
+            let t = Instant::now();
+            for i in 0..pairs {
+                host::flow(&expanded[i % 2], &expanded[(i + 1) % 2])?;
+            }
+            let flow_ms = per(t);
+            rows.push(HostFlowRow {
+                width: w,
+                height: h,
+                case: label.into(),
+                opencv_ms,
+                host_pair_ms,
+                expand_ms,
+                flow_ms,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// The host Farneback table as text.
+pub fn render_flow_host(pairs: usize, rows: &[HostFlowRow]) -> String {
+    let mut s = format!(
+        "farneback on the host, {pairs} pairs per cell, one thread (host = keyframer's, bit-identical to opencv; stationary = a `--stationary` frame: {} pairs)\n",
+        HostFlowRow::STATIONARY_PAIRS
+    );
+    s += &format!(
+        "{:>10} {:>20} {:>10} {:>10} {:>10} {:>10} {:>12} {:>16}\n",
+        "size",
+        "params",
+        "opencv ms",
+        "host ms",
+        "expand ms",
+        "flow ms",
+        "opencv/host",
+        "stationary o/h"
+    );
+    for x in rows {
+        s += &format!(
+            "{:>10} {:>20} {:>10.2} {:>10.2} {:>10.2} {:>10.2} {:>12.2} {:>16.2}\n",
+            format!("{}x{}", x.width, x.height),
+            x.case,
+            x.opencv_ms,
+            x.host_pair_ms,
+            x.expand_ms,
+            x.flow_ms,
+            x.opencv_ms / x.host_pair_ms,
+            x.stationary_ratio()
+        );
+    }
+    s
 }
 
 /// ERP size and view size of the remap benchmark: 4K ERP to 6 cube faces of 1024².

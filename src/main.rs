@@ -147,7 +147,11 @@ fn bench(a: &cli::BenchArgs) -> Result<ExitCode> {
         cli::BenchWhat::Flow => {
             let (ctx, pairs) = (ctx()?, a.frames.min(8));
             let rows = bench::flow(&ctx, pairs, &a.strip_rows)?;
+            let host_pairs = a.frames.max(8);
+            let host = bench::flow_host(host_pairs)?;
             bench::render_flow(&ctx.info.name, pairs, &rows)
+                + "\n"
+                + &bench::render_flow_host(host_pairs, &host)
         }
         cli::BenchWhat::Descriptor => {
             let ctx = ctx()?;

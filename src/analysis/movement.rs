@@ -14,9 +14,9 @@ use super::sphere::Sphere;
 use super::{analysis_size, MovementRequest, StationaryRequest};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
-#[cfg(feature = "opencv")]
-use crate::kernels::farneback;
 use crate::kernels::farneback::SLOTS;
+#[cfg(feature = "opencv")]
+use crate::kernels::farneback::{self, host::Expansion};
 use crate::kernels::movement::checked;
 #[cfg(feature = "opencv")]
 use crate::kernels::movement::{self, RotationField};
@@ -59,14 +59,17 @@ enum Fit {
     Sphere(Sphere),
 }
 
-/// OpenCV's Farneback and the host twin of the statistic. On a 360° input each slot holds the
-/// horizon views of its frame (cv::remap), and the statistic is taken over every view's flow.
+/// The host Farneback (bit-identical to OpenCV's) and the host twin of the statistic. Each slot
+/// holds its frame's pyramid of expansions, computed once when loaded and reused by every pair
+/// the frame is in (the stationary reference's by every frame compared with it). On a 360° input
+/// each slot holds the horizon views of its frame (cv::remap), and the statistic is taken over
+/// every view's flow.
 #[cfg(feature = "opencv")]
 struct Opencv {
     params: FarnebackParams,
     statistic: Statistic,
-    /// Per slot: the frame, or its views.
-    frames: Vec<Option<Vec<Mat>>>,
+    /// Per slot: the frame's expansions, or its views'.
+    frames: Vec<Option<Vec<Expansion>>>,
     fit: Fit,
 }
 
@@ -75,12 +78,17 @@ impl MovementEngine for Opencv {
     fn load(&mut self, slot: usize, px: Pixels) -> Result<()> {
         match px {
             Pixels::Small(gray) => {
-                self.frames[slot] = Some(match &self.fit {
+                let views = match &self.fit {
                     Fit::Sphere(sphere) => (sphere.tables.iter())
                         .map(|t| remap::opencv(&gray, t, Interp::Bilinear))
                         .collect::<Result<Vec<_>>>()?,
                     _ => vec![gray],
-                });
+                };
+                self.frames[slot] = None;
+                let expanded = (views.iter())
+                    .map(|v| farneback::host::expand(v, &self.params))
+                    .collect::<Result<Vec<_>>>()?;
+                self.frames[slot] = Some(expanded);
                 Ok(())
             }
             Pixels::Staged(_) => Err(Error::param(
@@ -96,7 +104,7 @@ impl MovementEngine for Opencv {
     }
 
     /// Two pairs (a frame's consecutive movement and the one from the stationary reference)
-    /// on two threads: OpenCV's Farneback runs on one core, and the two are independent.
+    /// on two threads: the Farneback runs on one core, and the two are independent.
     fn movements(&mut self, pairs: &[(usize, usize)]) -> Result<Vec<f64>> {
         let &[(a0, b0), (a1, b1)] = pairs else {
             return pairs.iter().map(|&(a, b)| self.movement(a, b)).collect();
@@ -116,8 +124,8 @@ impl MovementEngine for Opencv {
 
 #[cfg(feature = "opencv")]
 impl Opencv {
-    /// The frames (or views) in slots `from` and `to`.
-    fn pair(&self, from: usize, to: usize) -> Result<(&[Mat], &[Mat])> {
+    /// The expansions of the frames (or views) in slots `from` and `to`.
+    fn pair(&self, from: usize, to: usize) -> Result<(&[Expansion], &[Expansion])> {
         match (&self.frames[from], &self.frames[to]) {
             (Some(a), Some(b)) => Ok((a, b)),
             _ => Err(Error::param("slots", "frame not loaded")),
@@ -126,9 +134,9 @@ impl Opencv {
 
     /// The statistic of the flow from `a` to `b` (of every view's flow, derotated together, on
     /// a 360° input).
-    fn measure(&self, a: &[Mat], b: &[Mat]) -> Result<f64> {
+    fn measure(&self, a: &[Expansion], b: &[Expansion]) -> Result<f64> {
         let flows = (a.iter().zip(b))
-            .map(|(a, b)| farneback::opencv(a, b, &self.params, None))
+            .map(|(a, b)| farneback::host::flow(a, b))
             .collect::<Result<Vec<_>>>()?;
         match (&self.fit, flows.as_slice()) {
             (Fit::None, [f]) => movement::cpu_flow(f, self.statistic, None),
@@ -197,7 +205,7 @@ fn host_engine(req: &MovementRequest, (w, h): (u32, u32)) -> Result<(Engine, Bac
     let cpu = Opencv {
         params: req.farneback,
         statistic: req.statistic,
-        frames: vec![None; SLOTS],
+        frames: (0..SLOTS).map(|_| None).collect(),
         fit,
     };
     Ok((Engine::Host(Box::new(cpu)), Backend::Opencv))

@@ -18,6 +18,9 @@ use opencv::{
 use std::sync::Arc;
 use wgpu::TextureFormat;
 
+#[cfg(feature = "opencv")]
+pub mod host;
+
 /// WGSL of the pyramid stages (level images and expansions), after its prelude.
 pub const PYRAMID_WGSL: &str = concat!(
     include_str!("../../shaders/border.wgsl"),
@@ -126,10 +129,10 @@ pub fn levels(width: u32, height: u32, p: &FarnebackParams) -> Vec<Level> {
         .collect()
 }
 
-/// Polynomial-expansion weights as FarnebackPrepareGaussian computes them:
-/// (g[0..=n], xg, xxg as f32) and (ig11, ig03, ig33, ig55).
-pub fn poly_weights(n: u32, sigma: f64) -> (Vec<f32>, [f64; 4]) {
-    let n = n as i64;
+/// FarnebackPrepareGaussian's taps over -n..=n: g (normalised Gaussian), x*g and x*x*g, in f32
+/// with OpenCV's arithmetic (each tap's exponential in f64, the products in f32).
+pub(crate) fn poly_taps(n: u32, sigma: f64) -> [Vec<f32>; 3] {
+    let n = i64::from(n);
     let sigma = if sigma < f64::from(f32::EPSILON) {
         n as f64 * 0.3
     } else {
@@ -151,15 +154,22 @@ pub fn poly_weights(n: u32, sigma: f64) -> (Vec<f32>, [f64; 4]) {
         xg[i] = (x as f32) * g[i];
         xxg[i] = ((x * x) as f32) * g[i];
     }
+    [g, xg, xxg]
+}
+
+/// FarnebackPrepareGaussian's 6x6 moment matrix G of the taps `g` (over -n..=n): each term a
+/// product in f32, summed in f64, as OpenCV writes it.
+pub(crate) fn poly_moments(g: &[f32]) -> [[f64; 6]; 6] {
+    let n = (g.len() / 2) as i64;
     let mut gm = [[0f64; 6]; 6];
     for y in -n..=n {
         for x in -n..=n {
-            let w = f64::from(g[(y + n) as usize]) * f64::from(g[(x + n) as usize]);
-            let (xf, yf) = (x as f64, y as f64);
-            gm[0][0] += w;
-            gm[1][1] += w * xf * xf;
-            gm[3][3] += w * xf * xf * xf * xf;
-            gm[5][5] += w * xf * xf * yf * yf;
+            let w = g[(y + n) as usize] * g[(x + n) as usize];
+            let (xf, yf) = (x as f32, y as f32);
+            gm[0][0] += f64::from(w);
+            gm[1][1] += f64::from(w * xf * xf);
+            gm[3][3] += f64::from(w * xf * xf * xf * xf);
+            gm[5][5] += f64::from(w * xf * xf * yf * yf);
         }
     }
     gm[2][2] = gm[1][1];
@@ -170,7 +180,14 @@ pub fn poly_weights(n: u32, sigma: f64) -> (Vec<f32>, [f64; 4]) {
     gm[4][4] = gm[3][3];
     gm[3][4] = gm[5][5];
     gm[4][3] = gm[5][5];
-    let inv = invert6(gm);
+    gm
+}
+
+/// Polynomial-expansion weights as FarnebackPrepareGaussian computes them:
+/// (g[0..=n], xg, xxg as f32) and (ig11, ig03, ig33, ig55).
+pub fn poly_weights(n: u32, sigma: f64) -> (Vec<f32>, [f64; 4]) {
+    let [g, xg, xxg] = poly_taps(n, sigma);
+    let inv = invert6(poly_moments(&g));
     let mut kern = Vec::with_capacity(3 * (n as usize + 1));
     let c = n as usize;
     kern.extend_from_slice(&g[c..]);

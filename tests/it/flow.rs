@@ -497,3 +497,63 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         assert_eq!(g[10] == 1, a >= b, "case {k}: {a:e} >= {b:e}");
     }
 }
+
+/// The host Farneback (expansions computed once per frame, then the pairs) equals
+/// cv::calcOpticalFlowFarneback bit for bit: Middlebury pairs, Megamind frames at full size, an
+/// odd crop and a small image, every parameter set (box and Gaussian windows, poly_n 5 and 7);
+/// one expansion reused for two pairs gives each pair's own result.
+#[test]
+fn host_flow_equals_opencv_bit_for_bit() {
+    use farneback::host;
+    let mut pairs: Vec<(String, Mat, Mat)> = Vec::new();
+    for (a, b) in [
+        ("basketball1.png", "basketball2.png"),
+        ("rubberwhale1.png", "rubberwhale2.png"),
+    ] {
+        let prev = gray_of(&testdata(&format!("opencv-doc/{a}")));
+        let next = gray_of(&testdata(&format!("opencv-doc/{b}")));
+        pairs.push((a.to_string(), prev, next));
+    }
+    let g = video_gray(&testdata("opencv-doc/Megamind.avi"), &[40, 41, 120, 122]);
+    pairs.push(("Megamind 40-41".into(), g[0].clone(), g[1].clone()));
+    for (name, rect) in [
+        (
+            "Megamind 641x359",
+            opencv::core::Rect::new(37, 80, 641, 359),
+        ),
+        ("Megamind 45x37", opencv::core::Rect::new(300, 200, 45, 37)),
+    ] {
+        let ca = Mat::roi(&g[2], rect).unwrap().try_clone().unwrap();
+        let cb = Mat::roi(&g[3], rect).unwrap().try_clone().unwrap();
+        pairs.push((name.into(), ca, cb));
+    }
+    let same = |a: &Mat, b: &Mat| -> usize {
+        let (a, b) = (
+            a.data_typed::<Vec2f>().unwrap(),
+            b.data_typed::<Vec2f>().unwrap(),
+        );
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .zip(b)
+            .filter(|(p, q)| p[0].to_bits() != q[0].to_bits() || p[1].to_bits() != q[1].to_bits())
+            .count()
+    };
+    for (name, prev, next) in &pairs {
+        for p in param_sets() {
+            let (ea, eb) = (
+                host::expand(prev, &p).unwrap(),
+                host::expand(next, &p).unwrap(),
+            );
+            let ours = host::flow(&ea, &eb).unwrap();
+            let cv = farneback::opencv(prev, next, &p, None).unwrap();
+            let differing = same(&ours, &cv);
+            let (mean, _, max) = epe(&ours, &cv);
+            eprintln!("{name} {p:?}: {differing} values differ, EPE mean {mean:e} max {max:e}");
+            assert_eq!(differing, 0, "{name} {p:?}: EPE mean {mean:e} max {max:e}");
+            // The same expansion of `prev` serves a second pair (backwards).
+            let back = host::flow(&eb, &ea).unwrap();
+            let cv_back = farneback::opencv(next, prev, &p, None).unwrap();
+            assert_eq!(same(&back, &cv_back), 0, "{name} {p:?} backwards");
+        }
+    }
+}

@@ -1,0 +1,513 @@
+//! `farneback::host`: cv::calcOpticalFlowFarneback's CPU algorithm (without an initial flow) in
+//! two halves, so that a frame's pyramid of polynomial expansions ([`expand`]) is computed once
+//! and reused by every pair it is in ([`flow`]). Bit-identical to the OpenCV call: the level
+//! images and the flow's level-to-level resize come from OpenCV itself (convertTo, GaussianBlur,
+//! resize, the expansion's 6x6 inverse), and the expansion, the matrices and the window solve
+//! repeat OpenCV's scalar code operation for operation (f32 where it computes in float, f64
+//! where in double, the same order). Tested against the OpenCV call bit for bit.
+
+use super::{levels, poly_moments, poly_taps, window_weights};
+use crate::error::{CvContext, Error, Result};
+use crate::params::FarnebackParams;
+use opencv::core::{Mat, Size, Vec2f, CV_32F, CV_32FC2, CV_64F};
+use opencv::prelude::*;
+
+/// One pyramid level's polynomial expansion: 5 coefficients per pixel (OpenCV's R matrices).
+struct LevelExpansion {
+    width: usize,
+    height: usize,
+    r: Vec<f32>,
+}
+
+/// A frame's polynomial expansions at every pyramid level of `params` (index 0 = full size).
+pub struct Expansion {
+    params: FarnebackParams,
+    levels: Vec<LevelExpansion>,
+}
+
+impl Expansion {
+    /// Width and height of the frame.
+    pub fn size(&self) -> (usize, usize) {
+        self.levels.first().map_or((0, 0), |l| (l.width, l.height))
+    }
+}
+
+/// The expansion kernel: FarnebackPrepareGaussian's taps from the centre out and its inverse
+/// moments (ig11, ig03, ig33, ig55).
+struct Weights {
+    g: Vec<f32>,
+    xg: Vec<f32>,
+    xxg: Vec<f32>,
+    ig: [f64; 4],
+}
+
+impl Weights {
+    fn new(p: &FarnebackParams) -> Result<Weights> {
+        let n = p.poly_n as usize;
+        let [g, xg, xxg] = poly_taps(p.poly_n, p.poly_sigma);
+        let gm = poly_moments(&g);
+        let rows: Vec<Vec<f64>> = gm.iter().map(|r| r.to_vec()).collect();
+        let m = Mat::from_slice_2d(&rows).cv(|| "farneback moments".into())?;
+        let inv = m
+            .inv(opencv::core::DECOMP_CHOLESKY)
+            .and_then(|e| e.to_mat())
+            .cv(|| "farneback moments inverse".into())?;
+        let at = |r: i32, c: i32| -> Result<f64> {
+            inv.at_2d::<f64>(r, c)
+                .copied()
+                .cv(|| "farneback moments inverse".into())
+        };
+        debug_assert_eq!(inv.typ(), CV_64F);
+        Ok(Weights {
+            g: g[n..].to_vec(),
+            xg: xg[n..].to_vec(),
+            xxg: xxg[n..].to_vec(),
+            ig: [at(1, 1)?, at(0, 3)?, at(3, 3)?, at(5, 5)?],
+        })
+    }
+}
+
+/// The expansions of `gray` (8-bit, one channel) at every level of `p`, with the level images
+/// exactly as cv::calcOpticalFlowFarneback makes them (each level blurred from the full-size
+/// image, then resized).
+pub fn expand(gray: &Mat, p: &FarnebackParams) -> Result<Expansion> {
+    p.validate()?;
+    let (w, h) = (gray.cols(), gray.rows());
+    if w <= 0 || h <= 0 || gray.channels() != 1 {
+        return Err(Error::param(
+            "farneback",
+            format!(
+                "expansion needs a one-channel image, got {w}x{h} with {} channels",
+                gray.channels()
+            ),
+        ));
+    }
+    let weights = Weights::new(p)?;
+    let mut full = Mat::default();
+    gray.convert_to(&mut full, CV_32F, 1.0, 0.0)
+        .cv(|| "farneback convertTo".into())?;
+    let mut out = Vec::new();
+    for level in levels(w as u32, h as u32, p) {
+        let sigma = (1.0 / level.scale - 1.0) * 0.5;
+        let k = level.smooth.len() as i32;
+        let mut blurred = Mat::default();
+        opencv::imgproc::gaussian_blur(
+            &full,
+            &mut blurred,
+            Size::new(k, k),
+            sigma,
+            sigma,
+            opencv::core::BORDER_DEFAULT,
+        )
+        .cv(|| "farneback GaussianBlur".into())?;
+        let mut image = Mat::default();
+        let size = Size::new(level.width as i32, level.height as i32);
+        opencv::imgproc::resize(
+            &blurred,
+            &mut image,
+            size,
+            0.0,
+            0.0,
+            opencv::imgproc::INTER_LINEAR,
+        )
+        .cv(|| "farneback resize".into())?;
+        let src = image
+            .data_typed::<f32>()
+            .cv(|| "farneback level image".into())?;
+        let (lw, lh) = (level.width as usize, level.height as usize);
+        out.push(LevelExpansion {
+            width: lw,
+            height: lh,
+            r: poly_exp(src, lw, lh, &weights),
+        });
+    }
+    Ok(Expansion {
+        params: *p,
+        levels: out,
+    })
+}
+
+/// The flow from `a`'s frame to `b`'s (CV_32FC2), as cv::calcOpticalFlowFarneback(a, b, flags
+/// without OPTFLOW_USE_INITIAL_FLOW) computes it.
+pub fn flow(a: &Expansion, b: &Expansion) -> Result<Mat> {
+    if a.params != b.params || a.size() != b.size() || a.levels.len() != b.levels.len() {
+        return Err(Error::param(
+            "farneback",
+            format!(
+                "the two expansions differ: {:?} vs {:?} pixels, or their parameters",
+                a.size(),
+                b.size()
+            ),
+        ));
+    }
+    let p = &a.params;
+    let mut prev: Option<Mat> = None;
+    let mut matrices = Vec::new();
+    for (r0, r1) in a.levels.iter().zip(&b.levels).rev() {
+        let (w, h) = (r0.width, r0.height);
+        let mut flow = vec![0f32; w * h * 2];
+        if let Some(prev) = &prev {
+            let mut resized = Mat::default();
+            let size = Size::new(w as i32, h as i32);
+            opencv::imgproc::resize(
+                prev,
+                &mut resized,
+                size,
+                0.0,
+                0.0,
+                opencv::imgproc::INTER_LINEAR,
+            )
+            .cv(|| "farneback flow resize".into())?;
+            let mut scaled = Mat::default();
+            resized
+                .convert_to(&mut scaled, -1, 1.0 / p.pyr_scale, 0.0)
+                .cv(|| "farneback flow scale".into())?;
+            let v = scaled
+                .data_typed::<Vec2f>()
+                .cv(|| "farneback flow".into())?;
+            for (d, s) in flow.chunks_exact_mut(2).zip(v) {
+                d[0] = s[0];
+                d[1] = s[1];
+            }
+        }
+        let level = LevelPair {
+            r0: &r0.r,
+            r1: &r1.r,
+            width: w,
+            height: h,
+        };
+        matrices.resize(w * h * 5, 0f32);
+        level.update_matrices(&flow, &mut matrices, 0, h);
+        for i in 0..p.iterations {
+            let update = i + 1 < p.iterations;
+            if p.gaussian {
+                level.update_flow_gaussian(&mut flow, &mut matrices, p.winsize as usize, update);
+            } else {
+                level.update_flow_box(&mut flow, &mut matrices, p.winsize as usize, update);
+            }
+        }
+        let mut mat = Mat::new_rows_cols_with_default(
+            h as i32,
+            w as i32,
+            CV_32FC2,
+            opencv::core::Scalar::all(0.0),
+        )
+        .cv(|| "farneback flow".into())?;
+        let v = mat
+            .data_typed_mut::<Vec2f>()
+            .cv(|| "farneback flow".into())?;
+        for (d, s) in v.iter_mut().zip(flow.chunks_exact(2)) {
+            d[0] = s[0];
+            d[1] = s[1];
+        }
+        prev = Some(mat);
+    }
+    prev.ok_or_else(|| Error::param("farneback", "no pyramid level"))
+}
+
+/// FarnebackPolyExp: the 5 coefficients (r2..r6, r1 not stored) of every pixel of `src`.
+fn poly_exp(src: &[f32], width: usize, height: usize, k: &Weights) -> Vec<f32> {
+    let n = k.g.len() - 1;
+    let (g, xg, xxg) = (&k.g, &k.xg, &k.xxg);
+    let [ig11, ig03, ig33, ig55] = k.ig;
+    let mut dst = vec![0f32; width * height * 5];
+    // The row buffer with n pixels (3 values each) of border on either side.
+    let mut buf = vec![0f32; (width + 2 * n) * 3];
+    let o = n * 3;
+    for y in 0..height {
+        let srow = &src[y * width..(y + 1) * width];
+        {
+            let row = &mut buf[o..o + width * 3];
+            for (r, &s) in row.chunks_exact_mut(3).zip(srow) {
+                r[0] = s * g[0];
+                r[1] = 0.0;
+                r[2] = 0.0;
+            }
+            for kk in 1..=n {
+                let (g0, g1, g2) = (g[kk], xg[kk], xxg[kk]);
+                let up = y.saturating_sub(kk);
+                let down = (y + kk).min(height - 1);
+                let s0 = &src[up * width..(up + 1) * width];
+                let s1 = &src[down * width..(down + 1) * width];
+                for ((r, &a), &b) in row.chunks_exact_mut(3).zip(s0).zip(s1) {
+                    let p = a + b;
+                    r[0] += g0 * p;
+                    r[1] += g1 * (b - a);
+                    r[2] += g2 * p;
+                }
+            }
+        }
+        // Replicate the first and last pixel into the border, as OpenCV's loop does.
+        for x in 0..n * 3 {
+            buf[o - 1 - x] = buf[o + 2 - x];
+            buf[o + width * 3 + x] = buf[o + width * 3 + x - 3];
+        }
+        let drow = &mut dst[y * width * 5..(y + 1) * width * 5];
+        for (x, d) in drow.chunks_exact_mut(5).enumerate() {
+            let c = o + x * 3;
+            let g0 = g[0];
+            let mut b1 = f64::from(buf[c] * g0);
+            let mut b2 = 0f64;
+            let mut b3 = f64::from(buf[c + 1] * g0);
+            let mut b4 = 0f64;
+            let mut b5 = f64::from(buf[c + 2] * g0);
+            let mut b6 = 0f64;
+            for kk in 1..=n {
+                let (r, l) = (c + kk * 3, c - kk * 3);
+                let tg = f64::from(buf[r] + buf[l]);
+                let g0 = g[kk];
+                b1 += tg * f64::from(g0);
+                b4 += tg * f64::from(xxg[kk]);
+                b2 += f64::from((buf[r] - buf[l]) * xg[kk]);
+                b3 += f64::from((buf[r + 1] + buf[l + 1]) * g0);
+                b6 += f64::from((buf[r + 1] - buf[l + 1]) * xg[kk]);
+                b5 += f64::from((buf[r + 2] + buf[l + 2]) * g0);
+            }
+            d[1] = (b2 * ig11) as f32;
+            d[0] = (b3 * ig11) as f32;
+            d[3] = (b1 * ig03 + b4 * ig33) as f32;
+            d[2] = (b1 * ig03 + b5 * ig33) as f32;
+            d[4] = (b6 * ig55) as f32;
+        }
+    }
+    dst
+}
+
+/// One level's two expansions.
+struct LevelPair<'a> {
+    r0: &'a [f32],
+    r1: &'a [f32],
+    width: usize,
+    height: usize,
+}
+
+/// Weights of FarnebackUpdateMatrices' border rows and columns.
+const BORDER: [f32; 5] = [0.14, 0.14, 0.4472, 0.4472, 0.4472];
+
+/// cvFloor: the largest integer not above `v` (out of range: a value out of every image).
+fn floor(v: f32) -> i32 {
+    let i = v as i32;
+    i - i32::from(i as f32 > v)
+}
+
+/// OpenCV's border weights along one axis at `i` of `n`: `i < BORDER ? border[i] : 1` and `i >=
+/// n - BORDER ? border[n - i - 1] : 1` (multiplied x then y, left to right, as OpenCV does).
+fn border_weight(i: usize, n: usize) -> (f32, f32) {
+    let low = if i < 5 { BORDER[i] } else { 1.0 };
+    let high = if i + 5 >= n { BORDER[n - i - 1] } else { 1.0 };
+    (low, high)
+}
+
+impl LevelPair<'_> {
+    /// FarnebackUpdateMatrices for rows `y0..y1`: the per-pixel matrices G and h from the flow.
+    fn update_matrices(&self, flow: &[f32], m: &mut [f32], y0: usize, y1: usize) {
+        let (width, height) = (self.width, self.height);
+        let step = width * 5;
+        // OpenCV's `(unsigned)(x - BORDER) >= (unsigned)(width - BORDER*2)`, wrapping alike.
+        let inner_w = (width as u32).wrapping_sub(10);
+        let inner_h = (height as u32).wrapping_sub(10);
+        let (last_x, last_y) = (
+            (width as u32).wrapping_sub(1),
+            (height as u32).wrapping_sub(1),
+        );
+        for y in y0..y1 {
+            let rows = y * step..(y + 1) * step;
+            let frow = &flow[y * width * 2..(y + 1) * width * 2];
+            let y_border = (y as u32).wrapping_sub(5) >= inner_h;
+            let cells = frow
+                .chunks_exact(2)
+                .zip(self.r0[rows.clone()].chunks_exact(5));
+            for (x, ((f, r0), out)) in cells.zip(m[rows].chunks_exact_mut(5)).enumerate() {
+                let (dx, dy) = (f[0], f[1]);
+                let mut fx = x as f32 + dx;
+                let mut fy = y as f32 + dy;
+                let x1 = floor(fx);
+                let y1 = floor(fy);
+                fx -= x1 as f32;
+                fy -= y1 as f32;
+                let (mut r2, mut r3, mut r4, mut r5, mut r6);
+                if (x1 as u32) < last_x && (y1 as u32) < last_y {
+                    let a00 = (1.0 - fx) * (1.0 - fy);
+                    let a01 = fx * (1.0 - fy);
+                    let a10 = (1.0 - fx) * fy;
+                    let a11 = fx * fy;
+                    let at = y1 as usize * step + x1 as usize * 5;
+                    let p = &self.r1[at..at + 10];
+                    let q = &self.r1[at + step..at + step + 10];
+                    let mix = |c: usize| a00 * p[c] + a01 * p[c + 5] + a10 * q[c] + a11 * q[c + 5];
+                    r2 = mix(0);
+                    r3 = mix(1);
+                    r4 = mix(2);
+                    r5 = mix(3);
+                    r6 = mix(4);
+                    r4 = (r0[2] + r4) * 0.5;
+                    r5 = (r0[3] + r5) * 0.5;
+                    r6 = (r0[4] + r6) * 0.25;
+                } else {
+                    r2 = 0.0;
+                    r3 = 0.0;
+                    r4 = r0[2];
+                    r5 = r0[3];
+                    r6 = r0[4] * 0.5;
+                }
+                r2 = (r0[0] - r2) * 0.5;
+                r3 = (r0[1] - r3) * 0.5;
+                r2 += r4 * dy + r6 * dx;
+                r3 += r6 * dy + r5 * dx;
+                if y_border || (x as u32).wrapping_sub(5) >= inner_w {
+                    let ((xl, xh), (yl, yh)) = (border_weight(x, width), border_weight(y, height));
+                    let scale = xl * xh * yl * yh;
+                    r2 *= scale;
+                    r3 *= scale;
+                    r4 *= scale;
+                    r5 *= scale;
+                    r6 *= scale;
+                }
+                out[0] = r4 * r4 + r6 * r6;
+                out[1] = (r4 + r5) * r6;
+                out[2] = r5 * r5 + r6 * r6;
+                out[3] = r4 * r2 + r6 * r3;
+                out[4] = r6 * r2 + r5 * r3;
+            }
+        }
+    }
+
+    /// After the flow of row `y`: the matrices of the rows the window has left behind, in
+    /// OpenCV's stripes (`y0` is where the next stripe starts).
+    fn update_behind(&self, flow: &[f32], m: &mut [f32], y: usize, block: usize, y0: &mut usize) {
+        let height = self.height;
+        let stripe = ((1 << 10) / self.width).max(block) as i64;
+        let y1 = if y == height - 1 {
+            height as i64
+        } else {
+            y as i64 - block as i64
+        };
+        if y1 == height as i64 || y1 >= *y0 as i64 + stripe {
+            self.update_matrices(flow, m, *y0, y1 as usize);
+            *y0 = y1 as usize;
+        }
+    }
+
+    /// FarnebackUpdateFlow_Blur: the flow from the box-averaged matrices (sums in f64), then,
+    /// with `update`, the matrices from the new flow.
+    fn update_flow_box(&self, flow: &mut [f32], m: &mut [f32], block: usize, update: bool) {
+        let (width, height) = (self.width, self.height);
+        let half = block / 2;
+        let scale = 1.0 / (block * block) as f64;
+        let step = width * 5;
+        // vsum[o + i] is OpenCV's vsum[i]; (half + 1) pixels of border on either side.
+        let o = (half + 1) * 5;
+        let mut vsum = vec![0f64; (width + half * 2 + 2) * 5];
+        let edge = (half + 2) as f32;
+        for (v, &s) in vsum[o..o + step].iter_mut().zip(&m[..step]) {
+            *v = f64::from(s * edge);
+        }
+        for y in 1..half {
+            let r = y.min(height - 1);
+            for (v, &s) in vsum[o..o + step]
+                .iter_mut()
+                .zip(&m[r * step..(r + 1) * step])
+            {
+                *v += f64::from(s);
+            }
+        }
+        let mut y0 = 0;
+        for y in 0..height {
+            let out = y.saturating_sub(half + 1);
+            let inn = (y + half).min(height - 1);
+            {
+                let (s0, s1) = (
+                    &m[out * step..(out + 1) * step],
+                    &m[inn * step..(inn + 1) * step],
+                );
+                for ((v, &a), &b) in vsum[o..o + step].iter_mut().zip(s0).zip(s1) {
+                    *v += f64::from(b - a);
+                }
+            }
+            for x in 0..(half + 1) * 5 {
+                vsum[o - 1 - x] = vsum[o + 4 - x];
+                vsum[o + step + x] = vsum[o + step + x - 5];
+            }
+            let e = (half + 2) as f64;
+            let mut s = [0f64; 5];
+            for (c, v) in s.iter_mut().enumerate() {
+                *v = vsum[o + c] * e;
+            }
+            for x in 1..half {
+                for (c, v) in s.iter_mut().enumerate() {
+                    *v += vsum[o + x * 5 + c];
+                }
+            }
+            let row = &mut flow[y * width * 2..(y + 1) * width * 2];
+            for (x, f) in row.chunks_exact_mut(2).enumerate() {
+                let add = o + (x + half) * 5;
+                let sub = o + x * 5 - half * 5 - 5;
+                for (c, v) in s.iter_mut().enumerate() {
+                    *v += vsum[add + c] - vsum[sub + c];
+                }
+                let g11 = s[0] * scale;
+                let g12 = s[1] * scale;
+                let g22 = s[2] * scale;
+                let h1 = s[3] * scale;
+                let h2 = s[4] * scale;
+                let idet = 1.0 / (g11 * g22 - g12 * g12 + 1e-3);
+                f[0] = ((g11 * h2 - g12 * h1) * idet) as f32;
+                f[1] = ((g22 * h1 - g12 * h2) * idet) as f32;
+            }
+            if update {
+                self.update_behind(flow, m, y, block, &mut y0);
+            }
+        }
+    }
+
+    /// FarnebackUpdateFlow_GaussianBlur: the flow from the Gaussian-averaged matrices (sums in
+    /// f32), then, with `update`, the matrices from the new flow.
+    fn update_flow_gaussian(&self, flow: &mut [f32], m: &mut [f32], block: usize, update: bool) {
+        let (width, height) = (self.width, self.height);
+        let half = block / 2;
+        let (kernel, _) = window_weights(block as u32, true);
+        let step = width * 5;
+        let o = (half + 1) * 5;
+        let mut vsum = vec![0f32; (width + half * 2 + 2) * 5];
+        let mut hsum = vec![0f32; step];
+        let mut y0 = 0;
+        for y in 0..height {
+            let row = |i: usize| &m[i * step..(i + 1) * step];
+            for x in 0..step {
+                let mut s0 = row(y)[x] * kernel[0];
+                for (i, &k) in kernel.iter().enumerate().skip(1) {
+                    let down = row((y + i).min(height - 1))[x];
+                    let up = row(y.saturating_sub(i))[x];
+                    s0 += (down + up) * k;
+                }
+                vsum[o + x] = s0;
+            }
+            for x in 0..half * 5 {
+                vsum[o - 1 - x] = vsum[o + 4 - x];
+                vsum[o + step + x] = vsum[o + step + x - 5];
+            }
+            for (x, h) in hsum.iter_mut().enumerate() {
+                let c = o + x;
+                let mut sum = vsum[c] * kernel[0];
+                for (i, &k) in kernel.iter().enumerate().skip(1) {
+                    sum += k * (vsum[c - i * 5] + vsum[c + i * 5]);
+                }
+                *h = sum;
+            }
+            let frow = &mut flow[y * width * 2..(y + 1) * width * 2];
+            for (f, hs) in frow.chunks_exact_mut(2).zip(hsum.chunks_exact(5)) {
+                let g11 = f64::from(hs[0]);
+                let g12 = f64::from(hs[1]);
+                let g22 = f64::from(hs[2]);
+                let h1 = f64::from(hs[3]);
+                let h2 = f64::from(hs[4]);
+                let idet = 1.0 / (g11 * g22 - g12 * g12 + 1e-3);
+                f[0] = ((g11 * h2 - g12 * h1) * idet) as f32;
+                f[1] = ((g22 * h1 - g12 * h2) * idet) as f32;
+            }
+            if update {
+                self.update_behind(flow, m, y, block, &mut y0);
+            }
+        }
+    }
+}
