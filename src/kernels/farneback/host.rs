@@ -118,7 +118,7 @@ pub fn expand(gray: &Mat, p: &FarnebackParams) -> Result<Expansion> {
         out.push(LevelExpansion {
             width: lw,
             height: lh,
-            r: poly_exp(src, lw, lh, &weights),
+            r: poly_exp(src, (lw, lh), &weights),
         });
     }
     Ok(Expansion {
@@ -177,15 +177,7 @@ pub fn flow(a: &Expansion, b: &Expansion) -> Result<Mat> {
             height: h,
         };
         matrices.resize(w * h * 5, 0f32);
-        level.update_matrices(&flow, &mut matrices, 0, h);
-        for i in 0..p.iterations {
-            let update = i + 1 < p.iterations;
-            if p.gaussian {
-                level.update_flow_gaussian(&mut flow, &mut matrices, p.winsize as usize, update);
-            } else {
-                level.update_flow_box(&mut flow, &mut matrices, p.winsize as usize, update);
-            }
-        }
+        level.solve(&mut flow, &mut matrices, p);
         let mut mat = Mat::new_rows_cols_with_default(
             h as i32,
             w as i32,
@@ -205,8 +197,36 @@ pub fn flow(a: &Expansion, b: &Expansion) -> Result<Mat> {
     prev.ok_or_else(|| Error::param("farneback", "no pyramid level"))
 }
 
+/// Whether this CPU runs the AVX2 builds of the loops (checked once by the standard library).
+fn avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return std::arch::is_x86_feature_detected!("avx2");
+    #[cfg(not(target_arch = "x86_64"))]
+    return false;
+}
+
+/// [`poly_exp_generic`], compiled for AVX2 where the CPU has it. The two builds do the same f32
+/// and f64 operations in the same order (vectorising element-wise loops reorders nothing, and
+/// Rust never fuses a multiply and an add), so they give the same bits: `paths_agree` checks.
+fn poly_exp(src: &[f32], size: (usize, usize), k: &Weights) -> Vec<f32> {
+    #[cfg(target_arch = "x86_64")]
+    if avx2() {
+        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+        // `poly_exp_avx2`'s `target_feature`.
+        return unsafe { poly_exp_avx2(src, size, k) };
+    }
+    poly_exp_generic(src, size, k)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn poly_exp_avx2(src: &[f32], size: (usize, usize), k: &Weights) -> Vec<f32> {
+    poly_exp_generic(src, size, k)
+}
+
 /// FarnebackPolyExp: the 5 coefficients (r2..r6, r1 not stored) of every pixel of `src`.
-fn poly_exp(src: &[f32], width: usize, height: usize, k: &Weights) -> Vec<f32> {
+#[inline(always)]
+fn poly_exp_generic(src: &[f32], (width, height): (usize, usize), k: &Weights) -> Vec<f32> {
     let n = k.g.len() - 1;
     let (g, xg, xxg) = (&k.g, &k.xg, &k.xxg);
     let [ig11, ig03, ig33, ig55] = k.ig;
@@ -285,6 +305,7 @@ struct LevelPair<'a> {
 const BORDER: [f32; 5] = [0.14, 0.14, 0.4472, 0.4472, 0.4472];
 
 /// cvFloor: the largest integer not above `v` (out of range: a value out of every image).
+#[inline(always)]
 fn floor(v: f32) -> i32 {
     let i = v as i32;
     i - i32::from(i as f32 > v)
@@ -292,6 +313,7 @@ fn floor(v: f32) -> i32 {
 
 /// OpenCV's border weights along one axis at `i` of `n`: `i < BORDER ? border[i] : 1` and `i >=
 /// n - BORDER ? border[n - i - 1] : 1` (multiplied x then y, left to right, as OpenCV does).
+#[inline(always)]
 fn border_weight(i: usize, n: usize) -> (f32, f32) {
     let low = if i < 5 { BORDER[i] } else { 1.0 };
     let high = if i + 5 >= n { BORDER[n - i - 1] } else { 1.0 };
@@ -299,7 +321,41 @@ fn border_weight(i: usize, n: usize) -> (f32, f32) {
 }
 
 impl LevelPair<'_> {
+    /// One level's flow iterations from the flow in `flow` (`m`: the matrices, any content),
+    /// in the AVX2 build where the CPU has it (see [`poly_exp`]).
+    fn solve(&self, flow: &mut [f32], m: &mut [f32], p: &FarnebackParams) {
+        #[cfg(target_arch = "x86_64")]
+        if avx2() {
+            // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+            // `solve_avx2`'s `target_feature`.
+            return unsafe { self.solve_avx2(flow, m, p) };
+        }
+        self.solve_generic(flow, m, p)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn solve_avx2(&self, flow: &mut [f32], m: &mut [f32], p: &FarnebackParams) {
+        self.solve_generic(flow, m, p)
+    }
+
+    /// The iterations as calcOpticalFlowFarneback runs them: the matrices of the flow, then
+    /// `iterations` window solves, each but the last followed by the matrices of its flow.
+    #[inline(always)]
+    fn solve_generic(&self, flow: &mut [f32], m: &mut [f32], p: &FarnebackParams) {
+        self.update_matrices(flow, m, 0, self.height);
+        for i in 0..p.iterations {
+            let update = i + 1 < p.iterations;
+            if p.gaussian {
+                self.update_flow_gaussian(flow, m, p.winsize as usize, update);
+            } else {
+                self.update_flow_box(flow, m, p.winsize as usize, update);
+            }
+        }
+    }
+
     /// FarnebackUpdateMatrices for rows `y0..y1`: the per-pixel matrices G and h from the flow.
+    #[inline(always)]
     fn update_matrices(&self, flow: &[f32], m: &mut [f32], y0: usize, y1: usize) {
         let (width, height) = (self.width, self.height);
         let step = width * 5;
@@ -374,6 +430,7 @@ impl LevelPair<'_> {
 
     /// After the flow of row `y`: the matrices of the rows the window has left behind, in
     /// OpenCV's stripes (`y0` is where the next stripe starts).
+    #[inline(always)]
     fn update_behind(&self, flow: &[f32], m: &mut [f32], y: usize, block: usize, y0: &mut usize) {
         let height = self.height;
         let stripe = ((1 << 10) / self.width).max(block) as i64;
@@ -390,6 +447,7 @@ impl LevelPair<'_> {
 
     /// FarnebackUpdateFlow_Blur: the flow from the box-averaged matrices (sums in f64), then,
     /// with `update`, the matrices from the new flow.
+    #[inline(always)]
     fn update_flow_box(&self, flow: &mut [f32], m: &mut [f32], block: usize, update: bool) {
         let (width, height) = (self.width, self.height);
         let half = block / 2;
@@ -462,6 +520,7 @@ impl LevelPair<'_> {
 
     /// FarnebackUpdateFlow_GaussianBlur: the flow from the Gaussian-averaged matrices (sums in
     /// f32), then, with `update`, the matrices from the new flow.
+    #[inline(always)]
     fn update_flow_gaussian(&self, flow: &mut [f32], m: &mut [f32], block: usize, update: bool) {
         let (width, height) = (self.width, self.height);
         let half = block / 2;
@@ -508,6 +567,64 @@ impl LevelPair<'_> {
             if update {
                 self.update_behind(flow, m, y, block, &mut y0);
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic values in [0, 256) (a small LCG), for images and expansions.
+    fn noise(n: usize, seed: u32) -> Vec<f32> {
+        let mut s = seed;
+        (0..n)
+            .map(|_| {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                (s >> 8) as f32 / (1 << 16) as f32
+            })
+            .collect()
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// The AVX2 builds (where this CPU has AVX2) and the generic ones give the same bits.
+    #[test]
+    fn paths_agree() {
+        let (w, h) = (67, 41);
+        for p in [
+            FarnebackParams::default(),
+            FarnebackParams {
+                gaussian: true,
+                poly_n: 7,
+                poly_sigma: 1.5,
+                winsize: 10,
+                ..FarnebackParams::default()
+            },
+        ] {
+            let k = Weights::new(&p).expect("weights");
+            let src = noise(w * h, 7);
+            let fast = poly_exp(&src, (w, h), &k);
+            let generic = poly_exp_generic(&src, (w, h), &k);
+            assert_eq!(bits(&fast), bits(&generic));
+            let r1 = poly_exp_generic(&noise(w * h, 8), (w, h), &k);
+            let level = LevelPair {
+                r0: &generic,
+                r1: &r1,
+                width: w,
+                height: h,
+            };
+            // A flow of a few pixels either way, some of it pointing outside the image.
+            let start: Vec<f32> = noise(w * h * 2, 9).iter().map(|v| v / 32.0 - 4.0).collect();
+            let (mut f1, mut f2) = (start.clone(), start);
+            let (mut m1, mut m2) = (vec![0f32; w * h * 5], vec![0f32; w * h * 5]);
+            level.solve(&mut f1, &mut m1, &p);
+            level.solve_generic(&mut f2, &mut m2, &p);
+            assert_eq!(bits(&f1), bits(&f2));
+            assert_eq!(bits(&m1), bits(&m2));
+            assert!(f1.iter().any(|v| *v != 0.0) && f1.iter().all(|v| v.is_finite()));
         }
     }
 }
