@@ -4,7 +4,6 @@
 //! `keyframer bench flow`, plus the whole pair streamed as `bench` runs it and OpenCV's time.
 //! Usage: `cargo run --release --example profile_flow [WIDTHxHEIGHT ...]` (default 640x360).
 use keyframer::kernels::farneback::{self, FarnebackGpu};
-use keyframer::params::FarnebackParams;
 use std::time::Instant;
 
 /// CPU time of all the process's threads (ms): lavapipe runs the dispatches on its own threads,
@@ -39,24 +38,10 @@ fn main() -> anyhow::Result<()> {
         sizes
     };
     let ctx = std::sync::Arc::new(keyframer::gpu::GpuContext::new(None)?);
-    let tutorial = FarnebackParams::default();
-    let heavy = FarnebackParams {
-        levels: 5,
-        winsize: 13,
-        iterations: 10,
-        poly_n: 5,
-        poly_sigma: 1.1,
-        ..tutorial
-    };
     for (w, h) in sizes {
-        let frames: Vec<opencv::core::Mat> = (0..2)
-            .map(|s| {
-                keyframer::synthetic::pattern(w as i32, h as i32, s)
-                    .and_then(|m| keyframer::kernels::gray::opencv(&m))
-            })
-            .collect::<Result<_, _>>()?;
+        let frames = keyframer::bench::flow_frames(w, h)?;
         let only = std::env::var("PROFILE_ONLY").unwrap_or_default();
-        for (label, p) in [("tutorial", tutorial), ("l5 w13 i10", heavy)] {
+        for (label, p) in keyframer::bench::flow_params() {
             if !label.starts_with(only.as_str()) {
                 continue;
             }

@@ -177,8 +177,18 @@ pub fn render_descriptor(adapter: &str, frames: usize, rows: &[Row]) -> String {
 /// Sizes the Farneback benchmark runs at.
 pub const FLOW_SIZES: [(u32, u32); 3] = [(320, 180), (640, 360), (1280, 720)];
 
+/// The two gray synthetic frames the Farneback benchmarks cycle through at `w` x `h`.
+pub fn flow_frames(w: u32, h: u32) -> Result<Vec<opencv::core::Mat>> {
+    (0..2)
+        .map(|s| {
+            crate::synthetic::pattern(w as i32, h as i32, s)
+                .and_then(|m| crate::kernels::gray::opencv(&m))
+        })
+        .collect()
+}
+
 /// The Farneback benchmarks' parameter sets: OpenCV's tutorial ones and a heavier set.
-fn flow_params() -> [(&'static str, crate::params::FarnebackParams); 2] {
+pub fn flow_params() -> [(&'static str, crate::params::FarnebackParams); 2] {
     let tutorial = crate::params::FarnebackParams::default();
     let heavy = crate::params::FarnebackParams {
         levels: 5,
@@ -201,12 +211,7 @@ pub fn flow(ctx: &Arc<GpuContext>, pairs: usize, shapes: &[u32]) -> Result<Vec<R
     let shapes = if shapes.is_empty() { &own[..] } else { shapes };
     let mut rows = Vec::new();
     for (w, h) in FLOW_SIZES {
-        let frames: Vec<opencv::core::Mat> = (0..2)
-            .map(|s| {
-                crate::synthetic::pattern(w as i32, h as i32, s)
-                    .and_then(|m| crate::kernels::gray::opencv(&m))
-            })
-            .collect::<Result<_>>()?;
+        let frames = flow_frames(w, h)?;
         for (label, p) in flow_params() {
             let t = Instant::now();
             for i in 0..pairs {
@@ -284,12 +289,7 @@ pub fn flow_host(pairs: usize) -> Result<Vec<HostFlowRow>> {
     let pairs = pairs.max(1);
     let mut rows = Vec::new();
     for (w, h) in FLOW_SIZES {
-        let frames: Vec<opencv::core::Mat> = (0..2)
-            .map(|s| {
-                crate::synthetic::pattern(w as i32, h as i32, s)
-                    .and_then(|m| crate::kernels::gray::opencv(&m))
-            })
-            .collect::<Result<_>>()?;
+        let frames = flow_frames(w, h)?;
         for (label, p) in flow_params() {
             let per = |t: Instant| t.elapsed().as_secs_f64() * 1e3 / pairs as f64;
             farneback::opencv(&frames[0], &frames[1], &p, None)?;

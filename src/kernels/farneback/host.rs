@@ -320,6 +320,17 @@ fn border_weight(i: usize, n: usize) -> (f32, f32) {
     (low, high)
 }
 
+/// The flow of one pixel from its averaged (G11, G12, G22, h1, h2): OpenCV's 2x2 solve with
+/// its 1e-3 regularisation, in f64.
+#[inline(always)]
+fn solve_window([g11, g12, g22, h1, h2]: [f64; 5]) -> [f32; 2] {
+    let idet = 1.0 / (g11 * g22 - g12 * g12 + 1e-3);
+    [
+        ((g11 * h2 - g12 * h1) * idet) as f32,
+        ((g22 * h1 - g12 * h2) * idet) as f32,
+    ]
+}
+
 impl LevelPair<'_> {
     /// One level's flow iterations from the flow in `flow` (`m`: the matrices, any content),
     /// in the AVX2 build where the CPU has it (see [`poly_exp`]).
@@ -503,14 +514,8 @@ impl LevelPair<'_> {
                 for (c, v) in s.iter_mut().enumerate() {
                     *v += vsum[add + c] - vsum[sub + c];
                 }
-                let g11 = s[0] * scale;
-                let g12 = s[1] * scale;
-                let g22 = s[2] * scale;
-                let h1 = s[3] * scale;
-                let h2 = s[4] * scale;
-                let idet = 1.0 / (g11 * g22 - g12 * g12 + 1e-3);
-                f[0] = ((g11 * h2 - g12 * h1) * idet) as f32;
-                f[1] = ((g22 * h1 - g12 * h2) * idet) as f32;
+                let averaged = s.map(|v| v * scale);
+                f.copy_from_slice(&solve_window(averaged));
             }
             if update {
                 self.update_behind(flow, m, y, block, &mut y0);
@@ -555,14 +560,8 @@ impl LevelPair<'_> {
             }
             let frow = &mut flow[y * width * 2..(y + 1) * width * 2];
             for (f, hs) in frow.chunks_exact_mut(2).zip(hsum.chunks_exact(5)) {
-                let g11 = f64::from(hs[0]);
-                let g12 = f64::from(hs[1]);
-                let g22 = f64::from(hs[2]);
-                let h1 = f64::from(hs[3]);
-                let h2 = f64::from(hs[4]);
-                let idet = 1.0 / (g11 * g22 - g12 * g12 + 1e-3);
-                f[0] = ((g11 * h2 - g12 * h1) * idet) as f32;
-                f[1] = ((g22 * h1 - g12 * h2) * idet) as f32;
+                let averaged = [0, 1, 2, 3, 4].map(|c| f64::from(hs[c]));
+                f.copy_from_slice(&solve_window(averaged));
             }
             if update {
                 self.update_behind(flow, m, y, block, &mut y0);
