@@ -16,7 +16,7 @@ use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::kernels::farneback::SLOTS;
 #[cfg(feature = "opencv")]
-use crate::kernels::farneback::{self, host::Expansion};
+use crate::kernels::farneback::{self, host::Expander, host::Expansion};
 use crate::kernels::movement::checked;
 #[cfg(feature = "opencv")]
 use crate::kernels::movement::{self, RotationField};
@@ -25,7 +25,7 @@ use crate::kernels::remap::{self, Interp};
 use crate::kernels::resize_area;
 use crate::params::Backend;
 #[cfg(feature = "opencv")]
-use crate::params::{FarnebackParams, Statistic};
+use crate::params::Statistic;
 use crate::source::Metadata;
 #[cfg(feature = "opencv")]
 use crate::source::{self, OpenOptions};
@@ -66,7 +66,7 @@ enum Fit {
 /// every view's flow.
 #[cfg(feature = "opencv")]
 struct Opencv {
-    params: FarnebackParams,
+    expander: Expander,
     statistic: Statistic,
     /// Per slot: the frame's expansions, or its views'.
     frames: Vec<Option<Vec<Expansion>>>,
@@ -84,9 +84,9 @@ impl MovementEngine for Opencv {
                         .collect::<Result<Vec<_>>>()?,
                     _ => vec![gray],
                 };
-                self.frames[slot] = None;
+                self.frames[slot] = None; // the slot's old expansions go before the new come
                 let expanded = (views.iter())
-                    .map(|v| farneback::host::expand(v, &self.params))
+                    .map(|v| self.expander.expand(v))
                     .collect::<Result<Vec<_>>>()?;
                 self.frames[slot] = Some(expanded);
                 Ok(())
@@ -203,7 +203,7 @@ fn host_engine(req: &MovementRequest, (w, h): (u32, u32)) -> Result<(Engine, Bac
         (None, None) => Fit::None,
     };
     let cpu = Opencv {
-        params: req.farneback,
+        expander: Expander::new(&req.farneback)?,
         statistic: req.statistic,
         frames: (0..SLOTS).map(|_| None).collect(),
         fit,

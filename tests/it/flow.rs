@@ -540,9 +540,10 @@ fn host_flow_equals_opencv_bit_for_bit() {
     };
     for (name, prev, next) in &pairs {
         for p in param_sets() {
+            let expander = host::Expander::new(&p).unwrap();
             let (ea, eb) = (
-                host::expand(prev, &p).unwrap(),
-                host::expand(next, &p).unwrap(),
+                expander.expand(prev).unwrap(),
+                expander.expand(next).unwrap(),
             );
             let ours = host::flow(&ea, &eb).unwrap();
             let cv = farneback::opencv(prev, next, &p, None).unwrap();

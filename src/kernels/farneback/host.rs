@@ -1,5 +1,5 @@
 //! `farneback::host`: cv::calcOpticalFlowFarneback's CPU algorithm (without an initial flow) in
-//! two halves, so that a frame's pyramid of polynomial expansions ([`expand`]) is computed once
+//! two halves, so that a frame's pyramid of polynomial expansions ([`Expander::expand`]) is computed once
 //! and reused by every pair it is in ([`flow`]). Bit-identical to the OpenCV call: the level
 //! images and the flow's level-to-level resize come from OpenCV itself (convertTo, GaussianBlur,
 //! resize, the expansion's 6x6 inverse), and the expansion, the matrices and the window solve
@@ -9,7 +9,7 @@
 use super::{levels, poly_moments, poly_taps, window_weights};
 use crate::error::{CvContext, Error, Result};
 use crate::params::FarnebackParams;
-use opencv::core::{Mat, Size, Vec2f, CV_32F, CV_32FC2, CV_64F};
+use opencv::core::{Mat, Size, Vec2f, CV_32F, CV_32FC2};
 use opencv::prelude::*;
 
 /// One pyramid level's polynomial expansion: 5 coefficients per pixel (OpenCV's R matrices).
@@ -57,7 +57,6 @@ impl Weights {
                 .copied()
                 .cv(|| "farneback moments inverse".into())
         };
-        debug_assert_eq!(inv.typ(), CV_64F);
         Ok(Weights {
             g: g[n..].to_vec(),
             xg: xg[n..].to_vec(),
@@ -67,64 +66,80 @@ impl Weights {
     }
 }
 
-/// The expansions of `gray` (8-bit, one channel) at every level of `p`, with the level images
-/// exactly as cv::calcOpticalFlowFarneback makes them (each level blurred from the full-size
-/// image, then resized).
-pub fn expand(gray: &Mat, p: &FarnebackParams) -> Result<Expansion> {
-    p.validate()?;
-    let (w, h) = (gray.cols(), gray.rows());
-    if w <= 0 || h <= 0 || gray.channels() != 1 {
-        return Err(Error::param(
-            "farneback",
-            format!(
-                "expansion needs a one-channel image, got {w}x{h} with {} channels",
-                gray.channels()
-            ),
-        ));
+/// Expands frames with one parameter set (checked once, its expansion kernel computed once).
+pub struct Expander {
+    params: FarnebackParams,
+    weights: Weights,
+}
+
+impl Expander {
+    /// The expander for `p` (an error for parameters OpenCV would refuse).
+    pub fn new(p: &FarnebackParams) -> Result<Expander> {
+        p.validate()?;
+        Ok(Expander {
+            params: *p,
+            weights: Weights::new(p)?,
+        })
     }
-    let weights = Weights::new(p)?;
-    let mut full = Mat::default();
-    gray.convert_to(&mut full, CV_32F, 1.0, 0.0)
-        .cv(|| "farneback convertTo".into())?;
-    let mut out = Vec::new();
-    for level in levels(w as u32, h as u32, p) {
-        let sigma = (1.0 / level.scale - 1.0) * 0.5;
-        let k = level.smooth.len() as i32;
-        let mut blurred = Mat::default();
-        opencv::imgproc::gaussian_blur(
-            &full,
-            &mut blurred,
-            Size::new(k, k),
-            sigma,
-            sigma,
-            opencv::core::BORDER_DEFAULT,
-        )
-        .cv(|| "farneback GaussianBlur".into())?;
-        let mut image = Mat::default();
-        let size = Size::new(level.width as i32, level.height as i32);
-        opencv::imgproc::resize(
-            &blurred,
-            &mut image,
-            size,
-            0.0,
-            0.0,
-            opencv::imgproc::INTER_LINEAR,
-        )
-        .cv(|| "farneback resize".into())?;
-        let src = image
-            .data_typed::<f32>()
-            .cv(|| "farneback level image".into())?;
-        let (lw, lh) = (level.width as usize, level.height as usize);
-        out.push(LevelExpansion {
-            width: lw,
-            height: lh,
-            r: poly_exp(src, (lw, lh), &weights),
-        });
+
+    /// The expansions of `gray` (8-bit, one channel) at every level, with the level images
+    /// exactly as cv::calcOpticalFlowFarneback makes them (each level blurred from the
+    /// full-size image, then resized).
+    pub fn expand(&self, gray: &Mat) -> Result<Expansion> {
+        let p = &self.params;
+        let (w, h) = (gray.cols(), gray.rows());
+        if w <= 0 || h <= 0 || gray.channels() != 1 {
+            return Err(Error::param(
+                "farneback",
+                format!(
+                    "expansion needs a one-channel image, got {w}x{h} with {} channels",
+                    gray.channels()
+                ),
+            ));
+        }
+        let mut full = Mat::default();
+        gray.convert_to(&mut full, CV_32F, 1.0, 0.0)
+            .cv(|| "farneback convertTo".into())?;
+        let mut out = Vec::new();
+        for level in levels(w as u32, h as u32, p) {
+            let sigma = (1.0 / level.scale - 1.0) * 0.5;
+            let k = level.smooth.len() as i32;
+            let mut blurred = Mat::default();
+            opencv::imgproc::gaussian_blur(
+                &full,
+                &mut blurred,
+                Size::new(k, k),
+                sigma,
+                sigma,
+                opencv::core::BORDER_DEFAULT,
+            )
+            .cv(|| "farneback GaussianBlur".into())?;
+            let (lw, lh) = (level.width as usize, level.height as usize);
+            let image = resize_linear(&blurred, (lw, lh))?;
+            let src = image
+                .data_typed::<f32>()
+                .cv(|| "farneback level image".into())?;
+            out.push(LevelExpansion {
+                width: lw,
+                height: lh,
+                r: poly_exp(src, (lw, lh), &self.weights),
+            });
+        }
+        Ok(Expansion {
+            params: *p,
+            levels: out,
+        })
     }
-    Ok(Expansion {
-        params: *p,
-        levels: out,
-    })
+}
+
+/// cv::resize(src, (width, height), INTER_LINEAR), as calcOpticalFlowFarneback calls it for the
+/// level images and the flow from the level above.
+fn resize_linear(src: &Mat, (width, height): (usize, usize)) -> Result<Mat> {
+    let mut out = Mat::default();
+    let size = Size::new(width as i32, height as i32);
+    opencv::imgproc::resize(src, &mut out, size, 0.0, 0.0, opencv::imgproc::INTER_LINEAR)
+        .cv(|| format!("farneback resize to {width}x{height}"))?;
+    Ok(out)
 }
 
 /// The flow from `a`'s frame to `b`'s (CV_32FC2), as cv::calcOpticalFlowFarneback(a, b, flags
@@ -147,17 +162,7 @@ pub fn flow(a: &Expansion, b: &Expansion) -> Result<Mat> {
         let (w, h) = (r0.width, r0.height);
         let mut flow = vec![0f32; w * h * 2];
         if let Some(prev) = &prev {
-            let mut resized = Mat::default();
-            let size = Size::new(w as i32, h as i32);
-            opencv::imgproc::resize(
-                prev,
-                &mut resized,
-                size,
-                0.0,
-                0.0,
-                opencv::imgproc::INTER_LINEAR,
-            )
-            .cv(|| "farneback flow resize".into())?;
+            let resized = resize_linear(prev, (w, h))?;
             let mut scaled = Mat::default();
             resized
                 .convert_to(&mut scaled, -1, 1.0 / p.pyr_scale, 0.0)
