@@ -6,6 +6,9 @@
 //! repeat OpenCV's scalar code operation for operation (f32 where it computes in float, f64
 //! where in double, the same order). Tested against the OpenCV call bit for bit.
 
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+
 use super::{levels, poly_moments, poly_taps, window_weights};
 use crate::error::{CvContext, Error, Result};
 use crate::params::FarnebackParams;
@@ -175,12 +178,7 @@ pub fn flow(a: &Expansion, b: &Expansion) -> Result<Mat> {
                 d[1] = s[1];
             }
         }
-        let level = LevelPair {
-            r0: &r0.r,
-            r1: &r1.r,
-            width: w,
-            height: h,
-        };
+        let level = LevelPair::new(&r0.r, &r1.r, (w, h), avx2());
         matrices.resize(w * h * 5, 0f32);
         level.solve(&mut flow, &mut matrices, p);
         let mut mat = Mat::new_rows_cols_with_default(
@@ -304,14 +302,22 @@ struct LevelPair<'a> {
     r1: &'a [f32],
     width: usize,
     height: usize,
+    /// Each column's border weight product (`xl * xh` of [`border_weight`]), for the AVX2 rows.
+    column_weights: Vec<f32>,
+    /// Whether the matrices run eight pixels at a time ([`avx2`]; only where the CPU has AVX2).
+    simd: bool,
 }
 
 /// Weights of FarnebackUpdateMatrices' border rows and columns.
 const BORDER: [f32; 5] = [0.14, 0.14, 0.4472, 0.4472, 0.4472];
 
-/// cvFloor: the largest integer not above `v` (out of range: a value out of every image).
+/// cvFloor: the largest integer not above `v`; i32::MIN (out of every image) for a value
+/// beyond i32 or not a number, as x86's conversion gives (OpenCV's and the AVX2 rows').
 #[inline(always)]
 fn floor(v: f32) -> i32 {
+    if !(-2_147_483_648.0..2_147_483_648.0).contains(&v) {
+        return i32::MIN;
+    }
     let i = v as i32;
     i - i32::from(i as f32 > v)
 }
@@ -336,7 +342,40 @@ fn solve_window([g11, g12, g22, h1, h2]: [f64; 5]) -> [f32; 2] {
     ]
 }
 
-impl LevelPair<'_> {
+/// The flow of a row of pixels from their averaged matrices (`averaged`: G11 of every pixel,
+/// then G12, G22, h1, h2).
+#[inline(always)]
+fn solve_row(row: &mut [f32], averaged: &[f64]) {
+    let width = row.len() / 2;
+    let (g11, rest) = averaged.split_at(width);
+    let (g12, rest) = rest.split_at(width);
+    let (g22, rest) = rest.split_at(width);
+    let (h1, h2) = rest.split_at(width);
+    let cells = g11.iter().zip(g12).zip(g22).zip(h1).zip(h2);
+    for (f, ((((&g11, &g12), &g22), &h1), &h2)) in row.chunks_exact_mut(2).zip(cells) {
+        f.copy_from_slice(&solve_window([g11, g12, g22, h1, h2]));
+    }
+}
+
+impl<'a> LevelPair<'a> {
+    /// The pair at one level; `simd` must only be true where the CPU has AVX2.
+    fn new(r0: &'a [f32], r1: &'a [f32], (width, height): (usize, usize), simd: bool) -> Self {
+        let column_weights = (0..width)
+            .map(|x| {
+                let (low, high) = border_weight(x, width);
+                low * high
+            })
+            .collect();
+        LevelPair {
+            r0,
+            r1,
+            width,
+            height,
+            column_weights,
+            simd: simd && cfg!(target_arch = "x86_64"),
+        }
+    }
+
     /// One level's flow iterations from the flow in `flow` (`m`: the matrices, any content),
     /// in the AVX2 build where the CPU has it (see [`poly_exp`]).
     fn solve(&self, flow: &mut [f32], m: &mut [f32], p: &FarnebackParams) {
@@ -386,10 +425,12 @@ impl LevelPair<'_> {
             let rows = y * step..(y + 1) * step;
             let frow = &flow[y * width * 2..(y + 1) * width * 2];
             let y_border = (y as u32).wrapping_sub(5) >= inner_h;
+            let done = self.update_matrices_simd(frow, &mut m[rows.clone()], y);
             let cells = frow
                 .chunks_exact(2)
                 .zip(self.r0[rows.clone()].chunks_exact(5));
-            for (x, ((f, r0), out)) in cells.zip(m[rows].chunks_exact_mut(5)).enumerate() {
+            let cells = cells.zip(m[rows].chunks_exact_mut(5)).enumerate();
+            for (x, ((f, r0), out)) in cells.skip(done) {
                 let (dx, dy) = (f[0], f[1]);
                 let mut fx = x as f32 + dx;
                 let mut fy = y as f32 + dy;
@@ -444,6 +485,29 @@ impl LevelPair<'_> {
         }
     }
 
+    /// The first pixels of row `y`'s matrices, eight at a time, where [`LevelPair::simd`] says
+    /// so: how many it did (the rest is the scalar loop's).
+    #[inline(always)]
+    fn update_matrices_simd(&self, flow: &[f32], out: &mut [f32], y: usize) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            let (low, high) = border_weight(y, self.height);
+            let row = avx2::MatricesRow {
+                r0: &self.r0[y * self.width * 5..(y + 1) * self.width * 5],
+                r1: self.r1,
+                flow,
+                column_weights: &self.column_weights,
+                y,
+                row_weights: (low, high),
+                size: (self.width, self.height),
+            };
+            // SAFETY: `simd` is only true where the CPU has AVX2 (`LevelPair::new`'s contract).
+            return unsafe { avx2::update_matrices_row(&row, out) };
+        }
+        let _ = (flow, out, y);
+        0
+    }
+
     /// After the flow of row `y`: the matrices of the rows the window has left behind, in
     /// OpenCV's stripes (`y0` is where the next stripe starts).
     #[inline(always)]
@@ -472,6 +536,8 @@ impl LevelPair<'_> {
         // vsum[o + i] is OpenCV's vsum[i]; (half + 1) pixels of border on either side.
         let o = (half + 1) * 5;
         let mut vsum = vec![0f64; (width + half * 2 + 2) * 5];
+        // One row's averaged (G11, G12, G22, h1, h2), each in its own run of `width`.
+        let mut averaged = vec![0f64; width * 5];
         let edge = (half + 2) as f32;
         for (v, &s) in vsum[o..o + step].iter_mut().zip(&m[..step]) {
             *v = f64::from(s * edge);
@@ -512,16 +578,18 @@ impl LevelPair<'_> {
                     *v += vsum[o + x * 5 + c];
                 }
             }
-            let row = &mut flow[y * width * 2..(y + 1) * width * 2];
-            for (x, f) in row.chunks_exact_mut(2).enumerate() {
+            // The running sums along the row (in order: each pixel's adds the previous),
+            // then the solves, which are independent (vectorised across pixels).
+            for x in 0..width {
                 let add = o + (x + half) * 5;
                 let sub = o + x * 5 - half * 5 - 5;
                 for (c, v) in s.iter_mut().enumerate() {
                     *v += vsum[add + c] - vsum[sub + c];
+                    averaged[c * width + x] = *v * scale;
                 }
-                let averaged = s.map(|v| v * scale);
-                f.copy_from_slice(&solve_window(averaged));
             }
+            let row = &mut flow[y * width * 2..(y + 1) * width * 2];
+            solve_row(row, &averaged);
             if update {
                 self.update_behind(flow, m, y, block, &mut y0);
             }
@@ -614,21 +682,30 @@ mod tests {
             let generic = poly_exp_generic(&src, (w, h), &k);
             assert_eq!(bits(&fast), bits(&generic));
             let r1 = poly_exp_generic(&noise(w * h, 8), (w, h), &k);
-            let level = LevelPair {
-                r0: &generic,
-                r1: &r1,
-                width: w,
-                height: h,
-            };
-            // A flow of a few pixels either way, some of it pointing outside the image.
-            let start: Vec<f32> = noise(w * h * 2, 9).iter().map(|v| v / 32.0 - 4.0).collect();
-            let (mut f1, mut f2) = (start.clone(), start);
-            let (mut m1, mut m2) = (vec![0f32; w * h * 5], vec![0f32; w * h * 5]);
-            level.solve(&mut f1, &mut m1, &p);
-            level.solve_generic(&mut f2, &mut m2, &p);
-            assert_eq!(bits(&f1), bits(&f2));
-            assert_eq!(bits(&m1), bits(&m2));
-            assert!(f1.iter().any(|v| *v != 0.0) && f1.iter().all(|v| v.is_finite()));
+            let fast_level = LevelPair::new(&generic, &r1, (w, h), avx2());
+            let level = LevelPair::new(&generic, &r1, (w, h), false);
+            // A flow of a few pixels either way, some of it pointing outside the image; then
+            // the same with a few values far outside it (beyond i32) and not numbers.
+            let calm: Vec<f32> = noise(w * h * 2, 9).iter().map(|v| v / 32.0 - 4.0).collect();
+            let mut wild = calm.clone();
+            for (i, v) in [3e9, -3e9, 1e20, f32::NAN, 66.5, -0.5]
+                .into_iter()
+                .enumerate()
+            {
+                wild[i * 97 + 3] = v;
+            }
+            for (case, start) in [("calm", calm), ("wild", wild)] {
+                let (mut f1, mut f2) = (start.clone(), start);
+                let (mut m1, mut m2) = (vec![0f32; w * h * 5], vec![0f32; w * h * 5]);
+                fast_level.solve(&mut f1, &mut m1, &p);
+                level.solve_generic(&mut f2, &mut m2, &p);
+                assert_eq!(bits(&f1), bits(&f2), "{case} flow");
+                assert_eq!(bits(&m1), bits(&m2), "{case} matrices");
+                assert!(f1.iter().any(|v| *v != 0.0), "{case}");
+                if case == "calm" {
+                    assert!(f1.iter().all(|v| v.is_finite()));
+                }
+            }
         }
     }
 }
