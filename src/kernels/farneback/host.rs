@@ -228,23 +228,36 @@ fn poly_exp_avx2(src: &[f32], size: (usize, usize), k: &Weights) -> Vec<f32> {
 }
 
 /// FarnebackPolyExp: the 5 coefficients (r2..r6, r1 not stored) of every pixel of `src`.
+/// OpenCV's loop per pixel, reorganised so that each step runs along a row (vectorisable):
+/// every pixel's sums take the same terms in the same order.
 #[inline(always)]
 fn poly_exp_generic(src: &[f32], (width, height): (usize, usize), k: &Weights) -> Vec<f32> {
     let n = k.g.len() - 1;
     let (g, xg, xxg) = (&k.g, &k.xg, &k.xxg);
     let [ig11, ig03, ig33, ig55] = k.ig;
     let mut dst = vec![0f32; width * height * 5];
-    // The row buffer with n pixels (3 values each) of border on either side.
-    let mut buf = vec![0f32; (width + 2 * n) * 3];
-    let o = n * 3;
+    // A row's three vertical sums, each with n pixels of border on either side.
+    let mut v = [(); 3].map(|_| vec![0f32; width + 2 * n]);
+    // Its six horizontal sums (OpenCV's b1..b6), per pixel.
+    let mut b = [(); 6].map(|_| vec![0f64; width]);
     for y in 0..height {
         let srow = &src[y * width..(y + 1) * width];
         {
-            let row = &mut buf[o..o + width * 3];
-            for (r, &s) in row.chunks_exact_mut(3).zip(srow) {
-                r[0] = s * g[0];
-                r[1] = 0.0;
-                r[2] = 0.0;
+            let [v0, v1, v2] = &mut v;
+            let (v0, v1, v2) = (
+                &mut v0[n..n + width],
+                &mut v1[n..n + width],
+                &mut v2[n..n + width],
+            );
+            for (((a, b), c), &s) in v0
+                .iter_mut()
+                .zip(v1.iter_mut())
+                .zip(v2.iter_mut())
+                .zip(srow)
+            {
+                *a = s * g[0];
+                *b = 0.0;
+                *c = 0.0;
             }
             for kk in 1..=n {
                 let (g0, g1, g2) = (g[kk], xg[kk], xxg[kk]);
@@ -252,45 +265,63 @@ fn poly_exp_generic(src: &[f32], (width, height): (usize, usize), k: &Weights) -
                 let down = (y + kk).min(height - 1);
                 let s0 = &src[up * width..(up + 1) * width];
                 let s1 = &src[down * width..(down + 1) * width];
-                for ((r, &a), &b) in row.chunks_exact_mut(3).zip(s0).zip(s1) {
+                let sums = v0.iter_mut().zip(v1.iter_mut()).zip(v2.iter_mut());
+                for (((r0, r1), r2), (&a, &b)) in sums.zip(s0.iter().zip(s1)) {
                     let p = a + b;
-                    r[0] += g0 * p;
-                    r[1] += g1 * (b - a);
-                    r[2] += g2 * p;
+                    *r0 += g0 * p;
+                    *r1 += g1 * (b - a);
+                    *r2 += g2 * p;
                 }
             }
         }
         // Replicate the first and last pixel into the border, as OpenCV's loop does.
-        for x in 0..n * 3 {
-            buf[o - 1 - x] = buf[o + 2 - x];
-            buf[o + width * 3 + x] = buf[o + width * 3 + x - 3];
+        for r in &mut v {
+            let (first, last) = (r[n], r[n + width - 1]);
+            r[..n].fill(first);
+            r[n + width..].fill(last);
+        }
+        let [v0, v1, v2] = &v;
+        let [b1, b2, b3, b4, b5, b6] = &mut b;
+        let g0 = g[0];
+        for (x, ((((b1, b2), b3), b4), b5)) in b1
+            .iter_mut()
+            .zip(b2.iter_mut())
+            .zip(b3.iter_mut())
+            .zip(b4.iter_mut())
+            .zip(b5.iter_mut())
+            .enumerate()
+        {
+            *b1 = f64::from(v0[n + x] * g0);
+            *b2 = 0.0;
+            *b3 = f64::from(v1[n + x] * g0);
+            *b4 = 0.0;
+            *b5 = f64::from(v2[n + x] * g0);
+        }
+        b6.fill(0.0);
+        for kk in 1..=n {
+            let (gk, xgk, xxgk) = (g[kk], xg[kk], xxg[kk]);
+            let (gk64, xxgk64) = (f64::from(gk), f64::from(xxgk));
+            let (right, left) = (n + kk..n + kk + width, n - kk..n - kk + width);
+            let (r0, l0) = (&v0[right.clone()], &v0[left.clone()]);
+            let (r1, l1) = (&v1[right.clone()], &v1[left.clone()]);
+            let (r2, l2) = (&v2[right], &v2[left]);
+            for x in 0..width {
+                let tg = f64::from(r0[x] + l0[x]);
+                b1[x] += tg * gk64;
+                b4[x] += tg * xxgk64;
+                b2[x] += f64::from((r0[x] - l0[x]) * xgk);
+                b3[x] += f64::from((r1[x] + l1[x]) * gk);
+                b6[x] += f64::from((r1[x] - l1[x]) * xgk);
+                b5[x] += f64::from((r2[x] + l2[x]) * gk);
+            }
         }
         let drow = &mut dst[y * width * 5..(y + 1) * width * 5];
         for (x, d) in drow.chunks_exact_mut(5).enumerate() {
-            let c = o + x * 3;
-            let g0 = g[0];
-            let mut b1 = f64::from(buf[c] * g0);
-            let mut b2 = 0f64;
-            let mut b3 = f64::from(buf[c + 1] * g0);
-            let mut b4 = 0f64;
-            let mut b5 = f64::from(buf[c + 2] * g0);
-            let mut b6 = 0f64;
-            for kk in 1..=n {
-                let (r, l) = (c + kk * 3, c - kk * 3);
-                let tg = f64::from(buf[r] + buf[l]);
-                let g0 = g[kk];
-                b1 += tg * f64::from(g0);
-                b4 += tg * f64::from(xxg[kk]);
-                b2 += f64::from((buf[r] - buf[l]) * xg[kk]);
-                b3 += f64::from((buf[r + 1] + buf[l + 1]) * g0);
-                b6 += f64::from((buf[r + 1] - buf[l + 1]) * xg[kk]);
-                b5 += f64::from((buf[r + 2] + buf[l + 2]) * g0);
-            }
-            d[1] = (b2 * ig11) as f32;
-            d[0] = (b3 * ig11) as f32;
-            d[3] = (b1 * ig03 + b4 * ig33) as f32;
-            d[2] = (b1 * ig03 + b5 * ig33) as f32;
-            d[4] = (b6 * ig55) as f32;
+            d[1] = (b2[x] * ig11) as f32;
+            d[0] = (b3[x] * ig11) as f32;
+            d[3] = (b1[x] * ig03 + b4[x] * ig33) as f32;
+            d[2] = (b1[x] * ig03 + b5[x] * ig33) as f32;
+            d[4] = (b6[x] * ig55) as f32;
         }
     }
     dst
@@ -580,13 +611,20 @@ impl<'a> LevelPair<'a> {
             }
             // The running sums along the row (in order: each pixel's adds the previous),
             // then the solves, which are independent (vectorised across pixels).
-            for x in 0..width {
-                let add = o + (x + half) * 5;
-                let sub = o + x * 5 - half * 5 - 5;
+            // Pixel x adds vsum[x + half] and takes off vsum[x - half - 1] (OpenCV's indices;
+            // ours are o / 5 pixels on, and o / 5 = half + 1).
+            let adds = vsum[o + half * 5..o + half * 5 + step].chunks_exact(5);
+            let subs = vsum[..step].chunks_exact(5);
+            let (a0, rest) = averaged.split_at_mut(width);
+            let (a1, rest) = rest.split_at_mut(width);
+            let (a2, rest) = rest.split_at_mut(width);
+            let (a3, a4) = rest.split_at_mut(width);
+            let outs = a0.iter_mut().zip(a1).zip(a2).zip(a3).zip(a4);
+            for ((add, sub), ((((a0, a1), a2), a3), a4)) in adds.zip(subs).zip(outs) {
                 for (c, v) in s.iter_mut().enumerate() {
-                    *v += vsum[add + c] - vsum[sub + c];
-                    averaged[c * width + x] = *v * scale;
+                    *v += add[c] - sub[c];
                 }
+                [*a0, *a1, *a2, *a3, *a4] = s.map(|v| v * scale);
             }
             let row = &mut flow[y * width * 2..(y + 1) * width * 2];
             solve_row(row, &averaged);
