@@ -131,6 +131,37 @@ pub fn spherical_of(probe: &serde_json::Value) -> Option<String> {
     })
 }
 
+/// A video's spherical metadata ([`spherical_metadata`]) read on a thread of its own, so that
+/// ffprobe runs while the caller opens the video; [`resolve_projection_probed`] waits for it.
+pub struct SphericalProbe(Option<std::thread::JoinHandle<Option<String>>>);
+
+impl SphericalProbe {
+    /// Starts reading `input`'s metadata where the projection depends on it: a video, with no
+    /// projection `asked` for.
+    pub fn start(input: &Path, is_video: bool, asked: Option<Projection>) -> SphericalProbe {
+        if !is_video || asked.is_some() {
+            return SphericalProbe(None);
+        }
+        let input = input.to_path_buf();
+        let thread = std::thread::Builder::new()
+            .name("spherical-probe".into())
+            .spawn(move || spherical_metadata(&input));
+        match thread {
+            Ok(t) => SphericalProbe(Some(t)),
+            // No thread to be had: read it when waited for.
+            Err(_) => SphericalProbe(None),
+        }
+    }
+
+    fn wait(self, input: &Path, is_video: bool, asked: Option<Projection>) -> Option<String> {
+        match self.0 {
+            Some(t) => t.join().ok().flatten(),
+            None if is_video && asked.is_none() => spherical_metadata(input),
+            None => None,
+        }
+    }
+}
+
 /// The projection `select` records: `asked` when given; else equirect when the container's
 /// spherical metadata says so (said on stderr), pinhole otherwise (with a one-line hint for 2:1
 /// frames). Equirect on frames that are not 2:1 is refused.
@@ -140,11 +171,19 @@ pub fn resolve_projection(
     is_video: bool,
     size: (u32, u32),
 ) -> Result<Projection> {
-    let found = if is_video {
-        spherical_metadata(input)
-    } else {
-        None
-    };
+    let probe = SphericalProbe::start(input, is_video, asked);
+    resolve_projection_probed(asked, input, is_video, probe, size)
+}
+
+/// [`resolve_projection`] with the metadata read by `probe` (started earlier).
+pub fn resolve_projection_probed(
+    asked: Option<Projection>,
+    input: &Path,
+    is_video: bool,
+    probe: SphericalProbe,
+    size: (u32, u32),
+) -> Result<Projection> {
+    let found = probe.wait(input, is_video, asked);
     let p = match (asked, &found) {
         (Some(p), _) => p,
         (None, Some(kind)) if kind == "equirectangular" => {

@@ -394,6 +394,9 @@ pub(crate) fn manual_step(
 pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectReport> {
     let full = open.codec_keyframes.is_none();
     let input_ref = input_ref(s)?;
+    let is_video = input_ref.kind == SourceKind::Video;
+    // ffprobe reads the spherical metadata while the checks below run and the video opens.
+    let spherical = crate::equirect::SphericalProbe::start(&s.input, is_video, s.projection);
     let _held = check_outputs(s)?;
     // A model that does not fit its name is refused before any frame is decoded.
     if let Some(model) = similarity_model(&s.steps) {
@@ -404,10 +407,11 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
     known.scan_for_times(s, open, &boundaries)?;
     let (projection, height) = {
         let m = known.metadata(s, open)?;
-        let p = crate::equirect::resolve_projection(
+        let p = crate::equirect::resolve_projection_probed(
             s.projection,
             &s.input,
-            input_ref.kind == SourceKind::Video,
+            is_video,
+            spherical,
             (m.width, m.height),
         )?;
         (p, m.height)

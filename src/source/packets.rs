@@ -7,8 +7,11 @@
 
 use crate::error::{Error, Result};
 use std::io::{BufRead, BufReader, Read};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
 
 /// Seconds by which a frame whose best-effort time does not increase (a repeated pts) is placed
 /// after the previous frame, so that timestamps increase strictly.
@@ -54,10 +57,94 @@ struct Packet {
 
 /// Lists the packets of `path`'s first video stream with `ffprobe` and derives the frame times.
 pub fn list(path: &Path) -> Result<StreamTimes> {
+    list_until(path, &AtomicBool::new(false))
+}
+
+/// [`list`], given up (ffprobe killed) as soon as `cancel` is set.
+fn list_until(path: &Path, cancel: &AtomicBool) -> Result<StreamTimes> {
     let entries = "stream=time_base,start_pts:packet=pts,dts,flags";
     ffprobe(path, &["-show_entries", entries, "-of", "compact"], |out| {
-        parse(path, out)
+        let mut out = Cancellable { inner: out, cancel };
+        parse(path, &mut out)
     })
+}
+
+/// A reader that fails once `cancel` is set (so that the parse stops and ffprobe is killed).
+struct Cancellable<'a, 'b> {
+    inner: &'a mut dyn BufRead,
+    cancel: &'b AtomicBool,
+}
+
+impl Cancellable<'_, '_> {
+    fn check(&self) -> std::io::Result<()> {
+        match self.cancel.load(Ordering::Relaxed) {
+            true => Err(std::io::Error::other("the packet list is no longer wanted")),
+            false => Ok(()),
+        }
+    }
+}
+
+impl Read for Cancellable<'_, '_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.check()?;
+        self.inner.read(buf)
+    }
+}
+
+impl BufRead for Cancellable<'_, '_> {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        self.check()?;
+        self.inner.fill_buf()
+    }
+
+    fn consume(&mut self, amount: usize) {
+        self.inner.consume(amount)
+    }
+}
+
+/// A packet list being read in the background from the moment a video is opened, so that
+/// ffprobe's pass over the file overlaps the decode instead of holding up the second frame.
+/// Dropping it unwaited stops ffprobe.
+pub struct Listing {
+    path: PathBuf,
+    cancel: Arc<AtomicBool>,
+    thread: Option<JoinHandle<Result<StreamTimes>>>,
+}
+
+impl Listing {
+    /// Starts listing `path`'s packets on a thread of its own.
+    pub fn start(path: &Path) -> Listing {
+        let cancel = Arc::new(AtomicBool::new(false));
+        let (p, c) = (path.to_path_buf(), cancel.clone());
+        let thread = std::thread::Builder::new()
+            .name("packet-list".into())
+            .spawn(move || list_until(&p, &c));
+        Listing {
+            path: path.to_path_buf(),
+            cancel,
+            // A thread that cannot start: the list is read when waited for.
+            thread: thread.ok(),
+        }
+    }
+
+    /// The list, once ffprobe is done.
+    pub fn wait(mut self) -> Result<StreamTimes> {
+        match self.thread.take() {
+            Some(t) => t.join().unwrap_or_else(|_| {
+                Err(Error::input(
+                    &self.path,
+                    "the packet listing thread panicked",
+                ))
+            }),
+            None => list(&self.path),
+        }
+    }
+}
+
+impl Drop for Listing {
+    fn drop(&mut self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
 }
 
 /// Runs `ffprobe -v error -select_streams v:0 ARGS PATH` and hands its output, as it comes, to
@@ -242,6 +329,43 @@ mod tests {
     fn times_of(lines: &str) -> StreamTimes {
         let text = format!("{lines}\nstream|time_base=1/100|start_pts=0\n");
         parse(Path::new("v.mp4"), &mut text.as_bytes()).unwrap()
+    }
+
+    /// The list read in the background is the list read in place; a listing no longer wanted
+    /// stops at its next read.
+    #[test]
+    fn background_listing_equals_the_direct_one_and_stops_when_dropped() {
+        let d = tempfile::tempdir().unwrap();
+        let clip = d.path().join("c.mp4");
+        let ok = Command::new("ffmpeg")
+            .args(["-v", "error", "-f", "lavfi", "-i"])
+            .arg("testsrc2=size=160x120:rate=25:duration=2")
+            .args(["-c:v", "libx264", "-bf", "2", "-pix_fmt", "yuv420p"])
+            .arg(&clip)
+            .status()
+            .unwrap();
+        assert!(ok.success());
+        let direct = list(&clip).unwrap();
+        assert_eq!(direct.timestamps_s.len(), 50);
+        assert_eq!(Listing::start(&clip).wait().unwrap(), direct);
+        drop(Listing::start(&clip));
+
+        let text = "packet|pts=0|dts=0|flags=K_\nstream|time_base=1/100|start_pts=0\n";
+        let cancel = AtomicBool::new(false);
+        let mut input = text.as_bytes();
+        let mut reader = Cancellable {
+            inner: &mut input,
+            cancel: &cancel,
+        };
+        assert_eq!(parse(&clip, &mut reader).unwrap().timestamps_s, vec![0.0]);
+        cancel.store(true, Ordering::Relaxed);
+        let mut input = text.as_bytes();
+        let mut reader = Cancellable {
+            inner: &mut input,
+            cancel: &cancel,
+        };
+        let e = parse(&clip, &mut reader).unwrap_err();
+        assert!(e.to_string().contains("no longer wanted"), "{e}");
     }
 
     #[test]

@@ -3,8 +3,8 @@
 //! before the container says they should.
 //!
 //! Timestamps are the stream's: FFmpeg's best-effort timestamp of each frame (the pts), in
-//! seconds from frame 0, from the packet list ([`super::packets`], read once the first frame
-//! after frame 0 is reached). Every frame for which OpenCV reports a position is checked against
+//! seconds from frame 0, from the packet list ([`super::packets`], read in the background from
+//! the moment the video opens, and waited for at the first frame after frame 0). Every frame for which OpenCV reports a position is checked against
 //! the list; where they do not pair (no ffprobe, a decoder that drops frames) OpenCV's positions
 //! are used, which are missing for the last frames of a stream with B-frames (the previous
 //! interval is repeated there).
@@ -26,8 +26,8 @@ use std::path::{Path, PathBuf};
 
 /// Where a video's frame timestamps come from.
 enum Times {
-    /// Not listed yet.
-    Pending,
+    /// Being listed (from the moment the video opened; `None` while taken).
+    Pending(Option<packets::Listing>),
     /// The packet list, paired with the decoded frames so far.
     Listed(StreamTimes),
     /// OpenCV's positions: no packet list, or one the decoded frames do not pair with.
@@ -113,7 +113,7 @@ impl VideoSource {
             },
             pending: None,
             next_index: 0,
-            times: Times::Pending,
+            times: Times::Pending(None),
             origin_s: 0.0,
             last_ts: None,
             last_step: None,
@@ -129,6 +129,7 @@ impl VideoSource {
         src.meta.width = first.image.cols() as u32;
         src.meta.height = first.image.rows() as u32;
         src.pending = Some(first);
+        src.times = Times::Pending(Some(packets::Listing::start(path)));
         Ok(src)
     }
 
@@ -161,12 +162,16 @@ impl VideoSource {
         Ok(Some((index, self.timestamp(index, pos_s))))
     }
 
-    /// Reads the packet list, once (see the module header).
+    /// Waits for the packet list, once (see the module header).
     fn list_times(&mut self) {
-        if !matches!(self.times, Times::Pending) {
+        let Times::Pending(listing) = &mut self.times else {
             return;
-        }
-        self.times = match packets::list(&self.path) {
+        };
+        let list = match listing.take() {
+            Some(listing) => listing.wait(),
+            None => packets::list(&self.path),
+        };
+        self.times = match list {
             Ok(list) => {
                 if let Some(first) = list.repeated.first() {
                     log::warn!(
