@@ -27,7 +27,8 @@ pub(crate) enum Decoded {
     Prime(usize, Mat),
 }
 
-/// Gray at the analysis resolution (cv::cvtColor, then INTER_AREA unless the size matches).
+/// Gray at the analysis resolution (cv::cvtColor, then INTER_AREA, [`resize_area::host`],
+/// unless the size matches).
 pub(crate) fn prepare(size: (i32, i32), image: &Mat) -> Result<Mat> {
     shrink(size, crate::kernels::gray::opencv(image)?)
 }
@@ -37,7 +38,7 @@ fn shrink(size: (i32, i32), gray: Mat) -> Result<Mat> {
     if (gray.cols(), gray.rows()) == size {
         Ok(gray)
     } else {
-        resize_area::opencv(&gray, opencv::core::Size::new(size.0, size.1))
+        resize_area::host(&gray, opencv::core::Size::new(size.0, size.1))
     }
 }
 
@@ -65,7 +66,7 @@ impl Keep {
         let gray = crate::kernels::gray::opencv(&f.image)?;
         let small = match (gray.cols(), gray.rows()) == size {
             true => gray.try_clone().cv(|| "copy the gray frame".into())?,
-            false => resize_area::opencv(&gray, opencv::core::Size::new(size.0, size.1))?,
+            false => resize_area::host(&gray, opencv::core::Size::new(size.0, size.1))?,
         };
         match (self.image, self.gray) {
             (false, _) => f.image = Mat::default(),

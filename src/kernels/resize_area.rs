@@ -1,5 +1,6 @@
 //! `resize_area`: 8-bit gray downsizing by integer factors on the device, bit-exact with
-//! cv::resize(INTER_AREA) (shaders/resize_area.wgsl); other factors stay on the CPU twin.
+//! cv::resize(INTER_AREA) (shaders/resize_area.wgsl), and the same rules on the host ([`host`],
+//! the opencv backend's analysis resize); other factors stay on the CPU twin.
 
 use super::gray_stride;
 #[cfg(feature = "opencv")]
@@ -46,6 +47,54 @@ pub struct ResizeAreaParams {
 pub fn opencv(gray: &Mat, size: Size) -> Result<Mat> {
     crate::encode::resize(gray, (size.width, size.height), opencv::imgproc::INTER_AREA)
         .cv(|| "resize INTER_AREA".into())
+}
+
+/// `gray` (8-bit) resized to `size` as cv::resize(INTER_AREA) does, computed here where the
+/// factors are integers (the shader's rules: block sums, (sum + 2) >> 2 for 2 x 2, otherwise
+/// round-half-even of f32(sum) * (1 / (kx * ky)); rows summed along, so the loops vectorise) and
+/// by [`opencv`] otherwise. Bit-exact with OpenCV (`sharpness::resize_area_host_is_bit_exact`).
+#[cfg(feature = "opencv")]
+pub fn host(gray: &Mat, size: Size) -> Result<Mat> {
+    let src_size = (gray.cols() as u32, gray.rows() as u32);
+    let dst_size = (size.width.max(0) as u32, size.height.max(0) as u32);
+    let plain = gray.typ() == opencv::core::CV_8UC1 && gray.is_continuous();
+    let found = plain.then(|| factors(src_size, dst_size)).flatten();
+    // Block sums in u16: up to 257 blocks of 255.
+    let Some((kx, ky)) = found.filter(|&(kx, ky)| kx * ky <= 257) else {
+        return opencv(gray, size);
+    };
+    let (sw, dw) = (src_size.0 as usize, dst_size.0 as usize);
+    let (kx, ky) = (kx as usize, ky as usize);
+    let src = gray.data_bytes().cv(|| "resize_area source".into())?;
+    let mut out = Mat::new_rows_cols_with_default(
+        size.height,
+        size.width,
+        opencv::core::CV_8UC1,
+        opencv::core::Scalar::all(0.0),
+    )
+    .cv(|| "resize_area output".into())?;
+    let dst = out.data_bytes_mut().cv(|| "resize_area output".into())?;
+    let scale = 1.0f32 / (kx * ky) as f32;
+    let mut sums = vec![0u16; sw];
+    for (y, drow) in dst.chunks_exact_mut(dw).enumerate() {
+        sums.fill(0);
+        for srow in src[y * ky * sw..(y + 1) * ky * sw].chunks_exact(sw) {
+            for (s, &p) in sums.iter_mut().zip(srow) {
+                *s += u16::from(p);
+            }
+        }
+        for (d, block) in drow.iter_mut().zip(sums.chunks_exact(kx)) {
+            let sum: u16 = block.iter().sum();
+            *d = if kx == 2 && ky == 2 {
+                ((sum + 2) >> 2) as u8
+            } else {
+                // Round half to even: adding 2^23 leaves no fraction bits (0 <= v <= 255).
+                let v = f32::from(sum) * scale;
+                ((v + 8_388_608.0) - 8_388_608.0).min(255.0) as u8
+            };
+        }
+    }
+    Ok(out)
 }
 
 /// The integer factors (kx, ky) when cv::resize(INTER_AREA) from `src` to `dst` takes its
