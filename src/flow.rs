@@ -1,5 +1,7 @@
 //! `flow`: the dense Farnebäck flow between two image files on the chosen backend, optionally
-//! started from a given flow (a `.flo` of the images' size, checked before anything runs).
+//! started from a given flow (a `.flo` of the images' size, checked before anything runs). The
+//! opencv backend gives cv::calcOpticalFlowFarneback's flow bit for bit (through
+//! `farneback::host` unless an initial flow is given).
 
 use crate::error::{Error, Result};
 use crate::gpu;
@@ -33,6 +35,16 @@ fn read_gray(path: &Path) -> Result<Mat> {
         return Err(Error::input(path, "cannot read as an image"));
     }
     Ok(m)
+}
+
+/// The flow on the CPU: keyframer's host Farnebäck (bit-identical to OpenCV's call, faster),
+/// or OpenCV's call itself from an `initial` flow (which the host one does not take).
+fn cpu_flow(a: &Mat, b: &Mat, params: &FarnebackParams, initial: Option<&Mat>) -> Result<Mat> {
+    if initial.is_some() {
+        return farneback::opencv(a, b, params, initial);
+    }
+    let expander = farneback::host::Expander::new(params)?;
+    farneback::host::flow(&expander.expand(a)?, &expander.expand(b)?)
 }
 
 /// The flow from image `a` to image `b` (one size), from `initial` when given.
@@ -74,7 +86,7 @@ pub fn between_files(
                 )?,
                 b,
             ),
-            None => (farneback::opencv(&ga, &gb, params, initial.as_ref())?, b),
+            None => (cpu_flow(&ga, &gb, params, initial.as_ref())?, b),
         })
     })?;
     let mags = movement::magnitudes(&field)?;

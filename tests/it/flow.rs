@@ -348,6 +348,25 @@ fn flow_command_writes_flo() {
         .sum::<f64>()
         / f64::from(w * h);
     assert!(mean <= FLOW_EPE_MEAN, "{mean}");
+    // The opencv backend's file holds OpenCV's flow bit for bit (the default parameters).
+    let direct = farneback::opencv(
+        &gray_of(&a),
+        &gray_of(&b),
+        &FarnebackParams::default(),
+        None,
+    )
+    .unwrap();
+    let direct: Vec<u32> = direct
+        .data_typed::<opencv::core::Vec2f>()
+        .unwrap()
+        .iter()
+        .flat_map(|v| [v[0].to_bits(), v[1].to_bits()])
+        .collect();
+    let written: Vec<u32> = fc.iter().map(|v| v.to_bits()).collect();
+    assert!(
+        direct == written,
+        "the opencv backend's .flo differs from OpenCV's flow"
+    );
     // Refuses to overwrite, and rejects images of different sizes.
     assert_eq!(
         kf(&["flow", s(&a), s(&b), "-o", s(&g)]).status.code(),
