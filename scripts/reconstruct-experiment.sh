@@ -63,20 +63,23 @@ for seed in ${seeds//,/ }; do
   for n in ${ns//,/ }; do
     out="$dir/every$n"
     rm -rf "$out"; mkdir -p "$out"
-    cp "$base" "$out/project.json"
-    "$kf" select "$dir/scene/video.mp4" -o "$out/project.json" --every "$n" --force --quiet
-    "$kf" export "$out/project.json" --out "$out/export" --quiet
+    # Beside base.json: a project's input path is relative to its folder, so a copy elsewhere
+    # would not find its cache (the movement series the loop's repairs are placed by).
+    project="$dir/every$n.json"
+    cp "$base" "$project"
+    "$kf" select "$dir/scene/video.mp4" -o "$project" --every "$n" --force --quiet
+    "$kf" export "$project" --out "$out/export" --quiet
     echo "reconstruct-experiment: seed $seed every $n: plain COLMAP..." >&2
     "$kf" colmap "$out/export" -o "$out/colmap" --sparse "${camera[@]}" "${mapper[@]}" --quiet --json \
       > "$out/colmap.json" 2>/dev/null || true
-    frames=$(jq '.keyframes | length' "$out/project.json")
+    frames=$(jq '.keyframes | length' "$project")
     largest=$(jq '[.models[].registered_images] | max // 0' "$out/colmap.json" 2>/dev/null || echo 0)
     models=$(jq '.models | length' "$out/colmap.json" 2>/dev/null || echo 0)
     secs=$(jq '[.stages[].seconds] | add' "$out/colmap.json" 2>/dev/null || echo 0)
     # A model in one piece can still be wrong (docs/reconstruct.md, "A mis-assembled model").
     pct=null
     if [ "$largest" = "$frames" ] && "$kf" eval "$out/colmap" --gt "$dir/scene/poses.tum" --json --quiet > "$out/eval.json" 2>/dev/null; then
-      length=$(path_length "$dir/scene/poses.tum" "$(jq '.keyframes[0]' "$out/project.json")" "$(jq '.keyframes[-1]' "$out/project.json")")
+      length=$(path_length "$dir/scene/poses.tum" "$(jq '.keyframes[0]' "$project")" "$(jq '.keyframes[-1]' "$project")")
       pct=$(jq --argjson length "$length" '100 * .gt.position_max / $length' "$out/eval.json")
     fi
     jq -cn --arg seed "$seed" --arg n "$n" --argjson frames "$frames" --argjson largest "$largest" \
@@ -90,10 +93,12 @@ for seed in ${seeds//,/ }; do
   done
   out="$dir/loop"
   rm -rf "$out"; mkdir -p "$out"
-  cp "$base" "$out/start.json"
-  "$kf" select "$dir/scene/video.mp4" -o "$out/start.json" --every "$start" --force --quiet
+  start_project="$dir/loop-start.json"
+  cp "$base" "$start_project"
+  "$kf" select "$dir/scene/video.mp4" -o "$start_project" --every "$start" --force --quiet
   echo "reconstruct-experiment: seed $seed: reconstruct from every $start..." >&2
-  "$kf" reconstruct "$out/start.json" --out "$out/ws" "${camera[@]}" --json > "$out/summary.json"
+  "$kf" reconstruct "$start_project" --out "$out/ws" "${camera[@]}" --json > "$out/summary.json" \
+    2> "$out/reconstruct.log"
   "$kf" eval "$out/ws/colmap" --gt "$dir/scene/poses.tum" --json --quiet > "$out/eval.json" || echo '{}' > "$out/eval.json"
   first=$(jq '.final_keyframes[0]' "$out/summary.json")
   last=$(jq '.final_keyframes[-1]' "$out/summary.json")
