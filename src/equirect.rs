@@ -133,31 +133,37 @@ pub fn spherical_of(probe: &serde_json::Value) -> Option<String> {
 
 /// A video's spherical metadata ([`spherical_metadata`]) read on a thread of its own, so that
 /// ffprobe runs while the caller opens the video; [`resolve_projection_probed`] waits for it.
-pub struct SphericalProbe(Option<std::thread::JoinHandle<Option<String>>>);
+pub enum SphericalProbe {
+    /// Not needed: not a video, or a projection asked for.
+    Unneeded,
+    /// Being read by ffprobe on its own thread.
+    Reading(std::thread::JoinHandle<Option<String>>),
+    /// Read in place (no thread to be had).
+    Read(Option<String>),
+}
 
 impl SphericalProbe {
     /// Starts reading `input`'s metadata where the projection depends on it: a video, with no
     /// projection `asked` for.
     pub fn start(input: &Path, is_video: bool, asked: Option<Projection>) -> SphericalProbe {
         if !is_video || asked.is_some() {
-            return SphericalProbe(None);
+            return SphericalProbe::Unneeded;
         }
-        let input = input.to_path_buf();
+        let path = input.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("spherical-probe".into())
-            .spawn(move || spherical_metadata(&input));
+            .spawn(move || spherical_metadata(&path));
         match thread {
-            Ok(t) => SphericalProbe(Some(t)),
-            // No thread to be had: read it when waited for.
-            Err(_) => SphericalProbe(None),
+            Ok(t) => SphericalProbe::Reading(t),
+            Err(_) => SphericalProbe::Read(spherical_metadata(input)),
         }
     }
 
-    fn wait(self, input: &Path, is_video: bool, asked: Option<Projection>) -> Option<String> {
-        match self.0 {
-            Some(t) => t.join().ok().flatten(),
-            None if is_video && asked.is_none() => spherical_metadata(input),
-            None => None,
+    fn wait(self) -> Option<String> {
+        match self {
+            SphericalProbe::Unneeded => None,
+            SphericalProbe::Reading(t) => t.join().ok().flatten(),
+            SphericalProbe::Read(found) => found,
         }
     }
 }
@@ -172,18 +178,17 @@ pub fn resolve_projection(
     size: (u32, u32),
 ) -> Result<Projection> {
     let probe = SphericalProbe::start(input, is_video, asked);
-    resolve_projection_probed(asked, input, is_video, probe, size)
+    resolve_projection_probed(asked, input, probe, size)
 }
 
 /// [`resolve_projection`] with the metadata read by `probe` (started earlier).
 pub fn resolve_projection_probed(
     asked: Option<Projection>,
     input: &Path,
-    is_video: bool,
     probe: SphericalProbe,
     size: (u32, u32),
 ) -> Result<Projection> {
-    let found = probe.wait(input, is_video, asked);
+    let found = probe.wait();
     let p = match (asked, &found) {
         (Some(p), _) => p,
         (None, Some(kind)) if kind == "equirectangular" => {

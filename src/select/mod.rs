@@ -394,8 +394,8 @@ pub(crate) fn manual_step(
 pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectReport> {
     let full = open.codec_keyframes.is_none();
     let input_ref = input_ref(s)?;
-    let is_video = input_ref.kind == SourceKind::Video;
     // ffprobe reads the spherical metadata while the checks below run and the video opens.
+    let is_video = input_ref.kind == SourceKind::Video;
     let spherical = crate::equirect::SphericalProbe::start(&s.input, is_video, s.projection);
     let _held = check_outputs(s)?;
     // A model that does not fit its name is refused before any frame is decoded.
@@ -410,7 +410,6 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         let p = crate::equirect::resolve_projection_probed(
             s.projection,
             &s.input,
-            is_video,
             spherical,
             (m.width, m.height),
         )?;

@@ -162,7 +162,7 @@ pub(super) unsafe fn update_matrices_row(row: &MatricesRow, out: &mut [f32]) -> 
             _mm256_add_ps(_mm256_mul_ps(r4, r2), _mm256_mul_ps(r6, r3)),
             _mm256_add_ps(_mm256_mul_ps(r6, r2), _mm256_mul_ps(r5, r3)),
         ];
-        let pixels = to_pixels(&g[..4]);
+        let pixels = transpose4(&[g[0], g[1], g[2], g[3]]);
         // SAFETY: soa holds 8 values.
         unsafe { _mm256_storeu_ps(soa.as_mut_ptr(), g[4]) };
         for (i, o) in out[x * 5..(x + 8) * 5].chunks_exact_mut(5).enumerate() {
@@ -184,33 +184,24 @@ pub(super) unsafe fn update_matrices_row(row: &MatricesRow, out: &mut [f32]) -> 
 #[target_feature(enable = "avx2")]
 #[inline]
 fn to_channels(m: &[__m256; 8]) -> [__m256; 5] {
-    // Lanes 0..4 of pixels k and k + 4 side by side, then lanes 4..8 alike.
+    // Lanes 0..4 of pixels k and k + 4 side by side: values 0..4 by the 4x4 transposes; then
+    // lanes 4..8 alike, of which only value 4 is wanted.
     let low: [__m256; 4] = std::array::from_fn(|k| _mm256_permute2f128_ps::<0x20>(m[k], m[k + 4]));
     let high: [__m256; 4] = std::array::from_fn(|k| _mm256_permute2f128_ps::<0x31>(m[k], m[k + 4]));
-    let t0 = _mm256_unpacklo_ps(low[0], low[1]);
-    let t1 = _mm256_unpackhi_ps(low[0], low[1]);
-    let t2 = _mm256_unpacklo_ps(low[2], low[3]);
-    let t3 = _mm256_unpackhi_ps(low[2], low[3]);
-    let u0 = _mm256_unpacklo_ps(high[0], high[1]);
-    let u2 = _mm256_unpacklo_ps(high[2], high[3]);
-    [
-        _mm256_shuffle_ps::<0x44>(t0, t2),
-        _mm256_shuffle_ps::<0xEE>(t0, t2),
-        _mm256_shuffle_ps::<0x44>(t1, t3),
-        _mm256_shuffle_ps::<0xEE>(t1, t3),
-        _mm256_shuffle_ps::<0x44>(u0, u2),
-    ]
+    let [c0, c1, c2, c3] = transpose4(&low);
+    [c0, c1, c2, c3, transpose4(&high)[0]]
 }
 
-/// Four channels' vectors (pixels in lanes) to pixels: vector k holds pixel k's four values in
-/// its low half and pixel k + 4's in its high half.
+/// The 4x4 transposes of both 128-bit halves of four vectors: vector j holds lane j of each of
+/// `v` (in each half). Its own inverse: four channels' vectors (pixels in lanes) become pixel
+/// k's four values in vector k's low half and pixel k + 4's in its high half.
 #[target_feature(enable = "avx2")]
 #[inline]
-fn to_pixels(c: &[__m256]) -> [__m256; 4] {
-    let t0 = _mm256_unpacklo_ps(c[0], c[1]);
-    let t1 = _mm256_unpackhi_ps(c[0], c[1]);
-    let t2 = _mm256_unpacklo_ps(c[2], c[3]);
-    let t3 = _mm256_unpackhi_ps(c[2], c[3]);
+fn transpose4(v: &[__m256; 4]) -> [__m256; 4] {
+    let t0 = _mm256_unpacklo_ps(v[0], v[1]);
+    let t1 = _mm256_unpackhi_ps(v[0], v[1]);
+    let t2 = _mm256_unpacklo_ps(v[2], v[3]);
+    let t3 = _mm256_unpackhi_ps(v[2], v[3]);
     [
         _mm256_shuffle_ps::<0x44>(t0, t2),
         _mm256_shuffle_ps::<0xEE>(t0, t2),
