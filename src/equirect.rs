@@ -18,6 +18,7 @@
 //!   its lower edge meets `front`), `down` (pitch −90, its upper edge meets `front`).
 
 use crate::error::{Error, Result};
+use crate::source::spherical;
 use std::path::Path;
 
 /// Interpolation of a view's remap (`kernels::remap`).
@@ -91,54 +92,15 @@ pub fn check_equirect(input: &Path, (w, h): (u32, u32)) -> Result<()> {
     ))
 }
 
-/// The projection a video's container declares in Google's spherical video metadata (ffprobe's
-/// `Spherical Mapping` side data), when ffprobe is there and the video has it.
-pub fn spherical_metadata(video: &Path) -> Option<String> {
-    let out = std::process::Command::new("ffprobe")
-        .args([
-            "-v",
-            "error",
-            "-select_streams",
-            "v:0",
-            "-show_streams",
-            "-of",
-            "json",
-        ])
-        .arg(video)
-        .stdin(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .output()
-        .ok()?;
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).ok()?;
-    spherical_of(&v)
-}
-
-/// The `projection` of the first `Spherical Mapping` side data of ffprobe's `-show_streams`
-/// JSON.
-pub fn spherical_of(probe: &serde_json::Value) -> Option<String> {
-    let streams = probe.get("streams")?.as_array()?;
-    streams.iter().find_map(|s| {
-        s.get("side_data_list")?.as_array()?.iter().find_map(|d| {
-            let t = d.get("side_data_type")?.as_str()?;
-            (t == "Spherical Mapping")
-                .then(|| {
-                    d.get("projection")
-                        .and_then(|p| p.as_str())
-                        .unwrap_or("unknown")
-                })
-                .map(str::to_string)
-        })
-    })
-}
-
-/// A video's spherical metadata ([`spherical_metadata`]) read on a thread of its own, so that
-/// ffprobe runs while the caller opens the video; [`resolve_projection_probed`] waits for it.
+/// A video's spherical metadata ([`crate::source::spherical`]): read in place from an MP4/MOV,
+/// else by ffprobe on a thread of its own while the caller opens the video;
+/// [`resolve_projection_probed`] waits for it.
 pub enum SphericalProbe {
     /// Not needed: not a video, or a projection asked for.
     Unneeded,
-    /// Being read by ffprobe on its own thread.
+    /// Being read by ffprobe on its own thread (not an MP4/MOV this module reads).
     Reading(std::thread::JoinHandle<Option<String>>),
-    /// Read in place (no thread to be had).
+    /// Read in place (an MP4/MOV, or no thread to be had).
     Read(Option<String>),
 }
 
@@ -149,13 +111,16 @@ impl SphericalProbe {
         if !is_video || asked.is_some() {
             return SphericalProbe::Unneeded;
         }
+        if let Some(found) = spherical::read_iso(input) {
+            return SphericalProbe::Read(found);
+        }
         let path = input.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("spherical-probe".into())
-            .spawn(move || spherical_metadata(&path));
+            .spawn(move || spherical::declared(&path));
         match thread {
             Ok(t) => SphericalProbe::Reading(t),
-            Err(_) => SphericalProbe::Read(spherical_metadata(input)),
+            Err(_) => SphericalProbe::Read(spherical::declared(input)),
         }
     }
 
@@ -629,12 +594,6 @@ mod tests {
             e.contains("2:1") && e.contains("16:9") && e.contains("1920x1080"),
             "{e}"
         );
-        let probe = serde_json::json!({"streams": [{"side_data_list": [
-            {"side_data_type": "Display Matrix"},
-            {"side_data_type": "Spherical Mapping", "projection": "equirectangular"}
-        ]}]});
-        assert_eq!(spherical_of(&probe).as_deref(), Some("equirectangular"));
-        assert_eq!(spherical_of(&serde_json::json!({"streams": [{}]})), None);
         let asked = resolve_projection(Some(Projection::Equirect), p, false, (1920, 1080));
         assert!(asked.is_err());
         let plain = resolve_projection(None, p, false, (400, 200)).unwrap();

@@ -10,6 +10,7 @@ mod natural;
 mod packets;
 #[cfg(feature = "opencv")]
 mod reader;
+pub mod spherical;
 pub mod telemetry;
 #[cfg(feature = "opencv")]
 mod video;

@@ -464,3 +464,100 @@ fn workflow_rig_keys_are_refused_with_file_and_key() {
     assert!(!folder.join("project.json").exists(), "no selection");
     assert!(!folder.join("rig").exists(), "nothing exported");
 }
+
+/// `path`'s spherical projection as ffprobe reports it (its `Spherical Mapping` side data).
+fn ffprobe_projection(path: &Path) -> Option<String> {
+    let out = std::process::Command::new("ffprobe")
+        .args([
+            "-v",
+            "error",
+            "-select_streams",
+            "v:0",
+            "-show_streams",
+            "-of",
+            "json",
+        ])
+        .arg(path)
+        .output()
+        .expect("ffprobe is installed (scripts/setup.sh)");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    keyframer::source::spherical::spherical_of(&v)
+}
+
+/// Real MP4s with Google's spherical metadata injected (V2 `sv3d` in the sample entry, V1 XML in
+/// the track): keyframer reads them from the file as ffprobe does,
+/// `select` analyses them as 360° input without being told; a plain MP4 and a Matroska copy
+/// (ffprobe's path) stay pinhole.
+#[test]
+fn spherical_metadata_is_read_from_the_file() {
+    use keyframer::source::spherical::{boxes, declared, read_iso};
+    let dir = tempfile::tempdir().unwrap();
+    let plain = crate::common::testsrc(dir.path(), "plain.mp4", 256, 128, "10", 1.0);
+    let bytes = std::fs::read(&plain).unwrap();
+    let stsd: &[&[u8; 4]] = &[b"moov", b"trak", b"mdia", b"minf", b"stbl", b"stsd"];
+    let v2 = dir.path().join("v2.mp4");
+    let injected = boxes::inject(&bytes, stsd, &boxes::sv3d(b"equi", [0; 4]));
+    std::fs::write(&v2, injected.expect("the clip has moov/trak/.../stsd")).unwrap();
+    let v1 = dir.path().join("v1.mp4");
+    let xml = boxes::v1(&boxes::v1_xml("equirectangular"));
+    let injected = boxes::inject(&bytes, &[b"moov", b"trak"], &xml);
+    std::fs::write(&v1, injected.expect("the clip has moov/trak")).unwrap();
+    let cube = dir.path().join("cube.mp4");
+    let injected = boxes::inject(&bytes, stsd, &boxes::sv3d(b"cbmp", [0; 4]));
+    std::fs::write(&cube, injected.unwrap()).unwrap();
+    let mkv = dir.path().join("plain.mkv");
+    crate::common::ffmpeg(&["-i", s(&plain), "-c", "copy", s(&mkv)]);
+
+    // The injected boxes are what FFmpeg reads, and this reader agrees with it.
+    assert_eq!(ffprobe_projection(&v2).as_deref(), Some("equirectangular"));
+    assert_eq!(ffprobe_projection(&v1).as_deref(), Some("equirectangular"));
+    assert_eq!(ffprobe_projection(&cube).as_deref(), Some("cubemap"));
+    assert_eq!(ffprobe_projection(&plain), None);
+    let eq = Some(Some("equirectangular".to_string()));
+    assert_eq!(read_iso(&v2), eq);
+    assert_eq!(read_iso(&v1), eq);
+    assert_eq!(read_iso(&cube), Some(Some("cubemap".to_string())));
+    assert_eq!(read_iso(&plain), Some(None));
+    assert_eq!(read_iso(&mkv), None, "Matroska goes to ffprobe");
+    assert_eq!(declared(&mkv), None);
+
+    for (video, want, says) in [
+        (
+            &v2,
+            "equirect",
+            Some("spherical video metadata (equirectangular) found"),
+        ),
+        (
+            &v1,
+            "equirect",
+            Some("spherical video metadata (equirectangular) found"),
+        ),
+        (
+            &cube,
+            "pinhole",
+            Some("says `cubemap`, which keyframer does not read"),
+        ),
+        (&plain, "pinhole", None),
+        (&mkv, "pinhole", None),
+    ] {
+        let project = dir.path().join(format!(
+            "{}.json",
+            video.file_name().unwrap().to_string_lossy()
+        ));
+        let out = kf(&["select", s(video), "--every", "5", "-o", s(&project)]);
+        let (code, err) = code_and_stderr(&out);
+        assert_eq!(code, 0, "{}: {err}", video.display());
+        // A pinhole project does not record its projection (the default).
+        let p = json(&project)["projection"]
+            .as_str()
+            .unwrap_or("pinhole")
+            .to_string();
+        assert_eq!(p, want, "{}: {err}", video.display());
+        match says {
+            Some(line) => assert!(err.contains(line), "{}: {err}", video.display()),
+            None => assert!(!err.contains("spherical video metadata ("), "{err}"),
+        }
+    }
+    // The inputs were only read.
+    assert_eq!(std::fs::read(&plain).unwrap(), bytes);
+}
