@@ -27,10 +27,10 @@ pub(crate) enum Decoded {
     Prime(usize, Mat),
 }
 
-/// Gray at the analysis resolution (cv::cvtColor, then INTER_AREA, [`resize_area::host`],
-/// unless the size matches).
+/// Gray at the analysis resolution (cv::cvtColor's gray by [`crate::kernels::gray::host`], then
+/// INTER_AREA, [`resize_area::host`], unless the size matches).
 pub(crate) fn prepare(size: (i32, i32), image: &Mat) -> Result<Mat> {
-    shrink(size, crate::kernels::gray::opencv(image)?)
+    shrink(size, crate::kernels::gray::host(image)?)
 }
 
 /// `gray` at the analysis resolution (INTER_AREA unless the size matches).
@@ -63,7 +63,7 @@ impl Keep {
             }
             return Ok(None);
         };
-        let gray = crate::kernels::gray::opencv(&f.image)?;
+        let gray = crate::kernels::gray::host(&f.image)?;
         let small = match (gray.cols(), gray.rows()) == size {
             true => gray.try_clone().cv(|| "copy the gray frame".into())?,
             false => resize_area::host(&gray, opencv::core::Size::new(size.0, size.1))?,

@@ -185,10 +185,17 @@ impl SharpnessEngine for Opencv {
     fn submit(&mut self, frames: &[Frame]) -> Result<()> {
         for f in frames {
             let at = |e: Error| Error::frame(std::path::PathBuf::new(), f.index, e.to_string());
+            // Tenengrad alone on a whole BGR frame: gray and gradients in one pass.
+            if self.rows.is_none() && f.image.channels() == 3 && self.metrics == [Metric::Tenengrad]
+            {
+                let score = crate::kernels::tenengrad::host_bgr(&f.image).map_err(at)?;
+                self.scores.push(vec![score]);
+                continue;
+            }
             let converted = match (self.rows, f.image.channels()) {
                 (Some(r), _) => Some(band_gray(&f.image, r).map_err(at)?),
                 (None, 1) => None,
-                (None, _) => Some(crate::kernels::gray::opencv(&f.image).map_err(at)?),
+                (None, _) => Some(crate::kernels::gray::host(&f.image).map_err(at)?),
             };
             let gray = converted.as_ref().unwrap_or(&f.image);
             let scores = self
