@@ -74,27 +74,62 @@ pub fn host(gray: &Mat, size: Size) -> Result<Mat> {
     )
     .cv(|| "resize_area output".into())?;
     let dst = out.data_bytes_mut().cv(|| "resize_area output".into())?;
-    let scale = 1.0f32 / (kx * ky) as f32;
-    let mut sums = vec![0u16; sw];
-    for (y, drow) in dst.chunks_exact_mut(dw).enumerate() {
-        sums.fill(0);
-        for srow in src[y * ky * sw..(y + 1) * ky * sw].chunks_exact(sw) {
-            for (s, &p) in sums.iter_mut().zip(srow) {
-                *s += u16::from(p);
+    let blocks = Blocks { sw, dw, kx, ky };
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of
+        // `blocks_avx2`'s `target_feature`.
+        unsafe { blocks_avx2(&blocks, src, dst) };
+        return Ok(out);
+    }
+    blocks.run(src, dst);
+    Ok(out)
+}
+
+/// The integer-factor block averages of [`host`]: source width, destination width, factors.
+#[cfg(feature = "opencv")]
+struct Blocks {
+    sw: usize,
+    dw: usize,
+    kx: usize,
+    ky: usize,
+}
+
+#[cfg(feature = "opencv")]
+impl Blocks {
+    /// Every destination row from its `ky` source rows (the same integer sums and f32 steps
+    /// whichever instructions the compiler picks).
+    #[inline(always)]
+    fn run(&self, src: &[u8], dst: &mut [u8]) {
+        let Blocks { sw, dw, kx, ky } = *self;
+        let scale = 1.0f32 / (kx * ky) as f32;
+        let mut sums = vec![0u16; sw];
+        for (y, drow) in dst.chunks_exact_mut(dw).enumerate() {
+            sums.fill(0);
+            for srow in src[y * ky * sw..(y + 1) * ky * sw].chunks_exact(sw) {
+                for (s, &p) in sums.iter_mut().zip(srow) {
+                    *s += u16::from(p);
+                }
+            }
+            for (d, block) in drow.iter_mut().zip(sums.chunks_exact(kx)) {
+                let sum: u16 = block.iter().sum();
+                *d = if kx == 2 && ky == 2 {
+                    ((sum + 2) >> 2) as u8
+                } else {
+                    // Round half to even: adding 2^23 leaves no fraction bits (0 <= v <= 255).
+                    let v = f32::from(sum) * scale;
+                    ((v + 8_388_608.0) - 8_388_608.0).min(255.0) as u8
+                };
             }
         }
-        for (d, block) in drow.iter_mut().zip(sums.chunks_exact(kx)) {
-            let sum: u16 = block.iter().sum();
-            *d = if kx == 2 && ky == 2 {
-                ((sum + 2) >> 2) as u8
-            } else {
-                // Round half to even: adding 2^23 leaves no fraction bits (0 <= v <= 255).
-                let v = f32::from(sum) * scale;
-                ((v + 8_388_608.0) - 8_388_608.0).min(255.0) as u8
-            };
-        }
     }
-    Ok(out)
+}
+
+/// [`Blocks::run`] compiled for AVX2.
+#[cfg(all(feature = "opencv", target_arch = "x86_64"))]
+#[target_feature(enable = "avx2")]
+fn blocks_avx2(blocks: &Blocks, src: &[u8], dst: &mut [u8]) {
+    blocks.run(src, dst)
 }
 
 /// The integer factors (kx, ky) when cv::resize(INTER_AREA) from `src` to `dst` takes its
