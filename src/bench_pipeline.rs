@@ -28,6 +28,45 @@ pub struct Settings {
     pub select_args: Vec<String>,
     /// Also measure the analysis-width / flow-stride trade-off on a 20 s 1080p clip.
     pub tradeoffs: bool,
+    /// Rounds per clip (decode loops, then every backend, in turn); medians are reported.
+    pub rounds: u32,
+}
+
+/// The median of `v` (the mean of the middle two for an even count; NaN when empty).
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    match s.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => s[n / 2],
+        n => 0.5 * (s[n / 2 - 1] + s[n / 2]),
+    }
+}
+
+/// One round's analysis of one backend: seconds, and its ratios to that round's decode loops.
+#[derive(Debug, Clone, Copy)]
+struct Round {
+    secs: f64,
+    to_opencv: f64,
+    to_ffmpeg: Option<f64>,
+}
+
+/// The median of `v` with `decimals`, "-" when empty (no ffmpeg).
+fn median_or_dash(v: &[f64], decimals: usize) -> String {
+    match v.is_empty() {
+        true => "-".into(),
+        false => format!("{:.*}", decimals, median(v)),
+    }
+}
+
+/// "lo-hi" of `v` with two decimals ("-" when empty).
+fn range(v: &[f64]) -> String {
+    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    match v.is_empty() {
+        true => "-".into(),
+        false => format!("{lo:.2}-{hi:.2}"),
+    }
 }
 
 fn run_tool(cmd: &mut Command, what: &str) -> Result<std::process::Output> {
@@ -172,12 +211,15 @@ pub fn run(s: &Settings) -> Result<String> {
     };
     let mut report = format!(
         "pipeline: full analysis = `select {}` as a child process; decode-only = ffmpeg -f null \
-         and keyframer's OpenCV read loop (decode + BGR); device work per analysed frame as the \
-         gpu backend counts it (budget: at most 1 KiB read back and 1/16 blocking wait)\n",
-        flags.join(" ")
+         and keyframer's OpenCV read loop (decode + BGR); {} round(s) per clip, each timing the \
+         decode loops, then every backend: medians, ratios per round (median and range); device \
+         work per analysed frame as the gpu backend counts it (budget: at most 1 KiB read back \
+         and 1/16 blocking wait)\n",
+        flags.join(" "),
+        s.rounds
     );
     report += &format!(
-        "{:<24} {:>6} {:>9} {:>9} {:>14} {:>9} {:>9} {:>9} {:>9}{}\n",
+        "{:<24} {:>6} {:>9} {:>9} {:>14} {:>9} {:>9} {:>11} {:>9} {:>9}{}\n",
         "clip",
         "frames",
         "ffmpeg s",
@@ -185,36 +227,60 @@ pub fn run(s: &Settings) -> Result<String> {
         "backend",
         "analyse s",
         "/opencv",
+        "range",
         "/ffmpeg",
         "peak MiB",
         PerFrame::HEADER
     );
     for path in &clips {
         let name = path.file_name().unwrap_or_default().to_string_lossy();
-        eprintln!("bench: decoding {name}");
-        let ff = ffmpeg_decode(path);
-        let (cv, frames) = opencv_decode(path)?;
-        for b in &s.backends {
-            eprintln!("bench: analysing {name} with {b}");
-            let project = s.dir.join(format!("{name}.{b}.json"));
-            // `NAME-preview`: the keyframe-only preview (`select --preview`) on backend NAME.
-            let (backend, flags) = match b.strip_suffix("-preview") {
-                Some(base) => (base, [&flags[..], &["--preview".to_string()]].concat()),
-                None => (b.as_str(), flags.clone()),
-            };
-            let (secs, peak, work) = analysis(path, &project, backend, &flags)?;
+        // Per backend, one entry per round.
+        let mut runs: Vec<Vec<Round>> = vec![Vec::new(); s.backends.len()];
+        // Peak memory: the largest over the rounds; the device counters: the last round's.
+        let mut peaks = vec![f64::NAN; s.backends.len()];
+        let mut works: Vec<Option<PerFrame>> = s.backends.iter().map(|_| None).collect();
+        let (mut ffs, mut cvs, mut frames) = (Vec::new(), Vec::new(), 0);
+        for round in 1..=s.rounds {
+            eprintln!("bench: decoding {name} (round {round} of {})", s.rounds);
+            let ff = ffmpeg_decode(path);
+            let (cv, n) = opencv_decode(path)?;
+            frames = n;
+            ffs.extend(ff);
+            cvs.push(cv);
+            for (k, b) in s.backends.iter().enumerate() {
+                eprintln!("bench: analysing {name} with {b}");
+                let project = s.dir.join(format!("{name}.{b}.json"));
+                // `NAME-preview`: the keyframe-only preview (`select --preview`) on backend NAME.
+                let (backend, flags) = match b.strip_suffix("-preview") {
+                    Some(base) => (base, [&flags[..], &["--preview".to_string()]].concat()),
+                    None => (b.as_str(), flags.clone()),
+                };
+                let (secs, peak, work) = analysis(path, &project, backend, &flags)?;
+                runs[k].push(Round {
+                    secs,
+                    to_opencv: secs / cv,
+                    to_ffmpeg: ff.map(|f| secs / f),
+                });
+                (peaks[k], works[k]) = (peaks[k].max(peak), work);
+            }
+        }
+        for (k, b) in s.backends.iter().enumerate() {
+            let secs: Vec<f64> = runs[k].iter().map(|r| r.secs).collect();
+            let ratios: Vec<f64> = runs[k].iter().map(|r| r.to_opencv).collect();
+            let to_ff: Vec<f64> = runs[k].iter().filter_map(|r| r.to_ffmpeg).collect();
             report += &format!(
-                "{:<24} {:>6} {:>9} {:>9.1} {:>14} {:>9.1} {:>9.2} {:>9} {:>9.0}{}\n",
+                "{:<24} {:>6} {:>9} {:>9.1} {:>14} {:>9.1} {:>9.2} {:>11} {:>9} {:>9.0}{}\n",
                 name,
                 frames,
-                ff.map_or("-".into(), |f| format!("{f:.1}")),
-                cv,
+                median_or_dash(&ffs, 1),
+                median(&cvs),
                 b,
-                secs,
-                secs / cv,
-                ff.map_or("-".into(), |f| format!("{:.2}", secs / f)),
-                peak,
-                work.map_or(
+                median(&secs),
+                median(&ratios),
+                range(&ratios),
+                median_or_dash(&to_ff, 2),
+                peaks[k],
+                works[k].as_ref().map_or(
                     format!(" {:>7} {:>9} {:>9} {:>8}", "-", "-", "-", "-"),
                     |w| w.columns()
                 )
@@ -313,4 +379,20 @@ fn tradeoffs(s: &Settings) -> Result<String> {
         }
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{median, median_or_dash, range};
+
+    #[test]
+    fn medians_and_ranges_of_rounds() {
+        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), 2.5);
+        assert!(median(&[]).is_nan());
+        assert_eq!(median_or_dash(&[1.234, 1.0, 9.0], 2), "1.23");
+        assert_eq!(median_or_dash(&[], 2), "-");
+        assert_eq!(range(&[1.5, 1.25, 1.75]), "1.25-1.75");
+        assert_eq!(range(&[]), "-");
+    }
 }

@@ -267,6 +267,10 @@ pub struct BenchArgs {
     /// pipeline: also measure the analysis-width / flow-stride trade-off (20 s 1080p clip).
     #[arg(long)]
     pub tradeoffs: bool,
+    /// pipeline: rounds per clip, each timing the decode loops and then every backend in turn;
+    /// the table shows medians and each ratio's range over the rounds (noisy machines).
+    #[arg(long, default_value_t = 1)]
+    pub rounds: u32,
 }
 
 impl BenchArgs {
@@ -284,6 +288,7 @@ impl BenchArgs {
                 .map(String::from)
                 .collect(),
             tradeoffs: self.tradeoffs,
+            rounds: self.rounds.max(1),
         }
     }
 }
