@@ -29,7 +29,7 @@ pub use checkpoint::{is_checkpoint, Checkpoint, MovementState, Resume};
 #[cfg(feature = "opencv")]
 pub use movement::sample_movement;
 #[cfg(feature = "opencv")]
-pub use run::analyse;
+pub use run::{analyse, analyse_source};
 pub use stream::{DeviceAnalysis, DeviceResults};
 
 use crate::params::{MovementRequest, MovementSeries, StationaryRequest};

@@ -35,7 +35,20 @@ pub fn analyse(
     quiet: bool,
     resume: Option<&Resume>,
 ) -> Result<Analysis> {
-    let mut src = source::open(input, opts)?;
+    let src = source::open(input, opts)?;
+    analyse_source(src, input, req, backend, ctx, quiet, resume)
+}
+
+/// [`analyse`] of a source already opened on `input` and not read yet.
+pub fn analyse_source(
+    mut src: Box<dyn source::FrameSource>,
+    input: &Path,
+    req: &Request,
+    backend: Backend,
+    ctx: Option<&Arc<GpuContext>>,
+    quiet: bool,
+    resume: Option<&Resume>,
+) -> Result<Analysis> {
     if req.stationary.is_some() && req.movement.is_none() {
         return Err(Error::param("stationary", "needs a movement request"));
     }

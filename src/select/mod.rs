@@ -429,10 +429,12 @@ pub(crate) fn build(s: &SelectSettings, open: &OpenOptions) -> Result<SelectRepo
         }
         crate::equirect::Projection::Pinhole => s,
     };
-    let auto = AutoThresholds::find(s, open, &known)?;
-    let ts = known.cache.timestamps_s.as_deref();
+    let auto = AutoThresholds::find(s, open, &mut known)?;
     let stationary_req = match auto.resolved.stationary {
-        Some(st) => Some(st.request(&boundaries, &known.metadata(s, open)?, ts)?),
+        Some(st) => {
+            let meta = known.metadata(s, open)?;
+            Some(st.request(&boundaries, &meta, known.cache.timestamps_s.as_deref())?)
+        }
         None => None,
     };
     let plan = Plan::of(s, &known, stationary_req, sharpness_rows);
@@ -560,6 +562,9 @@ struct Known {
     decoded: bool,
     /// The series file the analysis wrote and the name the cache gives it (not moved yet).
     new_series: Option<(PathBuf, PathBuf)>,
+    /// The source opened for its metadata, still at its first frame: the analysis reads it
+    /// (one open, and one packet listing started that much earlier, instead of two).
+    opened: Option<Box<dyn source::FrameSource>>,
 }
 
 impl Known {
@@ -579,6 +584,7 @@ impl Known {
                 damaged: p.damaged_frames,
                 decoded: false,
                 new_series: None,
+                opened: None,
             },
             None => Known::default(),
         }
@@ -616,11 +622,17 @@ impl Known {
     }
 
     /// The input's metadata: cached, or read from its header.
-    fn metadata(&self, s: &SelectSettings, open: &OpenOptions) -> Result<Metadata> {
-        match &self.metadata {
-            Some(m) => Ok(m.clone()),
-            None => Ok(source::open(&s.input, open)?.metadata().clone()),
+    fn metadata(&mut self, s: &SelectSettings, open: &OpenOptions) -> Result<Metadata> {
+        if let Some(m) = &self.metadata {
+            return Ok(m.clone());
         }
+        let src = match self.opened.take() {
+            Some(src) => src,
+            None => source::open(&s.input, open)?,
+        };
+        let m = src.metadata().clone();
+        self.opened = Some(src);
+        Ok(m)
     }
 
     /// Runs the analysis `plan` asks for and merges it into the cache (replaced when the input
@@ -639,11 +651,17 @@ impl Known {
             gpu::resolve_backend(s.backend, s.adapter.as_deref())
         };
         let request = plan.request(s);
+        // A second try (the gpu backend failed over to opencv) opens the input again.
+        let mut opened = self.opened.take();
         let a = gpu::or_opencv("the analysis", backend, ctx.as_ref(), |backend, ctx| {
             let before = ctx.map(|c| c.counts());
-            let a = analysis::analyse(
+            let src = match opened.take() {
+                Some(src) => src,
+                None => source::open(&s.input, open)?,
+            };
+            let a = analysis::analyse_source(
+                src,
                 &s.input,
-                open,
                 &request,
                 backend,
                 ctx,
@@ -746,7 +764,7 @@ struct AutoThresholds {
 }
 
 impl AutoThresholds {
-    fn find(s: &SelectSettings, open: &OpenOptions, known: &Known) -> Result<AutoThresholds> {
+    fn find(s: &SelectSettings, open: &OpenOptions, known: &mut Known) -> Result<AutoThresholds> {
         let mut t = AutoThresholds {
             resolved: Resolved::given(&s.steps, s.movement),
             proposals: Vec::new(),

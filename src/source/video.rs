@@ -56,6 +56,9 @@ impl VideoSource {
     /// Opens `path` and decodes its first frame; fails with a clear message when the file is not a
     /// readable video.
     pub fn open(path: &Path) -> Result<Self> {
+        // ffprobe starts (~0.1 s of loading libraries) while OpenCV opens the file and decodes
+        // frame 0 (whose time needs no list); dropped with `cap` on any failure below.
+        let listing = packets::Listing::start(path);
         let cap = VideoCapture::from_file(path, videoio::CAP_FFMPEG)
             .cv(|| format!("VideoCapture open {}", path.display()))?;
         let opened = cap.is_opened().cv(|| "VideoCapture::isOpened".into())?;
@@ -113,7 +116,7 @@ impl VideoSource {
             },
             pending: None,
             next_index: 0,
-            times: Times::Pending(None),
+            times: Times::Pending(Some(listing)),
             origin_s: 0.0,
             last_ts: None,
             last_step: None,
@@ -129,7 +132,6 @@ impl VideoSource {
         src.meta.width = first.image.cols() as u32;
         src.meta.height = first.image.rows() as u32;
         src.pending = Some(first);
-        src.times = Times::Pending(Some(packets::Listing::start(path)));
         Ok(src)
     }
 
