@@ -165,8 +165,9 @@ fn v1(trak: &[u8]) -> Option<String> {
     Some(value("ProjectionType").unwrap_or_else(|| "equirectangular".to_string()))
 }
 
-/// ffprobe's answer for any container: the first `Spherical Mapping` of the first video stream.
-fn ffprobe(video: &Path) -> Option<String> {
+/// ffprobe's answer for any container: the first `Spherical Mapping` of the first video stream
+/// (None also when ffprobe is missing or fails).
+pub fn ffprobe(video: &Path) -> Option<String> {
     let out = std::process::Command::new("ffprobe")
         .args([
             "-v",

@@ -465,32 +465,13 @@ fn workflow_rig_keys_are_refused_with_file_and_key() {
     assert!(!folder.join("rig").exists(), "nothing exported");
 }
 
-/// `path`'s spherical projection as ffprobe reports it (its `Spherical Mapping` side data).
-fn ffprobe_projection(path: &Path) -> Option<String> {
-    let out = std::process::Command::new("ffprobe")
-        .args([
-            "-v",
-            "error",
-            "-select_streams",
-            "v:0",
-            "-show_streams",
-            "-of",
-            "json",
-        ])
-        .arg(path)
-        .output()
-        .expect("ffprobe is installed (scripts/setup.sh)");
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    keyframer::source::spherical::spherical_of(&v)
-}
-
 /// Real MP4s with Google's spherical metadata injected (V2 `sv3d` in the sample entry, V1 XML in
 /// the track): keyframer reads them from the file as ffprobe does,
 /// `select` analyses them as 360° input without being told; a plain MP4 and a Matroska copy
 /// (ffprobe's path) stay pinhole.
 #[test]
 fn spherical_metadata_is_read_from_the_file() {
-    use keyframer::source::spherical::{boxes, declared, read_iso};
+    use keyframer::source::spherical::{boxes, declared, ffprobe, read_iso};
     let dir = tempfile::tempdir().unwrap();
     let plain = crate::common::testsrc(dir.path(), "plain.mp4", 256, 128, "10", 1.0);
     let bytes = std::fs::read(&plain).unwrap();
@@ -509,10 +490,10 @@ fn spherical_metadata_is_read_from_the_file() {
     crate::common::ffmpeg(&["-i", s(&plain), "-c", "copy", s(&mkv)]);
 
     // The injected boxes are what FFmpeg reads, and this reader agrees with it.
-    assert_eq!(ffprobe_projection(&v2).as_deref(), Some("equirectangular"));
-    assert_eq!(ffprobe_projection(&v1).as_deref(), Some("equirectangular"));
-    assert_eq!(ffprobe_projection(&cube).as_deref(), Some("cubemap"));
-    assert_eq!(ffprobe_projection(&plain), None);
+    assert_eq!(ffprobe(&v2).as_deref(), Some("equirectangular"));
+    assert_eq!(ffprobe(&v1).as_deref(), Some("equirectangular"));
+    assert_eq!(ffprobe(&cube).as_deref(), Some("cubemap"));
+    assert_eq!(ffprobe(&plain), None);
     let eq = Some(Some("equirectangular".to_string()));
     assert_eq!(read_iso(&v2), eq);
     assert_eq!(read_iso(&v1), eq);
