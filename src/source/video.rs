@@ -206,12 +206,15 @@ impl VideoSource {
         let listed = match &self.times {
             Times::Listed(l) => match l.pairs(index, pos_s, self.origin_s) {
                 Some(false) => {
+                    // The positions compared: each from its own frame 0.
+                    let first = l.opencv_s.first().copied().unwrap_or(0.0);
                     log::warn!(
                         "{}: frame {index}: the decoder's frames do not pair with the stream's \
-                         packet list (OpenCV places it at {pos_s} s, the list at {} s); \
+                         packet list (OpenCV places it {} s after frame 0, the list {} s); \
                          timestamps come from OpenCV from here on",
                         self.path.display(),
-                        l.opencv_s[index]
+                        pos_s - self.origin_s,
+                        l.opencv_s[index] - first
                     );
                     self.times = Times::OpenCv;
                     None
