@@ -62,7 +62,7 @@ pub fn list(path: &Path) -> Result<StreamTimes> {
 
 /// [`list`], given up (ffprobe killed) as soon as `cancel` is set.
 fn list_until(path: &Path, cancel: &AtomicBool) -> Result<StreamTimes> {
-    let entries = "stream=time_base,start_pts:packet=pts,dts,flags";
+    let entries = "stream=time_base,start_pts,codec_name,has_b_frames:packet=pts,dts,flags";
     ffprobe(path, &["-show_entries", entries, "-of", "compact"], |out| {
         let mut out = Cancellable { inner: out, cancel };
         parse(path, &mut out)
@@ -196,12 +196,14 @@ pub fn ffprobe<T>(
     parsed
 }
 
-/// Parses `ffprobe -show_entries stream=time_base,start_pts:packet=pts,dts,flags -of compact`
+/// Parses `ffprobe -show_entries stream=time_base,start_pts,codec_name,has_b_frames:packet=pts,dts,flags -of compact`
 /// output (`packet|pts=..|dts=..|flags=K_` lines in decode order, one `stream|..` line).
 pub fn parse(path: &Path, text: &mut dyn BufRead) -> Result<StreamTimes> {
     let mut packets = Vec::new();
     let mut time_base = None;
     let mut start = 0i64;
+    // H.264's declared reorder depth (the frames its decoder holds back); 0 when not listed.
+    let mut reorder = 0usize;
     for (n, line) in text.split(b'\n').enumerate() {
         let line = line.map_err(|e| Error::io(path, e))?;
         let line = String::from_utf8_lossy(&line);
@@ -239,6 +241,10 @@ pub fn parse(path: &Path, text: &mut dyn BufRead) -> Result<StreamTimes> {
                 });
                 time_base = Some(parsed.ok_or_else(|| bad(format!("bad time base `{tb}`")))?);
                 start = ticks(get("start_pts")?).ok().flatten().unwrap_or(0);
+                if get("codec_name").is_ok_and(|c| c == "h264") {
+                    let depth = get("has_b_frames").ok().and_then(|v| v.parse().ok());
+                    reorder = depth.unwrap_or(0);
+                }
             }
             _ => {}
         }
@@ -246,13 +252,23 @@ pub fn parse(path: &Path, text: &mut dyn BufRead) -> Result<StreamTimes> {
     let Some((num, den)) = time_base else {
         return Err(Error::input(path, "ffprobe lists no video stream"));
     };
-    times(path, packets, num as f64 / den as f64, start)
+    times(path, packets, num as f64 / den as f64, start, reorder)
 }
 
 /// The frame times of `packets` (decode order) in a stream with time base `tb` seconds and
 /// start `start` ticks: FFmpeg's decoder outputs frames in pts order, `delay` packets after
-/// their own, each carrying the decode time of the packet fed last.
-fn times(path: &Path, packets: Vec<Packet>, tb: f64, start: i64) -> Result<StreamTimes> {
+/// their own, each carrying the decode time of the packet fed last. `delay` is the deepest
+/// reordering in the list, or H.264's declared depth `reorder` where that is more: its decoder
+/// holds frames back that far even in a clip too short to reorder so deep (x264's defaults
+/// declare 2; a 10-frame clip reorders 1 deep). Not for other codecs: MPEG-4 part 2 in AVI
+/// declares 1 and pairs with the list's own depth.
+fn times(
+    path: &Path,
+    packets: Vec<Packet>,
+    tb: f64,
+    start: i64,
+    reorder: usize,
+) -> Result<StreamTimes> {
     let all = packets.len();
     let packets: Vec<Packet> = packets
         .into_iter()
@@ -273,7 +289,7 @@ fn times(path: &Path, packets: Vec<Packet>, tb: f64, start: i64) -> Result<Strea
     let mut order: Vec<usize> = (0..packets.len()).collect();
     order.sort_by_key(|&i| sort_time(&packets[i]));
     let delay = order.iter().enumerate().map(|(k, &j)| j.saturating_sub(k));
-    let delay = delay.max().unwrap_or(0);
+    let delay = delay.max().unwrap_or(0).max(reorder);
     let secs = |t: i64| t as f64 * tb;
     let (mut best, mut opencv_s) = (Vec::new(), Vec::new());
     // FFmpeg's guess_correct_pts (libavcodec/decode.c), frame by frame.
@@ -380,6 +396,25 @@ mod tests {
         assert!(t.repeated.is_empty());
         // OpenCV: the pts, but the decode time for a pts of 0 (frame 0 gets packet 1's: 0).
         assert_eq!(t.opencv_s, vec![0.0, 0.04, 0.08, 0.12, 0.16]);
+    }
+
+    /// H.264's decoder holds frames back as deep as the stream declares even where a short clip
+    /// reorders less: frame 0's OpenCV position is then the decode time of the packet that deep.
+    /// Other codecs keep the list's own depth.
+    #[test]
+    fn h264s_declared_reorder_depth_places_frame_0() {
+        let packets = "packet|pts=0|dts=-20|flags=K_\npacket|pts=30|dts=-10|flags=__\n\
+                       packet|pts=10|dts=0|flags=__\npacket|pts=20|dts=10|flags=__";
+        let with = |stream: &str| {
+            let text = format!("{packets}\nstream|time_base=1/100|start_pts=0{stream}\n");
+            parse(Path::new("v.mp4"), &mut text.as_bytes()).unwrap()
+        };
+        let h264 = with("|codec_name=h264|has_b_frames=2");
+        assert_eq!(h264.opencv_s, vec![0.0, 0.1, 0.2, 0.3]);
+        for other in ["", "|codec_name=mpeg4|has_b_frames=2", "|codec_name=h264"] {
+            assert_eq!(with(other).opencv_s, vec![-0.1, 0.1, 0.2, 0.3], "{other}");
+            assert_eq!(with(other).timestamps_s, h264.timestamps_s, "{other}");
+        }
     }
 
     /// A repeated pts: FFmpeg's best effort moves to the decode times (which the muxer made

@@ -800,3 +800,39 @@ fn fifo_input_is_refused() {
     }
     assert!(!p.exists());
 }
+
+/// An H.264 clip too short to reorder as deep as its stream declares (x264's defaults declare 2;
+/// 10 and 25 frames reorder 1 deep) still pairs with its packet list: the stream's own times, no
+/// fallback warning.
+#[test]
+fn short_h264_clips_pair_with_their_packet_list() {
+    let dir = tempfile::tempdir().unwrap();
+    for (rate, n) in [(10, 10usize), (25, 25)] {
+        let clip = testsrc(
+            dir.path(),
+            &format!("r{rate}.mp4"),
+            128,
+            96,
+            &rate.to_string(),
+            1.0,
+        );
+        let project = dir.path().join(format!("r{rate}.json"));
+        let out = kf(&["select", s(&clip), "--every", "5", "-o", s(&project)]);
+        let (code, err) = code_and_stderr(&out);
+        assert_eq!(code, 0, "{err}");
+        assert!(!err.contains("do not pair"), "{rate} fps: {err}");
+        let ts: Vec<f64> = json(&project)["cache"]["timestamps_s"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| t.as_f64().unwrap())
+            .collect();
+        assert_eq!(ts.len(), n);
+        for (i, t) in ts.iter().enumerate() {
+            assert!(
+                (t - i as f64 / rate as f64).abs() < 1e-9,
+                "{rate} fps frame {i}: {t}"
+            );
+        }
+    }
+}
