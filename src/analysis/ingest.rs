@@ -12,8 +12,16 @@ use opencv::prelude::*;
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::thread::Scope;
 
-/// Frames queued between the decode thread and the analysis (bounds memory with the batch).
-const DECODE_QUEUE: usize = 2;
+/// Bytes of decoded frames each of the two queues (decoder to preparer, preparer to analysis)
+/// may hold: enough frames that the decoder runs on while the analysis measures a flow, few
+/// enough that memory stays bounded (8 frames at 1080p, 2 at 4K).
+const QUEUE_BYTES: usize = 48 << 20;
+
+/// Frames queued in each queue for frames of `width` x `height` (BGR): between 2 and 8.
+fn queue_frames(width: u32, height: u32) -> usize {
+    let frame = (width as usize * height as usize * 3).max(1);
+    (QUEUE_BYTES / frame).clamp(2, 8)
+}
 
 pub(crate) use super::device::Pixels;
 
@@ -78,7 +86,9 @@ impl Keep {
 }
 
 /// Starts the decode thread over `src`: frames before `resume_at` are skipped (grabbed) except
-/// those in `prime`; every frame gets its analysis gray and keeps its image as `keep` says.
+/// those in `prime`; a second thread gives every frame its analysis gray and keeps its image as
+/// `keep` says. The decode thread does nothing but decode, so the decoder's own worker threads
+/// (frame threading) are fed their next packets at once instead of waiting for the conversions.
 pub(crate) fn spawn_decoder<'scope>(
     scope: &'scope Scope<'scope, '_>,
     src: &'scope mut dyn FrameSource,
@@ -86,17 +96,25 @@ pub(crate) fn spawn_decoder<'scope>(
     prime: &'scope [usize],
     keep: Keep,
 ) -> Receiver<Result<Decoded>> {
-    let (tx, rx) = sync_channel::<Result<Decoded>>(DECODE_QUEUE);
-    scope.spawn(move || decode(src, resume_at, prime, keep, tx));
+    let depth = queue_frames(src.metadata().width, src.metadata().height);
+    let (raw_tx, raw_rx) = sync_channel::<Result<Raw>>(depth);
+    let (tx, rx) = sync_channel::<Result<Decoded>>(depth);
+    scope.spawn(move || decode(src, resume_at, prime, raw_tx));
+    scope.spawn(move || prepare_all(raw_rx, keep, tx));
     rx
+}
+
+/// A decoded frame before its preparation: one to analyse, or one a resumed state primes.
+enum Raw {
+    Frame(Frame),
+    Prime(Frame),
 }
 
 fn decode(
     src: &mut dyn FrameSource,
     resume_at: usize,
     prime: &[usize],
-    keep: Keep,
-    tx: SyncSender<Result<Decoded>>,
+    tx: SyncSender<Result<Raw>>,
 ) {
     let mut next = 0usize;
     loop {
@@ -112,19 +130,34 @@ fn decode(
         } else {
             match src.next_frame() {
                 Ok(None) => return,
-                Ok(Some(f)) if f.index < resume_at => {
+                Ok(Some(f)) => {
                     next = f.index + 1;
-                    // Without `small` the frame itself goes (staged on the device).
-                    let gray = keep.small.map(|s| prepare(s, &f.image)).transpose();
-                    gray.map(|g| Decoded::Prime(f.index, g.unwrap_or(f.image)))
-                }
-                Ok(Some(mut f)) => {
-                    next = f.index + 1;
-                    keep.apply(&mut f).map(|g| Decoded::Frame(f, g))
+                    Ok(match f.index < resume_at {
+                        true => Raw::Prime(f),
+                        false => Raw::Frame(f),
+                    })
                 }
                 Err(e) => Err(e),
             }
         };
+        let stop = item.is_err();
+        if tx.send(item).is_err() || stop {
+            return;
+        }
+    }
+}
+
+/// The preparing thread: each decoded frame's analysis gray, in order.
+fn prepare_all(rx: Receiver<Result<Raw>>, keep: Keep, tx: SyncSender<Result<Decoded>>) {
+    for item in rx {
+        let item = item.and_then(|raw| match raw {
+            Raw::Prime(f) => {
+                // Without `small` the frame itself goes (staged on the device).
+                let gray = keep.small.map(|s| prepare(s, &f.image)).transpose();
+                gray.map(|g| Decoded::Prime(f.index, g.unwrap_or(f.image)))
+            }
+            Raw::Frame(mut f) => keep.apply(&mut f).map(|g| Decoded::Frame(f, g)),
+        });
         let stop = item.is_err();
         if tx.send(item).is_err() || stop {
             return;
@@ -212,4 +245,24 @@ fn staged_batch(engine: &mut dyn SharpnessEngine, pending: &mut Vec<Frame>) -> R
             pixels: Some(Pixels::Staged(k)),
         })
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn queues_hold_a_bounded_number_of_bytes() {
+        // 1080p: 8 frames of 6.2 MB; 4K: 2 (also the floor: each queue needs two to overlap).
+        assert_eq!(queue_frames(1920, 1080), 8);
+        assert_eq!(queue_frames(3840, 2160), 2);
+        assert_eq!(queue_frames(7680, 4320), 2);
+        // Small frames: the ceiling of 8, and a zero size does not divide by zero.
+        assert_eq!(queue_frames(320, 180), 8);
+        assert_eq!(queue_frames(0, 0), 8);
+        for (w, h) in [(1280, 720), (1920, 1080), (2704, 1520), (3840, 2160)] {
+            let frames = queue_frames(w, h);
+            assert!(frames == 2 || frames * (w * h * 3) as usize <= QUEUE_BYTES);
+        }
+    }
 }
