@@ -149,7 +149,8 @@ fn decode(
 
 /// The preparing thread: each decoded frame's analysis gray, in order.
 fn prepare_all(rx: Receiver<Result<Raw>>, keep: Keep, tx: SyncSender<Result<Decoded>>) {
-    for item in rx {
+    let mut input = super::priority::Consumer::new("preparer");
+    while let Ok(item) = input.recv(&rx) {
         let item = item.and_then(|raw| match raw {
             Raw::Prime(f) => {
                 // Without `small` the frame itself goes (staged on the device).

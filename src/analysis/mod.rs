@@ -19,6 +19,8 @@ mod ingest;
 #[cfg_attr(not(feature = "opencv"), allow(dead_code))]
 mod movement;
 #[cfg(feature = "opencv")]
+mod priority;
+#[cfg(feature = "opencv")]
 mod run;
 #[cfg(feature = "opencv")]
 mod sharpness;

@@ -168,25 +168,39 @@ fn run(
                 && worker_engine.as_ref().is_some_and(|e| e.scores_gray()),
         };
         let frames = ingest::spawn_decoder(scope, src, resume_at, &prime, keep);
-        let worker = worker_engine.map(|e| Worker::spawn(scope, e));
-        let mut pump = Pump {
-            req,
-            backend,
-            moving: moving.as_mut(),
-            embedding: embedding.as_mut(),
-            sink: sink.as_mut(),
-            state: state.as_ref(),
-            worker: worker.as_ref(),
-            hand_off,
-            done: &mut done,
-            saver,
-            bar: &bar,
-        };
-        let run = pump.run(frames);
-        match worker {
-            Some(w) => w.finish(run, &mut done.scores, done.frames),
-            None => run,
-        }
+        // The consumers run on a thread of their own, which may lower its priority (the main
+        // thread never does): see `priority`.
+        let (moving, embedding, sink, done) = (
+            moving.as_mut(),
+            embedding.as_mut(),
+            sink.as_mut(),
+            &mut done,
+        );
+        let (state, bar) = (state.as_ref(), &bar);
+        let consumer = scope.spawn(move || {
+            let worker = worker_engine.map(|e| Worker::spawn(scope, e));
+            let mut pump = Pump {
+                req,
+                backend,
+                moving,
+                embedding,
+                sink,
+                state,
+                worker: worker.as_ref(),
+                hand_off,
+                done: &mut *done,
+                saver,
+                bar,
+            };
+            let run = pump.run(frames);
+            match worker {
+                Some(w) => w.finish(run, &mut done.scores, done.frames),
+                None => run,
+            }
+        });
+        consumer
+            .join()
+            .unwrap_or_else(|_| Err(Error::param("analysis", "the analysis thread panicked")))
     });
     let outcome = outcome.map_err(|e| with_path(e, input));
     bar.finish_and_clear();
@@ -255,7 +269,8 @@ struct Pump<'a, 'scope> {
 
 impl Pump<'_, '_> {
     fn run(&mut self, frames: Receiver<Result<Decoded>>) -> Result<()> {
-        for item in frames {
+        let mut input = super::priority::Consumer::new("pump");
+        while let Ok(item) = input.recv(&frames) {
             match item? {
                 Decoded::Prime(i, image) => {
                     if let (Some(m), Some(st)) = (self.moving.as_deref_mut(), self.state) {

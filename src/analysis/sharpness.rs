@@ -313,8 +313,9 @@ fn work(
     let batch = engine.batch();
     let mut pending: Vec<Frame> = Vec::with_capacity(batch);
     let mut queued: VecDeque<usize> = VecDeque::new();
+    let mut input = super::priority::Consumer::new("sharpness worker");
     loop {
-        let (full, all, end) = match rx.recv() {
+        let (full, all, end) = match input.recv(&rx) {
             Ok(ToWorker::Frame(f)) => {
                 pending.push(f);
                 (pending.len() >= batch, false, false)
