@@ -1,7 +1,8 @@
-//! Frame ingest: a decode thread reads the input in order through a queue of a few frames (memory
-//! stays bounded; frames before a resume point are only grabbed), and the hand-off gives each frame
-//! its analysis pixels: a gray resized on the CPU in the decode thread, or, with a staging
-//! sharpness engine, a device buffer resized from the gray the engine computed on the device.
+//! Frame ingest: a decode thread reads the input in order and does nothing else (frames before a
+//! resume point are only grabbed), a preparing thread gives each frame its analysis gray (resized
+//! on the CPU), both through queues of at most 48 MiB of frames (memory stays bounded), and the
+//! hand-off gives each frame its analysis pixels: that gray, or, with a staging sharpness engine,
+//! a device buffer resized from the gray the engine computed on the device.
 
 use super::sharpness::SharpnessEngine;
 use crate::error::{CvContext, Result};
@@ -25,7 +26,7 @@ fn queue_frames(width: u32, height: u32) -> usize {
 
 pub(crate) use super::device::Pixels;
 
-/// Items from the decode thread.
+/// Items from the preparing thread.
 pub(crate) enum Decoded {
     /// A frame to analyse (`image` is empty when no sharpness is requested) and its analysis
     /// gray when the CPU prepares it.
@@ -50,7 +51,7 @@ fn shrink(size: (i32, i32), gray: Mat) -> Result<Mat> {
     }
 }
 
-/// What the decode thread hands on with each frame.
+/// What the preparing thread hands on with each frame.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Keep {
     /// The analysis size, when the CPU prepares the analysis gray.
@@ -175,7 +176,7 @@ pub(crate) struct Ready {
 
 /// How decoded frames reach the analysis.
 pub(crate) enum HandOff {
-    /// The decode thread prepared the gray; frames go one by one.
+    /// The preparing thread made the gray; frames go one by one.
     Cpu,
     /// The staging engine scores frames in batches and leaves frame k's resized gray in its
     /// small buffer k (gpu backend, integer downscale: each frame is uploaded once).
