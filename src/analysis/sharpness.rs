@@ -14,8 +14,13 @@ use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
 use std::sync::Arc;
 use std::thread::{Scope, ScopedJoinHandle};
 
-/// Frames held at most at once by the opencv engine before scoring.
-const CPU_BATCH: usize = 4;
+/// Frames held at most at once by the opencv engine before scoring: one, so each frame is
+/// scored as soon as it comes (the worker's queue still holds [`QUEUE`] frames).
+const CPU_BATCH: usize = 1;
+
+/// Frames the worker's queue holds at least (a batch at most), so that a frame handed on while
+/// the worker scores does not hold up the pump.
+const QUEUE: usize = 4;
 
 /// Scores frames with every requested metric.
 pub(crate) trait SharpnessEngine: Send {
@@ -231,12 +236,12 @@ pub(crate) struct Worker<'scope> {
 }
 
 impl<'scope> Worker<'scope> {
-    /// Starts the worker; its queue holds one batch.
+    /// Starts the worker; its queue holds one batch, and at least [`QUEUE`] frames.
     pub(crate) fn spawn<'env>(
         scope: &'scope Scope<'scope, 'env>,
         engine: Box<dyn SharpnessEngine>,
     ) -> Worker<'scope> {
-        let (tx, wrx) = sync_channel::<ToWorker>(engine.batch());
+        let (tx, wrx) = sync_channel::<ToWorker>(engine.batch().max(QUEUE));
         let (wtx, rx) = channel::<(usize, Vec<f64>)>();
         let thread = scope.spawn(move || work(engine, wrx, wtx));
         Worker { tx, rx, thread }
