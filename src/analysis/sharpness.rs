@@ -18,8 +18,8 @@ use std::thread::{Scope, ScopedJoinHandle};
 /// scored as soon as it comes (the worker's queue still holds [`QUEUE`] frames).
 const CPU_BATCH: usize = 1;
 
-/// Frames the worker's queue holds at least (a batch at most), so that a frame handed on while
-/// the worker scores does not hold up the pump.
+/// Frames the worker's queue holds (or one batch, where an engine's batch is larger), so that a
+/// frame handed on while the worker scores does not hold up the pump.
 const QUEUE: usize = 4;
 
 /// Scores frames with every requested metric.
