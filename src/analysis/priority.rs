@@ -153,48 +153,59 @@ mod tests {
     fn a_consumer_that_mostly_waits_is_lowered_once_after_the_warm_up() {
         assert!(waits_mostly(24, 48));
         assert!(!waits_mostly(23, 48));
+        // The count, fed directly (no timing): the nice value after each item.
+        let run = |waited: fn(u32) -> bool| {
+            std::thread::spawn(move || {
+                let mut c = Consumer::new("test");
+                (0..WARM_UP + WINDOW + 8)
+                    .map(|k| {
+                        c.note(waited(k));
+                        own_nice()
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .join()
+            .unwrap()
+        };
         let before = own_nice();
-        let nice = std::thread::spawn(|| {
-            let (tx, rx) = std::sync::mpsc::channel::<u32>();
-            let mut c = Consumer::new("test");
-            // Items always there: never lowered.
-            for k in 0..WARM_UP + WINDOW {
-                tx.send(k).unwrap();
-                assert_eq!(c.recv(&rx), Ok(k));
-            }
-            let kept = own_nice();
-            let mut c = Consumer::new("test");
-            // Every item arrives after the consumer asked: lowered at the end of the window.
-            let sender = std::thread::spawn(move || {
-                for k in 0..WARM_UP + WINDOW + 4 {
-                    std::thread::sleep(std::time::Duration::from_millis(2));
-                    tx.send(k).unwrap();
-                }
-            });
-            let mut during = Vec::new();
-            while let Ok(k) = c.recv(&rx) {
-                during.push((k, own_nice()));
-            }
-            sender.join().unwrap();
-            assert_eq!(
-                c.recv(&rx),
-                Err(RecvError),
-                "ends when the producer is gone"
-            );
-            (kept, during)
-        })
-        .join()
-        .unwrap();
-        let (kept, during) = nice;
-        assert_eq!(kept, before);
-        for (k, n) in during {
-            // The window ends at the item WARM_UP + WINDOW - 1.
-            let expected = match k + 1 < WARM_UP + WINDOW {
-                true => before,
-                false => target().max(before),
-            };
+        let lowered = target().max(before);
+        // Waits for every item: lowered with the window's last item, not before.
+        for (k, n) in run(|_| true).into_iter().enumerate() {
+            let last_of_window = (WARM_UP + WINDOW - 1) as usize;
+            let expected = if k < last_of_window { before } else { lowered };
             assert_eq!(n, expected, "item {k}");
         }
+        // Never waits, or waits only in the warm-up, or for fewer than half: kept.
+        for waited in [|_| false, |k| k < WARM_UP, |k| k % 2 == 0 && k != WARM_UP] {
+            assert!(run(waited).into_iter().all(|n| n == before));
+        }
+        // Waits only after the window: the decision was made already.
+        assert!(run(|k| k >= WARM_UP + WINDOW)
+            .into_iter()
+            .all(|n| n == before));
+    }
+
+    #[test]
+    fn recv_hands_on_every_item_in_order_and_counts_the_ones_already_there() {
+        let (tx, rx) = std::sync::mpsc::channel::<u32>();
+        let mut c = Consumer::new("test");
+        for k in 0..WARM_UP + 3 {
+            tx.send(k).unwrap();
+            assert_eq!(c.recv(&rx), Ok(k));
+        }
+        assert_eq!(
+            (c.seen, c.waits),
+            (WARM_UP + 3, 0),
+            "none of these was waited for"
+        );
+        // An item that comes later is still handed on; the end of the producer ends it.
+        let sender = std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            tx.send(99).unwrap();
+        });
+        assert_eq!(c.recv(&rx), Ok(99));
+        sender.join().unwrap();
+        assert_eq!(c.recv(&rx), Err(RecvError));
     }
 
     #[test]
