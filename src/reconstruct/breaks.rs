@@ -191,6 +191,20 @@ pub struct Break {
     pub to: usize,
     /// What is wrong.
     pub why: Why,
+    /// Inlier matches of the pair's two-view geometry in the database, 0 when it has none
+    /// (None: no database was read; states of earlier builds).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inliers: Option<usize>,
+}
+
+impl Break {
+    /// Whether the pair's own matches are thin: fewer verified inliers than `min`, the count
+    /// COLMAP's mapper needs to start a model from a pair. Frames are missing there; a pair
+    /// that matches well but is split or mis-assembled is a failure of the mapping, which the
+    /// next mapping may not repeat.
+    pub fn thin(&self, min: usize) -> bool {
+        self.inliers.is_some_and(|n| n < min)
+    }
 }
 
 /// The broken links of `keyframes` (sorted frame indices), in frame order.
@@ -232,7 +246,13 @@ pub fn find(keyframes: &[usize], obs: &Observed, limits: Limits) -> Vec<Break> {
             }
         };
         if let Some(why) = why {
-            out.push(Break { from, to, why });
+            let inliers = obs.inliers.get(i).copied().flatten();
+            out.push(Break {
+                from,
+                to,
+                why,
+                inliers,
+            });
         }
     }
     // A single keyframe left unregistered has no pair to break.
@@ -243,6 +263,7 @@ pub fn find(keyframes: &[usize], obs: &Observed, limits: Limits) -> Vec<Break> {
             why: Why::Unregistered {
                 frames: vec![keyframes[0]],
             },
+            inliers: None,
         });
     }
     out
@@ -384,7 +405,11 @@ mod tests {
         );
         o.inliers[4] = Some(12);
         let k = [0, 10, 20, 30, 40, 50];
+        o.inliers[1] = Some(0);
         let b = find(&k, &o, LIMITS);
+        // Each break carries its pair's inliers from the database.
+        let inliers: Vec<Option<usize>> = b.iter().map(|b| b.inliers).collect();
+        assert_eq!(inliers, vec![Some(0), Some(100), Some(100), Some(12)]);
         let got: Vec<(usize, usize, Why)> = b.into_iter().map(|b| (b.from, b.to, b.why)).collect();
         assert_eq!(
             got,
