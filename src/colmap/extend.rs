@@ -152,11 +152,7 @@ pub fn round(
     rec.finished = false;
     rec.error = None;
     write_record(&ws, &rec)?;
-    let runner = Runner {
-        colmap: &colmap,
-        ws: &ws,
-        quiet,
-    };
+    let runner = Runner::new(&colmap, &ws, quiet);
     let result = (|| -> Result<()> {
         let list = match new_images {
             None => {
@@ -239,11 +235,7 @@ pub fn remap_trial(
         // same pair again (52 times, 31 s against 0.7 s on an 18-image database).
         options.push("multiple_models=0".into());
     }
-    let runner = Runner {
-        colmap: &colmap,
-        ws: &ws,
-        quiet,
-    };
+    let runner = Runner::new(&colmap, &ws, quiet);
     let (stage, failure) = try_mapper(&runner, rec.rig, kind, &output, &with_init, None, py)?;
     rec.stages.push(stage);
     rec.files = ours_now(&ws);

@@ -1,6 +1,13 @@
 """keyframer's driver of pycolmap's sparse stages (`keyframer colmap --engine pycolmap`).
 
-keyframer writes this file into the workspace and runs one stage per process:
+keyframer writes this file into the workspace and runs its stages through one process:
+  python pycolmap_stages.py serve
+reads one stage a line on stdin, as JSON {"log": LOG, "argv": [STAGE, ARG, ...]}, runs it with
+its stdout and stderr appended to LOG, and answers on stdout with one JSON line {"code": EXIT
+CODE, "cpu_s": CPU SECONDS} (the process's user + system time since the previous answer, the
+first answer's including the interpreter's start and pycolmap's import); it ends at the end of
+stdin. pycolmap is imported once for all of a round's stages, not once per stage (~0.2 CPU-s
+each). Each stage also runs alone, as a process of its own:
   python pycolmap_stages.py version
   python pycolmap_stages.py feature_extractor --database_path DB --image_path DIR
       --camera_mode single|per_folder --camera_model M [--camera_params P] [--mask_path DIR]
@@ -22,9 +29,12 @@ again on the same input starts from the same draws.
 """
 
 import argparse
+import json
 import os
+import resource
 import sys
 import time
+import traceback
 
 import pycolmap
 
@@ -189,10 +199,11 @@ def report(models):
         log("no model")
 
 
-def main():
+def parser():
     p = argparse.ArgumentParser(prog="pycolmap_stages.py")
     sub = p.add_subparsers(dest="stage", required=True)
     sub.add_parser("version")
+    sub.add_parser("serve")
     fe = sub.add_parser("feature_extractor")
     fe.add_argument("--database_path", required=True)
     fe.add_argument("--image_path", required=True)
@@ -229,10 +240,10 @@ def main():
     gm.add_argument("--image_path", required=True)
     gm.add_argument("--output_path", required=True)
     gm.add_argument("--fixed_intrinsics", type=int, choices=[0, 1], default=0)
-    a = p.parse_args()
-    if a.stage == "version":
-        print(pycolmap.__version__)
-        return
+    return p
+
+
+def run(a):
     log(f"pycolmap {pycolmap.__version__}: {a.stage}")
     pycolmap.set_random_seed(SEED)
     start = time.monotonic()
@@ -246,6 +257,63 @@ def main():
         "global_mapper": global_mapper,
     }[a.stage](a)
     log(f"{a.stage}: {time.monotonic() - start:.1f} s")
+
+
+def cpu_s():
+    u = resource.getrusage(resource.RUSAGE_SELF)
+    return u.ru_utime + u.ru_stime
+
+
+def exit_code(e):
+    """The exit status a process ending with SystemExit `e` has (its message to stderr)."""
+    if e.code is None:
+        return 0
+    if isinstance(e.code, int):
+        return e.code
+    print(e.code, file=sys.stderr, flush=True)
+    return 1
+
+
+def serve():
+    answers = os.fdopen(os.dup(1), "w", buffering=1)
+    before = 0.0
+    for line in sys.stdin:
+        if not line.strip():
+            continue
+        request = json.loads(line)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        fd = os.open(request["log"], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        os.close(fd)
+        code = 0
+        try:
+            a = parser().parse_args(request["argv"])
+            if a.stage in ("version", "serve"):
+                raise SystemExit(f"{a.stage}: not a stage")
+            run(a)
+        except SystemExit as e:
+            code = exit_code(e)
+        except Exception:
+            traceback.print_exc()
+            code = 1
+        sys.stdout.flush()
+        sys.stderr.flush()
+        now = cpu_s()
+        answers.write(json.dumps({"code": code, "cpu_s": now - before}) + "\n")
+        before = now
+
+
+def main():
+    a = parser().parse_args()
+    if a.stage == "version":
+        print(pycolmap.__version__)
+        return
+    if a.stage == "serve":
+        serve()
+        return
+    run(a)
 
 
 if __name__ == "__main__":

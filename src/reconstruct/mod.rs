@@ -114,8 +114,12 @@ pub struct Round {
     pub added: Vec<Added>,
     /// Breaks nothing can repair.
     pub true_breaks: Vec<TrueBreak>,
+    /// The thin links among the keyframes, broken or not: consecutive pairs whose two-view
+    /// geometry holds fewer inliers than a model starts from (`[from, to, inliers]`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub thin: Vec<[usize; 3]>,
     /// Breaks left for the next round's mapping (their keyframes): their pairs match well, and
-    /// thin links were repaired first (see `decide`).
+    /// thin links were repaired first (see [`thin_first`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub deferred: Vec<[usize; 2]>,
     /// Seconds per COLMAP stage in this round.
@@ -527,6 +531,7 @@ impl Job<'_> {
                     breaks: Vec::new(),
                     added: Vec::new(),
                     true_breaks: Vec::new(),
+                    thin: Vec::new(),
                     deferred: Vec::new(),
                     colmap_s: BTreeMap::new(),
                     colmap_cpu_s: 0.0,
@@ -628,6 +633,12 @@ impl Job<'_> {
             *colmap_s.entry(st.stage.clone()).or_insert(0.0) += st.seconds;
         }
         let colmap_cpu_s = rec.stages.iter().skip(before).map(|st| st.cpu_s).sum();
+        let min = self.thin_inliers();
+        let thin = keys
+            .windows(2)
+            .zip(&obs.inliers)
+            .filter_map(|(w, n)| n.filter(|&n| n < min).map(|n| [w[0], w[1], n]))
+            .collect();
         let ranges = breaks::ranges(&keys, &obs);
         let mut models: Vec<ModelRanges> = obs
             .models
@@ -656,6 +667,7 @@ impl Job<'_> {
             breaks: found,
             added: Vec::new(),
             true_breaks: Vec::new(),
+            thin,
             deferred: Vec::new(),
             colmap_s,
             colmap_cpu_s,
@@ -724,6 +736,12 @@ impl Job<'_> {
             && round.registered == round.keyframes.len();
         let frames = self.frames.frames();
         let thin = self.thin_inliers();
+        let added = |frame: usize, reason: String| Added {
+            frame,
+            time_s: self.frames.time(frame),
+            round: round.round,
+            reason,
+        };
         let mut repairs: Vec<Repair> = Vec::new();
         let mut unrepairable: Vec<(Break, String)> = Vec::new();
         if !connected {
@@ -736,12 +754,7 @@ impl Job<'_> {
                             repairs.push(Repair {
                                 pair: [b.from, b.to],
                                 thin: b.thin(thin),
-                                added: Added {
-                                    frame,
-                                    time_s: self.frames.time(frame),
-                                    round: round.round,
-                                    reason,
-                                },
+                                added: added(frame, reason),
                             });
                         }
                     }
@@ -749,7 +762,28 @@ impl Job<'_> {
                 }
             }
         }
-        round.deferred = thin_first(round.round, o.max_rounds, &mut repairs);
+        // The thin links the mapping held this time.
+        let held: Vec<Repair> = round
+            .thin
+            .iter()
+            .filter(|[a, b, _]| !round.breaks.iter().any(|k| k.from == *a && k.to == *b))
+            .filter_map(|&[a, b, n]| match repair::choose(a, b, &frames) {
+                Choice::Frame { frame, how } => Some(Repair {
+                    pair: [a, b],
+                    thin: true,
+                    added: added(
+                        frame,
+                        format!(
+                            "repairs keyframes {a}–{b} (a thin link: {n} two-view inliers, fewer than the {thin} a model starts from): {how}"
+                        ),
+                    ),
+                }),
+                Choice::TrueBreak { .. } => None,
+            })
+            .collect();
+        if !connected {
+            round.deferred = thin_first(round.round, o.max_rounds, &mut repairs, held);
+        }
         round.true_breaks = spans(unrepairable, |f| self.frames.time(f));
         let added_so_far: usize = state.rounds.iter().map(|r| r.added.len()).sum();
         let allowed = o.max_added.frames(state.start.len());
@@ -920,21 +954,33 @@ struct Repair {
     added: Added,
 }
 
-/// Thin links first: where the first round has both thin and well-matched broken links, only
-/// the thin ones keep their frames in `repairs`, and the others (pairs that match well, split
-/// or mis-assembled by the mapping) wait for the next round's mapping, which often joins them
-/// once the thin links hold (seed 3 of the survey from every 45: 2 thin links of 8 breaks; the
-/// 10 + 2 keyframes map whole and right). Later rounds repair every break: what is still
-/// broken then is the mapping's own, and waiting again costs rounds (measured:
-/// docs/reconstruct.md). Nothing waits unless a round after the next is left to repair it.
-/// Returns the keyframes of the links left waiting.
-fn thin_first(round: usize, max_rounds: usize, repairs: &mut Vec<Repair>) -> Vec<[usize; 2]> {
-    let both = repairs.iter().any(|r| r.thin) && repairs.iter().any(|r| !r.thin);
-    if round != 1 || round + 1 >= max_rounds || !both {
+/// Thin links first: when the first round is broken and has thin links (fewer inliers than a
+/// model starts from), every thin link gets a frame in `repairs`, those the mapping `held` this
+/// time too, and the well-matched breaks (pairs split or mis-assembled by the mapping) wait for
+/// the next round's mapping, which often joins them once the thin links hold. Seed 3 of the
+/// survey from every 45: 2 thin links (62 and 26 inliers) of 9, 8 breaks in round 1; the
+/// 10 + 2 keyframes map whole and right, while a frame in every broken link made 18-22.
+/// Later rounds repair every break: what is still broken then is the mapping's own, and
+/// waiting again costs rounds (measured: docs/reconstruct.md). Nothing changes unless a round
+/// after the next is left to repair what waits, and a broken link has a frame to add. Returns
+/// the keyframes of the links left waiting.
+fn thin_first(
+    round: usize,
+    max_rounds: usize,
+    repairs: &mut Vec<Repair>,
+    held: Vec<Repair>,
+) -> Vec<[usize; 2]> {
+    let any_thin = repairs.iter().any(|r| r.thin) || !held.is_empty();
+    if round != 1 || round + 1 >= max_rounds || repairs.is_empty() || !any_thin {
         return Vec::new();
     }
     let waiting = repairs.iter().filter(|r| !r.thin).map(|r| r.pair).collect();
     repairs.retain(|r| r.thin);
+    for h in held {
+        if !repairs.iter().any(|r| r.added.frame == h.added.frame) {
+            repairs.push(h);
+        }
+    }
     waiting
 }
 
@@ -1347,25 +1393,37 @@ mod tests {
             ]
         };
         let frames = |r: &[Repair]| r.iter().map(|r| r.added.frame).collect::<Vec<_>>();
-        // Round 1 of 4 with both kinds: only the thin links get frames; the others wait.
+        let held = || vec![repair(360, 405, true)];
+        // Round 1 of 4 with both kinds: the thin links get frames, held ones too; the others
+        // wait.
         let mut r = mixed();
-        assert_eq!(thin_first(1, 4, &mut r), vec![[0, 45], [180, 225]]);
-        assert_eq!(frames(&r), vec![112, 247]);
-        // Later rounds, or no round left after the next: every break gets its frame.
+        assert_eq!(thin_first(1, 4, &mut r, held()), vec![[0, 45], [180, 225]]);
+        assert_eq!(frames(&r), vec![112, 247, 382]);
+        // Later rounds, or no round left after the next: every break gets its frame, and the
+        // held thin links none.
         for (round, max) in [(2, 4), (3, 4), (1, 2), (1, 1)] {
             let mut r = mixed();
-            assert!(
-                thin_first(round, max, &mut r).is_empty(),
-                "{round} of {max}"
-            );
-            assert_eq!(r.len(), 4);
+            assert!(thin_first(round, max, &mut r, held()).is_empty());
+            assert_eq!(frames(&r), vec![22, 112, 202, 247], "{round} of {max}");
         }
-        // Only one kind: nothing waits.
-        for thin in [true, false] {
-            let mut r = vec![repair(0, 45, thin), repair(90, 135, thin)];
-            assert!(thin_first(1, 4, &mut r).is_empty());
-            assert_eq!(r.len(), 2);
-        }
+        // Only thin breaks: nothing waits, held thin links get frames too.
+        let mut r = vec![repair(0, 45, true)];
+        assert!(thin_first(1, 4, &mut r, held()).is_empty());
+        assert_eq!(frames(&r), vec![22, 382]);
+        // Only well-matched breaks, and a thin link held: the held link gets a frame, the
+        // breaks wait.
+        let mut r = vec![repair(0, 45, false), repair(90, 135, false)];
+        assert_eq!(thin_first(1, 4, &mut r, held()), vec![[0, 45], [90, 135]]);
+        assert_eq!(frames(&r), vec![382]);
+        // No thin link at all: every break gets its frame.
+        let mut r = vec![repair(0, 45, false), repair(90, 135, false)];
+        assert!(thin_first(1, 4, &mut r, Vec::new()).is_empty());
+        assert_eq!(frames(&r), vec![22, 112]);
+        // Nothing broken that a frame repairs (true breaks only): nothing added for the held
+        // thin links, so the loop ends there.
+        let mut r = Vec::new();
+        assert!(thin_first(1, 4, &mut r, held()).is_empty());
+        assert!(r.is_empty());
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! COLMAP hand-off and evaluation: a missing COLMAP, workspace refusal and --force, the dense
 //! message and a failing stage (through a stand-in COLMAP script), a real sparse reconstruction
 //! of a two-layer parallax clip with known camera path evaluated against that ground truth, the
-//! binary and text model readers agreeing, and eval on a text model made from known poses.
+//! binary and text model readers agreeing, eval on a text model made from known poses, and the
+//! pycolmap driver serving a run's stages from one process.
 
 use crate::common::*;
 use keyframer::colmap::align::{self, Mat3, Vec3};
@@ -821,4 +822,90 @@ fn a_killed_colmap_run_stops_its_stage_and_recovers_with_force() {
     let rec = json(&ws.join("colmap.json"));
     assert_eq!(rec["finished"], true);
     assert_eq!(rec["models"][0]["registered_images"], 3);
+}
+
+/// Through pycolmap, one driver process serves a run's stages (pycolmap imported once, not once
+/// per stage): each stage still has its own log, wall and CPU time and exit code in the record,
+/// the record's command runs the stage alone, and a stage the driver refuses (a mapper option
+/// pycolmap lacks) fails by name with its exit status and log, after the stages before it
+/// succeeded in the same process.
+#[test]
+fn pycolmap_stages_share_one_process_and_a_failing_one_is_named() {
+    if !pycolmap_found() {
+        eprintln!("skipped: pycolmap is not installed (scripts/setup.sh installs it)");
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let export = small_export(d.path());
+    let ws = d.path().join("ws");
+    let o = kf_env(
+        &[
+            "colmap",
+            s(&export),
+            "-o",
+            s(&ws),
+            "--engine",
+            "pycolmap",
+            "--sparse",
+            "--mapper-option",
+            "no_such_option=1",
+        ],
+        &[],
+    );
+    let (code, err) = code_and_stderr(&o);
+    assert_eq!(code, 1, "{err}");
+    let log = ws.join("logs/mapper.log");
+    assert!(
+        err.contains("pycolmap mapper failed (exit status: 1)") && err.contains(s(&log)),
+        "{err}"
+    );
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        text.contains("pycolmap 4.2.1: mapper") && text.contains("no_such_option: pycolmap"),
+        "{text}"
+    );
+    let rec = json(&ws.join("colmap.json"));
+    let stages = rec["stages"].as_array().unwrap();
+    let by_name = |name: &str| {
+        stages
+            .iter()
+            .find(|st| st["stage"] == name)
+            .unwrap_or_else(|| panic!("no {name} in {rec}"))
+    };
+    for name in ["feature_extractor", "sequential_matcher"] {
+        let st = by_name(name);
+        assert_eq!(st["exit_code"], 0, "{st}");
+        assert!(st["cpu_s"].as_f64().unwrap() > 0.0, "{st}");
+        let own = std::fs::read_to_string(ws.join(format!("logs/{name}.log"))).unwrap();
+        assert!(own.contains(&format!("pycolmap 4.2.1: {name}")), "{own}");
+        assert!(
+            !own.contains("mapper"),
+            "{name}'s log holds only its own stage: {own}"
+        );
+    }
+    assert!(rec["error"]
+        .as_str()
+        .unwrap()
+        .contains("pycolmap mapper failed"));
+    // The record's command runs the stage alone, as before the driver served stages.
+    let command: Vec<String> = by_name("sequential_matcher")["command"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a.as_str().unwrap().to_string())
+        .collect();
+    let alone = Command::new(&command[0])
+        .args(&command[1..])
+        .output()
+        .unwrap();
+    assert!(alone.status.success(), "{alone:?}");
+    assert!(String::from_utf8_lossy(&alone.stdout).contains("verified image pairs"));
+    // No driver process is left behind.
+    let driver = ws.join("pycolmap_stages.py");
+    let ps = Command::new("ps").args(["-eo", "args"]).output().unwrap();
+    assert!(
+        !String::from_utf8_lossy(&ps.stdout).contains(s(&driver)),
+        "a driver of {} still runs",
+        ws.display()
+    );
 }
