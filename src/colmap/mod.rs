@@ -1323,17 +1323,31 @@ impl<'a> Runner<'a> {
             log: rel,
             exit_code,
         };
-        if exit_code != Some(0) {
+        let failed = (exit_code != Some(0)).then_some(how);
+        Ok(self.ended("pycolmap", record, failed, &log))
+    }
+
+    /// A stage's record and, when it `failed` (how), the error naming its engine, the stage,
+    /// how it ended and its `log`; its time on stderr when it succeeded.
+    fn ended(
+        &self,
+        engine: &str,
+        record: StageRecord,
+        failed: Option<String>,
+        log: &Path,
+    ) -> (StageRecord, Option<Error>) {
+        let (name, seconds) = (&record.stage, record.seconds);
+        if let Some(how) = failed {
             let e = Error::Colmap(format!(
-                "pycolmap {name} failed ({how}) after {seconds:.1} s; log: {}",
+                "{engine} {name} failed ({how}) after {seconds:.1} s; log: {}",
                 log.display()
             ));
-            return Ok((record, Some(e)));
+            return (record, Some(e));
         }
         if !self.quiet {
             eprintln!("{name}: {seconds:.1} s");
         }
-        Ok((record, None))
+        (record, None)
     }
 
     /// Runs `argv` (a stage and its arguments) in the runner's server, starting one when there
@@ -1399,17 +1413,8 @@ impl<'a> Runner<'a> {
             log: rel,
             exit_code: status.code(),
         };
-        if !status.success() {
-            let e = Error::Colmap(format!(
-                "{engine} {name} failed ({status}) after {seconds:.1} s; log: {}",
-                log.display()
-            ));
-            return Ok((record, Some(e)));
-        }
-        if !self.quiet {
-            eprintln!("{name}: {seconds:.1} s");
-        }
-        Ok((record, None))
+        let failed = (!status.success()).then(|| status.to_string());
+        Ok(self.ended(engine, record, failed, &log))
     }
 }
 

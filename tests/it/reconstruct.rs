@@ -25,43 +25,53 @@ fn has_colmap() -> bool {
     keyframer::fsutil::find_on_path("colmap").is_some()
 }
 
-/// A 15 s survey (320x180, 30 fps, two fast turns) and a project over it whose cache holds the
-/// movement and sharpness series (`--spacing 10kf --blur` measured them), made once per run.
-fn survey() -> &'static (PathBuf, PathBuf) {
-    static DIR: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("reconstruct-survey");
-        scene_ok(&[
-            s(&dir),
-            "--force",
-            "--size",
-            "320x180",
-            "--seconds",
-            "15",
-            "--blur-samples",
-            "2",
-            "--seed",
-            "1",
-        ]);
-        let base = dir.join("base.json");
-        let video = dir.join("video.mp4");
-        let _ = std::fs::remove_file(&base);
-        kf_ok(&[
-            "select",
-            s(&video),
-            "-o",
-            s(&base),
-            "--spacing",
-            "10kf",
-            "--blur",
-        ]);
-        (dir, base)
-    })
+/// A 15 s survey of `seed` (320x180, 30 fps, two fast turns) in the test folder `name`, and a
+/// project over it whose cache holds the movement and sharpness series (`--spacing 10kf
+/// --blur` measured them).
+fn make_survey(name: &str, seed: &str) -> (PathBuf, PathBuf) {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    scene_ok(&[
+        s(&dir),
+        "--force",
+        "--size",
+        "320x180",
+        "--seconds",
+        "15",
+        "--blur-samples",
+        "2",
+        "--seed",
+        seed,
+    ]);
+    let base = dir.join("base.json");
+    let video = dir.join("video.mp4");
+    let _ = std::fs::remove_file(&base);
+    kf_ok(&[
+        "select",
+        s(&video),
+        "-o",
+        s(&base),
+        "--spacing",
+        "10kf",
+        "--blur",
+    ]);
+    (dir, base)
 }
 
-/// A copy of the survey's project re-selected with `args` (from its cache).
-fn project(name: &str, args: &[&str]) -> PathBuf {
-    let (dir, base) = survey();
+/// The survey of seed 1, made once per run.
+fn survey() -> &'static (PathBuf, PathBuf) {
+    static DIR: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    DIR.get_or_init(|| make_survey("reconstruct-survey", "1"))
+}
+
+/// The survey of seed 3 (another terrain and flight), made once per run.
+fn seed3() -> &'static (PathBuf, PathBuf) {
+    static DIR: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    DIR.get_or_init(|| make_survey("reconstruct-seed3", "3"))
+}
+
+/// A copy `name`.json of the `survey`'s project re-selected with `args` (from its cache).
+fn reselect(survey: &(PathBuf, PathBuf), name: &str, args: &[&str]) -> PathBuf {
+    let (dir, base) = survey;
     let p = dir.join(format!("{name}.json"));
     std::fs::copy(base, &p).unwrap();
     let video = dir.join("video.mp4");
@@ -69,6 +79,17 @@ fn project(name: &str, args: &[&str]) -> PathBuf {
     all.extend_from_slice(args);
     kf_ok(&all);
     p
+}
+
+/// A copy of the seed-1 survey's project re-selected with `args`.
+fn project(name: &str, args: &[&str]) -> PathBuf {
+    reselect(survey(), name, args)
+}
+
+/// A copy of the seed-3 survey's project re-selected with `--every n`.
+fn seed3_every(n: usize) -> PathBuf {
+    let n = n.to_string();
+    reselect(seed3(), &format!("every{n}"), &["--every", &n])
 }
 
 /// `reconstruct PROJECT --out WS` with the scene's camera, modest features and `extra`.
@@ -232,23 +253,14 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
     let rec = json(&ws.join("colmap/colmap.json"));
     assert_eq!(rec["images"], fin.len());
     // Against the ground truth: the model's camera centres after a Sim(3) alignment.
-    let eval: serde_json::Value = serde_json::from_str(&kf_ok(&[
-        "eval",
-        s(&ws.join("colmap")),
-        "--gt",
-        s(&dir.join("poses.tum")),
-        "--json",
-    ]))
-    .unwrap();
-    let length = path_length(dir, fin[0], *fin.last().unwrap());
-    let max = eval["gt"]["position_max"].as_f64().unwrap();
+    let (matched, max, length) = against_gt(dir, &ws.join("colmap"), &fin);
     eprintln!(
         "reconstruct: {} -> {} keyframes in {n_rounds} rounds; max position error {max:.3} m of a {length:.1} m path ({:.2} %); wall {wall:.1} s",
         start.len(),
         fin.len(),
         100.0 * max / length
     );
-    assert_eq!(eval["gt"]["matched"], fin.len());
+    assert_eq!(matched, fin.len());
     assert!(max <= 0.01 * length, "{max} m > 1 % of {length} m");
 
     // The loop's COLMAP time against one COLMAP run on the final keyframe set (same options).
@@ -267,23 +279,7 @@ fn sparse_start_ends_in_one_model_matching_ground_truth() {
         }
         None => "colmap",
     };
-    let mut args = vec![
-        "colmap",
-        s(ws),
-        "-o",
-        s(&once),
-        "--engine",
-        engine,
-        "--sparse",
-        "--max-features",
-        "1024",
-        "--mapper-option",
-        "min_model_size=3",
-        "--mapper-option",
-        "init_min_tri_angle=4",
-        "--json",
-    ];
-    args.extend_from_slice(&CAMERA);
+    let args = plain_colmap(ws, &once, engine);
     let one: serde_json::Value = serde_json::from_str(&kf_ok(&args)).unwrap();
     let stages = one["stages"].as_array().unwrap();
     let total = |key: &str| -> f64 { stages.iter().map(|st| st[key].as_f64().unwrap()).sum() };
@@ -537,51 +533,6 @@ fn a_mis_assembled_sparse_start_is_repaired_to_the_ground_truth() {
     }
 }
 
-/// The survey of seed 3 (as [`survey`], another terrain and flight) and its project with the
-/// movement and sharpness series, made once per run.
-fn seed3() -> &'static (PathBuf, PathBuf) {
-    static DIR: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("reconstruct-seed3");
-        scene_ok(&[
-            s(&dir),
-            "--force",
-            "--size",
-            "320x180",
-            "--seconds",
-            "15",
-            "--blur-samples",
-            "2",
-            "--seed",
-            "3",
-        ]);
-        let base = dir.join("base.json");
-        let _ = std::fs::remove_file(&base);
-        let video = dir.join("video.mp4");
-        kf_ok(&[
-            "select",
-            s(&video),
-            "-o",
-            s(&base),
-            "--spacing",
-            "10kf",
-            "--blur",
-        ]);
-        (dir, base)
-    })
-}
-
-/// A copy of the seed-3 project re-selected with `--every n` (from its cache).
-fn seed3_every(n: usize) -> PathBuf {
-    let (dir, base) = seed3();
-    let p = dir.join(format!("every{n}.json"));
-    std::fs::copy(base, &p).unwrap();
-    let video = dir.join("video.mp4");
-    let n = n.to_string();
-    kf_ok(&["select", s(&video), "-o", s(&p), "--every", &n, "--force"]);
-    p
-}
-
 /// The acceptance's frame count on seed 3 through the default engine: plain COLMAP on uniform
 /// `--every N` (N = 30, 25, 20, 15, with the loop's camera and mapper options) finds the
 /// sparsest N that reconstructs in one piece within 1 % of the path; `reconstruct` from every
@@ -603,23 +554,7 @@ fn seed3_from_every_45_ends_with_two_thirds_of_the_sparsest_uniform_set() {
         let export = d.path().join(format!("export{n}"));
         kf_ok(&["export", s(&p), "--out", s(&export)]);
         let ws = d.path().join(format!("colmap{n}"));
-        let mut args = vec![
-            "colmap",
-            s(&export),
-            "-o",
-            s(&ws),
-            "--engine",
-            "pycolmap",
-            "--sparse",
-            "--max-features",
-            "1024",
-            "--mapper-option",
-            "min_model_size=3",
-            "--mapper-option",
-            "init_min_tri_angle=4",
-            "--json",
-        ];
-        args.extend_from_slice(&CAMERA);
+        let args = plain_colmap(&export, &ws, "pycolmap");
         let out = kf(&args);
         let frames = keyframes(&p).len();
         let one: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_default();
@@ -634,19 +569,8 @@ fn seed3_from_every_45_ends_with_two_thirds_of_the_sparsest_uniform_set() {
             .unwrap_or(0) as usize;
         let mut error_pct = None;
         if largest == frames {
-            let eval: serde_json::Value = serde_json::from_str(&kf_ok(&[
-                "eval",
-                s(&ws),
-                "--gt",
-                s(&dir.join("poses.tum")),
-                "--json",
-            ]))
-            .unwrap();
-            let fin = keyframes(&p);
-            let length = path_length(dir, fin[0], *fin.last().unwrap());
-            error_pct = eval["gt"]["position_max"]
-                .as_f64()
-                .map(|m| 100.0 * m / length);
+            let (_, max, length) = against_gt(dir, &ws, &keyframes(&p));
+            error_pct = Some(100.0 * max / length);
         }
         tried.push((n, frames, largest, error_pct));
         if error_pct.is_some_and(|e| e <= 1.0) {
@@ -659,16 +583,7 @@ fn seed3_from_every_45_ends_with_two_thirds_of_the_sparsest_uniform_set() {
     let ws = d.path().join("loop");
     let sum = summary(&reconstruct(&p, &ws, &["--engine", "pycolmap"]));
     let fin = frames(&sum["final_keyframes"]);
-    let eval: serde_json::Value = serde_json::from_str(&kf_ok(&[
-        "eval",
-        s(&ws.join("colmap")),
-        "--gt",
-        s(&dir.join("poses.tum")),
-        "--json",
-    ]))
-    .unwrap();
-    let length = path_length(dir, fin[0], *fin.last().unwrap());
-    let max = eval["gt"]["position_max"].as_f64().unwrap();
+    let (matched, max, length) = against_gt(dir, &ws.join("colmap"), &fin);
     eprintln!(
         "reconstruct seed 3 from every 45: {} -> {} keyframes in {} rounds, {:.2} % of the path; uniform (N, frames, largest model, error %): {tried:?}; sparsest uniform every {n} ({uniform} frames), two thirds {:.1}",
         sum["start_keyframes"],
@@ -680,7 +595,7 @@ fn seed3_from_every_45_ends_with_two_thirds_of_the_sparsest_uniform_set() {
     assert_eq!(sum["outcome"], "connected", "{sum}");
     assert_eq!(sum["registered"], fin.len());
     assert!(sum["rounds"].as_u64().unwrap() <= 4);
-    assert_eq!(eval["gt"]["matched"], fin.len());
+    assert_eq!(matched, fin.len());
     assert!(max <= 0.01 * length, "{max} m > 1 % of {length} m");
     assert!(
         3 * fin.len() <= 2 * uniform,
@@ -715,16 +630,7 @@ fn seed3_ends_right(dir: &Path, p: &Path, engine: &str) {
     let fin = frames(&sum["final_keyframes"]);
     assert_eq!(sum["registered"], fin.len());
     assert!(sum["rounds"].as_u64().unwrap() <= 4);
-    let eval: serde_json::Value = serde_json::from_str(&kf_ok(&[
-        "eval",
-        s(&ws.join("colmap")),
-        "--gt",
-        s(&dir.join("poses.tum")),
-        "--json",
-    ]))
-    .unwrap();
-    let length = path_length(dir, fin[0], *fin.last().unwrap());
-    let max = eval["gt"]["position_max"].as_f64().unwrap();
+    let (matched, max, length) = against_gt(dir, &ws.join("colmap"), &fin);
     eprintln!(
         "reconstruct seed 3 ({engine}, {}): {} -> {} keyframes in {} rounds; mis-assembled links per round {flagged:?}; max position error {max:.3} m of a {length:.1} m path ({:.2} %)",
         sum["colmap_version"],
@@ -733,8 +639,49 @@ fn seed3_ends_right(dir: &Path, p: &Path, engine: &str) {
         sum["rounds"],
         100.0 * max / length
     );
-    assert_eq!(eval["gt"]["matched"], fin.len());
+    assert_eq!(matched, fin.len());
     assert!(max <= 0.01 * length, "{max} m > 1 % of {length} m");
+}
+
+/// `colmap EXPORT -o OUT --engine ENGINE --sparse --json` with the loop's camera, features and
+/// mapper options: plain COLMAP as the loop runs it.
+fn plain_colmap<'a>(export: &'a Path, out: &'a Path, engine: &'a str) -> Vec<&'a str> {
+    let mut args = vec![
+        "colmap",
+        s(export),
+        "-o",
+        s(out),
+        "--engine",
+        engine,
+        "--sparse",
+        "--max-features",
+        "1024",
+        "--mapper-option",
+        "min_model_size=3",
+        "--mapper-option",
+        "init_min_tri_angle=4",
+        "--json",
+    ];
+    args.extend_from_slice(&CAMERA);
+    args
+}
+
+/// `keyframer eval` of the COLMAP workspace `colmap` against the ground truth of the survey in
+/// `dir`: the keyframes matched, the largest camera-centre error after the similarity alignment
+/// and the ground-truth path over `keys` (sorted frames), metres.
+fn against_gt(dir: &Path, colmap: &Path, keys: &[usize]) -> (usize, f64, f64) {
+    let eval: serde_json::Value = serde_json::from_str(&kf_ok(&[
+        "eval",
+        s(colmap),
+        "--gt",
+        s(&dir.join("poses.tum")),
+        "--json",
+    ]))
+    .unwrap();
+    let matched = eval["gt"]["matched"].as_u64().unwrap_or(0) as usize;
+    let max = eval["gt"]["position_max"].as_f64().unwrap_or(f64::INFINITY);
+    let length = path_length(dir, keys[0], *keys.last().unwrap());
+    (matched, max, length)
 }
 
 /// Two unrelated surveys (seeds 1 and 2, 4 s each) with 2 s of black between them.
