@@ -1215,7 +1215,7 @@ impl Server {
     /// answered nonsense) instead of answering.
     fn ask(&mut self, log: &Path, argv: &[String]) -> Option<Answer> {
         use std::io::{BufRead, Write};
-        let line = serde_json::json!({ "log": log, "argv": argv }).to_string();
+        let line = serde_json::json!({ "log": p(log), "argv": argv }).to_string();
         let requests = self.requests.as_mut()?;
         writeln!(requests, "{line}").ok()?;
         requests.flush().ok()?;
