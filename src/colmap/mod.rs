@@ -1306,14 +1306,32 @@ impl<'a> Runner<'a> {
             name.to_string(),
         ];
         command.extend(args.iter().flat_map(|(k, v)| [(*k).to_string(), v.clone()]));
+        self.timed("pycolmap", name, command, |argv, _, log| {
+            let (code, how, cpu_s) = self.serve(py, log, &argv[2..])?;
+            Ok((code, (code != Some(0)).then_some(how), cpu_s))
+        })
+    }
+
+    /// Runs stage `name` of `engine` by `run` (given `command`, the stage's log file, created
+    /// empty, and its path), which returns its exit code (None: killed), how it failed (None:
+    /// it succeeded) and its CPU seconds, under a spinner: its record, with its wall time and
+    /// `logs/<name>.log`, and when it failed the error naming the engine, the stage, how it
+    /// ended and the log; its time on stderr when it succeeded. Err only when it could not run.
+    fn timed(
+        &self,
+        engine: &str,
+        name: &str,
+        command: Vec<String>,
+        run: impl FnOnce(&[String], std::fs::File, &Path) -> Result<(Option<i32>, Option<String>, f64)>,
+    ) -> Result<(StageRecord, Option<Error>)> {
         let rel = format!("logs/{name}.log");
         let log = self.ws.join(&rel);
-        std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
+        let file = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
         let start = Instant::now();
         let spinner = crate::progress::spinner(name, self.quiet);
-        let done = self.serve(py, &log, &command[2..]);
+        let done = run(&command, file, &log);
         spinner.finish_and_clear();
-        let (exit_code, how, cpu_s) = done?;
+        let (exit_code, failed, cpu_s) = done?;
         let seconds = start.elapsed().as_secs_f64();
         let record = StageRecord {
             stage: name.into(),
@@ -1323,31 +1341,17 @@ impl<'a> Runner<'a> {
             log: rel,
             exit_code,
         };
-        let failed = (exit_code != Some(0)).then_some(how);
-        Ok(self.ended("pycolmap", record, failed, &log))
-    }
-
-    /// A stage's record and, when it `failed` (how), the error naming its engine, the stage,
-    /// how it ended and its `log`; its time on stderr when it succeeded.
-    fn ended(
-        &self,
-        engine: &str,
-        record: StageRecord,
-        failed: Option<String>,
-        log: &Path,
-    ) -> (StageRecord, Option<Error>) {
-        let (name, seconds) = (&record.stage, record.seconds);
         if let Some(how) = failed {
             let e = Error::Colmap(format!(
                 "{engine} {name} failed ({how}) after {seconds:.1} s; log: {}",
                 log.display()
             ));
-            return (record, Some(e));
+            return Ok((record, Some(e)));
         }
         if !self.quiet {
             eprintln!("{name}: {seconds:.1} s");
         }
-        (record, None)
+        Ok((record, None))
     }
 
     /// Runs `argv` (a stage and its arguments) in the runner's server, starting one when there
@@ -1386,35 +1390,21 @@ impl<'a> Runner<'a> {
         name: &str,
         command: Vec<String>,
     ) -> Result<(StageRecord, Option<Error>)> {
-        let rel = format!("logs/{name}.log");
-        let log = self.ws.join(&rel);
-        let file = std::fs::File::create(&log).map_err(|e| Error::io(&log, e))?;
-        let err = file.try_clone().map_err(|e| Error::io(&log, e))?;
-        let start = Instant::now();
-        let mut cmd = Command::new(&command[0]);
-        cmd.args(&command[1..])
-            .stdin(Stdio::null())
-            .stdout(file)
-            .stderr(err);
-        die_with_parent(&mut cmd);
-        let spinner = crate::progress::spinner(name, self.quiet);
-        let done = cmd
-            .spawn()
-            .and_then(|child| wait_with_cpu(&child))
-            .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", command[0])));
-        spinner.finish_and_clear();
-        let (status, cpu_s) = done?;
-        let seconds = start.elapsed().as_secs_f64();
-        let record = StageRecord {
-            stage: name.into(),
-            command,
-            seconds,
-            cpu_s,
-            log: rel,
-            exit_code: status.code(),
-        };
-        let failed = (!status.success()).then(|| status.to_string());
-        Ok(self.ended(engine, record, failed, &log))
+        self.timed(engine, name, command, |command, file, log| {
+            let err = file.try_clone().map_err(|e| Error::io(log, e))?;
+            let mut cmd = Command::new(&command[0]);
+            cmd.args(&command[1..])
+                .stdin(Stdio::null())
+                .stdout(file)
+                .stderr(err);
+            die_with_parent(&mut cmd);
+            let (status, cpu_s) = cmd
+                .spawn()
+                .and_then(|child| wait_with_cpu(&child))
+                .map_err(|e| Error::Colmap(format!("{}: cannot run: {e}", command[0])))?;
+            let failed = (!status.success()).then(|| status.to_string());
+            Ok((status.code(), failed, cpu_s))
+        })
     }
 }
 

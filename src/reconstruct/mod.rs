@@ -762,26 +762,26 @@ impl Job<'_> {
                 }
             }
         }
-        // The thin links the mapping held this time.
-        let held: Vec<Repair> = round
-            .thin
-            .iter()
-            .filter(|[a, b, _]| !round.breaks.iter().any(|k| k.from == *a && k.to == *b))
-            .filter_map(|&[a, b, n]| match repair::choose(a, b, &frames) {
-                Choice::Frame { frame, how } => Some(Repair {
-                    pair: [a, b],
-                    thin: true,
-                    added: added(
-                        frame,
-                        format!(
-                            "repairs keyframes {a}–{b} (a thin link: {n} two-view inliers, fewer than the {thin} a model starts from): {how}"
-                        ),
-                    ),
-                }),
-                Choice::TrueBreak { .. } => None,
-            })
-            .collect();
         if !connected {
+            // The thin links the mapping held this time.
+            let held: Vec<Repair> = round
+                .thin
+                .iter()
+                .filter(|[a, b, _]| !round.breaks.iter().any(|k| k.from == *a && k.to == *b))
+                .filter_map(|&[a, b, n]| match repair::choose(a, b, &frames) {
+                    Choice::Frame { frame, how } => Some(Repair {
+                        pair: [a, b],
+                        thin: true,
+                        added: added(
+                            frame,
+                            format!(
+                                "repairs keyframes {a}–{b} (a thin link: {n} two-view inliers, fewer than the {thin} a model starts from): {how}"
+                            ),
+                        ),
+                    }),
+                    Choice::TrueBreak { .. } => None,
+                })
+                .collect();
             round.deferred = thin_first(round.round, o.max_rounds, &mut repairs, held);
         }
         round.true_breaks = spans(unrepairable, |f| self.frames.time(f));
