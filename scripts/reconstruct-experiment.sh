@@ -16,8 +16,8 @@
 #
 # --smoke: one seed, N 30 only (the test suite's size). Every run uses the scene's intrinsics
 # (PINHOLE, kept fixed), 1024 SIFT features and the loop's mapper options for plain COLMAP too
-# (min_model_size=3, init_min_tri_angle=4), so that only the loop differs. The table goes to
-# stdout and WORK/table.md (default WORK: target/reconstruct-experiment), raw numbers to
+# (min_model_size=3, init_min_tri_angle=4, abs_pose_min_num_inliers=15), so that only the loop
+# differs. The table goes to stdout and WORK/table.md (default WORK: target/reconstruct-experiment), raw numbers to
 # WORK/results.jsonl. keyframer from $KEYFRAMER (default target/release/keyframer), the scene
 # tool from $KEYFRAMER_SCENE (default target/release/keyframer-scene).
 set -euo pipefail
@@ -44,7 +44,7 @@ done
 name=reconstruct-experiment
 source scripts/experiment-setup.sh
 camera=(--camera-model PINHOLE --camera-params 224,224,160,90 --max-features 1024 --engine "$engine")
-mapper=(--mapper-option min_model_size=3 --mapper-option init_min_tri_angle=4)
+mapper=(--mapper-option min_model_size=3 --mapper-option init_min_tri_angle=4 --mapper-option abs_pose_min_num_inliers=15)
 
 # Path length of the ground truth between frames A and B (poses.tum: one line per frame).
 path_length() {

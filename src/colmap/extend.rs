@@ -17,6 +17,7 @@ use super::{
 use crate::error::{Error, Result};
 use crate::fsutil;
 use crate::sparse::{MapperKind, Mapping, SparseOptions};
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Folder the mapper of a later round writes into before it replaces `sparse/`.
@@ -115,17 +116,26 @@ pub fn loop_engine(
 /// stages run through pycolmap when `py` is given (a workspace keeps the engine of its first
 /// round: a later round through the other one is refused). Returns the record as written, with
 /// the models of this round's mapping (none when the mapper made none).
+///
+/// `runner` (made on `a`'s workspace) runs the stages, and may run more rounds and trials after.
 pub fn round(
+    runner: &Runner,
     a: &ColmapSettings,
     kind: MapperKind,
     mapping: Mapping,
     new_images: Option<&[String]>,
     py: Option<&Pycolmap>,
-    quiet: bool,
 ) -> Result<Record> {
     a.options.check()?;
-    let colmap = locate_with(kind, py.is_some())?;
+    let colmap = &runner.colmap;
     let (export, manifest, ws) = check_export(a)?;
+    if ws != runner.ws {
+        return Err(Error::Colmap(format!(
+            "the runner works in {}, not in the workspace {}",
+            runner.ws.display(),
+            ws.display()
+        )));
+    }
     // The workspace stays locked until its record is written last.
     let mut _dir = None;
     let mut _lock = None;
@@ -135,7 +145,7 @@ pub fn round(
             _dir = Some(held);
             Record {
                 pycolmap: py.cloned(),
-                ..Record::new(&colmap, &export, &ws, manifest.frames.len(), masks, a)
+                ..Record::new(colmap, &export, &ws, manifest.frames.len(), masks, a)
             }
         }
         Some(new) => {
@@ -152,11 +162,10 @@ pub fn round(
     rec.finished = false;
     rec.error = None;
     write_record(&ws, &rec)?;
-    let runner = Runner::new(&colmap, &ws, quiet);
     let result = (|| -> Result<()> {
         let list = match new_images {
             None => {
-                write_project_ini(&runner, &mut rec, &a.options)?;
+                write_project_ini(runner, &mut rec, &a.options)?;
                 None
             }
             Some(new) => {
@@ -169,16 +178,16 @@ pub fn round(
         };
         match py {
             Some(py) => {
-                py_extract(&runner, &mut rec, &a.options, py, list.as_deref())?;
-                py_match(&runner, &mut rec, &a.options, py, list.is_some())?;
+                py_extract(runner, &mut rec, &a.options, py, list.as_deref())?;
+                py_match(runner, &mut rec, &a.options, py, list.is_some())?;
             }
-            None => extract_and_match(&runner, &mut rec, &a.options, list.as_deref())?,
+            None => extract_and_match(runner, &mut rec, &a.options, list.as_deref())?,
         }
         let continue_from = match (new_images, mapping) {
             (Some(_), Mapping::Continue) => super::largest(&rec.models).map(|m| ws.join(&m.path)),
             _ => None,
         };
-        map_into_sparse(&runner, &mut rec, a, kind, continue_from.as_deref(), py)
+        map_into_sparse(runner, &mut rec, a, kind, continue_from.as_deref(), py)
     })();
     if let Err(e) = &result {
         rec.error = Some(e.to_string());
@@ -189,61 +198,77 @@ pub fn round(
     result.map(|()| rec)
 }
 
+/// A mapping of the workspace's database made again ([`remap_trial`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Trial {
+    /// The incremental mapper (as many models as it finds) with COLMAP's random generator
+    /// seeded by this instead of the stages' fixed seed.
+    Seed(u64),
+    /// The incremental mapper, one model from this initial pair (COLMAP image ids).
+    Init(i64, i64),
+    /// The global mapper (pycolmap's).
+    Global,
+}
+
 /// The folder, in the COLMAP workspace, of the mapping trial `n` (1-based) that [`remap_trial`]
 /// writes (inside [`NEXT`], so that the workspace's records own it).
 pub fn trial_dir(n: usize) -> String {
     format!("{NEXT}/init{n}")
 }
 
-/// Maps the workspace's database afresh into [`trial_dir`]`(n)` and leaves `sparse/` as it is:
-/// with `init` (COLMAP image ids) the incremental mapper makes one model starting from that
-/// pair; without, the global mapper maps (pycolmap's, `py` needed).
+/// Maps the workspace's database afresh into [`trial_dir`]`(n)` by `runner` (the round's) and
+/// leaves `sparse/` as it is, as `trial` says: the incremental mapper with another random seed,
+/// or making one model from an initial pair, or the global mapper (pycolmap's, `py` needed).
 /// Returns the record with the trial's models (their paths in the trial folder); the mapper's
 /// stage is added to `colmap.json`. A mapper that makes no model is a trial without models.
 pub fn remap_trial(
+    runner: &Runner,
     a: &ColmapSettings,
     n: usize,
-    init: Option<(i64, i64)>,
+    trial: Trial,
     py: Option<&Pycolmap>,
-    quiet: bool,
 ) -> Result<Record> {
-    let kind = match init {
-        Some(_) => MapperKind::Incremental,
-        None => MapperKind::Global,
+    let kind = match trial {
+        Trial::Global => MapperKind::Global,
+        Trial::Seed(_) | Trial::Init(..) => MapperKind::Incremental,
     };
     if kind == MapperKind::Global && py.is_none() {
         return Err(Error::Colmap(
             "a global mapping trial runs through pycolmap".into(),
         ));
     }
-    let colmap = locate_with(kind, py.is_some())?;
-    let (_, _, ws) = check_export(a)?;
-    let _lock = crate::output::lock::folder(&ws)?;
-    let mut rec = read_record(&ws)?;
-    same_engine(&ws, &rec, py)?;
+    let ws = runner.ws.as_path();
+    let _lock = crate::output::lock::folder(ws)?;
+    let mut rec = read_record(ws)?;
+    same_engine(ws, &rec, py)?;
     let name = trial_dir(n);
-    clear(&ws, &name)?;
+    clear(ws, &name)?;
     let output = ws.join(&name);
     std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
     let mut with_init = a.options.clone();
     let options = &mut with_init.mapper_option;
     options.retain(|m| !m.contains("init_image_id") && !m.contains("multiple_models"));
-    if let Some(init) = init {
-        options.push(format!("init_image_id1={}", init.0));
-        options.push(format!("init_image_id2={}", init.1));
-        // One model, from that pair: with more, COLMAP 3.8 starts every further model from the
-        // same pair again (52 times, 31 s against 0.7 s on an 18-image database).
-        options.push("multiple_models=0".into());
+    let mut seed = None;
+    match trial {
+        Trial::Init(a, b) => {
+            options.push(format!("init_image_id1={a}"));
+            options.push(format!("init_image_id2={b}"));
+            // One model, from that pair: with more, COLMAP 3.8 starts every further model from
+            // the same pair again (52 times, 31 s against 0.7 s on an 18-image database).
+            options.push("multiple_models=0".into());
+        }
+        Trial::Seed(s) => seed = Some(s),
+        Trial::Global => {}
     }
-    let runner = Runner::new(&colmap, &ws, quiet);
-    let (stage, failure) = try_mapper(&runner, rec.rig, kind, &output, &with_init, None, py)?;
+    let (stage, failure) = try_mapper(runner, rec.rig, kind, &output, &with_init, None, seed, py)?;
     rec.stages.push(stage);
-    rec.files = ours_now(&ws);
-    write_record(&ws, &rec)?;
+    rec.files = ours_now(ws);
+    write_record(ws, &rec)?;
     if let Some(e) = failure {
         return Err(e);
     }
-    rec.models = read_models(&ws, &output)?;
+    rec.models = read_models(ws, &output)?;
     Ok(rec)
 }
 
@@ -328,7 +353,7 @@ fn map_into_sparse(
     continue_from: Option<&Path>,
     py: Option<&Pycolmap>,
 ) -> Result<()> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     let next = ws.join(NEXT);
     clear(ws, NEXT)?;
     // The command's mapper writes a continued model into the output folder itself; pycolmap
@@ -345,6 +370,7 @@ fn map_into_sparse(
         &output,
         &a.options,
         continue_from,
+        None,
         py,
     )?;
     rec.stages.push(stage);
@@ -359,8 +385,10 @@ fn map_into_sparse(
 }
 
 /// Runs the mapper `kind` (through pycolmap when `py` is given) with `options`, writing into
-/// `output` and continuing the model in `continue_from` when given. Returns its stage record and
+/// `output`, continuing the model in `continue_from` when given and seeding COLMAP's random
+/// generator with `seed` when given (else the stages' fixed seed). Returns its stage record and
 /// its failure, if any: a mapper that keeps no model (COLMAP 3.8 then exits 1) has not failed.
+#[allow(clippy::too_many_arguments)]
 fn try_mapper(
     runner: &Runner,
     rig: bool,
@@ -368,15 +396,20 @@ fn try_mapper(
     output: &Path,
     options: &SparseOptions,
     continue_from: Option<&Path>,
+    seed: Option<u64>,
     py: Option<&Pycolmap>,
 ) -> Result<(StageRecord, Option<Error>)> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     let mut args = match py {
         Some(_) => py_mapper_args(ws, output, options, rig, kind)?,
         None => mapper_args(ws, output, options)?,
     };
     if let Some(from) = continue_from {
         args.push(("--input_path".into(), p(from)));
+    }
+    if let Some(seed) = seed {
+        // COLMAP's own option of its commands; the driver's mappers take it alike.
+        args.push(("--random_seed".into(), seed.to_string()));
     }
     if kind == MapperKind::Global {
         // The global mapper has its own options: only the paths carry over.

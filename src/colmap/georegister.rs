@@ -309,7 +309,7 @@ pub(super) fn georegister(
     model_dir: &Path,
     max_error_m: f64,
 ) -> Result<(PathBuf, Georegistration)> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     let (pos, altitude) = positions(manifest)?;
     let (source, _) = model::read(model_dir)?;
     let origin = pos

@@ -541,7 +541,7 @@ fn run_stages(
     manifest: &Manifest,
     py: Option<&Pycolmap>,
 ) -> Result<()> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     write_project_ini(runner, rec, &a.options)?;
     let db = ws.join("database.db");
     if !(a.sparse || a.dense || a.undistort || a.georegister.is_some()) {
@@ -598,7 +598,7 @@ fn extract_and_match(
     o: &SparseOptions,
     image_list: Option<&Path>,
 ) -> Result<()> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     let db = ws.join("database.db");
     let gpu = if runner.colmap.cuda { "1" } else { "0" };
     let mut fe = vec![
@@ -705,7 +705,7 @@ fn rig_image_names(images: &Path) -> Result<Vec<String>> {
 /// The `mapper` (known intrinsics kept fixed unless a mapper option says otherwise); records
 /// every model and returns the largest one's path, relative to the workspace.
 fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     let sparse = ws.join("sparse");
     std::fs::create_dir_all(&sparse).map_err(|e| Error::io(&sparse, e))?;
     let margs = mapper_args(ws, &sparse, &a.options)?;
@@ -717,7 +717,7 @@ fn map(runner: &Runner, rec: &mut Record, a: &ColmapSettings) -> Result<String> 
 /// Records every model under `sparse/` and returns the largest one's path, relative to the
 /// workspace (an error when the mapper made none).
 fn best_model(runner: &Runner, rec: &mut Record) -> Result<String> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     rec.models = read_models(ws, &ws.join("sparse"))?;
     let Some(best) = largest(&rec.models) else {
         return Err(Error::Colmap(format!(
@@ -749,7 +749,7 @@ fn py_sparse(
     a: &ColmapSettings,
     py: &Pycolmap,
 ) -> Result<String> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     let o = &a.options;
     py_extract(runner, rec, o, py, None)?;
     if rec.rig {
@@ -786,7 +786,7 @@ fn py_extract(
     py: &Pycolmap,
     image_list: Option<&Path>,
 ) -> Result<()> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     fsutil::write_atomic(
         &ws.join(pycolmap::DRIVER),
         pycolmap::DRIVER_SOURCE.as_bytes(),
@@ -829,7 +829,7 @@ fn py_match(
     py: &Pycolmap,
     extending: bool,
 ) -> Result<()> {
-    let (name, args) = matching(runner.ws, rec, o, extending)?;
+    let (name, args) = matching(runner.ws.as_path(), rec, o, extending)?;
     rec.stages.push(runner.py_stage(py, name, &args)?);
     Ok(())
 }
@@ -900,7 +900,7 @@ fn read_models(ws: &Path, sparse: &Path) -> Result<Vec<ModelSummary>> {
 /// `image_undistorter`, `patch_match_stereo` and `stereo_fusion` on the model in `model_dir`
 /// (a CUDA build of COLMAP only; otherwise an error saying how to densify elsewhere).
 fn densify(runner: &Runner, rec: &mut Record, model_dir: &Path) -> Result<()> {
-    let (colmap, ws) = (runner.colmap, runner.ws);
+    let (colmap, ws) = (&runner.colmap, runner.ws.as_path());
     let images = ws.join("images");
     if !colmap.cuda {
         return Err(Error::Colmap(format!(
@@ -1146,10 +1146,12 @@ fn wait_with_cpu(child: &std::process::Child) -> std::io::Result<(std::process::
     Ok((std::process::ExitStatus::from_raw(status), cpu))
 }
 
-/// Runs COLMAP stages in a workspace.
-struct Runner<'a> {
-    colmap: &'a Colmap,
-    ws: &'a Path,
+/// Runs COLMAP stages in a workspace; its pycolmap stages share one driver process, started at
+/// the first and ended with the runner (a `reconstruct` loop's rounds and trials share one).
+pub struct Runner {
+    colmap: Colmap,
+    /// The workspace (absolute).
+    ws: PathBuf,
     quiet: bool,
     /// keyframer's pycolmap driver serving this runner's pycolmap stages, started at the first
     /// (ends with the runner).
@@ -1250,11 +1252,13 @@ impl Drop for Server {
     }
 }
 
-impl<'a> Runner<'a> {
-    fn new(colmap: &'a Colmap, ws: &'a Path, quiet: bool) -> Runner<'a> {
+impl Runner {
+    /// A runner of `colmap` (or of pycolmap's stages) in the workspace `ws`; `quiet`: no
+    /// spinner and no stage times on stderr.
+    pub fn new(colmap: &Colmap, ws: &Path, quiet: bool) -> Runner {
         Runner {
-            colmap,
-            ws,
+            colmap: colmap.clone(),
+            ws: fsutil::absolute(ws),
             quiet,
             server: std::cell::RefCell::new(None),
         }
@@ -1367,7 +1371,7 @@ impl<'a> Runner<'a> {
         let mut slot = self.server.borrow_mut();
         let server = match slot.as_mut() {
             Some(s) => s,
-            None => slot.insert(Server::start(py, self.ws, log)?),
+            None => slot.insert(Server::start(py, &self.ws, log)?),
         };
         if let Some(a) = server.ask(log, argv) {
             return Ok((Some(a.code), format!("exit status: {}", a.code), a.cpu_s));
@@ -1411,7 +1415,7 @@ impl<'a> Runner<'a> {
 /// Writes `project.ini` from `colmap project_generator`'s defaults with this workspace's paths
 /// (absolute) and settings filled in.
 fn write_project_ini(runner: &Runner, rec: &mut Record, o: &SparseOptions) -> Result<()> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     let tmp = ws.join(crate::output::temp_name("project.ini".as_ref()));
     let stage = runner.stage(
         "project_generator",

@@ -19,13 +19,15 @@ each). Each stage also runs alone, as a process of its own:
   python pycolmap_stages.py exhaustive_matcher --database_path DB
   python pycolmap_stages.py mapper --database_path DB --image_path DIR --output_path DIR
       [--fixed_intrinsics 0|1] [--fixed_rig 0|1] [--option KEY=VALUE ...] [--input_path DIR]
+      [--random_seed N]
   python pycolmap_stages.py global_mapper --database_path DB --image_path DIR --output_path DIR
-      [--fixed_intrinsics 0|1]
+      [--fixed_intrinsics 0|1] [--random_seed N]
 Each stage prints what it does to stdout (keyframer keeps it in logs/<stage>.log) and exits
 non-zero with a message on stderr when it fails. The mappers write model i into OUTPUT/i (none
 when they keep no model: that is a result, not a failure). COLMAP's random draws are seeded
-(SEED: the global generator, two-view verification's RANSAC, the mappers), so that a stage run
-again on the same input starts from the same draws.
+(SEED: the global generator, two-view verification's RANSAC, the mappers; a mapper's
+--random_seed replaces it for its own draws), so that a stage run again on the same input starts
+from the same draws.
 """
 
 import argparse
@@ -163,7 +165,7 @@ def set_option(options, key, value):
 
 def mapper(a):
     options = pycolmap.IncrementalPipelineOptions()
-    options.random_seed = SEED
+    options.random_seed = a.random_seed
     if a.fixed_intrinsics:
         options.ba_refine_focal_length = False
         options.ba_refine_principal_point = False
@@ -182,7 +184,7 @@ def mapper(a):
 
 def global_mapper(a):
     options = pycolmap.GlobalPipelineOptions()
-    options.random_seed = SEED
+    options.random_seed = a.random_seed
     if a.fixed_intrinsics:
         ba = options.mapper.bundle_adjustment
         ba.refine_focal_length = False
@@ -235,11 +237,13 @@ def parser():
     mp.add_argument("--fixed_rig", type=int, choices=[0, 1], default=0)
     mp.add_argument("--option", action="append")
     mp.add_argument("--input_path")
+    mp.add_argument("--random_seed", type=int, default=SEED)
     gm = sub.add_parser("global_mapper")
     gm.add_argument("--database_path", required=True)
     gm.add_argument("--image_path", required=True)
     gm.add_argument("--output_path", required=True)
     gm.add_argument("--fixed_intrinsics", type=int, choices=[0, 1], default=0)
+    gm.add_argument("--random_seed", type=int, default=SEED)
     return p
 
 

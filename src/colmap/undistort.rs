@@ -237,7 +237,7 @@ pub(super) fn make_dataset(
     model_dir: &Path,
     world: super::transforms::World,
 ) -> Result<DatasetSummary> {
-    let ws = runner.ws;
+    let ws = runner.ws.as_path();
     let out = ws.join(DATASET);
     // What the undistorter writes for COLMAP's dense stereo is removed after it; anything there
     // now is not keyframer's (its own was removed with the workspace's records), so refuse.

@@ -15,7 +15,7 @@ pub mod epipolar;
 pub mod priors;
 pub mod repair;
 
-use crate::colmap::extend;
+use crate::colmap::extend::{self, Trial};
 use crate::colmap::{model, ColmapSettings, Record};
 use crate::error::{Error, Result};
 use crate::fsutil;
@@ -55,12 +55,22 @@ pub mod defaults {
     /// The mapper options the loop adds unless given: keep models of 3 images and more (COLMAP
     /// discards smaller ones, and a sparse start's models tell where it breaks); start a model
     /// from a pair seen 4° apart rather than 16° (video keyframes have short baselines: with
-    /// 16° a survey's straight legs found no initial pair and stayed unregistered).
-    pub const MAPPER_OPTIONS: [(&str, &str); 2] =
-        [("min_model_size", "3"), ("init_min_tri_angle", "4")];
-    /// Mappings tried from other initial pairs when a round's mapping is mis-assembled (on the
-    /// experiment's mis-assembled databases, one of the 3 calibrated pairs with the most inliers
-    /// gave a correct model each time: docs/reconstruct.md).
+    /// 16° a survey's straight legs found no initial pair and stayed unregistered); register an
+    /// image on 15 inlier 2D-3D matches rather than 30 (sparse keyframes share few points
+    /// with the model beyond their neighbour: seed 1's survey split at a link of 175 two-view
+    /// inliers, one model at 15; docs/reconstruct.md).
+    pub const MAPPER_OPTIONS: [(&str, &str); 3] = [
+        ("min_model_size", "3"),
+        ("init_min_tri_angle", "4"),
+        ("abs_pose_min_num_inliers", "15"),
+    ];
+    /// Mappings tried from other random seeds when a round's mapping breaks a link whose pair
+    /// matches well (the same database mapped with seeds 0-4 gave folded or right, split or
+    /// joined models: docs/reconstruct.md).
+    pub const REMAP_SEEDS: u64 = 3;
+    /// Mappings tried from other initial pairs when a round's mapping is whole but mis-assembled
+    /// (on the experiment's mis-assembled databases, one of the 3 calibrated pairs with the most
+    /// inliers gave a correct model each time: docs/reconstruct.md).
     pub const REMAP_TRIES: usize = 3;
     /// Inlier matches under which a broken link is thin ([`super::Break::thin`]): COLMAP's
     /// `init_min_num_inliers` default, the count its mapper needs to start a model from a pair
@@ -127,34 +137,55 @@ pub struct Round {
     /// COLMAP's CPU seconds in this round (all stages; 0 in states of earlier builds).
     #[serde(default)]
     pub colmap_cpu_s: f64,
-    /// The mapping again from other initial pairs, when the first was mis-assembled.
+    /// The mapping made again, when the first broke a link whose pair matches well.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub remap: Option<Remap>,
     /// Whether the round finished.
     pub done: bool,
 }
 
-/// A round mapped again from other initial pairs because its first mapping had mis-assembled
-/// links.
+/// A round mapped again because its first mapping broke a link whose pair matches well (see
+/// [`Job::remap`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Remap {
+    /// Broken links of the first mapping (0 in states of earlier builds).
+    #[serde(default)]
+    pub breaks: usize,
     /// Mis-assembled links of the first mapping.
     pub mis_assembled: usize,
-    /// Mappings tried from other initial pairs.
+    /// Mappings tried.
     pub tries: usize,
+    /// The trials, in order (empty in states of earlier builds).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tried: Vec<Trial>,
     /// The frames of the initial pair of the mapping kept (None: no trial was better, the first
-    /// mapping is kept, or the global mapper's was).
+    /// mapping is kept, or another trial's was).
     pub kept: Option<(usize, usize)>,
     /// The mapping kept is the global mapper's (tried through pycolmap after the initial pairs).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub global: bool,
+    /// The random seed of the mapping kept, when a trial with another seed was.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    /// Broken links of the mapping kept (the first one's when no trial was better).
+    #[serde(default)]
+    pub left: usize,
 }
 
-/// The mapping trials of a round: the one kept (its number and the frames of its initial pair,
-/// None for the global mapper's), and how many were made.
+/// The mapping trials of a round: the one kept (its number, the trial and the frames of its
+/// initial pair, if it had one), and the trials made.
 struct Trials {
-    kept: Option<(usize, Option<(usize, usize)>)>,
-    tries: usize,
+    kept: Option<Kept>,
+    tried: Vec<Trial>,
+}
+
+/// The mapping trial kept: its number (1-based), what it was, and the frames of its initial
+/// pair, if it had one.
+#[derive(Debug, Clone, Copy)]
+struct Kept {
+    n: usize,
+    trial: Trial,
+    pair: Option<(usize, usize)>,
 }
 
 /// How many links of `found` are broken because the model is assembled wrongly.
@@ -367,6 +398,7 @@ pub fn run(s: &ReconstructSettings, quiet: bool) -> Result<Summary> {
         ws: &ws,
         frames: &frames_data,
         py: py.as_ref(),
+        runner: crate::colmap::Runner::new(&colmap, &ws.join(COLMAP_DIR), quiet),
         quiet,
     };
     let result = job.rounds(&mut state);
@@ -489,6 +521,8 @@ struct Job<'a> {
     frames: &'a FrameData,
     /// The pycolmap that runs the sparse stages (None: the `colmap` command).
     py: Option<&'a crate::colmap::pycolmap::Pycolmap>,
+    /// Runs every round's stages and mapping trials (one pycolmap process for the loop).
+    runner: crate::colmap::Runner,
     quiet: bool,
 }
 
@@ -597,43 +631,61 @@ impl Job<'_> {
             .iter()
             .filter_map(|f| by_frame.get(f).map(|s| s.to_string()))
             .collect();
+        let runner = &self.runner;
         let mut rec = extend::round(
+            runner,
             &cs,
             o.mapper,
             o.mapping,
             extend_it.then_some(names.as_slice()),
             self.py,
-            self.quiet,
         )?;
         let priors = self.priors(&keys);
         let mut obs = observe(&cws, &rec, &keys, &by_frame, &priors)?;
         let mut found = breaks::find(&keys, &obs, o.limits);
         let fresh = first || o.mapping == Mapping::Fresh;
         let mut remap = None;
-        // Only a round whose every break is a mis-assembly (its keyframes held, its shape wrong)
-        // is mapped again: another mapping can then connect it without a frame, while a round
-        // with gaps gets frames anyway and the next round's fresh mapping is judged again.
-        let only_shape = !found.is_empty() && mis_assembled(&found) == found.len();
-        if fresh && o.mapper == MapperKind::Incremental && only_shape {
-            let Trials { kept, tries } = self.remap(&cs, &keys, &by_frame, &priors, &found)?;
-            rec = extend::end_trials(&cws, tries, kept.map(|k| k.0))?;
-            remap = Some(Remap {
-                mis_assembled: mis_assembled(&found),
-                tries,
-                kept: kept.and_then(|k| k.1),
-                global: kept.is_some_and(|k| k.1.is_none()),
-            });
+        // A link mis-assembled although its pair matches well is the mapping's failure, which
+        // another mapping of the same database may not repeat: the round is mapped again before
+        // frames are added. Thin links (too few inliers) need frames whatever the mapping, and
+        // so, measured, did the splits and unregistered keyframes beside them. A first round
+        // with thin links leaves its well-matched breaks to the next mapping anyway
+        // ([`thin_first`]): no trial then.
+        let min = self.thin_inliers();
+        let folded = found.iter().any(|b| b.why.mis_assembled() && !b.thin(min));
+        let any_thin = obs.inliers.iter().flatten().any(|&i| i < min);
+        let waits = thin_first_round(n, o.max_rounds) && any_thin;
+        if fresh && o.mapper == MapperKind::Incremental && folded && !waits {
+            let Trials { kept, tried } =
+                self.remap(runner, &cs, &keys, &by_frame, &priors, &found)?;
+            rec = extend::end_trials(&cws, tried.len(), kept.map(|k| k.n))?;
             if kept.is_some() {
                 obs = observe(&cws, &rec, &keys, &by_frame, &priors)?;
+            }
+            let before = found.len();
+            let was_mis_assembled = mis_assembled(&found);
+            if kept.is_some() {
                 found = breaks::find(&keys, &obs, o.limits);
             }
+            remap = Some(Remap {
+                breaks: before,
+                mis_assembled: was_mis_assembled,
+                tries: tried.len(),
+                tried,
+                kept: kept.and_then(|k| k.pair),
+                global: kept.is_some_and(|k| k.trial == Trial::Global),
+                seed: kept.and_then(|k| match k.trial {
+                    Trial::Seed(s) => Some(s),
+                    _ => None,
+                }),
+                left: found.len(),
+            });
         }
         let mut colmap_s = BTreeMap::new();
         for st in rec.stages.iter().skip(before) {
             *colmap_s.entry(st.stage.clone()).or_insert(0.0) += st.seconds;
         }
         let colmap_cpu_s = rec.stages.iter().skip(before).map(|st| st.cpu_s).sum();
-        let min = self.thin_inliers();
         let thin = keys
             .windows(2)
             .zip(&obs.inliers)
@@ -676,14 +728,18 @@ impl Job<'_> {
         })
     }
 
-    /// Maps the round's database again from other initial pairs (the calibrated two-view
-    /// geometries with the most inliers, [`defaults::REMAP_TRIES`] at most) and, through
-    /// pycolmap, with the global mapper, because its mapping has mis-assembled links (`found`);
-    /// stops at the first trial without any break. Returns the trial that judged best, if one
-    /// beats the first mapping (fewer breaks, then fewer mis-assembled links), with the frames of
-    /// its initial pair (None: the global mapper's); and the trials made.
+    /// Maps the round's database again, because its mapping broke links (`found`), one of them
+    /// between well-matched keyframes: by `runner` (the round's), with the incremental mapper
+    /// seeded otherwise ([`defaults::REMAP_SEEDS`] seeds); when every break is a mis-assembly
+    /// (the model whole, its shape wrong), then from other initial pairs (the calibrated
+    /// two-view geometries with the most inliers, [`defaults::REMAP_TRIES`] at most) and,
+    /// through pycolmap, with the global mapper. Stops at the first trial without any break.
+    /// Returns the trial that judged best, if one beats the first mapping (fewer breaks, then
+    /// fewer mis-assembled links), with the frames of its initial pair if it had one; and the
+    /// trials made.
     fn remap(
         &self,
+        runner: &crate::colmap::Runner,
         cs: &ColmapSettings,
         keys: &[usize],
         by_frame: &BTreeMap<usize, &str>,
@@ -693,32 +749,41 @@ impl Job<'_> {
         let cws = self.ws.join(COLMAP_DIR);
         let frame_of: BTreeMap<&str, usize> = by_frame.iter().map(|(f, n)| (*n, *f)).collect();
         let names: Vec<String> = by_frame.values().map(|n| n.to_string()).collect();
-        let candidates = db::calibrated_pairs(&cws.join("database.db"), &names)?;
+        let only_shape = mis_assembled(found) == found.len();
+        let frames = |p: &db::Pair| {
+            let (na, nb) = &p.names;
+            (
+                frame_of.get(na.as_str()).copied().unwrap_or(0),
+                frame_of.get(nb.as_str()).copied().unwrap_or(0),
+            )
+        };
+        let mut trials: Vec<(Trial, Option<(usize, usize)>)> = (1..=defaults::REMAP_SEEDS)
+            .map(|s| (Trial::Seed(s), None))
+            .collect();
+        if only_shape {
+            let candidates = db::calibrated_pairs(&cws.join("database.db"), &names)?;
+            let pairs = candidates.iter().take(defaults::REMAP_TRIES);
+            trials.extend(pairs.map(|p| (Trial::Init(p.ids.0, p.ids.1), Some(frames(p)))));
+            if self.py.is_some() {
+                trials.push((Trial::Global, None));
+            }
+        }
         // Fewer breaks to repair first (each costs frames), then fewer mis-assembled links.
         let score = |b: &[Break]| (b.len(), mis_assembled(b));
         let mut best_score = score(found);
         let mut out = Trials {
             kept: None,
-            tries: 0,
+            tried: Vec::new(),
         };
-        let pairs = candidates.into_iter().take(defaults::REMAP_TRIES).map(Some);
-        let global = self.py.map(|_| None);
-        for pair in pairs.chain(global) {
-            out.tries += 1;
-            let ids = pair.as_ref().map(|p| p.ids);
-            let trial = extend::remap_trial(cs, out.tries, ids, self.py, self.quiet)?;
-            let obs = observe(&cws, &trial, keys, by_frame, priors)?;
+        for (trial, pair) in trials {
+            out.tried.push(trial);
+            let n = out.tried.len();
+            let made = extend::remap_trial(runner, cs, n, trial, self.py)?;
+            let obs = observe(&cws, &made, keys, by_frame, priors)?;
             let got = score(&breaks::find(keys, &obs, self.s.options.limits));
             if got < best_score {
                 best_score = got;
-                let frames = pair.map(|p| {
-                    let (na, nb) = &p.names;
-                    (
-                        frame_of.get(na.as_str()).copied().unwrap_or(0),
-                        frame_of.get(nb.as_str()).copied().unwrap_or(0),
-                    )
-                });
-                out.kept = Some((out.tries, frames));
+                out.kept = Some(Kept { n, trial, pair });
             }
             if got.0 == 0 {
                 break;
@@ -842,27 +907,22 @@ impl Job<'_> {
             .map(|(k, v)| format!("{k} {v:.1} s"))
             .collect();
         let remap = match &r.remap {
-            Some(Remap {
-                mis_assembled,
-                kept: Some((a, b)),
-                ..
-            }) => format!(
-                "; {mis_assembled} mis-assembled link(s): mapped again from frames {a} and {b}"
-            ),
-            Some(Remap {
-                mis_assembled,
-                global: true,
-                ..
-            }) => format!(
-                "; {mis_assembled} mis-assembled link(s): mapped again by the global mapper"
-            ),
-            Some(Remap {
-                mis_assembled,
-                tries,
-                ..
-            }) => format!(
-                "; {mis_assembled} mis-assembled link(s): {tries} other mapping(s) did no better"
-            ),
+            Some(m) => {
+                let how = match (m.kept, m.global, m.seed) {
+                    (Some((a, b)), _, _) => format!("from frames {a} and {b}"),
+                    (_, true, _) => "by the global mapper".to_string(),
+                    (_, _, Some(s)) => format!("with random seed {s}"),
+                    _ => String::new(),
+                };
+                let first = format!(
+                    "; {} break(s) ({} mis-assembled)",
+                    m.breaks, m.mis_assembled
+                );
+                match how.is_empty() {
+                    true => format!("{first}: {} other mapping(s) did no better", m.tries),
+                    false => format!("{first}: mapped again {how}, {} left", m.left),
+                }
+            }
             None => String::new(),
         };
         let deferred = match r.deferred.len() {
@@ -971,7 +1031,7 @@ fn thin_first(
     held: Vec<Repair>,
 ) -> Vec<[usize; 2]> {
     let any_thin = repairs.iter().any(|r| r.thin) || !held.is_empty();
-    if round != 1 || round + 1 >= max_rounds || repairs.is_empty() || !any_thin {
+    if !thin_first_round(round, max_rounds) || repairs.is_empty() || !any_thin {
         return Vec::new();
     }
     let waiting = repairs.iter().filter(|r| !r.thin).map(|r| r.pair).collect();
@@ -982,6 +1042,12 @@ fn thin_first(
         }
     }
     waiting
+}
+
+/// Whether round `round` of at most `max_rounds` repairs its thin links first ([`thin_first`]):
+/// the first, when a round after the next is left to repair what waits.
+fn thin_first_round(round: usize, max_rounds: usize) -> bool {
+    round == 1 && round + 1 < max_rounds
 }
 
 /// The true breaks of `unrepairable` (each broken link with why nothing repairs it, in frame
@@ -1424,6 +1490,19 @@ mod tests {
         let mut r = Vec::new();
         assert!(thin_first(1, 4, &mut r, held()).is_empty());
         assert!(r.is_empty());
+    }
+
+    #[test]
+    fn remap_records_of_earlier_builds_still_read_and_trials_round_trip() {
+        let old: Remap =
+            serde_json::from_str(r#"{"mis_assembled":2,"tries":4,"kept":[270,330]}"#).unwrap();
+        assert_eq!((old.breaks, old.left, old.seed), (0, 0, None));
+        assert!(old.tried.is_empty() && !old.global);
+        assert_eq!(old.kept, Some((270, 330)));
+        let tried = vec![Trial::Seed(2), Trial::Init(3, 7), Trial::Global];
+        let text = serde_json::to_string(&tried).unwrap();
+        assert_eq!(text, r#"[{"seed":2},{"init":[3,7]},"global"]"#);
+        assert_eq!(serde_json::from_str::<Vec<Trial>>(&text).unwrap(), tried);
     }
 
     #[test]
