@@ -6,7 +6,8 @@
 //! makes no model is a result (no image registered), not an error; any other failing stage is an
 //! error naming the stage and its log; `colmap.json` lists every file keyframer and COLMAP wrote
 //! and is rewritten at the end of every round; the new model replaces `sparse/` only once the
-//! mapper has finished (it is written to `sparse.next/` first).
+//! mapper has finished (it is written to `sparse.next/` first). The caller's [`Runner`] runs the
+//! stages, so that a loop's rounds and mapping trials share one pycolmap process.
 
 use super::pycolmap::{Engine, Pycolmap};
 use super::{

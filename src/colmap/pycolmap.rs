@@ -3,8 +3,8 @@
 //! `pycolmap/bin/python` in the folder above keyframer's executable, which `scripts/setup.sh`
 //! makes as `target/pycolmap`, else `python3` on PATH) and says what is missing when none
 //! imports it; the driver keyframer ships (`pycolmap_stages.py`, written into the workspace)
-//! serves a run's or a round's stages from one process (`serve`), each stage's output in
-//! `logs/<stage>.log`.
+//! serves a run's or a reconstruct loop's stages from one process (`serve`), each stage's
+//! output in `logs/<stage>.log`.
 
 use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
