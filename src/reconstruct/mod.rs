@@ -64,9 +64,9 @@ pub mod defaults {
         ("init_min_tri_angle", "4"),
         ("abs_pose_min_num_inliers", "15"),
     ];
-    /// Mappings tried from other random seeds when a round's mapping breaks a link whose pair
-    /// matches well (the same database mapped with seeds 0-4 gave folded or right, split or
-    /// joined models: docs/reconstruct.md).
+    /// Mappings tried with other random seeds when a round's mapping mis-assembles a link whose
+    /// pair matches well (a round's database mapped with seeds 0-4 gave its fragments folded or
+    /// right, seed by seed: docs/reconstruct.md).
     pub const REMAP_SEEDS: u64 = 3;
     /// Mappings tried from other initial pairs when a round's mapping is whole but mis-assembled
     /// (on the experiment's mis-assembled databases, one of the 3 calibrated pairs with the most
@@ -137,15 +137,15 @@ pub struct Round {
     /// COLMAP's CPU seconds in this round (all stages; 0 in states of earlier builds).
     #[serde(default)]
     pub colmap_cpu_s: f64,
-    /// The mapping made again, when the first broke a link whose pair matches well.
+    /// The mapping made again, when the first mis-assembled a link whose pair matches well.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub remap: Option<Remap>,
     /// Whether the round finished.
     pub done: bool,
 }
 
-/// A round mapped again because its first mapping broke a link whose pair matches well (see
-/// [`Job::remap`]).
+/// A round mapped again because its first mapping mis-assembled a link whose pair matches well
+/// (see [`Job::remap`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Remap {
     /// Broken links of the first mapping (0 in states of earlier builds).
@@ -659,17 +659,14 @@ impl Job<'_> {
             let Trials { kept, tried } =
                 self.remap(runner, &cs, &keys, &by_frame, &priors, &found)?;
             rec = extend::end_trials(&cws, tried.len(), kept.map(|k| k.n))?;
+            let (first_breaks, first_mis_assembled) = (found.len(), mis_assembled(&found));
             if kept.is_some() {
                 obs = observe(&cws, &rec, &keys, &by_frame, &priors)?;
-            }
-            let before = found.len();
-            let was_mis_assembled = mis_assembled(&found);
-            if kept.is_some() {
                 found = breaks::find(&keys, &obs, o.limits);
             }
             remap = Some(Remap {
-                breaks: before,
-                mis_assembled: was_mis_assembled,
+                breaks: first_breaks,
+                mis_assembled: first_mis_assembled,
                 tries: tried.len(),
                 tried,
                 kept: kept.and_then(|k| k.pair),
@@ -729,14 +726,14 @@ impl Job<'_> {
     }
 
     /// Maps the round's database again, because its mapping broke links (`found`), one of them
-    /// between well-matched keyframes: by `runner` (the round's), with the incremental mapper
-    /// seeded otherwise ([`defaults::REMAP_SEEDS`] seeds); when every break is a mis-assembly
-    /// (the model whole, its shape wrong), then from other initial pairs (the calibrated
-    /// two-view geometries with the most inliers, [`defaults::REMAP_TRIES`] at most) and,
-    /// through pycolmap, with the global mapper. Stops at the first trial without any break.
-    /// Returns the trial that judged best, if one beats the first mapping (fewer breaks, then
-    /// fewer mis-assembled links), with the frames of its initial pair if it had one; and the
-    /// trials made.
+    /// mis-assembled between well-matched keyframes: by `runner` (the loop's), with the
+    /// incremental mapper seeded otherwise ([`defaults::REMAP_SEEDS`] seeds); when every break
+    /// is a mis-assembly (the model whole, its shape wrong), then from other initial pairs (the
+    /// calibrated two-view geometries with the most inliers, [`defaults::REMAP_TRIES`] at most)
+    /// and, through pycolmap, with the global mapper. Stops at the first trial without any
+    /// break. Returns the trial that judged best, if one beats the first mapping (fewer breaks,
+    /// then fewer mis-assembled links), with the frames of its initial pair if it had one; and
+    /// the trials made.
     fn remap(
         &self,
         runner: &crate::colmap::Runner,
