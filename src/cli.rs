@@ -977,8 +977,8 @@ pub struct ReconstructArgs {
     /// command; auto takes pycolmap when it is found.
     #[arg(long, value_parser = named::<Engine>(), default_value = "auto")]
     pub engine: Engine,
-    /// COLMAP's options (the loop adds `min_model_size=3` and `init_min_tri_angle=4` to the
-    /// mapper options unless given).
+    /// COLMAP's options (the loop adds `min_model_size=3`, `init_min_tri_angle=4` and
+    /// `abs_pose_min_num_inliers=15` to the mapper options unless given).
     #[command(flatten)]
     pub colmap: ColmapFlags,
     /// Output size WxH of the exported images.
