@@ -218,7 +218,7 @@ pub fn trial_dir(n: usize) -> String {
     format!("{NEXT}/init{n}")
 }
 
-/// Maps the workspace's database afresh into [`trial_dir`]`(n)` by `runner` (the round's) and
+/// Maps the workspace's database afresh into [`trial_dir`]`(n)` by `runner` (the loop's) and
 /// leaves `sparse/` as it is, as `trial` says: the incremental mapper with another random seed,
 /// or making one model from an initial pair, or the global mapper (pycolmap's, `py` needed).
 /// Returns the record with the trial's models (their paths in the trial folder); the mapper's
@@ -249,10 +249,10 @@ pub fn remap_trial(
     std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
     let mut with_init = a.options.clone();
     let options = &mut with_init.mapper_option;
-    options.retain(|m| !m.contains("init_image_id") && !m.contains("multiple_models"));
     let mut seed = None;
     match trial {
         Trial::Init(a, b) => {
+            options.retain(|m| !m.contains("init_image_id") && !m.contains("multiple_models"));
             options.push(format!("init_image_id1={a}"));
             options.push(format!("init_image_id2={b}"));
             // One model, from that pair: with more, COLMAP 3.8 starts every further model from
