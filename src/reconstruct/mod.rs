@@ -653,8 +653,13 @@ impl Job<'_> {
         // ([`thin_first`]): no trial then.
         let min = self.thin_inliers();
         let folded = found.iter().any(|b| b.why.mis_assembled() && !b.thin(min));
-        let any_thin = obs.inliers.iter().flatten().any(|&i| i < min);
-        let waits = thin_first_round(n, o.max_rounds) && any_thin;
+        // The thin links come from the database's two-view geometries, which no mapping changes.
+        let thin: Vec<[usize; 3]> = keys
+            .windows(2)
+            .zip(&obs.inliers)
+            .filter_map(|(w, n)| n.filter(|&n| n < min).map(|n| [w[0], w[1], n]))
+            .collect();
+        let waits = thin_first_round(n, o.max_rounds) && !thin.is_empty();
         if fresh && o.mapper == MapperKind::Incremental && folded && !waits {
             let Trials { kept, tried } =
                 self.remap(runner, &cs, &keys, &by_frame, &priors, &found)?;
@@ -683,11 +688,6 @@ impl Job<'_> {
             *colmap_s.entry(st.stage.clone()).or_insert(0.0) += st.seconds;
         }
         let colmap_cpu_s = rec.stages.iter().skip(before).map(|st| st.cpu_s).sum();
-        let thin = keys
-            .windows(2)
-            .zip(&obs.inliers)
-            .filter_map(|(w, n)| n.filter(|&n| n < min).map(|n| [w[0], w[1], n]))
-            .collect();
         let ranges = breaks::ranges(&keys, &obs);
         let mut models: Vec<ModelRanges> = obs
             .models
